@@ -1,0 +1,133 @@
+//! LoFTR linear attention and encoder layer (self / cross), as used by CREStereo.
+
+use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+#[derive(Config, Debug)]
+pub struct LinearAttentionConfig {
+    #[config(default = 1e-6)]
+    pub eps: f64,
+}
+
+/// Linear attention (Katharopoulos et al.) with the `elu(x) + 1` feature map. No parameters.
+#[derive(Module, Clone, Debug)]
+pub struct LinearAttention {
+    pub eps: f64,
+}
+
+impl LinearAttentionConfig {
+    pub fn init(&self) -> LinearAttention {
+        LinearAttention { eps: self.eps }
+    }
+}
+
+fn elu_plus_one<B: Backend, const D: usize>(x: Tensor<B, D>) -> Tensor<B, D> {
+    // x > 0: x + 1;  x <= 0: exp(x)
+    x.clone().clamp_min(0.0) + x.clamp_max(0.0).exp()
+}
+
+impl LinearAttention {
+    /// `q`: (N, L, H, D), `k`, `v`: (N, S, H, D) → (N, L, H, D).
+    pub fn forward<B: Backend>(&self, q: Tensor<B, 4>, k: Tensor<B, 4>, v: Tensor<B, 4>) -> Tensor<B, 4> {
+        let s = v.dims()[1] as f64;
+        let q = elu_plus_one(q).permute([0, 2, 1, 3]); // n h l d
+        let k = elu_plus_one(k).permute([0, 2, 1, 3]); // n h s d
+        let v = v.div_scalar(s).permute([0, 2, 1, 3]); // n h s v
+        let kv = k.clone().swap_dims(2, 3).matmul(v); // n h d v
+        let k_sum = k.sum_dim(2).swap_dims(2, 3); // n h d 1
+        let z = q.clone().matmul(k_sum).add_scalar(self.eps).recip(); // n h l 1
+        let out = q.matmul(kv).mul(z).mul_scalar(s); // n h l v
+        out.permute([0, 2, 1, 3])
+    }
+}
+
+#[derive(Config, Debug)]
+pub struct LoFTREncoderLayerConfig {
+    #[config(default = 256)]
+    pub d_model: usize,
+    #[config(default = 8)]
+    pub nhead: usize,
+    #[config(default = 1e-5)]
+    pub layer_norm_eps: f64,
+    #[config(default = 1e-6)]
+    pub attention_eps: f64,
+}
+
+/// LoFTR encoder layer: bias-free q/k/v/merge projections, linear attention, LayerNorm,
+/// an MLP on `[x, message]` (2d → 2d → d, ReLU), LayerNorm, residual.
+/// Parameter names follow the reference (`mlp.0` / `mlp.2` are imported as `mlp1` / `mlp2`).
+#[derive(Module, Debug)]
+pub struct LoFTREncoderLayer<B: Backend> {
+    pub q_proj: Linear<B>,
+    pub k_proj: Linear<B>,
+    pub v_proj: Linear<B>,
+    pub merge: Linear<B>,
+    pub mlp1: Linear<B>,
+    pub mlp2: Linear<B>,
+    pub norm1: LayerNorm<B>,
+    pub norm2: LayerNorm<B>,
+    pub attention: LinearAttention,
+    pub nhead: usize,
+}
+
+impl LoFTREncoderLayerConfig {
+    pub fn init<B: Backend>(&self, device: &B::Device) -> LoFTREncoderLayer<B> {
+        let d = self.d_model;
+        assert!(d % self.nhead == 0);
+        let lin = |i: usize, o: usize| LinearConfig::new(i, o).with_bias(false).init(device);
+        let ln = || LayerNormConfig::new(d).with_epsilon(self.layer_norm_eps).init(device);
+        LoFTREncoderLayer {
+            q_proj: lin(d, d),
+            k_proj: lin(d, d),
+            v_proj: lin(d, d),
+            merge: lin(d, d),
+            mlp1: lin(2 * d, 2 * d),
+            mlp2: lin(2 * d, d),
+            norm1: ln(),
+            norm2: ln(),
+            attention: LinearAttentionConfig::new().with_eps(self.attention_eps).init(),
+            nhead: self.nhead,
+        }
+    }
+}
+
+impl<B: Backend> LoFTREncoderLayer<B> {
+    /// `x`: (N, L, C) queries, `source`: (N, S, C) keys/values → (N, L, C).
+    pub fn forward(&self, x: Tensor<B, 3>, source: Tensor<B, 3>) -> Tensor<B, 3> {
+        let [n, l, c] = x.dims();
+        let s = source.dims()[1];
+        let (h, d) = (self.nhead, c / self.nhead);
+        let q = self.q_proj.forward(x.clone()).reshape([n, l, h, d]);
+        let k = self.k_proj.forward(source.clone()).reshape([n, s, h, d]);
+        let v = self.v_proj.forward(source).reshape([n, s, h, d]);
+        let message = self.attention.forward(q, k, v).reshape([n, l, c]);
+        let message = self.norm1.forward(self.merge.forward(message));
+        let message = self.mlp2.forward(relu(self.mlp1.forward(Tensor::cat(vec![x.clone(), message], 2))));
+        x + self.norm2.forward(message)
+    }
+
+    /// LoFTR "self" layer applied to both maps independently.
+    pub fn forward_self(&self, a: Tensor<B, 3>, b: Tensor<B, 3>) -> (Tensor<B, 3>, Tensor<B, 3>) {
+        (self.forward(a.clone(), a), self.forward(b.clone(), b))
+    }
+
+    /// LoFTR "cross" layer: `a` attends `b`, then `b` attends the updated `a`.
+    pub fn forward_cross(&self, a: Tensor<B, 3>, b: Tensor<B, 3>) -> (Tensor<B, 3>, Tensor<B, 3>) {
+        let a = self.forward(a, b.clone());
+        let b = self.forward(b, a.clone());
+        (a, b)
+    }
+}
+
+/// (N, C, H, W) → (N, H·W, C), tokens row-major.
+pub fn to_tokens<B: Backend>(x: Tensor<B, 4>) -> Tensor<B, 3> {
+    let [n, c, h, w] = x.dims();
+    x.permute([0, 2, 3, 1]).reshape([n, h * w, c])
+}
+
+/// (N, H·W, C) → (N, C, H, W).
+pub fn from_tokens<B: Backend>(x: Tensor<B, 3>, h: usize, w: usize) -> Tensor<B, 4> {
+    let [n, _, c] = x.dims();
+    x.reshape([n, h, w, c]).permute([0, 3, 1, 2])
+}

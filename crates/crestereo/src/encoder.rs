@@ -1,0 +1,123 @@
+//! Feature encoder `fnet`: RAFT-style BasicEncoder with instance normalisation (no affine).
+
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+/// PyTorch `nn.InstanceNorm2d(affine=False, track_running_stats=False)`: per sample and channel,
+/// biased variance over H×W.
+pub fn instance_norm<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
+    let [n, c, h, w] = x.dims();
+    let flat = x.reshape([n, c, h * w]);
+    let mean = flat.clone().mean_dim(2);
+    let centered = flat - mean;
+    let var = centered.clone().square().mean_dim(2);
+    (centered / (var.add_scalar(eps)).sqrt()).reshape([n, c, h, w])
+}
+
+/// A PyTorch-style `nn.Conv2d(cin, cout, k, stride, padding)` with symmetric zero padding.
+pub(crate) fn conv_cfg(cin: usize, cout: usize, k: [usize; 2], stride: usize, pad: [usize; 2]) -> Conv2dConfig {
+    Conv2dConfig::new([cin, cout], k)
+        .with_stride([stride, stride])
+        .with_padding(PaddingConfig2d::Explicit(pad[0], pad[1], pad[0], pad[1]))
+        .with_bias(true)
+}
+
+#[derive(Config, Debug)]
+pub struct ResidualBlockConfig {
+    pub in_planes: usize,
+    pub planes: usize,
+    #[config(default = 1)]
+    pub stride: usize,
+    #[config(default = 1e-5)]
+    pub norm_eps: f64,
+}
+
+/// Two 3×3 conv + InstanceNorm + ReLU, with a 1×1 conv + InstanceNorm shortcut (`downsample`)
+/// that the reference applies even when the shapes already match.
+#[derive(Module, Debug)]
+pub struct ResidualBlock<B: Backend> {
+    pub conv1: Conv2d<B>,
+    pub conv2: Conv2d<B>,
+    pub downsample: Conv2d<B>,
+    pub norm_eps: f64,
+}
+
+impl ResidualBlockConfig {
+    pub fn init<B: Backend>(&self, device: &B::Device) -> ResidualBlock<B> {
+        ResidualBlock {
+            conv1: conv_cfg(self.in_planes, self.planes, [3, 3], self.stride, [1, 1]).init(device),
+            conv2: conv_cfg(self.planes, self.planes, [3, 3], 1, [1, 1]).init(device),
+            downsample: conv_cfg(self.in_planes, self.planes, [1, 1], self.stride, [0, 0]).init(device),
+            norm_eps: self.norm_eps,
+        }
+    }
+}
+
+impl<B: Backend> ResidualBlock<B> {
+    pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let eps = self.norm_eps;
+        let y = relu(instance_norm(self.conv1.forward(x.clone()), eps));
+        let y = relu(instance_norm(self.conv2.forward(y), eps));
+        let x = instance_norm(self.downsample.forward(x), eps);
+        relu(x + y)
+    }
+}
+
+#[derive(Config, Debug)]
+pub struct BasicEncoderConfig {
+    #[config(default = 256)]
+    pub output_dim: usize,
+    #[config(default = 1e-5)]
+    pub norm_eps: f64,
+}
+
+/// 7×7/2 conv → stages 64 (stride 1), 96 (stride 2), 128 (stride 1) → 1×1 conv to `output_dim`.
+/// Output at 1/4 of the input resolution.
+#[derive(Module, Debug)]
+pub struct BasicEncoder<B: Backend> {
+    pub conv1: Conv2d<B>,
+    pub layer1: Vec<ResidualBlock<B>>,
+    pub layer2: Vec<ResidualBlock<B>>,
+    pub layer3: Vec<ResidualBlock<B>>,
+    pub conv2: Conv2d<B>,
+    pub norm_eps: f64,
+}
+
+impl BasicEncoderConfig {
+    pub fn init<B: Backend>(&self, device: &B::Device) -> BasicEncoder<B> {
+        let stage = |cin: usize, cout: usize, stride: usize| -> Vec<ResidualBlock<B>> {
+            vec![
+                ResidualBlockConfig::new(cin, cout).with_stride(stride).with_norm_eps(self.norm_eps).init(device),
+                ResidualBlockConfig::new(cout, cout).with_norm_eps(self.norm_eps).init(device),
+            ]
+        };
+        BasicEncoder {
+            conv1: conv_cfg(3, 64, [7, 7], 2, [3, 3]).init(device),
+            layer1: stage(64, 64, 1),
+            layer2: stage(64, 96, 2),
+            layer3: stage(96, 128, 1),
+            conv2: conv_cfg(128, self.output_dim, [1, 1], 1, [0, 0]).init(device),
+            norm_eps: self.norm_eps,
+        }
+    }
+}
+
+impl<B: Backend> BasicEncoder<B> {
+    pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let mut x = relu(instance_norm(self.conv1.forward(x), self.norm_eps));
+        for block in self.layer1.iter().chain(&self.layer2).chain(&self.layer3) {
+            x = block.forward(x);
+        }
+        self.conv2.forward(x)
+    }
+
+    /// Both images in one batch, as the reference does; returns (fmap1, fmap2).
+    pub fn forward_pair(&self, left: Tensor<B, 4>, right: Tensor<B, 4>) -> (Tensor<B, 4>, Tensor<B, 4>) {
+        let n = left.dims()[0];
+        let out = self.forward(Tensor::cat(vec![left, right], 0));
+        let [_, c, h, w] = out.dims();
+        (out.clone().slice([0..n, 0..c, 0..h, 0..w]), out.slice([n..2 * n, 0..c, 0..h, 0..w]))
+    }
+}

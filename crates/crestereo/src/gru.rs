@@ -1,0 +1,59 @@
+//! Separable ConvGRU: a 1×5 (horizontal) GRU step followed by a 5×1 (vertical) one.
+
+use burn::nn::conv::Conv2d;
+use burn::prelude::*;
+use burn::tensor::activation::{sigmoid, tanh};
+
+use crate::encoder::conv_cfg;
+
+#[derive(Config, Debug)]
+pub struct SepConvGruConfig {
+    #[config(default = 128)]
+    pub hidden_dim: usize,
+    /// Context (128) + motion features (128).
+    #[config(default = 256)]
+    pub input_dim: usize,
+}
+
+#[derive(Module, Debug)]
+pub struct SepConvGru<B: Backend> {
+    pub convz1: Conv2d<B>,
+    pub convr1: Conv2d<B>,
+    pub convq1: Conv2d<B>,
+    pub convz2: Conv2d<B>,
+    pub convr2: Conv2d<B>,
+    pub convq2: Conv2d<B>,
+}
+
+impl SepConvGruConfig {
+    pub fn init<B: Backend>(&self, device: &B::Device) -> SepConvGru<B> {
+        let cin = self.hidden_dim + self.input_dim;
+        let h = self.hidden_dim;
+        let horiz = || conv_cfg(cin, h, [1, 5], 1, [0, 2]).init(device);
+        let vert = || conv_cfg(cin, h, [5, 1], 1, [2, 0]).init(device);
+        SepConvGru {
+            convz1: horiz(),
+            convr1: horiz(),
+            convq1: horiz(),
+            convz2: vert(),
+            convr2: vert(),
+            convq2: vert(),
+        }
+    }
+}
+
+fn gru_step<B: Backend>(h: Tensor<B, 4>, x: Tensor<B, 4>, cz: &Conv2d<B>, cr: &Conv2d<B>, cq: &Conv2d<B>) -> Tensor<B, 4> {
+    let hx = Tensor::cat(vec![h.clone(), x.clone()], 1);
+    let z = sigmoid(cz.forward(hx.clone()));
+    let r = sigmoid(cr.forward(hx));
+    let q = tanh(cq.forward(Tensor::cat(vec![r * h.clone(), x], 1)));
+    // (1 - z) * h + z * q
+    (z.clone().neg().add_scalar(1.0)) * h + z * q
+}
+
+impl<B: Backend> SepConvGru<B> {
+    pub fn forward(&self, h: Tensor<B, 4>, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let h = gru_step(h, x.clone(), &self.convz1, &self.convr1, &self.convq1);
+        gru_step(h, x, &self.convz2, &self.convr2, &self.convq2)
+    }
+}

@@ -1,0 +1,210 @@
+//! `crestereo` command line: inference on an image pair, and a CPU bench.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::optim::{AdamConfig, GradientsParams, Optimizer};
+use burn::prelude::*;
+use clap::{Parser, Subcommand, ValueEnum};
+
+use crestereo::io::{read_bgr, write_exr, write_pfm, write_visualisation};
+use crestereo::weights::load_weights;
+use crestereo::{CREStereoConfig, CpuAutodiffBackend, CpuBackend, InferenceOptions, infer_disparity, sequence_loss};
+
+#[derive(Parser, Debug)]
+#[command(name = "crestereo", version, about = "CREStereo stereo matching (Burn, CPU)")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Estimate the disparity of a rectified pair (left view).
+    Infer {
+        /// Left image (PNG/JPEG).
+        left: PathBuf,
+        /// Right image (PNG/JPEG).
+        right: PathBuf,
+        /// Output disparity: float32 EXR (channel "Y"), or PFM if the name ends in .pfm.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Also write a PFM copy here.
+        #[arg(long)]
+        pfm: Option<PathBuf>,
+        /// Colourised disparity PNG with a colour bar.
+        #[arg(long)]
+        viz: Option<PathBuf>,
+        /// Weights: a reference PyTorch state dict (.pt/.pth) or a Burn record (.mpk).
+        #[arg(long, env = "CRESTEREO_WEIGHTS")]
+        weights: Option<PathBuf>,
+        /// Refinement iterations per pass.
+        #[arg(long, default_value_t = 20)]
+        iters: usize,
+        /// Stacked cascades: 1, 2 (reference test procedure) or 3.
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
+        stages: u8,
+        /// CPU threads (0 = all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
+    /// Time one training step and one inference (random weights and inputs).
+    Bench {
+        #[arg(long, value_enum, default_value_t = BenchWhat::All)]
+        what: BenchWhat,
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+    },
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
+enum BenchWhat {
+    All,
+    Train,
+    Infer,
+}
+
+fn set_threads(n: usize) {
+    if n > 0 {
+        // SAFETY: called at start-up before any other thread exists.
+        unsafe { std::env::set_var("RAYON_NUM_THREADS", n.to_string()) };
+    }
+}
+
+fn peak_rss_mib() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse::<f64>().ok()))
+        })
+        .map(|kib| kib / 1024.0)
+        .unwrap_or(f64::NAN)
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Infer { left, right, output, pfm, viz, weights, iters, stages, threads } => {
+            set_threads(threads);
+            infer(&left, &right, &output, pfm.as_deref(), viz.as_deref(), weights.as_deref(), iters, stages as usize)
+        }
+        Command::Bench { what, threads } => {
+            set_threads(threads);
+            match what {
+                BenchWhat::Train => bench_train(),
+                BenchWhat::Infer => bench_infer(),
+                BenchWhat::All => {
+                    let exe = std::env::current_exe()?;
+                    for w in ["train", "infer"] {
+                        let status = std::process::Command::new(&exe)
+                            .args(["bench", "--what", w, "--threads", &threads.to_string()])
+                            .status()?;
+                        if !status.success() {
+                            bail!("bench {w} failed");
+                        }
+                    }
+                    Ok(())
+                }
+            }
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn infer(
+    left: &Path,
+    right: &Path,
+    output: &Path,
+    pfm: Option<&Path>,
+    viz: Option<&Path>,
+    weights: Option<&Path>,
+    iters: usize,
+    stages: usize,
+) -> Result<()> {
+    let l = read_bgr(left)?;
+    let r = read_bgr(right)?;
+    if (l.width, l.height) != (r.width, r.height) {
+        bail!(
+            "left image {} is {}x{} but right image {} is {}x{}",
+            left.display(),
+            l.width,
+            l.height,
+            right.display(),
+            r.width,
+            r.height
+        );
+    }
+    let weights = weights.context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
+    let device = Default::default();
+    let model = CREStereoConfig::new().init::<CpuBackend>(&device);
+    let model = load_weights(model, weights, &device)?;
+    let t0 = Instant::now();
+    let disp = infer_disparity(&model, &l, &r, InferenceOptions { iters, stages }, &device)?;
+    eprintln!("inference {}x{} ({} stages, {} iters): {:.2}s", l.width, l.height, stages, iters, t0.elapsed().as_secs_f64());
+    if output.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("pfm")) {
+        write_pfm(output, disp.width, disp.height, &disp.data)?;
+    } else {
+        write_exr(output, disp.width, disp.height, &disp.data)?;
+    }
+    if let Some(p) = pfm {
+        write_pfm(p, disp.width, disp.height, &disp.data)?;
+    }
+    if let Some(v) = viz {
+        write_visualisation(v, disp.width, disp.height, &disp.data)?;
+    }
+    Ok(())
+}
+
+fn random_images<B: Backend>(n: usize, h: usize, w: usize, device: &B::Device) -> (Tensor<B, 4>, Tensor<B, 4>) {
+    use burn::tensor::Distribution;
+    let l = Tensor::<B, 4>::random([n, 3, h, w], Distribution::Uniform(0.0, 255.0), device);
+    let r = Tensor::<B, 4>::random([n, 3, h, w], Distribution::Uniform(0.0, 255.0), device);
+    (l, r)
+}
+
+fn bench_train() -> Result<()> {
+    type B = CpuAutodiffBackend;
+    let device = Default::default();
+    let (n, h, w, iters) = (2, 384, 512, 10);
+    let model = CREStereoConfig::new().init::<B>(&device);
+    let mut optim = AdamConfig::new().with_beta_1(0.9).with_beta_2(0.999).with_epsilon(1e-8).init();
+    let (l, r) = random_images::<B>(n, h, w, &device);
+    let disp = Tensor::<B, 3>::random([n, h, w], burn::tensor::Distribution::Uniform(0.0, 64.0), &device);
+    let valid = Tensor::<B, 3>::ones([n, h, w], &device);
+    let t0 = Instant::now();
+    let preds = model.forward(l, r, iters, None);
+    let loss = sequence_loss(&preds, disp, valid, 0.9);
+    let t_fwd = t0.elapsed().as_secs_f64();
+    let grads = loss.backward();
+    let t_bwd = t0.elapsed().as_secs_f64() - t_fwd;
+    let grads = GradientsParams::from_grads(grads, &model);
+    let _model = optim.step(4e-4, model, grads);
+    let total = t0.elapsed().as_secs_f64();
+    println!(
+        "train step (batch {n}, {h}x{w}, iters {iters}, threads {}): forward {t_fwd:.2}s, backward {t_bwd:.2}s, total incl. Adam {total:.2}s, peak RSS {:.0} MiB",
+        std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "all".into()),
+        peak_rss_mib()
+    );
+    Ok(())
+}
+
+fn bench_infer() -> Result<()> {
+    type B = CpuBackend;
+    let device = Default::default();
+    let (h, w) = (480, 640);
+    let model = CREStereoConfig::new().init::<B>(&device);
+    let (l, r) = random_images::<B>(1, h, w, &device);
+    let t0 = Instant::now();
+    let pred = crestereo::infer::cascade(&model, l, r, InferenceOptions { iters: 20, stages: 2 });
+    let _ = pred.into_data();
+    println!(
+        "inference (1x{h}x{w}, two-pass, 20 iters, threads {}): {:.2}s, peak RSS {:.0} MiB",
+        std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "all".into()),
+        t0.elapsed().as_secs_f64(),
+        peak_rss_mib()
+    );
+    Ok(())
+}

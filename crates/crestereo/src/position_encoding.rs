@@ -1,0 +1,66 @@
+//! LoFTR's 2D sine positional encoding, including the quirk of the released LoFTR code that
+//! CREStereo inherits: the frequency term is `exp(-2k)` (an operator-precedence slip in
+//! `-log(10000) / d_model // 2`), and positions start at 1.
+
+use burn::prelude::*;
+
+#[derive(Config, Debug)]
+pub struct PositionEncodingSineConfig {
+    #[config(default = 256)]
+    pub d_model: usize,
+    /// `false` reproduces the reference (buggy) frequencies; `true` uses the intended
+    /// `exp(-2k·ln(10000)/(d_model/2))`.
+    #[config(default = false)]
+    pub temp_bug_fix: bool,
+}
+
+/// Parameter-free module; the table is computed for the requested size on the fly.
+#[derive(Module, Clone, Debug)]
+pub struct PositionEncodingSine {
+    pub d_model: usize,
+    pub temp_bug_fix: bool,
+}
+
+impl PositionEncodingSineConfig {
+    pub fn init(&self) -> PositionEncodingSine {
+        assert!(self.d_model % 4 == 0, "d_model must be a multiple of 4");
+        PositionEncodingSine { d_model: self.d_model, temp_bug_fix: self.temp_bug_fix }
+    }
+}
+
+impl PositionEncodingSine {
+    /// The `(d_model, h, w)` table, computed in float32 like the reference.
+    pub fn table(&self, h: usize, w: usize) -> Vec<f32> {
+        let d = self.d_model;
+        let mut pe = vec![0f32; d * h * w];
+        for k in 0..d / 4 {
+            let two_k = (2 * k) as f32;
+            let div: f32 = if self.temp_bug_fix {
+                (two_k * (-(10000f32).ln() / (d / 2) as f32)).exp()
+            } else {
+                // (-ln(10000) / d_model) // 2 == -1.0 for any d_model > 9.2
+                (two_k * -1.0f32).exp()
+            };
+            for i in 0..h {
+                let y = (i + 1) as f32 * div;
+                for j in 0..w {
+                    let x = (j + 1) as f32 * div;
+                    let at = |c: usize| c * h * w + i * w + j;
+                    pe[at(4 * k)] = x.sin();
+                    pe[at(4 * k + 1)] = x.cos();
+                    pe[at(4 * k + 2)] = y.sin();
+                    pe[at(4 * k + 3)] = y.cos();
+                }
+            }
+        }
+        pe
+    }
+
+    /// `x + pe` for `x` of shape (N, d_model, H, W).
+    pub fn forward<B: Backend>(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let [_, c, h, w] = x.dims();
+        assert_eq!(c, self.d_model, "positional encoding: channel mismatch");
+        let pe = Tensor::<B, 3>::from_data(TensorData::new(self.table(h, w), [c, h, w]), &x.device());
+        x + pe.unsqueeze::<4>()
+    }
+}

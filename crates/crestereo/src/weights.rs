@@ -1,0 +1,227 @@
+//! Weight import from a reference PyTorch state dict and Burn record save/load.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use burn::prelude::*;
+use burn::record::{FullPrecisionSettings, NamedMpkFileRecorder};
+use burn::store::{ModuleSnapshot, PytorchStore};
+
+use crate::model::CREStereo;
+
+/// Number of parameters of the reference network.
+pub const REFERENCE_PARAM_COUNT: usize = 5_432_948;
+
+/// Outcome of a PyTorch import.
+#[derive(Debug, Clone)]
+pub struct ImportReport {
+    /// Burn parameter paths that received a tensor.
+    pub applied: Vec<String>,
+    /// Burn parameter paths that found no tensor in the file.
+    pub missing: Vec<String>,
+    /// Tensors in the file that match no parameter (after key remapping).
+    pub unused: Vec<String>,
+}
+
+impl std::fmt::Display for ImportReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "applied {} tensors, missing {}, unused {}", self.applied.len(), self.missing.len(), self.unused.len())?;
+        for m in &self.missing {
+            writeln!(f, "  missing: {m}")?;
+        }
+        for u in &self.unused {
+            writeln!(f, "  unused: {u}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Reference key → Burn path renames (the reference's `nn.Sequential` indices and the
+/// single-layer `LocalFeatureTransformer` wrappers).
+const KEY_REMAPS: &[(&str, &str)] = &[
+    (r"^(self|cross)_att_fn\.layers\.0\.", "${1}_att_fn."),
+    (r"\.mlp\.0\.", ".mlp1."),
+    (r"\.mlp\.2\.", ".mlp2."),
+    (r"^update_block\.mask\.0\.", "update_block.mask1."),
+    (r"^update_block\.mask\.2\.", "update_block.mask2."),
+    (r"\.downsample\.0\.", ".downsample."),
+    // LayerNorm weight/bias are Burn's gamma/beta (renamed here so the report is exact)
+    (r"_att_fn\.norm([12])\.weight$", "_att_fn.norm${1}.gamma"),
+    (r"_att_fn\.norm([12])\.bias$", "_att_fn.norm${1}.beta"),
+];
+
+/// Loads a reference PyTorch checkpoint (`torch.save` of a `dict[str, Tensor]` with the reference
+/// key names; Linear weights are transposed, LayerNorm weight/bias become gamma/beta).
+///
+/// Fails on any shape mismatch, and on missing parameters unless `allow_missing`.
+/// Unused tensors are reported, not fatal.
+pub fn load_pytorch<B: Backend>(model: &mut CREStereo<B>, path: impl AsRef<Path>, allow_missing: bool) -> Result<ImportReport> {
+    let path = path.as_ref();
+    if !path.exists() {
+        bail!("weights file {} does not exist", path.display());
+    }
+    let mut store = PytorchStore::from_file(path)
+        .map_indices_contiguous(false)
+        .allow_partial(true)
+        .validate(false);
+    for (from, to) in KEY_REMAPS {
+        store = store.with_key_remapping(*from, *to);
+    }
+    let result = model
+        .load_from(&mut store)
+        .map_err(|e| anyhow::anyhow!("{e}"))
+        .with_context(|| format!("reading PyTorch weights from {}", path.display()))?;
+    if !result.errors.is_empty() {
+        let msgs: Vec<String> = result.errors.iter().map(|e| format!("  {e:?}")).collect();
+        bail!(
+            "weights in {} do not fit the CREStereo model ({} errors, e.g. wrong shapes):\n{}",
+            path.display(),
+            msgs.len(),
+            msgs.join("\n")
+        );
+    }
+    let report = ImportReport {
+        applied: result.applied.clone(),
+        missing: result.missing.iter().map(|(p, _)| p.clone()).collect(),
+        unused: result.unused.clone(),
+    };
+    if !allow_missing && !report.missing.is_empty() {
+        bail!("weights in {} lack parameters of the model:\n{report}", path.display());
+    }
+    Ok(report)
+}
+
+/// Loads weights from a Burn record (`.mpk`, saved by [`save_record`]) or a PyTorch file
+/// (`.pt` / `.pth`), chosen by extension. Returns the PyTorch import report when applicable.
+pub fn load_weights<B: Backend>(model: CREStereo<B>, path: impl AsRef<Path>, device: &B::Device) -> Result<CREStereo<B>> {
+    let path = path.as_ref();
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("pt") | Some("pth") | Some("bin") => {
+            let mut model = model;
+            load_pytorch(&mut model, path, false)?;
+            Ok(model)
+        }
+        _ => load_record(model, path, device),
+    }
+}
+
+/// Saves the model as a Burn named-MessagePack record (full precision). `path` gets `.mpk`.
+pub fn save_record<B: Backend>(model: &CREStereo<B>, path: impl AsRef<Path>) -> Result<()> {
+    let recorder = NamedMpkFileRecorder::<FullPrecisionSettings>::new();
+    model
+        .clone()
+        .save_file(path.as_ref().to_path_buf(), &recorder)
+        .map_err(|e| anyhow::anyhow!("saving record {}: {e}", path.as_ref().display()))
+}
+
+/// Loads a Burn record saved by [`save_record`].
+pub fn load_record<B: Backend>(model: CREStereo<B>, path: impl AsRef<Path>, device: &B::Device) -> Result<CREStereo<B>> {
+    let recorder = NamedMpkFileRecorder::<FullPrecisionSettings>::new();
+    model
+        .load_file(path.as_ref().to_path_buf(), &recorder, device)
+        .map_err(|e| anyhow::anyhow!("loading record {}: {e}", path.as_ref().display()))
+}
+
+/// The reference (PyTorch) key of a Burn parameter path (inverse of the import remapping).
+pub fn reference_key(burn_path: &str) -> String {
+    let mut parts: Vec<String> = burn_path.split('.').map(str::to_string).collect();
+    let mut out: Vec<String> = Vec::with_capacity(parts.len() + 2);
+    let last = parts.len() - 1;
+    let in_norm = parts.len() >= 2 && parts[parts.len() - 2].starts_with("norm");
+    if in_norm {
+        if parts[last] == "gamma" {
+            parts[last] = "weight".into();
+        } else if parts[last] == "beta" {
+            parts[last] = "bias".into();
+        }
+    }
+    for (i, p) in parts.iter().enumerate() {
+        match p.as_str() {
+            "self_att_fn" | "cross_att_fn" if i == 0 => {
+                out.push(p.clone());
+                out.push("layers".into());
+                out.push("0".into());
+            }
+            "mlp1" => out.extend(["mlp".into(), "0".into()]),
+            "mlp2" => out.extend(["mlp".into(), "2".into()]),
+            "mask1" if i == 1 && parts[0] == "update_block" => out.extend(["mask".into(), "0".into()]),
+            "mask2" if i == 1 && parts[0] == "update_block" => out.extend(["mask".into(), "2".into()]),
+            "downsample" => out.extend(["downsample".into(), "0".into()]),
+            _ => out.push(p.clone()),
+        }
+    }
+    out.join(".")
+}
+
+/// A named float tensor in the reference layout (Linear weights as (out, in)).
+#[derive(Debug, Clone)]
+pub struct NamedArray {
+    pub name: String,
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+fn tensor_to_reference_layout<B: Backend, const D: usize>(t: Tensor<B, D>) -> (Vec<usize>, Vec<f32>) {
+    let t = if D == 2 { t.transpose() } else { t };
+    let shape = t.dims().to_vec();
+    let data = t.into_data().convert::<f32>().into_vec::<f32>().expect("float tensor");
+    (shape, data)
+}
+
+/// Every parameter of the model with its reference key, in the reference layout.
+pub fn named_parameters<B: Backend>(model: &CREStereo<B>) -> Vec<NamedArray> {
+    struct V {
+        path: Vec<String>,
+        out: Vec<NamedArray>,
+    }
+    impl<B: Backend> burn::module::ModuleVisitor<B> for V {
+        fn enter_module(&mut self, name: &str, _c: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _name: &str, _c: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<B, D>>) {
+            let (shape, data) = tensor_to_reference_layout(param.val());
+            self.out.push(NamedArray { name: reference_key(&self.path.join(".")), shape, data });
+        }
+    }
+    let mut v = V { path: Vec::new(), out: Vec::new() };
+    model.visit(&mut v);
+    v.out
+}
+
+/// Gradients of every parameter (reference keys and layout); parameters without a gradient
+/// are returned as zeros.
+pub fn named_gradients<B: burn::tensor::backend::AutodiffBackend>(
+    model: &CREStereo<B>,
+    grads: &B::Gradients,
+) -> Vec<NamedArray> {
+    struct V<'a, B: burn::tensor::backend::AutodiffBackend> {
+        path: Vec<String>,
+        grads: &'a B::Gradients,
+        out: Vec<NamedArray>,
+    }
+    impl<B: burn::tensor::backend::AutodiffBackend> burn::module::ModuleVisitor<B> for V<'_, B> {
+        fn enter_module(&mut self, name: &str, _c: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _name: &str, _c: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<B, D>>) {
+            let t = param.val();
+            let (shape, data) = match t.grad(self.grads) {
+                Some(g) => tensor_to_reference_layout(g),
+                None => {
+                    let (shape, data) = tensor_to_reference_layout(t.inner());
+                    (shape, vec![0.0; data.len()])
+                }
+            };
+            self.out.push(NamedArray { name: reference_key(&self.path.join(".")), shape, data });
+        }
+    }
+    let mut v = V { path: Vec::new(), grads, out: Vec::new() };
+    model.visit(&mut v);
+    v.out
+}
