@@ -1,0 +1,122 @@
+"""Render settings and the renders of a stereo pair.
+
+For each view the worker writes an 8-bit PNG (view transform Standard) and a float32 EXR with
+the planar Z pass. Cycles writes Z from the first sample of each pixel, which it places by
+importance-sampling the pixel filter from a table: with the default 1.5 px Blackman-Harris filter
+that lands about 5e-4 px off the pixel centre (measured), enough for 1e-3 px errors on steep
+surfaces. So depth gets its own 1-sample pass with a 0.01 px Gaussian filter (offset ~3e-6 px),
+and the colour pass keeps the anti-aliasing filter of the spec. Persistent data keeps the BVH
+between the passes. Depth of field, motion blur and volumes would break the Z pass and stay off.
+Depth-to-disparity happens in Rust.
+"""
+
+import os
+import time
+
+import bpy
+
+
+def _enable_gpu():
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    for backend in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+        try:
+            prefs.compute_device_type = backend
+        except TypeError:
+            continue
+        prefs.get_devices()
+        devices = [d for d in prefs.devices if d.type == backend]
+        if devices:
+            for d in prefs.devices:
+                d.use = d.type == backend
+            return backend
+    raise RuntimeError("device 'gpu' requested but Cycles finds no CUDA/OptiX/HIP/oneAPI/Metal device")
+
+
+def configure(scene, spec, threads, device):
+    rig, render = spec["rig"], spec["render"]
+    r = scene.render
+    r.engine = "CYCLES"
+    r.resolution_x = rig["width"]
+    r.resolution_y = rig["height"]
+    r.resolution_percentage = 100
+    r.pixel_aspect_x = 1.0
+    r.pixel_aspect_y = 1.0
+    r.use_motion_blur = False
+    r.film_transparent = False
+    r.use_border = False
+    if threads > 0:
+        r.threads_mode = "FIXED"
+        r.threads = threads
+    c = scene.cycles
+    if device == "gpu":
+        _enable_gpu()
+        c.device = "GPU"
+    else:
+        c.device = "CPU"
+    c.samples = render["samples"]
+    c.use_adaptive_sampling = False
+    c.use_denoising = bool(render["denoise"])
+    c.seed = render["cycles_seed"]
+    c.use_animated_seed = False
+    c.max_bounces = render["max_bounces"]
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    scene.display_settings.display_device = "sRGB"
+    r.use_persistent_data = True
+
+
+def _save(image, scene, path, file_format, **settings):
+    s = scene.render.image_settings
+    s.file_format = file_format
+    for k, v in settings.items():
+        setattr(s, k, v)
+    image.save_render(path, scene=scene)
+
+
+# The depth pass: one sample through (very nearly) the pixel centre.
+DEPTH_FILTER = ("GAUSSIAN", 0.01)
+
+_FILTERS = {"blackman_harris": "BLACKMAN_HARRIS", "gaussian": "GAUSSIAN", "box": "BOX"}
+
+
+def _colour_pass(scene, render):
+    c = scene.cycles
+    c.samples = render["samples"]
+    c.use_denoising = bool(render["denoise"])
+    c.pixel_filter_type = _FILTERS[render["pixel_filter"]]
+    c.filter_width = render["filter_width_px"]
+    scene.view_layers[0].use_pass_z = False
+
+
+def _depth_pass(scene):
+    c = scene.cycles
+    c.samples = 1
+    c.use_denoising = False
+    c.pixel_filter_type, c.filter_width = DEPTH_FILTER
+    scene.view_layers[0].use_pass_z = True
+
+
+def render_both(scene, spec, out_dir, timings):
+    os.makedirs(out_dir, exist_ok=True)
+    files = {}
+    for view in ("left", "right"):
+        scene.camera = bpy.data.objects["camera_" + view]
+        png = os.path.join(out_dir, view + ".png")
+        exr = os.path.join(out_dir, view + "_depth.exr")
+
+        _colour_pass(scene, spec["render"])
+        t0 = time.perf_counter()
+        bpy.ops.render.render(write_still=False)
+        timings["render_%s_s" % view] = time.perf_counter() - t0
+        _save(bpy.data.images["Render Result"], scene, png, "PNG", color_mode="RGB", color_depth="8", compression=15)
+
+        _depth_pass(scene)
+        t0 = time.perf_counter()
+        bpy.ops.render.render(write_still=False)
+        timings["depth_%s_s" % view] = time.perf_counter() - t0
+        _save(bpy.data.images["Render Result"], scene, exr, "OPEN_EXR_MULTILAYER", color_depth="32", exr_codec="ZIP")
+        files[view + "_png"] = png
+        files[view + "_depth_exr"] = exr
+    return files

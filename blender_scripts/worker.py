@@ -1,0 +1,114 @@
+"""stereogen's Blender worker.
+
+Runs inside Blender's Python (the `bpy` module or `blender -b --python`). Reads one JSON request
+per line on stdin and answers one JSON line per request on the protocol stream (the original
+stdout; everything Blender itself prints is sent to stderr). It decides nothing random: every
+number it uses comes from the SceneSpec in the request.
+
+Requests: {"cmd": "render", "spec": {...}, "out_dir": "...", "fault": null|"crash"|"hang"},
+{"cmd": "ping"}, {"cmd": "quit"}.
+"""
+
+import json
+import os
+import platform
+import signal
+import sys
+import time
+import traceback
+
+
+def script_args():
+    argv = sys.argv
+    args = argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
+    opts = {"threads": 0, "device": "cpu"}
+    it = iter(args)
+    for a in it:
+        if a == "--threads":
+            opts["threads"] = int(next(it))
+        elif a == "--device":
+            opts["device"] = next(it)
+    return opts
+
+
+def rss_bytes():
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def main():
+    # Keep a private copy of stdout for the protocol, then point fd 1 at stderr so that
+    # Cycles' progress lines can never interleave with a reply.
+    proto = os.fdopen(os.dup(1), "w", buffering=1)
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+
+    def send(obj):
+        proto.write(json.dumps(obj) + "\n")
+        proto.flush()
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    opts = script_args()
+    import bpy  # noqa: F401  (import cost paid once per worker)
+    import render_views
+    import scene_builder
+
+    send({
+        "status": "ready",
+        "blender": bpy.app.version_string.split()[0],
+        "python": platform.python_version(),
+        "rss_bytes": rss_bytes(),
+    })
+
+    for line in sys.stdin:
+        line = line.strip()
+        if not line:
+            continue
+        try:
+            req = json.loads(line)
+        except ValueError as e:
+            send({"status": "error", "error": "bad request line: %s" % e})
+            continue
+        cmd = req.get("cmd")
+        if cmd == "quit":
+            break
+        if cmd == "ping":
+            send({"status": "ok", "rss_bytes": rss_bytes()})
+            continue
+        if cmd != "render":
+            send({"status": "error", "error": "unknown command %r" % cmd})
+            continue
+
+        fault = req.get("fault")
+        if fault == "crash":
+            os.kill(os.getpid(), signal.SIGSEGV)
+        elif fault == "hang":
+            while True:
+                time.sleep(3600)
+
+        timings = {}
+        try:
+            spec = req["spec"]
+            t0 = time.perf_counter()
+            scene_builder.reset()
+            scene = scene_builder.build(spec, opts["threads"], opts["device"])
+            timings["build_s"] = time.perf_counter() - t0
+            files = render_views.render_both(scene, spec, req["out_dir"], timings)
+            send({"status": "ok", "files": files, "timings": timings, "rss_bytes": rss_bytes()})
+        except Exception as e:  # one bad spec must not take the worker down
+            send({
+                "status": "error",
+                "error": "%s: %s" % (type(e).__name__, e),
+                "traceback": traceback.format_exc(),
+                "rss_bytes": rss_bytes(),
+            })
+
+
+if __name__ == "__main__":
+    main()

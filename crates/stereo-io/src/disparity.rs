@@ -1,0 +1,96 @@
+//! A dense disparity map with its validity mask and camera facts.
+
+/// Horizontal disparity in pixels, row-major from the top-left pixel.
+///
+/// Convention: `x_right = x_left - d` for the left view, `x_left = x_right + d` for the right
+/// view. Pixels where no surface was hit hold `0.0` and `valid == false`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DisparityMap {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+    pub valid: Vec<bool>,
+}
+
+/// Camera facts stored in the EXR header, so a file alone says what its numbers mean.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DisparityMeta {
+    /// Focal length in pixels (horizontal sensor fit).
+    pub f_px: Option<f64>,
+    /// Stereo baseline in metres.
+    pub baseline_m: Option<f64>,
+    /// "left" or "right".
+    pub view: Option<String>,
+}
+
+/// Summary of the valid pixels of a map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DisparityStats {
+    pub valid_pixels: usize,
+    pub min: f32,
+    pub max: f32,
+    pub mean: f64,
+}
+
+impl DisparityMap {
+    pub fn new(width: usize, height: usize) -> Self {
+        Self { width, height, data: vec![0.0; width * height], valid: vec![false; width * height] }
+    }
+
+    /// Converts planar camera depth to disparity `d = f_px * B / Z`.
+    ///
+    /// Depth that is not finite, not positive, or at/after `background_depth` (Cycles writes
+    /// 1e10 where a ray hits nothing) becomes disparity 0 and invalid.
+    pub fn from_depth(width: usize, height: usize, depth: &[f32], f_px: f64, baseline_m: f64, background_depth: f32) -> Self {
+        assert_eq!(depth.len(), width * height, "depth buffer does not match {width}x{height}");
+        let fb = f_px * baseline_m;
+        let mut map = Self::new(width, height);
+        for (i, &z) in depth.iter().enumerate() {
+            if z.is_finite() && z > 0.0 && z < background_depth {
+                // f64 keeps the only rounding in the final f32 store.
+                map.data[i] = (fb / f64::from(z)) as f32;
+                map.valid[i] = true;
+            }
+        }
+        map
+    }
+
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        self.data[y * self.width + x]
+    }
+
+    pub fn is_valid(&self, x: usize, y: usize) -> bool {
+        self.valid[y * self.width + x]
+    }
+
+    /// Statistics of the valid pixels, `None` when there are none.
+    pub fn stats(&self) -> Option<DisparityStats> {
+        let mut n = 0usize;
+        let (mut min, mut max, mut sum) = (f32::INFINITY, f32::NEG_INFINITY, 0f64);
+        for (&d, &v) in self.data.iter().zip(&self.valid) {
+            if v {
+                n += 1;
+                min = min.min(d);
+                max = max.max(d);
+                sum += f64::from(d);
+            }
+        }
+        (n > 0).then(|| DisparityStats { valid_pixels: n, min, max, mean: sum / n as f64 })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_to_disparity_marks_background_invalid() {
+        let depth = [2.0f32, 1e10, f32::NAN, 4.0];
+        let map = DisparityMap::from_depth(2, 2, &depth, 100.0, 0.1, 1e9);
+        assert_eq!(map.data, vec![5.0, 0.0, 0.0, 2.5]);
+        assert_eq!(map.valid, vec![true, false, false, true]);
+        let s = map.stats().unwrap();
+        assert_eq!((s.valid_pixels, s.min, s.max), (2, 2.5, 5.0));
+        assert!((s.mean - 3.75).abs() < 1e-12);
+    }
+}

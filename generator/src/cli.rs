@@ -1,0 +1,206 @@
+//! The `stereogen` command line.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use clap::{Parser, Subcommand};
+
+use crate::dataset::{DatasetLayout, GenerateOptions, finalize_sample, generate};
+use crate::plan::{Recipe, SceneSpec, plan_scene};
+use crate::render::protocol::Device;
+use crate::render::runtime::{discover_or_install, stereogen_home};
+use crate::render::scripts::install_scripts;
+use crate::render::worker::{RenderService, Worker, WorkerConfig};
+
+#[derive(Debug, Parser)]
+#[command(name = "stereogen", version, about = "Synthetic stereo training data: Rust plans each scene, Blender/Cycles renders it with exact disparity for both views.")]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct RuntimeArgs {
+    /// A Blender 4.5 executable to render with (run as `blender -b`). Without it: $STEREOGEN_PYTHON
+    /// (a Python that can `import bpy`), then the managed bpy environment under $STEREOGEN_HOME
+    /// (default ~/.cache/stereogen), which is installed on first use.
+    #[arg(long, value_name = "PATH")]
+    pub blender: Option<PathBuf>,
+    /// Render on the CPU or on a CUDA/OptiX GPU.
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    pub device: Device,
+    /// Cycles threads per worker [default: the machine's cores divided by --workers].
+    #[arg(long, value_name = "N")]
+    pub threads: Option<u32>,
+    /// Seconds one sample may take before its worker is considered hung, killed and restarted.
+    #[arg(long, value_name = "SECS", default_value_t = 900)]
+    pub timeout: u64,
+    /// How many times a sample is retried after its worker crashed or hung.
+    #[arg(long, value_name = "N", default_value_t = 2)]
+    pub retries: u32,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Install the managed Blender environment (bpy 4.5 LTS from PyPI) and check that it starts.
+    Setup {
+        #[command(flatten)]
+        runtime: RuntimeArgs,
+    },
+    /// Render a dataset: samples START..START+COUNT of RECIPE with SEED. Re-running the same
+    /// command resumes: finished samples are skipped, interrupted ones are redone.
+    Generate {
+        /// Recipe TOML [default: the built-in recipe of textured primitives].
+        #[arg(long, value_name = "FILE")]
+        recipe: Option<PathBuf>,
+        /// Output dataset directory (created if missing).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Number of samples.
+        #[arg(long, value_name = "N")]
+        count: u64,
+        /// Dataset seed: sample i is a pure function of (recipe, seed, i).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// First sample index.
+        #[arg(long, value_name = "INDEX", default_value_t = 0)]
+        start: u64,
+        /// Render only indices i with i % N == K, written K/N (one farm task per shard).
+        #[arg(long, value_name = "K/N", value_parser = parse_shard)]
+        shard: Option<(u64, u64)>,
+        /// Blender worker processes rendering in parallel.
+        #[arg(long, value_name = "K", default_value_t = 1)]
+        workers: usize,
+        /// Hide the progress bar.
+        #[arg(long)]
+        no_progress: bool,
+        #[command(flatten)]
+        runtime: RuntimeArgs,
+    },
+    /// Print the SceneSpec of one sample as JSON (pure planning, no Blender).
+    Plan {
+        #[arg(long, value_name = "FILE")]
+        recipe: Option<PathBuf>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value_t = 0)]
+        index: u64,
+    },
+    /// Render one SceneSpec JSON file (e.g. a sample's `<id>.scene.json`) into DIR, reproducing it exactly.
+    Render {
+        /// The SceneSpec JSON file.
+        #[arg(long, value_name = "FILE")]
+        spec: PathBuf,
+        /// Directory that receives `<category>/<id>_*` files.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        #[command(flatten)]
+        runtime: RuntimeArgs,
+    },
+}
+
+fn parse_shard(s: &str) -> Result<(u64, u64), String> {
+    let (k, n) = s.split_once('/').ok_or_else(|| format!("{s:?} is not K/N"))?;
+    let k: u64 = k.trim().parse().map_err(|_| format!("{s:?}: K is not a number"))?;
+    let n: u64 = n.trim().parse().map_err(|_| format!("{s:?}: N is not a number"))?;
+    if n == 0 || k >= n {
+        return Err(format!("{s:?}: need 0 <= K < N"));
+    }
+    Ok((k, n))
+}
+
+fn load_recipe(path: Option<&PathBuf>) -> anyhow::Result<Recipe> {
+    Ok(match path {
+        Some(p) => Recipe::load(p)?,
+        None => Recipe::builtin_default(),
+    })
+}
+
+fn worker_config(rt: &RuntimeArgs, workers: usize) -> anyhow::Result<WorkerConfig> {
+    let home = stereogen_home();
+    let runtime = discover_or_install(rt.blender.as_deref(), &home)?;
+    let script = install_scripts(&home).with_context(|| format!("cannot write the Blender scripts under {}", home.display()))?;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u32;
+    Ok(WorkerConfig {
+        runtime,
+        script,
+        threads: rt.threads.unwrap_or((cores / workers.max(1) as u32).max(1)),
+        device: rt.device,
+        startup_timeout: Duration::from_secs(120),
+        render_timeout: Duration::from_secs(rt.timeout),
+        retries: rt.retries,
+    })
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Setup { runtime } => {
+            let cfg = worker_config(&runtime, 1)?;
+            let worker = Worker::spawn(&cfg)?;
+            println!("Blender {} (Python {}) ready via {}", worker.hello.blender, worker.hello.python, cfg.runtime.describe());
+            worker.shutdown();
+        }
+        Command::Generate { recipe, out, count, seed, start, shard, workers, no_progress, runtime } => {
+            let recipe = load_recipe(recipe.as_ref())?;
+            let mut opts = GenerateOptions::new(&out, recipe, seed, count);
+            opts.start = start;
+            opts.shard = shard;
+            opts.workers = workers;
+            opts.threads_per_worker = runtime.threads;
+            opts.device = runtime.device;
+            opts.blender = runtime.blender;
+            opts.render_timeout = Duration::from_secs(runtime.timeout);
+            opts.retries = runtime.retries;
+            opts.progress = !no_progress;
+            let s = generate(&opts)?;
+            eprintln!(
+                "stereogen: {} rendered, {} already done, {} failed, {} worker restart(s) in {:.1} s ({:.2} s per sample per worker) -> {}",
+                s.rendered,
+                s.skipped,
+                s.failed.len(),
+                s.worker_restarts,
+                s.seconds,
+                s.seconds_per_sample,
+                out.display()
+            );
+            if !s.failed.is_empty() {
+                bail!("{} sample(s) failed (listed in {}); re-run the same command to retry them", s.failed.len(), DatasetLayout::new(&out).failures().display());
+            }
+        }
+        Command::Plan { recipe, seed, index } => {
+            let recipe = load_recipe(recipe.as_ref())?;
+            println!("{}", plan_scene(&recipe, seed, index).to_json());
+        }
+        Command::Render { spec, out, runtime } => {
+            let text = std::fs::read_to_string(&spec).with_context(|| format!("cannot read {}", spec.display()))?;
+            let spec = SceneSpec::from_json(&text).with_context(|| format!("{} is not a SceneSpec", spec.display()))?;
+            let mut service = RenderService::new(worker_config(&runtime, 1)?);
+            let t0 = std::time::Instant::now();
+            let rendered = service.render(&spec, |_| None)?;
+            let layout = DatasetLayout::new(&out);
+            let entry = finalize_sample(&layout, &spec, rendered.reply.files.as_ref().expect("ok replies carry files"), t0.elapsed().as_secs_f64())?;
+            println!("{}", serde_json::to_string(&entry)?);
+        }
+    }
+    Ok(())
+}
+
+/// Entry point of the binary: parse, set up logging, run, print errors on one line.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("STEREOGEN_LOG").unwrap_or_else(|_| "info".into()))
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .without_time()
+        .init();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

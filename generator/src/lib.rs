@@ -1,0 +1,11 @@
+//! stereogen: plans synthetic stereo scenes in Rust and renders them with Blender/Cycles into
+//! left/right images with exact float32 disparity for both views.
+//!
+//! - [`plan`]: recipes and the pure-data `SceneSpec` (no Blender).
+//! - [`render`]: finding or installing Blender's Python, and the worker processes that render specs.
+//! - [`dataset`]: the on-disk layout, manifest, atomic writes and resumable generation.
+
+pub mod cli;
+pub mod dataset;
+pub mod plan;
+pub mod render;

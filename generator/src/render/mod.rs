@@ -1,0 +1,11 @@
+//! How a `SceneSpec` becomes pixels: find (or install) Blender's Python, run long-lived worker
+//! processes that build and render specs, and recover from workers that crash or hang.
+
+pub mod protocol;
+pub mod runtime;
+pub mod scripts;
+pub mod worker;
+
+pub use protocol::{Device, Fault, RenderReply};
+pub use runtime::{BlenderRuntime, RuntimeError};
+pub use worker::{RenderService, Worker, WorkerConfig, WorkerError};

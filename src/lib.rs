@@ -1,0 +1,64 @@
+//! Support for the end-to-end tests in `tests/`: an independent ray caster, the analytic test
+//! scenes, and helpers that run the real renderer and the real CLI.
+
+pub mod raycast;
+pub mod scenes;
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use stereo_io::DisparityMap;
+use stereogen::dataset::DatasetLayout;
+use stereogen::plan::SceneSpec;
+use stereogen::render::runtime::{discover_or_install, stereogen_home};
+use stereogen::render::scripts::install_scripts;
+use stereogen::render::{RenderService, WorkerConfig};
+
+/// The worker configuration every test uses: the real Blender runtime, installed on first use.
+pub fn worker_config() -> WorkerConfig {
+    static CFG: OnceLock<WorkerConfig> = OnceLock::new();
+    CFG.get_or_init(|| {
+        let home = stereogen_home();
+        let runtime = discover_or_install(None, &home).expect("a Blender runtime (installed by `stereogen setup`)");
+        WorkerConfig {
+            runtime,
+            script: install_scripts(&home).expect("scripts"),
+            threads: 1,
+            device: Default::default(),
+            startup_timeout: Duration::from_secs(300),
+            render_timeout: Duration::from_secs(300),
+            retries: 1,
+        }
+    })
+    .clone()
+}
+
+/// A rendered sample read back from the files the generator wrote.
+pub struct RenderedPair {
+    pub left: DisparityMap,
+    pub right: DisparityMap,
+    pub dir: tempfile::TempDir,
+    pub layout: DatasetLayout,
+    pub entry: stereogen::dataset::ManifestEntry,
+}
+
+/// Renders `spec` with a real worker, finishes it into a fresh dataset dir and reads both maps.
+pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
+    let rendered = service.render(spec, |_| None).expect("render");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let layout = DatasetLayout::new(dir.path());
+    let entry = stereogen::dataset::finalize_sample(&layout, spec, rendered.reply.files.as_ref().unwrap(), 0.0).expect("finalize");
+    let (left, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_left)).expect("left exr");
+    let (right, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_right)).expect("right exr");
+    RenderedPair { left, right, dir, layout, entry }
+}
+
+/// The `stereogen` binary that `cargo test --workspace` built next to this test executable.
+pub fn stereogen_bin() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let profile_dir = exe.parent().and_then(|deps| deps.parent()).expect("target/<profile>/deps");
+    let bin = profile_dir.join("stereogen");
+    assert!(bin.is_file(), "{} is missing: run the tests with `cargo test --workspace` so the CLI is built", bin.display());
+    bin
+}
