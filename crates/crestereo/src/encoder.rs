@@ -9,11 +9,16 @@ use burn::tensor::activation::relu;
 /// biased variance over H×W.
 pub fn instance_norm<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
     let [n, c, h, w] = x.dims();
-    let flat = x.reshape([n, c, h * w]);
+    let dtype = x.dtype();
+    // Statistics (and, through autodiff, their backward reductions) in float64: PyTorch
+    // accumulates these reductions in double on the CPU, and the instance-norm backward
+    // cancels strongly, so float32 sums would cost ~1e-3 relative gradient error.
+    let flat = x.reshape([n, c, h * w]).cast(burn::tensor::FloatDType::F64);
     let mean = flat.clone().mean_dim(2);
     let centered = flat - mean;
     let var = centered.clone().square().mean_dim(2);
-    (centered / (var.add_scalar(eps)).sqrt()).reshape([n, c, h, w])
+    let out = centered / (var.add_scalar(eps)).sqrt();
+    out.cast(dtype).reshape([n, c, h, w])
 }
 
 /// A PyTorch-style `nn.Conv2d(cin, cout, k, stride, padding)` with symmetric zero padding.

@@ -5,12 +5,45 @@ use burn::tensor::activation::softmax;
 use burn::tensor::module::interpolate;
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions, PadMode};
 
-/// Bilinear resize with `align_corners = true` (set explicitly; the reference uses it everywhere).
+/// Interpolation matrix (out × in) of 1-D linear resizing with `align_corners = true`, with the
+/// weights computed in float32 exactly as PyTorch's CPU kernel does (`scale = (in−1)/(out−1)`,
+/// `src = scale · dst`, `λ1 = src − ⌊src⌋`, `λ0 = 1 − λ1`).
+fn linear_weights(n_in: usize, n_out: usize) -> Vec<f32> {
+    let mut m = vec![0f32; n_out * n_in];
+    let scale: f32 = if n_out > 1 { (n_in - 1) as f32 / (n_out - 1) as f32 } else { 0.0 };
+    for o in 0..n_out {
+        let src = scale * o as f32;
+        let i0 = (src as usize).min(n_in - 1);
+        let i1 = if i0 < n_in - 1 { i0 + 1 } else { i0 };
+        let l1 = src - i0 as f32;
+        let l0 = 1.0 - l1;
+        m[o * n_in + i0] += l0;
+        m[o * n_in + i1] += l1;
+    }
+    m
+}
+
+/// Bilinear resize with `align_corners = true` (set explicitly; the reference uses it everywhere),
+/// as two interpolation-matrix products whose weights match PyTorch's float32 arithmetic.
+/// Differentiable.
 pub fn resize_bilinear_align_corners<B: Backend>(x: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
-    let [_, _, h, w] = x.dims();
+    let [n, c, h, w] = x.dims();
+    let [ho, wo] = size;
     if [h, w] == size {
         return x;
     }
+    let device = x.device();
+    // width: (N·C·H, W) @ (W, Wo)
+    let rw = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(w, wo), [wo, w]), &device).transpose();
+    let y = x.reshape([n * c * h, w]).matmul(rw).reshape([n * c, h, wo]);
+    // height: (N·C·Wo, H) @ (H, Ho)
+    let rh = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(h, ho), [ho, h]), &device).transpose();
+    y.swap_dims(1, 2).reshape([n * c * wo, h]).matmul(rh).reshape([n, c, wo, ho]).swap_dims(2, 3)
+}
+
+/// Burn's own `interpolate` (bilinear, align_corners = true); coordinates in float64, so it
+/// differs from PyTorch by ~1e-5 relative.
+pub fn resize_bilinear_burn<B: Backend>(x: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
     interpolate(x, size, InterpolateOptions::new(InterpolateMode::Bilinear).with_align_corners(true))
 }
 
