@@ -44,6 +44,11 @@ def configure(scene, spec, threads, device):
     r.use_motion_blur = False
     r.film_transparent = False
     r.use_border = False
+    # No date, host or render-time stamps in the images (Cycles still adds its own timing
+    # chunks; the generator re-encodes the PNGs without them).
+    for attr in dir(r):
+        if attr.startswith("use_stamp"):
+            setattr(r, attr, False)
     if threads > 0:
         r.threads_mode = "FIXED"
         r.threads = threads

@@ -41,8 +41,48 @@ pub fn write_disparity_exr(path: &Path, map: &DisparityMap, meta: &DisparityMeta
         AnyChannel::new(DISPARITY_CHANNEL, FlatSamples::F32(map.data.clone())),
         AnyChannel::new(VALID_CHANNEL, FlatSamples::F16(valid)),
     ]));
-    let layer = Layer::new((map.width, map.height), attrs, Encoding::SMALL_LOSSLESS, channels);
-    Image::from_layer(layer).write().to_file(path).map_err(|e| exr_err(path, e))
+    // Increasing line order: parallel compression must not decide the chunk order, or equal
+    // maps would give different bytes.
+    let encoding = Encoding { compression: Compression::ZIP16, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+    let layer = Layer::new((map.width, map.height), attrs, encoding, channels);
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    Image::from_layer(layer).write().to_buffered(&mut bytes).map_err(|e| exr_err(path, e))?;
+    let mut bytes = bytes.into_inner();
+    sort_header_attributes(&mut bytes).map_err(|m| Error::format(path, m))?;
+    std::fs::write(path, &bytes).map_err(|e| Error::io(path, e))
+}
+
+/// `exr` keeps custom attributes in a `HashMap`, so their order in the header changes from one
+/// map instance to the next. Sorting them by name makes equal images give equal bytes. It is a
+/// permutation inside the header, so the header length and every chunk offset stay the same.
+fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
+    const MULTIPART: u32 = 0x1000;
+    if bytes.len() < 8 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
+        return Err("writer produced no EXR magic number".into());
+    }
+    if u32::from_le_bytes(bytes[4..8].try_into().unwrap()) & MULTIPART != 0 {
+        return Ok(());
+    }
+    let cstr_end = |from: usize| bytes[from..].iter().position(|&b| b == 0).map(|p| from + p).ok_or("unterminated header string");
+    let mut attributes: Vec<(Vec<u8>, std::ops::Range<usize>)> = Vec::new();
+    let mut pos = 8;
+    while bytes.get(pos).copied().ok_or("truncated header")? != 0 {
+        let name_end = cstr_end(pos)?;
+        let type_end = cstr_end(name_end + 1)?;
+        let size_at = type_end + 1;
+        let size = i32::from_le_bytes(bytes.get(size_at..size_at + 4).ok_or("truncated header")?.try_into().unwrap());
+        let end = size_at + 4 + usize::try_from(size).map_err(|_| "negative attribute size")?;
+        if end > bytes.len() {
+            return Err("attribute runs past the end of the file".into());
+        }
+        attributes.push((bytes[pos..name_end].to_vec(), pos..end));
+        pos = end;
+    }
+    let mut sorted = attributes.clone();
+    sorted.sort_by(|a, b| a.0.cmp(&b.0));
+    let reordered: Vec<u8> = sorted.iter().flat_map(|(_, r)| bytes[r.clone()].to_vec()).collect();
+    bytes[8..pos].copy_from_slice(&reordered);
+    Ok(())
 }
 
 fn read_flat(path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
@@ -139,16 +179,23 @@ mod tests {
     #[test]
     fn writing_is_deterministic() {
         let dir = tempfile::tempdir().unwrap();
-        let mut map = DisparityMap::new(16, 9);
+        // Large enough for many compressed chunks, which a parallel writer may finish out of order.
+        let mut map = DisparityMap::new(640, 480);
         for (i, d) in map.data.iter_mut().enumerate() {
-            *d = i as f32 * 0.37;
+            *d = (i as f32 * 0.37).sin() * 50.0;
         }
         map.valid.iter_mut().for_each(|v| *v = true);
-        let meta = DisparityMeta::default();
-        let (a, b) = (dir.path().join("a.exr"), dir.path().join("b.exr"));
-        write_disparity_exr(&a, &map, &meta).unwrap();
-        write_disparity_exr(&b, &map, &meta).unwrap();
-        assert_eq!(std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
+        // Several custom attributes: their order must not depend on the writer's hash map.
+        let meta = DisparityMeta { f_px: Some(500.0), baseline_m: Some(0.2), view: Some("right".into()) };
+        let first = dir.path().join("first.exr");
+        write_disparity_exr(&first, &map, &meta).unwrap();
+        let reference = std::fs::read(&first).unwrap();
+        for i in 0..8 {
+            let again = dir.path().join(format!("again{i}.exr"));
+            write_disparity_exr(&again, &map, &meta).unwrap();
+            assert!(std::fs::read(&again).unwrap() == reference, "write {i} gave different bytes");
+            assert_eq!(read_disparity_exr(&again).unwrap(), (map.clone(), meta.clone()));
+        }
     }
 
     #[test]

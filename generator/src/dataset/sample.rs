@@ -32,11 +32,14 @@ fn sha256_file(path: &Path) -> anyhow::Result<String> {
     Ok(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
 }
 
-fn copy_atomically(from: &Path, to: &Path) -> anyhow::Result<()> {
-    stereo_io::write_atomically(to, |tmp| {
-        std::fs::copy(from, tmp).map(|_| ()).map_err(|e| stereo_io::Error::io(tmp, e))
-    })
-    .with_context(|| format!("cannot write {}", to.display()))
+/// Re-encodes the worker's PNG: Cycles writes render times into PNG text chunks, so a plain copy
+/// would make every re-render of a spec a different file. Decoding also checks the image.
+fn write_canonical_png(from: &Path, to: &Path, spec: &SceneSpec) -> anyhow::Result<()> {
+    let img = stereo_io::read_rgb(from)?;
+    if (img.width, img.height) != (spec.rig.width as usize, spec.rig.height as usize) {
+        bail!("{}: image is {}x{}, the spec asks for {}x{}", from.display(), img.width, img.height, spec.rig.width, spec.rig.height);
+    }
+    stereo_io::write_atomically(to, |tmp| stereo_io::write_png_rgb(tmp, &img)).with_context(|| format!("cannot write {}", to.display()))
 }
 
 /// Writes all files of a rendered sample into the dataset and returns its manifest entry.
@@ -54,8 +57,8 @@ pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &Rendere
         let path = layout.abs(rel);
         stereo_io::write_atomically(&path, |tmp| stereo_io::write_disparity_exr(tmp, map, &meta)).with_context(|| format!("cannot write {}", path.display()))?;
     }
-    copy_atomically(&files.left_png, &layout.abs(&paths.left))?;
-    copy_atomically(&files.right_png, &layout.abs(&paths.right))?;
+    write_canonical_png(&files.left_png, &layout.abs(&paths.left), spec)?;
+    write_canonical_png(&files.right_png, &layout.abs(&paths.right), spec)?;
     let scene_path = layout.abs(&paths.scene);
     stereo_io::write_bytes_atomically(&scene_path, spec.to_json().as_bytes()).with_context(|| format!("cannot write {}", scene_path.display()))?;
 

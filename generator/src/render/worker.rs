@@ -74,6 +74,21 @@ impl Worker {
         let args = vec!["--threads".to_string(), cfg.threads.to_string(), "--device".to_string(), serde_json::to_value(cfg.device).unwrap().as_str().unwrap().to_string()];
         let mut cmd = cfg.runtime.command(&cfg.script, &args);
         cmd.stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped());
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::process::CommandExt;
+            // A worker must not outlive a killed orchestrator (it would keep rendering into a
+            // dataset nobody finishes). The signal fires when the spawning thread exits, and
+            // every worker is shut down before its thread ends.
+            unsafe {
+                cmd.pre_exec(|| {
+                    if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                        return Err(std::io::Error::last_os_error());
+                    }
+                    Ok(())
+                });
+            }
+        }
         let mut child = cmd.spawn().map_err(|e| WorkerError::Start { runtime: runtime.clone(), message: e.to_string() })?;
         let stdin = child.stdin.take().expect("piped");
         let stdout = child.stdout.take().expect("piped");
