@@ -116,7 +116,7 @@ fn colormap(t: f32) -> [u8; 3] {
 }
 
 /// 3×5 bitmap digits for the colour-bar labels.
-const DIGITS: [[u8; 5]; 11] = [
+const DIGITS: [[u8; 5]; 12] = [
     [0b111, 0b101, 0b101, 0b101, 0b111],
     [0b010, 0b110, 0b010, 0b010, 0b111],
     [0b111, 0b001, 0b111, 0b100, 0b111],
@@ -128,6 +128,7 @@ const DIGITS: [[u8; 5]; 11] = [
     [0b111, 0b101, 0b111, 0b101, 0b111],
     [0b111, 0b101, 0b111, 0b001, 0b111],
     [0b000, 0b000, 0b000, 0b000, 0b010], // '.'
+    [0b000, 0b000, 0b111, 0b000, 0b000], // '-'
 ];
 
 fn draw_text(img: &mut image::RgbImage, x0: u32, y0: u32, text: &str, scale: u32) {
@@ -136,6 +137,7 @@ fn draw_text(img: &mut image::RgbImage, x0: u32, y0: u32, text: &str, scale: u32
         let glyph = match ch {
             '0'..='9' => Some(DIGITS[ch as usize - '0' as usize]),
             '.' => Some(DIGITS[10]),
+            '-' => Some(DIGITS[11]),
             _ => None,
         };
         if let Some(g) = glyph {

@@ -1,0 +1,80 @@
+//! The `crestereo infer` command on the fixture PNGs, and its error messages.
+
+mod common;
+
+use std::process::Command;
+
+use common::*;
+use crestereo::io::read_exr;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_crestereo"))
+}
+
+#[test]
+fn infer_cli_matches_reference_two_pass() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = fixtures().join("eval_cascade_1x128x192");
+    let out = dir.path().join("disp.exr");
+    let pfm = dir.path().join("disp.pfm");
+    let viz = dir.path().join("disp.png");
+    let status = bin()
+        .arg("infer")
+        .arg(e.join("left.png"))
+        .arg(e.join("right.png"))
+        .arg("-o")
+        .arg(&out)
+        .arg("--pfm")
+        .arg(&pfm)
+        .arg("--viz")
+        .arg(&viz)
+        .arg("--weights")
+        .arg(fixtures().join("weights_seed0.pt"))
+        .args(["--iters", "20", "--stages", "2"])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let (w, h, data) = read_exr(&out).unwrap();
+    assert_eq!((w, h), (192, 128));
+    let reference = npy("eval_cascade_1x128x192/pred_full.npy");
+    let (err, _) = max_err(&data, &reference.data[..128 * 192]);
+    println!("CLI disparity vs pred_full[:, 0]: max|err| {err:.3e}");
+    assert!(err <= 1e-3, "CLI error {err}");
+    // PFM: bottom-to-top rows, same values
+    let bytes = std::fs::read(&pfm).unwrap();
+    let header = b"Pf\n192 128\n-1.0\n";
+    assert_eq!(&bytes[..header.len()], header);
+    let body: Vec<f32> = bytes[header.len()..].chunks(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+    assert_eq!(body.len(), 192 * 128);
+    assert_eq!(body[0], data[127 * 192]);
+    let png = image::open(&viz).unwrap();
+    assert!(png.width() > 192 && png.height() >= 128);
+}
+
+fn run_err(args: &[&std::ffi::OsStr]) -> String {
+    let out = bin().args(args).output().unwrap();
+    assert!(!out.status.success(), "expected failure");
+    String::from_utf8_lossy(&out.stderr).to_string()
+}
+
+#[test]
+fn infer_cli_errors_are_clear() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = fixtures().join("eval_cascade_1x128x192");
+    let weights = fixtures().join("weights_seed0.pt");
+    let out = dir.path().join("o.exr");
+    // mismatched sizes
+    let small = dir.path().join("small.png");
+    image::RgbImage::new(64, 32).save(&small).unwrap();
+    let msg = run_err(&["infer".as_ref(), e.join("left.png").as_os_str(), small.as_os_str(), "-o".as_ref(), out.as_os_str(), "--weights".as_ref(), weights.as_os_str()]);
+    assert!(msg.contains("192x128") && msg.contains("64x32"), "{msg}");
+    // unreadable image
+    let bogus = dir.path().join("bogus.png");
+    std::fs::write(&bogus, b"not an image").unwrap();
+    let msg = run_err(&["infer".as_ref(), bogus.as_os_str(), e.join("right.png").as_os_str(), "-o".as_ref(), out.as_os_str(), "--weights".as_ref(), weights.as_os_str()]);
+    assert!(msg.contains("cannot read image") && msg.contains("bogus.png"), "{msg}");
+    // missing weights file
+    let missing = dir.path().join("none.pt");
+    let msg = run_err(&["infer".as_ref(), e.join("left.png").as_os_str(), e.join("right.png").as_os_str(), "-o".as_ref(), out.as_os_str(), "--weights".as_ref(), missing.as_os_str()]);
+    assert!(msg.contains("does not exist"), "{msg}");
+}
