@@ -117,9 +117,12 @@ fn check_bootstrap_python(program: &str) -> Result<(), RuntimeError> {
         .args(["-c", "import sys; print('%d.%d.%d' % sys.version_info[:3])"])
         .output()
         .map_err(|e| RuntimeError::NoBootstrapPython { program: program.into(), message: e.to_string() })?;
+    if !out.status.success() {
+        return Err(RuntimeError::NoBootstrapPython { program: program.into(), message: format!("its version check exited with {}", out.status) });
+    }
     let found = String::from_utf8_lossy(&out.stdout).trim().to_string();
     let want = format!("{}.{}.", BPY_PYTHON.0, BPY_PYTHON.1);
-    if !out.status.success() || !found.starts_with(&want) {
+    if !found.starts_with(&want) {
         return Err(RuntimeError::WrongPython { program: program.into(), found });
     }
     Ok(())
