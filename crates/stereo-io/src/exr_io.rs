@@ -86,13 +86,18 @@ fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
 }
 
 fn read_flat(path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_flat(&bytes, path)
+}
+
+fn decode_flat(bytes: &[u8], path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
         .all_channels()
         .first_valid_layer()
         .all_attributes()
-        .from_file(path)
+        .from_buffered(std::io::Cursor::new(bytes))
         .map_err(|e| exr_err(path, e))?;
     Ok(image.layer_data)
 }
@@ -116,7 +121,13 @@ fn attr_f64(layer: &Layer<AnyChannels<FlatSamples>>, name: &str) -> Option<f64> 
 /// Reads a disparity EXR written by [`write_disparity_exr`], or any single-channel float EXR
 /// (then every finite positive pixel counts as valid).
 pub fn read_disparity_exr(path: &Path) -> IoResult<(DisparityMap, DisparityMeta)> {
-    let layer = read_flat(path)?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_disparity_exr(&bytes, path)
+}
+
+/// [`read_disparity_exr`] from bytes already in memory; `path` names them in errors.
+pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap, DisparityMeta)> {
+    let layer = decode_flat(bytes, path)?;
     let (width, height) = (layer.size.width(), layer.size.height());
     let channels = &layer.channel_data.list;
     let find = |name: &str| channels.iter().find(|c| c.name.to_string() == name);

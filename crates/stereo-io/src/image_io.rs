@@ -1,6 +1,10 @@
-//! 8-bit RGB images through the `image` crate.
+//! Images through the `image` crate: 8- and 16-bit, grey and colour, PNG and JPEG (the format is
+//! recognised from the file's bytes, not its name).
 
+use std::io::Cursor;
 use std::path::Path;
+
+use image::{DynamicImage, ImageFormat, ImageReader};
 
 use crate::error::{Error, Result};
 
@@ -12,11 +16,92 @@ pub struct RgbImage {
     pub data: Vec<u8>,
 }
 
+/// Samples of an [`Image`], interleaved.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Samples {
+    U8(Vec<u8>),
+    U16(Vec<u16>),
+}
+
+/// An image at its native bit depth: 1 (grey), 2 (grey+alpha), 3 (RGB) or 4 (RGBA) channels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub samples: Samples,
+}
+
+pub(crate) fn image_err(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::Image { path: path.to_path_buf(), message: e.to_string() }
+}
+
+/// Decodes an image file, recognising the format from its content.
+pub(crate) fn decode(path: &Path) -> Result<DynamicImage> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_bytes(&bytes, path)
+}
+
+pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<DynamicImage> {
+    let reader = ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| image_err(path, e))?;
+    if reader.format().is_none() {
+        return Err(image_err(path, "unknown image format (not PNG or JPEG)"));
+    }
+    reader.decode().map_err(|e| image_err(path, e))
+}
+
 /// Reads any format `image` decodes (PNG, JPEG) and converts it to RGB8.
 pub fn read_rgb(path: &Path) -> Result<RgbImage> {
-    let img = image::open(path).map_err(|e| Error::Image { path: path.to_path_buf(), message: e.to_string() })?;
-    let rgb = img.to_rgb8();
-    Ok(RgbImage { width: rgb.width() as usize, height: rgb.height() as usize, data: rgb.into_raw() })
+    Ok(to_rgb(decode(path)?))
+}
+
+pub(crate) fn to_rgb(img: DynamicImage) -> RgbImage {
+    let rgb = match img {
+        DynamicImage::ImageRgb8(b) => b,
+        other => other.to_rgb8(),
+    };
+    RgbImage { width: rgb.width() as usize, height: rgb.height() as usize, data: rgb.into_raw() }
+}
+
+/// Reads an image keeping its bit depth (8 or 16; float images are rejected) and channel count.
+pub fn read_image(path: &Path) -> Result<Image> {
+    let img = decode(path)?;
+    let (width, height) = (img.width() as usize, img.height() as usize);
+    let (channels, samples) = match img {
+        DynamicImage::ImageLuma8(b) => (1, Samples::U8(b.into_raw())),
+        DynamicImage::ImageLumaA8(b) => (2, Samples::U8(b.into_raw())),
+        DynamicImage::ImageRgb8(b) => (3, Samples::U8(b.into_raw())),
+        DynamicImage::ImageRgba8(b) => (4, Samples::U8(b.into_raw())),
+        DynamicImage::ImageLuma16(b) => (1, Samples::U16(b.into_raw())),
+        DynamicImage::ImageLumaA16(b) => (2, Samples::U16(b.into_raw())),
+        DynamicImage::ImageRgb16(b) => (3, Samples::U16(b.into_raw())),
+        DynamicImage::ImageRgba16(b) => (4, Samples::U16(b.into_raw())),
+        other => return Err(image_err(path, format!("unsupported pixel type {:?} (expected 8- or 16-bit integers)", other.color()))),
+    };
+    Ok(Image { width, height, channels, samples })
+}
+
+/// Encodes an 8- or 16-bit image with 1-4 channels as PNG.
+pub fn encode_png(img: &Image) -> std::result::Result<Vec<u8>, String> {
+    use image::ExtendedColorType as C;
+    let n = img.width * img.height * img.channels;
+    let (ty, bytes): (C, Vec<u8>) = match (&img.samples, img.channels) {
+        (Samples::U8(v), c) if v.len() == n => ([C::L8, C::La8, C::Rgb8, C::Rgba8].get(c.wrapping_sub(1)).copied().ok_or("1-4 channels")?, v.clone()),
+        // The encoder takes 16-bit samples in native byte order.
+        (Samples::U16(v), c) if v.len() == n => {
+            ([C::L16, C::La16, C::Rgb16, C::Rgba16].get(c.wrapping_sub(1)).copied().ok_or("1-4 channels")?, v.iter().flat_map(|s| s.to_ne_bytes()).collect())
+        }
+        _ => return Err("image buffer does not match its size".into()),
+    };
+    let mut out = Cursor::new(Vec::new());
+    image::write_buffer_with_format(&mut out, &bytes, img.width as u32, img.height as u32, ty, ImageFormat::Png).map_err(|e| e.to_string())?;
+    Ok(out.into_inner())
+}
+
+/// Writes an 8- or 16-bit PNG atomically.
+pub fn write_png(path: &Path, img: &Image) -> Result<()> {
+    let bytes = encode_png(img).map_err(|m| Error::format(path, m))?;
+    crate::atomic::write_bytes_atomically(path, &bytes)
 }
 
 /// Writes an RGB8 PNG.
@@ -24,15 +109,20 @@ pub fn write_png_rgb(path: &Path, img: &RgbImage) -> Result<()> {
     if img.data.len() != img.width * img.height * 3 {
         return Err(Error::format(path, "image buffer does not match its size"));
     }
-    image::save_buffer_with_format(
-        path,
-        &img.data,
-        img.width as u32,
-        img.height as u32,
-        image::ExtendedColorType::Rgb8,
-        image::ImageFormat::Png,
-    )
-    .map_err(|e| Error::Image { path: path.to_path_buf(), message: e.to_string() })
+    image::save_buffer_with_format(path, &img.data, img.width as u32, img.height as u32, image::ExtendedColorType::Rgb8, ImageFormat::Png)
+        .map_err(|e| image_err(path, e))
+}
+
+/// Writes an RGB8 JPEG with `quality` 1..=100, atomically.
+pub fn write_jpeg_rgb(path: &Path, img: &RgbImage, quality: u8) -> Result<()> {
+    if img.data.len() != img.width * img.height * 3 {
+        return Err(Error::format(path, "image buffer does not match its size"));
+    }
+    let mut out = Cursor::new(Vec::new());
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
+        .encode(&img.data, img.width as u32, img.height as u32, image::ExtendedColorType::Rgb8)
+        .map_err(|e| image_err(path, e))?;
+    crate::atomic::write_bytes_atomically(path, &out.into_inner())
 }
 
 #[cfg(test)]

@@ -1,15 +1,31 @@
-//! Formats shared by the generator and the trainer: float32 disparity EXR and 8-bit images.
+//! The one place that reads and writes stereo data, for the generator, the trainer and Python.
+//!
+//! - Disparity: float32 EXR with validity and camera attributes ([`exr_io`]), PFM ([`pfm`]),
+//!   16-bit PNG with a scale and Sintel's RGB packing ([`png_disp`]), NumPy `.npy` ([`npy`]);
+//!   [`read_disparity`]/[`write_disparity`] pick the format from the file name.
+//! - Images: 8/16-bit, grey/colour, PNG/JPEG ([`image_io`]).
+//! - Datasets: ours and the public stereo sets behind one trait ([`datasets`]).
 //!
 //! Every reader names the file and the problem in its error; nothing here panics on bad input.
 
 pub mod atomic;
+pub mod datasets;
 pub mod disparity;
 pub mod error;
 pub mod exr_io;
+pub mod formats;
 pub mod image_io;
+pub mod npy;
+pub mod pfm;
+pub mod png_disp;
 
 pub use atomic::{temp_sibling, write_atomically, write_bytes_atomically};
+pub use datasets::{DatasetFormat, SampleMeta, StereoDataset, StereoSample, detect_format, open_dataset};
 pub use disparity::{DisparityMap, DisparityMeta, DisparityStats};
 pub use error::{Error, Result};
-pub use exr_io::{read_depth_channel, read_disparity_exr, write_disparity_exr};
-pub use image_io::{RgbImage, read_rgb, write_png_rgb};
+pub use exr_io::{decode_disparity_exr, read_depth_channel, read_disparity_exr, write_disparity_exr};
+pub use formats::{DisparityFormat, read_disparity, write_disparity};
+pub use image_io::{Image, RgbImage, Samples, read_image, read_rgb, write_jpeg_rgb, write_png, write_png_rgb};
+pub use npy::{NpyArray, read_disparity_npy, read_npy, write_disparity_npy, write_npy};
+pub use pfm::{Endian, FloatImage, decode_pfm, read_disparity_pfm, read_pfm, write_disparity_pfm, write_pfm};
+pub use png_disp::{CRESTEREO_SCALE, KITTI_SCALE, decode_disparity_png16, read_disparity_png16, read_disparity_sintel, write_disparity_png16, write_disparity_sintel};

@@ -1,0 +1,299 @@
+//! Stereo dataset readers: one [`StereoDataset`] trait, one [`StereoSample`], a reader for each
+//! layout, and [`open_dataset`] that recognises a layout from its root folder.
+//!
+//! Every reader lists its samples when opened (sorted by path, so indices are stable) and decodes
+//! files only in [`StereoDataset::sample`].
+
+mod layouts;
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use crate::disparity::DisparityMap;
+use crate::error::{Error, Result};
+use crate::image_io::{RgbImage, read_rgb};
+
+pub use layouts::detect_format;
+
+/// A dataset layout.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DatasetFormat {
+    /// stereogen's own: `manifest.jsonl` + PNG images + float32 EXR disparity.
+    Stereogen,
+    /// CREStereo's release: `*_left.jpg`, `*_right.jpg`, `*_{left,right}.disp.png` (÷32).
+    Crestereo,
+    /// SceneFlow (FlyingThings3D, Driving, Monkaa): `frames_cleanpass|frames_finalpass`, `disparity/*.pfm`.
+    SceneFlow,
+    /// Middlebury 2014 / MiddEval3: `<scene>/im0.png, im1.png, disp0.pfm, calib.txt`.
+    Middlebury,
+    /// ETH3D two-view: `<scene>/im0.png, im1.png, disp0GT.pfm, mask0nocc.png`.
+    Eth3d,
+    /// KITTI 2012: `training/colored_0|colored_1|disp_occ` (÷256).
+    Kitti2012,
+    /// KITTI 2015: `training/image_2|image_3|disp_occ_0` (÷256).
+    Kitti2015,
+    /// MPI Sintel stereo: `training/clean_left|clean_right|disparities` (RGB-packed).
+    Sintel,
+    /// NVIDIA Falling Things: `*.left.jpg`, `*.left.depth.png` (1e-4 m) + `_camera_settings.json`.
+    FallingThings,
+}
+
+impl DatasetFormat {
+    pub const ALL: [DatasetFormat; 9] = [
+        Self::Stereogen,
+        Self::Crestereo,
+        Self::SceneFlow,
+        Self::Middlebury,
+        Self::Eth3d,
+        Self::Kitti2012,
+        Self::Kitti2015,
+        Self::Sintel,
+        Self::FallingThings,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Stereogen => "stereogen",
+            Self::Crestereo => "crestereo",
+            Self::SceneFlow => "sceneflow",
+            Self::Middlebury => "middlebury",
+            Self::Eth3d => "eth3d",
+            Self::Kitti2012 => "kitti2012",
+            Self::Kitti2015 => "kitti2015",
+            Self::Sintel => "sintel",
+            Self::FallingThings => "fallingthings",
+        }
+    }
+}
+
+impl fmt::Display for DatasetFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for DatasetFormat {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let norm: String = s.to_ascii_lowercase().chars().filter(|c| c.is_ascii_alphanumeric()).collect();
+        let alias = match norm.as_str() {
+            "ours" => "stereogen",
+            "flyingthings3d" | "flyingthings" | "driving" | "monkaa" => "sceneflow",
+            "middlebury2014" | "middeval3" => "middlebury",
+            "fat" => "fallingthings",
+            other => other,
+        };
+        Self::ALL.into_iter().find(|f| f.name() == alias).ok_or_else(|| {
+            let names: Vec<&str> = Self::ALL.iter().map(|f| f.name()).collect();
+            format!("unknown dataset format {s:?} (one of: {})", names.join(", "))
+        })
+    }
+}
+
+/// What is known about a sample besides its pixels.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SampleMeta {
+    /// The dataset layout it came from.
+    pub format: Option<DatasetFormat>,
+    /// A stable name: the path of the left image relative to the root, or our sample id.
+    pub id: String,
+    pub left_path: PathBuf,
+    pub right_path: PathBuf,
+    pub disp_left_path: PathBuf,
+    /// Focal length in pixels, where the dataset gives it.
+    pub f_px: Option<f64>,
+    /// Baseline in metres, where the dataset gives it.
+    pub baseline_m: Option<f64>,
+    pub cx: Option<f64>,
+    pub cy: Option<f64>,
+    /// Middlebury/ETH3D `ndisp`: an upper bound of the disparity range.
+    pub ndisp: Option<u32>,
+    /// Anything else, as text (e.g. our `category`, Middlebury's `doffs`).
+    pub extra: BTreeMap<String, String>,
+}
+
+/// One stereo pair with its ground truth, decoded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StereoSample {
+    pub left: RgbImage,
+    pub right: RgbImage,
+    /// Left-view disparity; `disp_left.valid` says where it has ground truth.
+    pub disp_left: DisparityMap,
+    pub disp_right: Option<DisparityMap>,
+    /// A stricter validity mask where the dataset ships one (ETH3D/Middlebury `mask0nocc`, KITTI
+    /// `disp_noc`, Sintel occlusions and out-of-frame), already combined with `disp_left.valid`.
+    pub valid_left: Option<Vec<bool>>,
+    pub meta: SampleMeta,
+}
+
+impl StereoSample {
+    /// `valid_left` where the dataset has it, else the disparity's own validity.
+    pub fn valid_mask(&self) -> &[bool] {
+        self.valid_left.as_deref().unwrap_or(&self.disp_left.valid)
+    }
+}
+
+/// A readable stereo dataset. Implementations are `Send + Sync`: samples may be decoded from
+/// several threads at once.
+pub trait StereoDataset: Send + Sync {
+    fn format(&self) -> DatasetFormat;
+    fn root(&self) -> &Path;
+    fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// The stable name of sample `index` (without decoding it).
+    fn id(&self, index: usize) -> Option<&str>;
+    /// Decodes sample `index`; an index out of range is an error.
+    fn sample(&self, index: usize) -> Result<StereoSample>;
+}
+
+/// How a disparity file is decoded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum DispKind {
+    Exr,
+    Pfm,
+    Png16(f32),
+    Sintel,
+    /// Falling Things: 16-bit depth in 1e-4 m, 0 = none; `d = fx · baseline / Z`.
+    FatDepth { fx: f64, baseline_m: f64 },
+}
+
+/// How a mask file is turned into "keep this pixel".
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum MaskKind {
+    /// Middlebury/ETH3D non-occlusion masks: 255 = non-occluded, 128 occluded, 0 unknown.
+    Is255,
+    /// Sintel occlusion / out-of-frame masks: 0 = keep, 255 = occluded / out of frame.
+    IsZero,
+    /// KITTI `disp_noc`: a non-zero 16-bit value = non-occluded ground truth.
+    Png16NonZero,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct SampleFiles {
+    pub id: String,
+    pub left: PathBuf,
+    pub right: PathBuf,
+    pub disp_left: (PathBuf, DispKind),
+    pub disp_right: Option<(PathBuf, DispKind)>,
+    pub masks: Vec<(PathBuf, MaskKind)>,
+    pub meta: SampleMeta,
+}
+
+/// A dataset as a list of sample files: every layout is read through this.
+pub struct FileListDataset {
+    format: DatasetFormat,
+    root: PathBuf,
+    samples: Vec<SampleFiles>,
+}
+
+impl FileListDataset {
+    pub(crate) fn new(format: DatasetFormat, root: &Path, samples: Vec<SampleFiles>) -> Self {
+        Self { format, root: root.to_path_buf(), samples }
+    }
+}
+
+pub(crate) fn read_disp(path: &Path, kind: DispKind) -> Result<DisparityMap> {
+    match kind {
+        DispKind::Exr => Ok(crate::exr_io::read_disparity_exr(path)?.0),
+        DispKind::Pfm => crate::pfm::read_disparity_pfm(path),
+        DispKind::Png16(scale) => crate::png_disp::read_disparity_png16(path, scale),
+        DispKind::Sintel => crate::png_disp::read_disparity_sintel(path),
+        DispKind::FatDepth { fx, baseline_m } => {
+            let img = crate::image_io::read_image(path)?;
+            let crate::image_io::Samples::U16(depth) = img.samples else {
+                return Err(Error::format(path, "a Falling Things depth PNG must be 16-bit"));
+            };
+            if img.channels != 1 {
+                return Err(Error::format(path, format!("a Falling Things depth PNG must be grey, this one has {} channels", img.channels)));
+            }
+            let depth_m: Vec<f32> = depth.iter().map(|&v| v as f32 * 1e-4).collect();
+            Ok(DisparityMap::from_depth(img.width, img.height, &depth_m, fx, baseline_m, f32::INFINITY))
+        }
+    }
+}
+
+fn read_mask(path: &Path, kind: MaskKind) -> Result<(usize, usize, Vec<bool>)> {
+    let img = crate::image_io::read_image(path)?;
+    let c = img.channels;
+    let keep: Vec<bool> = match (&img.samples, kind) {
+        (crate::image_io::Samples::U8(v), MaskKind::Is255) => v.iter().step_by(c).map(|&p| p == 255).collect(),
+        (crate::image_io::Samples::U8(v), MaskKind::IsZero) => v.iter().step_by(c).map(|&p| p == 0).collect(),
+        (crate::image_io::Samples::U16(v), MaskKind::Png16NonZero) => v.iter().step_by(c).map(|&p| p != 0).collect(),
+        (crate::image_io::Samples::U16(v), MaskKind::Is255) => v.iter().step_by(c).map(|&p| p == u16::MAX).collect(),
+        (crate::image_io::Samples::U16(v), MaskKind::IsZero) => v.iter().step_by(c).map(|&p| p == 0).collect(),
+        (crate::image_io::Samples::U8(_), MaskKind::Png16NonZero) => return Err(Error::format(path, "expected a 16-bit disparity PNG as mask")),
+    };
+    Ok((img.width, img.height, keep))
+}
+
+fn same_size(path: &Path, what: &str, got: (usize, usize), want: (usize, usize)) -> Result<()> {
+    if got != want {
+        return Err(Error::format(path, format!("{what} is {}x{} but the left image is {}x{}", got.0, got.1, want.0, want.1)));
+    }
+    Ok(())
+}
+
+impl StereoDataset for FileListDataset {
+    fn format(&self) -> DatasetFormat {
+        self.format
+    }
+    fn root(&self) -> &Path {
+        &self.root
+    }
+    fn len(&self) -> usize {
+        self.samples.len()
+    }
+    fn id(&self, index: usize) -> Option<&str> {
+        self.samples.get(index).map(|s| s.id.as_str())
+    }
+    fn sample(&self, index: usize) -> Result<StereoSample> {
+        let f = self.samples.get(index).ok_or_else(|| Error::format(&self.root, format!("sample index {index} is out of range: the {} dataset has {} samples", self.format, self.samples.len())))?;
+        let left = read_rgb(&f.left)?;
+        let size = (left.width, left.height);
+        let right = read_rgb(&f.right)?;
+        same_size(&f.right, "the right image", (right.width, right.height), size)?;
+        let disp_left = read_disp(&f.disp_left.0, f.disp_left.1)?;
+        same_size(&f.disp_left.0, "the disparity", (disp_left.width, disp_left.height), size)?;
+        let disp_right = match &f.disp_right {
+            Some((p, k)) => {
+                let d = read_disp(p, *k)?;
+                same_size(p, "the disparity", (d.width, d.height), size)?;
+                Some(d)
+            }
+            None => None,
+        };
+        let valid_left = if f.masks.is_empty() {
+            None
+        } else {
+            let mut keep = disp_left.valid.clone();
+            for (p, kind) in &f.masks {
+                let (w, h, m) = read_mask(p, *kind)?;
+                same_size(p, "the mask", (w, h), size)?;
+                keep.iter_mut().zip(m).for_each(|(k, m)| *k &= m);
+            }
+            Some(keep)
+        };
+        Ok(StereoSample { left, right, disp_left, disp_right, valid_left, meta: f.meta.clone() })
+    }
+}
+
+/// Opens the dataset at `root`: with `format` given, as that layout; otherwise the layout is
+/// recognised from the folder (see [`detect_format`]).
+pub fn open_dataset(root: &Path, format: Option<DatasetFormat>) -> Result<Box<dyn StereoDataset>> {
+    if !root.is_dir() {
+        return Err(Error::format(root, "is not a directory"));
+    }
+    let format = match format {
+        Some(f) => f,
+        None => detect_format(root)?,
+    };
+    let samples = layouts::scan(format, root)?;
+    if samples.is_empty() {
+        return Err(Error::format(root, format!("no {format} samples found")));
+    }
+    Ok(Box::new(FileListDataset::new(format, root, samples)))
+}
