@@ -1,0 +1,305 @@
+//! Each dataset layout built as a tiny fixture with known values, recognised from its folder,
+//! read back through the one `StereoDataset` trait.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use stereo_io::*;
+
+const W: usize = 4;
+const H: usize = 3;
+
+fn rgb(seed: u8) -> RgbImage {
+    RgbImage { width: W, height: H, data: (0..W * H * 3).map(|i| (i as u8).wrapping_mul(7).wrapping_add(seed)).collect() }
+}
+
+/// Disparities that every format below stores exactly (multiples of 1/256, < 256).
+fn disp(seed: f32) -> DisparityMap {
+    let mut m = DisparityMap::new(W, H);
+    for (i, (d, v)) in m.data.iter_mut().zip(m.valid.iter_mut()).enumerate() {
+        *v = i != 5;
+        *d = if *v { seed + i as f32 * 1.25 } else { 0.0 };
+    }
+    m
+}
+
+fn mkdir(p: &Path) -> PathBuf {
+    fs::create_dir_all(p).unwrap();
+    p.to_path_buf()
+}
+
+fn grey8(path: &Path, f: impl Fn(usize) -> u8) {
+    write_png(path, &Image { width: W, height: H, channels: 1, samples: Samples::U8((0..W * H).map(f).collect()) }).unwrap();
+}
+
+fn jpeg_pair(dir: &Path, left: &str, right: &str) -> (RgbImage, RgbImage) {
+    write_jpeg_rgb(&dir.join(left), &rgb(10), 100).unwrap();
+    write_jpeg_rgb(&dir.join(right), &rgb(90), 100).unwrap();
+    (read_rgb(&dir.join(left)).unwrap(), read_rgb(&dir.join(right)).unwrap())
+}
+
+fn open(root: &Path, expect: DatasetFormat) -> Box<dyn StereoDataset> {
+    assert_eq!(detect_format(root).unwrap(), expect, "detected layout of {}", root.display());
+    let forced = open_dataset(root, Some(expect)).unwrap();
+    let auto = open_dataset(root, None).unwrap();
+    assert_eq!(auto.format(), expect);
+    assert_eq!(auto.len(), forced.len());
+    auto
+}
+
+fn assert_disp_eq(got: &DisparityMap, want: &DisparityMap) {
+    assert_eq!(got.valid, want.valid);
+    assert_eq!(got.data, want.data);
+}
+
+#[test]
+fn crestereo_release_layout() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = mkdir(&t.path().join("stereo_trainset/crestereo/tree"));
+    let (l, r) = jpeg_pair(&dir, "a1_left.jpg", "a1_right.jpg");
+    write_disparity_png16(&dir.join("a1_left.disp.png"), &disp(2.0), 32.0).unwrap();
+    write_disparity_png16(&dir.join("a1_right.disp.png"), &disp(3.0), 32.0).unwrap();
+    let ds = open(t.path(), DatasetFormat::Crestereo);
+    assert_eq!(ds.len(), 1);
+    let s = ds.sample(0).unwrap();
+    assert_eq!((s.left, s.right), (l, r));
+    assert_disp_eq(&s.disp_left, &disp(2.0));
+    assert_disp_eq(s.disp_right.as_ref().unwrap(), &disp(3.0));
+    assert_eq!(ds.id(0), Some("stereo_trainset/crestereo/tree/a1"));
+    let e = ds.sample(1).unwrap_err().to_string();
+    assert!(e.contains("out of range"), "{e}");
+}
+
+#[test]
+fn sceneflow_layout_with_right_disparity() {
+    let t = tempfile::tempdir().unwrap();
+    let root = t.path().join("FlyingThings3D");
+    for (cam, seed) in [("left", 1.0), ("right", 4.0)] {
+        let img = mkdir(&root.join(format!("frames_cleanpass/TRAIN/A/0000/{cam}")));
+        write_png_rgb(&img.join("0006.png"), &rgb(seed as u8)).unwrap();
+        let d = mkdir(&root.join(format!("disparity/TRAIN/A/0000/{cam}")));
+        write_disparity_pfm(&d.join("0006.pfm"), &disp(seed)).unwrap();
+    }
+    // A final pass beside it is not counted twice.
+    let fin = mkdir(&root.join("frames_finalpass/TRAIN/A/0000/left"));
+    write_png_rgb(&fin.join("0006.png"), &rgb(0)).unwrap();
+    let ds = open(t.path(), DatasetFormat::SceneFlow);
+    assert_eq!(ds.len(), 1);
+    let s = ds.sample(0).unwrap();
+    assert_eq!((s.left, s.right), (rgb(1), rgb(4)));
+    assert_disp_eq(&s.disp_left, &disp(1.0));
+    assert_disp_eq(s.disp_right.as_ref().unwrap(), &disp(4.0));
+    assert_eq!(s.meta.f_px, Some(1050.0));
+}
+
+fn middlebury_calib(dir: &Path) {
+    fs::write(
+        dir.join("calib.txt"),
+        "cam0=[3997.684 0 1176.728; 0 3997.684 1011.728; 0 0 1]\ncam1=[3997.684 0 1307.839; 0 3997.684 1011.728; 0 0 1]\ndoffs=131.111\nbaseline=193.001\nwidth=4\nheight=3\nndisp=280\nisint=0\nvmin=31\nvmax=257\n",
+    )
+    .unwrap();
+}
+
+#[test]
+fn middlebury_2014_layout_inf_is_invalid_and_calib_is_parsed() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = mkdir(&t.path().join("trainingF/Adirondack"));
+    write_png_rgb(&dir.join("im0.png"), &rgb(5)).unwrap();
+    write_png_rgb(&dir.join("im1.png"), &rgb(6)).unwrap();
+    // Written by hand as Middlebury does: big-endian is allowed too; inf where unknown.
+    let want = disp(7.0);
+    let mut bytes = format!("Pf\n{W} {H}\n1.0\n").into_bytes();
+    for y in (0..H).rev() {
+        for x in 0..W {
+            let v = if want.is_valid(x, y) { want.get(x, y) } else { f32::INFINITY };
+            bytes.extend_from_slice(&v.to_be_bytes());
+        }
+    }
+    fs::write(dir.join("disp0.pfm"), bytes).unwrap();
+    middlebury_calib(&dir);
+    let ds = open(t.path(), DatasetFormat::Middlebury);
+    let s = ds.sample(0).unwrap();
+    assert_eq!((s.left.clone(), s.right.clone()), (rgb(5), rgb(6)));
+    assert_disp_eq(&s.disp_left, &want);
+    assert_eq!((s.meta.f_px, s.meta.ndisp, s.meta.cx), (Some(3997.684), Some(280), Some(1176.728)));
+    assert!((s.meta.baseline_m.unwrap() - 0.193001).abs() < 1e-12);
+    assert_eq!(s.meta.extra.get("doffs").map(String::as_str), Some("131.111"));
+    assert!(s.valid_left.is_none());
+    // A broken calib.txt is an error naming it.
+    fs::write(dir.join("calib.txt"), "cam0=[1 2 3]\n").unwrap();
+    let e = open_dataset(t.path(), None).err().unwrap().to_string();
+    assert!(e.contains("calib.txt") && e.contains("3x3"), "{e}");
+}
+
+#[test]
+fn eth3d_two_view_layout_applies_the_nocc_mask() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = mkdir(&t.path().join("two_view_training/delivery_area_1l"));
+    write_png_rgb(&dir.join("im0.png"), &rgb(8)).unwrap();
+    write_png_rgb(&dir.join("im1.png"), &rgb(9)).unwrap();
+    write_disparity_pfm(&dir.join("disp0GT.pfm"), &disp(0.5)).unwrap();
+    // 255 = non-occluded, 128 = occluded, 0 = unknown.
+    grey8(&dir.join("mask0nocc.png"), |i| [255, 128, 0][i % 3]);
+    let ds = open(t.path(), DatasetFormat::Eth3d);
+    let s = ds.sample(0).unwrap();
+    assert_disp_eq(&s.disp_left, &disp(0.5));
+    let want: Vec<bool> = (0..W * H).map(|i| i % 3 == 0 && i != 5).collect();
+    assert_eq!(s.valid_left.as_deref(), Some(&want[..]));
+    assert_eq!(s.valid_mask(), &want[..]);
+}
+
+#[test]
+fn kitti_2015_and_2012_layouts() {
+    for (l, r, occ, occ1, noc, fmt) in [
+        ("image_2", "image_3", "disp_occ_0", Some("disp_occ_1"), "disp_noc_0", DatasetFormat::Kitti2015),
+        ("colored_0", "colored_1", "disp_occ", None, "disp_noc", DatasetFormat::Kitti2012),
+    ] {
+        let t = tempfile::tempdir().unwrap();
+        let base = t.path().join("training");
+        for f in ["000000_10.png", "000000_11.png", "000001_10.png"] {
+            write_png_rgb(&mkdir(&base.join(l)).join(f), &rgb(f.len() as u8 + f.as_bytes()[5])).unwrap();
+            write_png_rgb(&mkdir(&base.join(r)).join(f), &rgb(3)).unwrap();
+        }
+        for f in ["000000_10.png", "000001_10.png"] {
+            write_disparity_png16(&mkdir(&base.join(occ)).join(f), &disp(f.as_bytes()[5] as f32 - 40.0), 256.0).unwrap();
+            if let Some(o1) = occ1 {
+                write_disparity_png16(&mkdir(&base.join(o1)).join(f), &disp(9.0), 256.0).unwrap();
+            }
+        }
+        let mut noc_map = disp(1.0);
+        noc_map.valid[0] = false;
+        write_disparity_png16(&mkdir(&base.join(noc)).join("000001_10.png"), &noc_map, 256.0).unwrap();
+        let ds = open(t.path(), fmt);
+        assert_eq!(ds.len(), 2, "only the _10 frames have ground truth");
+        let s1 = ds.sample(1).unwrap();
+        assert_disp_eq(&s1.disp_left, &disp(9.0));
+        assert_eq!(s1.disp_right.is_some(), occ1.is_some());
+        let mut want = s1.disp_left.valid.clone();
+        want[0] = false;
+        assert_eq!(s1.valid_left, Some(want));
+        assert!(ds.sample(0).unwrap().valid_left.is_none());
+        // The training folder itself is a root too.
+        assert_eq!(open_dataset(&base, None).unwrap().len(), 2);
+    }
+}
+
+#[test]
+fn sintel_stereo_layout_with_occlusion_and_out_of_frame_masks() {
+    let t = tempfile::tempdir().unwrap();
+    let base = t.path().join("training");
+    let mut want = disp(2.0);
+    want.valid.iter_mut().for_each(|v| *v = true);
+    want.data[5] = 0.0;
+    want.data[3] = 700.123;
+    for d in ["clean_left", "clean_right", "final_left", "final_right", "disparities", "occlusions", "outofframe"] {
+        let dir = mkdir(&base.join(d).join("alley_1"));
+        match d {
+            "disparities" => write_disparity_sintel(&dir.join("frame_0001.png"), &want).unwrap(),
+            "occlusions" => grey8(&dir.join("frame_0001.png"), |i| if i == 1 { 255 } else { 0 }),
+            "outofframe" => grey8(&dir.join("frame_0001.png"), |i| if i == 2 { 255 } else { 0 }),
+            _ => write_png_rgb(&dir.join("frame_0001.png"), &rgb(d.len() as u8)).unwrap(),
+        }
+    }
+    let ds = open(t.path(), DatasetFormat::Sintel);
+    assert_eq!(ds.len(), 1);
+    let s = ds.sample(0).unwrap();
+    assert_eq!(s.left, rgb("clean_left".len() as u8));
+    for (a, b) in s.disp_left.data.iter().zip(&want.data) {
+        assert!((a - b).abs() <= 0.5 / 16384.0 + b * 1e-7, "{a} vs {b}");
+    }
+    let mask: Vec<bool> = (0..W * H).map(|i| i != 1 && i != 2).collect();
+    assert_eq!(s.valid_left, Some(mask));
+}
+
+#[test]
+fn falling_things_depth_becomes_disparity_with_fx_and_6cm() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = mkdir(&t.path().join("fat/mixed/kitchen_0"));
+    let fx = 768.1605834960938;
+    fs::write(
+        dir.join("_camera_settings.json"),
+        format!(r#"{{"camera_settings": [{{"name": "left", "intrinsic_settings": {{"resX": 4, "resY": 3, "fx": {fx}, "fy": {fx}, "cx": 2, "cy": 1.5, "s": 0}}}}, {{"name": "right", "intrinsic_settings": {{"fx": {fx}}}}}]}}"#),
+    )
+    .unwrap();
+    fs::write(dir.join("_object_settings.json"), "{}").unwrap();
+    jpeg_pair(&dir, "000000.left.jpg", "000000.right.jpg");
+    // Depth in units of 1e-4 m; 0 = no depth.
+    let depth: Vec<u16> = (0..W * H).map(|i| if i == 4 { 0 } else { 5000 + 1000 * i as u16 }).collect();
+    write_png(&dir.join("000000.left.depth.png"), &Image { width: W, height: H, channels: 1, samples: Samples::U16(depth.clone()) }).unwrap();
+    let ds = open(t.path(), DatasetFormat::FallingThings);
+    let s = ds.sample(0).unwrap();
+    for (i, &z) in depth.iter().enumerate() {
+        if z == 0 {
+            assert!(!s.disp_left.valid[i]);
+        } else {
+            let want = fx * 0.06 / (z as f64 * 1e-4);
+            assert!((s.disp_left.data[i] as f64 - want).abs() < 1e-4 * want, "{} vs {want}", s.disp_left.data[i]);
+        }
+    }
+    assert_eq!((s.meta.f_px, s.meta.baseline_m), (Some(fx), Some(0.06)));
+    assert!(s.disp_right.is_none());
+}
+
+fn write_ours(root: &Path, lines: &[String]) {
+    fs::write(root.join("manifest.jsonl"), lines.concat()).unwrap();
+}
+
+fn our_line(id: &str) -> String {
+    format!(
+        r#"{{"id":"{id}","category":"primitives","seed":5,"index":0,"files":{{"left":"primitives/{id}_left.png","right":"primitives/{id}_right.png","disp_left":"primitives/{id}_left.disp.exr","disp_right":"primitives/{id}_right.disp.exr","scene":"primitives/{id}.scene.json"}},"width":4,"height":3,"f_px":64.0,"baseline_m":0.1,"cx":2.0,"cy":1.5,"future_field":[1,2]}}"#
+    ) + "\n"
+}
+
+#[test]
+fn our_manifest_layout_and_its_errors() {
+    let t = tempfile::tempdir().unwrap();
+    let cat = mkdir(&t.path().join("primitives"));
+    let meta = DisparityMeta { f_px: Some(64.0), baseline_m: Some(0.1), view: Some("left".into()) };
+    for id in ["0000000", "0000001"] {
+        write_png_rgb(&cat.join(format!("{id}_left.png")), &rgb(1)).unwrap();
+        write_png_rgb(&cat.join(format!("{id}_right.png")), &rgb(2)).unwrap();
+        write_disparity_exr(&cat.join(format!("{id}_left.disp.exr")), &disp(0.1), &meta).unwrap();
+        write_disparity_exr(&cat.join(format!("{id}_right.disp.exr")), &disp(0.2), &meta).unwrap();
+    }
+    // A torn last line (a kill mid-append) is not a sample yet.
+    let torn = our_line("0000001");
+    write_ours(t.path(), &[our_line("0000000"), torn[..40].to_string()]);
+    let ds = open(t.path(), DatasetFormat::Stereogen);
+    assert_eq!(ds.len(), 1);
+    let s = ds.sample(0).unwrap();
+    assert_disp_eq(&s.disp_left, &disp(0.1));
+    assert_disp_eq(s.disp_right.as_ref().unwrap(), &disp(0.2));
+    assert_eq!((s.meta.id.as_str(), s.meta.f_px, s.meta.baseline_m), ("0000000", Some(64.0), Some(0.1)));
+    assert_eq!(s.meta.extra["category"], "primitives");
+
+    // A broken line in the middle is an error naming the manifest and the line.
+    write_ours(t.path(), &["{not json\n".to_string(), our_line("0000000")]);
+    let e = open_dataset(t.path(), None).err().unwrap().to_string();
+    assert!(e.contains("manifest.jsonl") && e.contains("line 1"), "{e}");
+    // A file that went missing is an error naming it when the sample is read.
+    write_ours(t.path(), &[our_line("0000001")]);
+    fs::remove_file(cat.join("0000001_right.png")).unwrap();
+    let e = open_dataset(t.path(), None).unwrap().sample(0).unwrap_err().to_string();
+    assert!(e.contains("0000001_right.png"), "{e}");
+}
+
+#[test]
+fn mismatched_sizes_unknown_layouts_and_formats_are_errors() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = mkdir(&t.path().join("s"));
+    write_png_rgb(&dir.join("im0.png"), &rgb(1)).unwrap();
+    write_png_rgb(&dir.join("im1.png"), &RgbImage { width: 2, height: 2, data: vec![0; 12] }).unwrap();
+    write_disparity_pfm(&dir.join("disp0GT.pfm"), &disp(1.0)).unwrap();
+    let e = open_dataset(t.path(), None).unwrap().sample(0).unwrap_err().to_string();
+    assert!(e.contains("im1.png") && e.contains("2x2") && e.contains("4x3"), "{e}");
+
+    let empty = tempfile::tempdir().unwrap();
+    let e = detect_format(empty.path()).unwrap_err().to_string();
+    assert!(e.contains("cannot recognise"), "{e}");
+    let e = open_dataset(empty.path(), Some(DatasetFormat::Crestereo)).err().unwrap().to_string();
+    assert!(e.contains("no crestereo samples"), "{e}");
+    assert_eq!("KITTI-2015".parse::<DatasetFormat>().unwrap(), DatasetFormat::Kitti2015);
+    assert_eq!("FlyingThings3D".parse::<DatasetFormat>().unwrap(), DatasetFormat::SceneFlow);
+    assert!("cityscapes".parse::<DatasetFormat>().unwrap_err().contains("one of"));
+    let _: PathBuf = dir.to_path_buf();
+}
