@@ -99,6 +99,21 @@ pub enum Command {
         #[command(flatten)]
         runtime: RuntimeArgs,
     },
+    /// Write DATASET (ours) in another layout: crestereo (the official trainer's `*_left.jpg` +
+    /// `*.disp.png` x32), kitti (`training/image_2`, `disp_occ_0` x256) or middlebury (`im0.png`,
+    /// `disp0.pfm`, `calib.txt`). Images are hard links where the format matches.
+    Export {
+        /// The stereogen dataset directory (with manifest.jsonl).
+        dataset: PathBuf,
+        #[arg(long, value_enum)]
+        format: crate::dataset::export::ExportFormat,
+        /// Output directory (created if missing).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// crestereo only: write real JPEGs of this quality (1-100) instead of linking our PNGs.
+        #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
+        jpeg_quality: Option<u8>,
+    },
 }
 
 fn parse_shard(s: &str) -> Result<(u64, u64), String> {
@@ -182,6 +197,11 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let layout = DatasetLayout::new(&out);
             let entry = finalize_sample(&layout, &spec, rendered.reply.files.as_ref().expect("ok replies carry files"), t0.elapsed().as_secs_f64())?;
             println!("{}", serde_json::to_string(&entry)?);
+        }
+        Command::Export { dataset, format, out, jpeg_quality } => {
+            let opts = crate::dataset::export::ExportOptions { dataset, format, out: out.clone(), jpeg_quality };
+            let s = crate::dataset::export::export(&opts)?;
+            eprintln!("stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid) -> {}", s.samples, s.linked, s.written, s.dropped_pixels, out.display());
         }
     }
     Ok(())

@@ -90,7 +90,27 @@ fn read_flat(path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
     decode_flat(&bytes, path)
 }
 
+/// Refuses headers whose pixels would need far more memory than the file could hold: ZIP, the
+/// best-compressing EXR codec, stays near 1:1000, so a small file claiming gigapixels is corrupt
+/// and must not make the decoder allocate (and abort the process).
+fn check_decoded_size(bytes: &[u8], path: &Path) -> IoResult<()> {
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false).map_err(|e| exr_err(path, e))?;
+    let budget = (bytes.len() as u128 * 4096 + (1 << 20)).min(1 << 33);
+    for header in &meta.headers {
+        let per_pixel: u128 = header.channels.list.iter().map(|c| c.sample_type.bytes_per_sample() as u128).sum();
+        let need = header.layer_size.x() as u128 * header.layer_size.y() as u128 * per_pixel;
+        if need > budget {
+            return Err(exr_err(
+                path,
+                format!("header claims {}x{} pixels ({need} bytes decoded) from a {}-byte file: corrupt or truncated", header.layer_size.x(), header.layer_size.y(), bytes.len()),
+            ));
+        }
+    }
+    Ok(())
+}
+
 fn decode_flat(bytes: &[u8], path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
+    check_decoded_size(bytes, path)?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

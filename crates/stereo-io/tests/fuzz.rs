@@ -3,6 +3,7 @@
 //! count for a long run (the suite keeps a short one).
 
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
@@ -46,8 +47,15 @@ fn mutate(base: &[u8], edits: &[(usize, u8)], cut: Option<usize>, insert: Option
     b
 }
 
+static OK: AtomicUsize = AtomicUsize::new(0);
+static ERR: AtomicUsize = AtomicUsize::new(0);
+
 fn check(name: &str, r: std::result::Result<impl Sized, Error>) -> std::result::Result<(), TestCaseError> {
+    if r.is_ok() {
+        OK.fetch_add(1, Ordering::Relaxed);
+    }
     if let Err(e) = r {
+        ERR.fetch_add(1, Ordering::Relaxed);
         let msg = e.to_string();
         prop_assert!(msg.contains(name), "error does not name the file: {msg}");
     }
@@ -81,6 +89,7 @@ fn readers_never_panic_on_mutated_files() {
             run_all(&mutate(base, &edits, cut, insert))
         })
         .unwrap();
+    eprintln!("mutated: {} cases; decoder results so far: {} ok, {} errors", cases(), OK.load(Ordering::Relaxed), ERR.load(Ordering::Relaxed));
 }
 
 #[test]
@@ -96,4 +105,5 @@ fn readers_never_panic_on_random_bytes() {
             run_all(&bytes)
         })
         .unwrap();
+    eprintln!("random: {} cases; decoder results so far: {} ok, {} errors", cases(), OK.load(Ordering::Relaxed), ERR.load(Ordering::Relaxed));
 }

@@ -1,0 +1,128 @@
+//! `stereogen export` on a real rendered dataset, read back with the matching stereo-io reader:
+//! the same pictures and the same disparities within each format's quantisation.
+
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use stereo_io::{DatasetFormat, DisparityMap, open_dataset};
+use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+
+fn generate(dir: &Path) -> PathBuf {
+    let recipe = write_tiny_recipe(dir, "crestereo");
+    let out = dir.join("ours");
+    let o = Command::new(stereogen_bin())
+        .args(["generate", "--no-progress", "--threads", "1", "--seed", "3", "--count", "2", "--recipe"])
+        .arg(&recipe)
+        .arg("--out")
+        .arg(&out)
+        .env_remove("STEREOGEN_FAULT")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "generate failed: {}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+fn export(data: &Path, format: &str, out: &Path, extra: &[&str]) -> std::process::Output {
+    Command::new(stereogen_bin()).arg("export").arg(data).args(["--format", format, "--out"]).arg(out).args(extra).stdin(Stdio::null()).output().unwrap()
+}
+
+/// Same validity everywhere, and values within `tol` on valid pixels.
+fn assert_close(got: &DisparityMap, want: &DisparityMap, tol: f32, what: &str) {
+    assert_eq!((got.width, got.height), (want.width, want.height), "{what}");
+    assert_eq!(got.valid, want.valid, "{what}: validity");
+    let mut worst = 0f32;
+    for ((g, w), v) in got.data.iter().zip(&want.data).zip(&want.valid) {
+        if *v {
+            worst = worst.max((g - w).abs());
+        }
+    }
+    assert!(worst <= tol, "{what}: max error {worst} > {tol}");
+}
+
+fn same_inode(a: &Path, b: &Path) -> bool {
+    std::fs::metadata(a).unwrap().ino() == std::fs::metadata(b).unwrap().ino()
+}
+
+#[test]
+fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = generate(dir.path());
+    let ours = open_dataset(&data, None).unwrap();
+    assert_eq!((ours.format(), ours.len()), (DatasetFormat::Stereogen, 2));
+    let ours: Vec<_> = (0..ours.len()).map(|i| ours.sample(i).unwrap()).collect();
+    assert!(ours.iter().all(|s| s.disp_left.valid.iter().any(|&v| v)), "rendered samples have valid disparity");
+
+    for (format, expect, tol) in [("crestereo", DatasetFormat::Crestereo, 0.5 / 32.0), ("kitti", DatasetFormat::Kitti2015, 0.5 / 256.0), ("middlebury", DatasetFormat::Middlebury, 0.0)] {
+        let out = dir.path().join(format);
+        let o = export(&data, format, &out, &[]);
+        assert!(o.status.success(), "export {format}: {}", String::from_utf8_lossy(&o.stderr));
+        let back = open_dataset(&out, None).unwrap();
+        assert_eq!(back.format(), expect, "{format} export is recognised as {expect}");
+        assert_eq!(back.len(), ours.len());
+        for (n, want) in ours.iter().enumerate() {
+            let (cat, id) = (&want.meta.extra["category"], &want.meta.id);
+            let name = match format {
+                "crestereo" => format!("{cat}/{id}"),
+                "kitti" => format!("training/image_2/{n:06}_10.png"),
+                _ => format!("{cat}_{id}"),
+            };
+            let i = (0..back.len()).find(|&i| back.id(i) == Some(name.as_str())).unwrap_or_else(|| panic!("{format}: no sample {name}"));
+            let got = back.sample(i).unwrap();
+            assert_eq!(got.left, want.left, "{format} {name}: left image");
+            assert_eq!(got.right, want.right, "{format} {name}: right image");
+            assert_close(&got.disp_left, &want.disp_left, tol, &format!("{format} {name} left"));
+            assert_close(got.disp_right.as_ref().unwrap(), want.disp_right.as_ref().unwrap(), tol, &format!("{format} {name} right"));
+            // Images are our PNG files, linked rather than re-encoded.
+            assert!(same_inode(&got.meta.left_path, &want.meta.left_path), "{format}: {} is not a hard link", got.meta.left_path.display());
+            if format == "middlebury" {
+                assert_eq!((got.meta.f_px, got.meta.cx), (want.meta.f_px, want.meta.cx));
+                assert!((got.meta.baseline_m.unwrap() - want.meta.baseline_m.unwrap()).abs() < 1e-12);
+                let max = want.disp_left.stats().unwrap().max;
+                assert!(got.meta.ndisp.unwrap() as f32 > max, "ndisp bounds the disparities");
+            }
+        }
+        // Exporting again over a finished export succeeds (every file is replaced atomically).
+        assert!(export(&data, format, &out, &[]).status.success());
+    }
+}
+
+#[test]
+fn crestereo_export_follows_the_official_loader_paths_and_jpeg_option() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = generate(dir.path());
+    let out = dir.path().join("cre");
+    let o = export(&data, "crestereo", &out, &["--jpeg-quality", "95"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The official CREStereo loader: glob("**/*_left.jpg"), prefix = path[:rfind("_")],
+    // then prefix + "_right.jpg", "_left.disp.png", "_right.disp.png" (cv2 IMREAD_UNCHANGED / 32).
+    let lefts: Vec<PathBuf> = walk(&out).into_iter().filter(|p| p.to_string_lossy().ends_with("_left.jpg")).collect();
+    assert_eq!(lefts.len(), 2);
+    for left in lefts {
+        let s = left.to_string_lossy();
+        let prefix = &s[..s.rfind('_').unwrap()];
+        for suffix in ["_right.jpg", "_left.disp.png", "_right.disp.png"] {
+            assert!(Path::new(&format!("{prefix}{suffix}")).is_file(), "{prefix}{suffix}");
+        }
+        assert_eq!(&std::fs::read(&left).unwrap()[..3], &[0xFF, 0xD8, 0xFF], "a real JPEG");
+        let disp = stereo_io::read_image(Path::new(&format!("{prefix}_left.disp.png"))).unwrap();
+        assert!(disp.channels == 1 && matches!(disp.samples, stereo_io::Samples::U16(_)), "16-bit grey disparity");
+    }
+    let o = export(&dir.path().join("nothing"), "kitti", &dir.path().join("k"), &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("nothing") && err.contains("manifest.jsonl"), "{err}");
+}
+
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
