@@ -114,6 +114,33 @@ pub enum Command {
         #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
         jpeg_quality: Option<u8>,
     },
+    /// Disparity statistics of a dataset: pixel-level histograms of both views, the object-level
+    /// target disparities, percentiles, invalid pixels, KS distance to the recipe's law, per
+    /// category and overall. Writes stats.json (and PNG plots with --plot).
+    Stats {
+        /// Dataset directory (holds dataset.json and manifest.jsonl).
+        #[arg(value_name = "DATASET")]
+        dataset: PathBuf,
+        /// Also write PNG plots (stats_objects, stats_pixels, stats_categories, stats_coverage).
+        #[arg(long)]
+        plot: bool,
+        /// Exit non-zero when a category misses its target (KS above the critical value, or an
+        /// empty pixel bin inside the law's support).
+        #[arg(long)]
+        check: bool,
+        /// Significance of the KS test and of the gap check's bin-count rule.
+        #[arg(long, value_name = "ALPHA", default_value_t = 0.01)]
+        ks_alpha: f64,
+        /// Bins of the pixel-level histograms in stats.json and the plots [default: 64].
+        #[arg(long, value_name = "N")]
+        bins: Option<usize>,
+        /// Equal-mass bins of the gap check [default: the most the object count supports at ALPHA].
+        #[arg(long, value_name = "N")]
+        gap_bins: Option<usize>,
+        /// Where stats.json and the plots go [default: the dataset directory].
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
 }
 
 fn parse_shard(s: &str) -> Result<(u64, u64), String> {
@@ -202,6 +229,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let opts = crate::dataset::export::ExportOptions { dataset, format, out: out.clone(), jpeg_quality };
             let s = crate::dataset::export::export(&opts)?;
             eprintln!("stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid) -> {}", s.samples, s.linked, s.written, s.dropped_pixels, out.display());
+        }
+        Command::Stats { dataset, plot, check, ks_alpha, bins, gap_bins, out } => {
+            let opts = crate::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins };
+            crate::validate::run_cli(&opts, out, plot, check)?;
         }
     }
     Ok(())

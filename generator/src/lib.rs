@@ -9,3 +9,4 @@ pub mod cli;
 pub mod dataset;
 pub mod plan;
 pub mod render;
+pub mod validate;

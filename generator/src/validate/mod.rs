@@ -1,0 +1,43 @@
+//! Proof that a dataset follows its recipe: `stereogen stats DATASET`.
+//!
+//! - [`stats`]: reads the recipe, manifest and SceneSpecs (object-level sample of the disparity
+//!   law) and streams every disparity EXR in parallel (pixel level); [`compute`] gives a
+//!   [`StatsReport`], written as `stats.json`.
+//! - [`report`]: the report's structure and the per-category OK/FAIL decision: a category fails
+//!   when the Kolmogorov–Smirnov distance between its object targets and the law exceeds the
+//!   critical value at `--ks-alpha`, or when an equal-mass bin of the law inside its support gets
+//!   no valid pixel (a gap); see [`hist::gap_bins_for`] for how many bins the sample size allows.
+//! - [`hist`], [`accumulate`]: histograms, percentiles and the streaming accumulators.
+//! - [`plots`]: PNG plots (`--plot`).
+
+pub mod accumulate;
+pub mod hist;
+pub mod plots;
+pub mod report;
+pub mod stats;
+
+use std::path::PathBuf;
+
+pub use report::{CategoryStats, StatsReport, Status};
+pub use stats::{StatsOptions, compute, summary_lines, write_json};
+
+/// What `stereogen stats` does: compute, write `stats.json` (and plots) into `out` (default: the
+/// dataset root), print the summary, and with `check` fail when any category misses its target.
+pub fn run_cli(opts: &StatsOptions, out: Option<PathBuf>, plot: bool, check: bool) -> anyhow::Result<StatsReport> {
+    let report = compute(opts)?;
+    let dir = out.unwrap_or_else(|| opts.dataset.clone());
+    let json = write_json(&report, &dir)?;
+    for line in summary_lines(&report) {
+        println!("{line}");
+    }
+    println!("wrote {}", json.display());
+    if plot {
+        for p in plots::write_plots(&report, &dir)? {
+            println!("wrote {}", p.display());
+        }
+    }
+    if check && !report.pass {
+        anyhow::bail!("stats --check: the dataset does not follow its recipe (see the FAIL lines above)");
+    }
+    Ok(report)
+}

@@ -1,0 +1,305 @@
+//! PNG plots of a stats report with `plotters` (bitmap backend, no system font libraries).
+//!
+//! Text is drawn with `ab_glyph` from DejaVu Sans, bundled in `fonts/` (Bitstream Vera licence,
+//! `fonts/DejaVuSans.LICENSE`): a fresh machine needs no fontconfig, freetype or font package.
+//!
+//! - `stats_objects.png`: object-level target disparities (all categories) vs the law's density.
+//! - `stats_pixels.png`: pixel-level disparity of both views vs the law, empty gap bins in red.
+//! - `stats_categories.png`: one panel per category: pixel and object histograms, law, gaps.
+//! - `stats_coverage.png`: disparity (p5–p95 band, median, mean) and valid fraction by image row
+//!   and column.
+
+use std::path::{Path, PathBuf};
+use std::sync::Once;
+
+use anyhow::anyhow;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+
+use super::hist::{UniformHist, law_density};
+use super::report::{Band, CategoryStats, StatsReport, Status};
+use crate::plan::Dist;
+
+const FONT: &[u8] = include_bytes!("fonts/DejaVuSans.ttf");
+const PIXEL: RGBColor = RGBColor(70, 110, 190);
+const OBJECT: RGBColor = RGBColor(20, 140, 60);
+const LAW: RGBColor = RGBColor(210, 40, 40);
+const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+];
+
+type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+
+fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow!("plotting failed: {e:?}")
+}
+
+fn register() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        if register_font("sans-serif", FontStyle::Normal, FONT).is_err() {
+            panic!("the bundled DejaVu Sans font does not parse");
+        }
+    });
+}
+
+/// Draws into an RGB buffer and writes it as a PNG, atomically.
+fn render(path: &Path, (w, h): (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Result<()>) -> anyhow::Result<()> {
+    register();
+    let mut buf = vec![255u8; w as usize * h as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        draw(&root)?;
+        root.present().map_err(plot_err)?;
+    }
+    let img = stereo_io::Image { width: w as usize, height: h as usize, channels: 3, samples: stereo_io::Samples::U8(buf) };
+    stereo_io::write_png(path, &img)?;
+    Ok(())
+}
+
+/// `(lo, hi, density)` per bin; `norm` is the count that integrates to 1.
+fn density_bars(h: &UniformHist, norm: u64) -> Vec<(f64, f64, f64)> {
+    let w = h.bin_width();
+    let edges = h.edges();
+    h.counts.iter().enumerate().map(|(i, &c)| (edges[i], edges[i + 1], if norm == 0 { 0.0 } else { c as f64 / (norm as f64 * w) })).collect()
+}
+
+fn step_line(bars: &[(f64, f64, f64)]) -> Vec<(f64, f64)> {
+    let mut pts = vec![(bars[0].0, 0.0)];
+    for &(a, b, y) in bars {
+        pts.push((a, y));
+        pts.push((b, y));
+    }
+    pts.push((bars[bars.len() - 1].1, 0.0));
+    pts
+}
+
+/// What one histogram panel shows.
+struct Panel<'a> {
+    title: String,
+    x: (f64, f64),
+    /// Filled bars (pixel level) and their legend label.
+    bars: Option<(Vec<(f64, f64, f64)>, String)>,
+    /// Outline histogram (object level) and its legend label.
+    outline: Option<(Vec<(f64, f64, f64)>, String)>,
+    /// Law density curve and its scale (fraction of the plotted mass inside the support).
+    law: Option<(&'a Dist, f64)>,
+    empty: Vec<[f64; 2]>,
+}
+
+fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
+    let (x0, x1) = p.x;
+    let law_pts = p.law.map(|(law, scale)| law_density(law, x0, x1, 600).into_iter().map(|(x, y)| (x, y * scale)).collect::<Vec<_>>()).unwrap_or_default();
+    let y_max = [p.bars.as_ref().map(|b| &b.0), p.outline.as_ref().map(|b| &b.0)]
+        .into_iter()
+        .flatten()
+        .flat_map(|v| v.iter().map(|b| b.2))
+        .chain(law_pts.iter().map(|p| p.1))
+        .fold(0.0, f64::max)
+        .max(1e-9)
+        * 1.15;
+    let mut chart = ChartBuilder::on(area)
+        .caption(&p.title, ("sans-serif", 17))
+        .margin(8)
+        .x_label_area_size(38)
+        .y_label_area_size(62)
+        .build_cartesian_2d(x0..x1, 0.0..y_max)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("disparity (px)")
+        .y_desc("density (1/px)")
+        .y_label_formatter(&|v| format!("{v:.3}"))
+        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(plot_err)?;
+    if !p.empty.is_empty() {
+        chart
+            .draw_series(p.empty.iter().map(|[a, b]| Rectangle::new([(*a, 0.0), (*b, y_max)], LAW.mix(0.18).filled())))
+            .map_err(plot_err)?
+            .label(format!("empty gap bin ({})", p.empty.len()))
+            .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], LAW.mix(0.18).filled()));
+    }
+    if let Some((bars, label)) = &p.bars {
+        chart
+            .draw_series(bars.iter().map(|&(a, b, y)| Rectangle::new([(a, 0.0), (b, y)], PIXEL.mix(0.55).filled())))
+            .map_err(plot_err)?
+            .label(label.as_str())
+            .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], PIXEL.mix(0.55).filled()));
+    }
+    if let Some((bars, label)) = &p.outline {
+        chart
+            .draw_series(LineSeries::new(step_line(bars), OBJECT.stroke_width(2)))
+            .map_err(plot_err)?
+            .label(label.as_str())
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], OBJECT.stroke_width(2)));
+    }
+    if !law_pts.is_empty() {
+        chart
+            .draw_series(LineSeries::new(law_pts, LAW.stroke_width(2)))
+            .map_err(plot_err)?
+            .label("recipe law (density)")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], LAW.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .label_font(("sans-serif", 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+fn object_bars(c: &CategoryStats) -> Option<(Vec<(f64, f64, f64)>, String)> {
+    c.objects.histogram.as_ref().map(|h| (density_bars(h, c.objects.count as u64), format!("object targets (n={})", c.objects.count)))
+}
+
+fn ks_text(c: &CategoryStats) -> String {
+    match (c.objects.ks_distance, c.objects.ks_critical) {
+        (Some(d), Some(k)) => format!("KS {d:.3} (crit {k:.3})"),
+        _ => "no objects".to_string(),
+    }
+}
+
+fn status_text(c: &CategoryStats) -> &'static str {
+    match c.status {
+        Status::Ok => "OK",
+        Status::Fail => "FAIL",
+        Status::Skip => "SKIP",
+    }
+}
+
+/// A panel of one category's pixel-level histogram (optionally with its object histogram).
+fn pixel_panel<'a>(c: &CategoryStats, report: &'a StatsReport, title: String, with_objects: bool) -> Panel<'a> {
+    let (bars, scale, empty) = match &c.pixels {
+        Some(p) => (
+            Some((density_bars(&p.histogram, p.valid), format!("pixels, both views ({:.2e} valid)", p.valid as f64))),
+            p.in_support_fraction.unwrap_or(1.0),
+            p.gap_check.as_ref().map(|g| g.empty.clone()).unwrap_or_default(),
+        ),
+        None => (None, 1.0, Vec::new()),
+    };
+    Panel { title, x: (report.pixel_range[0], report.pixel_range[1]), bars, outline: if with_objects { object_bars(c) } else { None }, law: Some((&report.law, scale)), empty }
+}
+
+fn coverage_panel(area: &Area, title: &str, x_desc: &str, bands: &[Band], y_max: f64) -> anyhow::Result<()> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 17))
+        .margin(8)
+        .x_label_area_size(38)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..1.0, 0.0..y_max)
+        .map_err(plot_err)?;
+    chart.configure_mesh().x_desc(x_desc).y_desc("disparity (px)").label_style(("sans-serif", 13)).axis_desc_style(("sans-serif", 14)).light_line_style(WHITE).draw().map_err(plot_err)?;
+    let mid = |b: &Band| 0.5 * (b.from + b.to);
+    let have: Vec<&Band> = bands.iter().filter(|b| b.p5.is_some()).collect();
+    if have.is_empty() {
+        return Ok(());
+    }
+    let mut poly: Vec<(f64, f64)> = have.iter().map(|b| (mid(b), b.p95.unwrap())).collect();
+    poly.extend(have.iter().rev().map(|b| (mid(b), b.p5.unwrap())));
+    chart
+        .draw_series(std::iter::once(Polygon::new(poly, PIXEL.mix(0.3).filled())))
+        .map_err(plot_err)?
+        .label("p5-p95")
+        .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], PIXEL.mix(0.3).filled()));
+    chart
+        .draw_series(LineSeries::new(have.iter().map(|b| (mid(b), b.p50.unwrap())), PIXEL.stroke_width(2)))
+        .map_err(plot_err)?
+        .label("median")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], PIXEL.stroke_width(2)));
+    chart
+        .draw_series(LineSeries::new(have.iter().filter_map(|b| b.mean.map(|m| (mid(b), m))), BLACK.stroke_width(1)))
+        .map_err(plot_err)?
+        .label("mean")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+    chart.configure_series_labels().position(SeriesLabelPosition::UpperRight).label_font(("sans-serif", 13)).background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(plot_err)?;
+    Ok(())
+}
+
+fn valid_panel(area: &Area, title: &str, x_desc: &str, report: &StatsReport, rows: bool) -> anyhow::Result<()> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 17))
+        .margin(8)
+        .x_label_area_size(38)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..1.0, 0.0..1.05)
+        .map_err(plot_err)?;
+    chart.configure_mesh().x_desc(x_desc).y_desc("valid fraction").label_style(("sans-serif", 13)).axis_desc_style(("sans-serif", 14)).light_line_style(WHITE).draw().map_err(plot_err)?;
+    let groups = report.categories.iter().filter(|c| c.pixels.is_some()).enumerate().map(|(i, c)| (c, PALETTE[i % PALETTE.len()], 1)).chain([(&report.overall, BLACK, 3)]);
+    for (c, color, width) in groups {
+        let p = c.pixels.as_ref().expect("filtered");
+        let bands = if rows { &p.rows } else { &p.cols };
+        chart
+            .draw_series(LineSeries::new(bands.iter().map(|b| (0.5 * (b.from + b.to), b.valid_fraction)), color.stroke_width(width)))
+            .map_err(plot_err)?
+            .label(c.name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(width)));
+    }
+    chart.configure_series_labels().position(SeriesLabelPosition::LowerRight).label_font(("sans-serif", 12)).background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(plot_err)?;
+    Ok(())
+}
+
+/// Writes the four PNGs into `dir` and returns their paths.
+pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir)?;
+    let mut written = Vec::new();
+    let all = &report.overall;
+    let (lo, hi) = (report.law_support[0], report.law_support[1]);
+    let pad = ((hi - lo) * 0.08).max(0.5);
+
+    let path = dir.join("stats_objects.png");
+    render(&path, (1000, 600), |root| {
+        let title = format!("Object-level target disparity vs recipe law - {}, {}", ks_text(all), status_text(all));
+        let panel = Panel { title, x: ((lo - pad).max(0.0), hi + pad), bars: None, outline: object_bars(all), law: Some((&report.law, 1.0)), empty: Vec::new() };
+        draw_panel(root, &panel)
+    })?;
+    written.push(path);
+
+    let path = dir.join("stats_pixels.png");
+    render(&path, (1000, 600), |root| {
+        let gaps = all.pixels.as_ref().and_then(|p| p.gap_check.as_ref()).map_or("no gap check".to_string(), |g| format!("{}/{} gap bins empty", g.empty.len(), g.bins));
+        let title = format!("Pixel-level disparity (valid pixels, both views) - {} samples, {gaps}", report.samples);
+        draw_panel(root, &pixel_panel(all, report, title, false))
+    })?;
+    written.push(path);
+
+    let path = dir.join("stats_categories.png");
+    let n = report.categories.len().max(1);
+    let rows = n.div_ceil(2);
+    render(&path, (1400, 420 * rows as u32), |root| {
+        for (area, c) in root.split_evenly((rows, 2)).iter().zip(&report.categories) {
+            let title = format!("{} - {} scenes, {}, {}", c.name, c.samples, ks_text(c), status_text(c));
+            draw_panel(area, &pixel_panel(c, report, title, true))?;
+        }
+        Ok(())
+    })?;
+    written.push(path);
+
+    let path = dir.join("stats_coverage.png");
+    render(&path, (1400, 900), |root| {
+        let panels = root.split_evenly((2, 2));
+        let Some(p) = &all.pixels else { return Ok(()) };
+        let y_max = p.rows.iter().chain(&p.cols).filter_map(|b| b.p95).fold(0.0, f64::max).max(1e-3) * 1.15;
+        coverage_panel(&panels[0], "Disparity by image row (all valid pixels)", "row (0 = top, 1 = bottom)", &p.rows, y_max)?;
+        coverage_panel(&panels[1], "Disparity by image column (all valid pixels)", "column (0 = left, 1 = right)", &p.cols, y_max)?;
+        valid_panel(&panels[2], "Valid-pixel fraction by row", "row (0 = top, 1 = bottom)", report, true)?;
+        valid_panel(&panels[3], "Valid-pixel fraction by column", "column (0 = left, 1 = right)", report, false)?;
+        Ok(())
+    })?;
+    written.push(path);
+    Ok(written)
+}

@@ -1,0 +1,275 @@
+//! What `stats.json` holds, how a category's numbers are derived from its accumulators, and the
+//! per-category OK/FAIL decision with its one-line summary.
+
+use serde::Serialize;
+
+use super::accumulate::{Coverage, PixelAcc, ViewAcc};
+use super::hist::{EdgeHist, Percentiles, UniformHist, quantile_sorted, rice_bins};
+use crate::plan::Dist;
+use crate::plan::dist::{ks_critical, ks_distance};
+
+#[derive(Debug, Clone, Serialize)]
+pub struct StatsReport {
+    pub dataset: String,
+    pub recipe: String,
+    /// The disparity law of the recipe (`placement.disparity_px`).
+    pub law: Dist,
+    pub law_support: [f64; 2],
+    pub samples: usize,
+    pub ks_alpha: f64,
+    /// Range of the pixel-level histograms (px).
+    pub pixel_range: [f64; 2],
+    /// Rule that chose the gap-check bin counts.
+    pub gap_rule: String,
+    pub categories: Vec<CategoryStats>,
+    pub overall: CategoryStats,
+    /// Samples whose files could not be read.
+    pub errors: Vec<String>,
+    pub pass: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    Ok,
+    Fail,
+    /// Nothing to test (no samples or no content objects).
+    Skip,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CategoryStats {
+    pub name: String,
+    pub samples: u64,
+    pub objects: ObjectStats,
+    pub pixels: Option<PixelStats>,
+    pub status: Status,
+    pub problems: Vec<String>,
+}
+
+/// The object-level sample: target disparities of the content objects, from the SceneSpecs.
+#[derive(Debug, Clone, Serialize)]
+pub struct ObjectStats {
+    pub count: usize,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+    pub mean: Option<f64>,
+    pub percentiles: Option<Percentiles>,
+    pub ks_distance: Option<f64>,
+    pub ks_critical: Option<f64>,
+    /// Rice-rule bins over the law's support.
+    pub histogram: Option<UniformHist>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ViewStats {
+    pub pixels: u64,
+    pub valid: u64,
+    pub invalid_fraction: f64,
+    pub mean: Option<f64>,
+    pub percentiles: Option<Percentiles>,
+}
+
+/// Empty pixel-level bins inside the law's support (equal-mass bins of the law).
+#[derive(Debug, Clone, Serialize)]
+pub struct GapCheck {
+    pub bins: usize,
+    pub edges: Vec<f64>,
+    pub counts: Vec<u64>,
+    pub empty: Vec<[f64; 2]>,
+}
+
+/// Disparity of the valid pixels of one band of rows or columns (relative position 0..1).
+#[derive(Debug, Clone, Serialize)]
+pub struct Band {
+    pub from: f64,
+    pub to: f64,
+    pub valid_fraction: f64,
+    pub mean: Option<f64>,
+    pub p5: Option<f64>,
+    pub p50: Option<f64>,
+    pub p95: Option<f64>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct PixelStats {
+    /// Both views together.
+    pub pixels: u64,
+    pub valid: u64,
+    pub invalid_fraction: f64,
+    /// Pixels flagged valid that hold NaN or infinity.
+    pub nonfinite_valid: u64,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+    pub mean: Option<f64>,
+    pub percentiles: Option<Percentiles>,
+    /// Valid pixels beyond `pixel_range` (counted at its ends for percentiles).
+    pub outside_range: u64,
+    /// Fraction of valid pixels inside the law's support.
+    pub in_support_fraction: Option<f64>,
+    pub left: ViewStats,
+    pub right: ViewStats,
+    pub histogram: UniformHist,
+    pub gap_check: Option<GapCheck>,
+    pub rows: Vec<Band>,
+    pub cols: Vec<Band>,
+}
+
+fn fraction(a: u64, b: u64) -> f64 {
+    if b == 0 { 0.0 } else { a as f64 / b as f64 }
+}
+
+impl ObjectStats {
+    pub fn new(sample: &mut [f64], law: &Dist, alpha: f64) -> Self {
+        sample.sort_by(f64::total_cmp);
+        let n = sample.len();
+        let (lo, hi) = law.support();
+        let histogram = (n > 0 && hi > lo).then(|| {
+            let mut h = UniformHist::new(lo, hi, rice_bins(n));
+            sample.iter().for_each(|&x| h.add(x));
+            h
+        });
+        Self {
+            count: n,
+            min: sample.first().copied(),
+            max: sample.last().copied(),
+            mean: (n > 0).then(|| sample.iter().sum::<f64>() / n as f64),
+            percentiles: Percentiles::from_fn(|q| quantile_sorted(sample, q)),
+            ks_distance: (n > 0).then(|| ks_distance(sample, law)),
+            ks_critical: (n > 0).then(|| ks_critical(n, alpha)),
+            histogram,
+        }
+    }
+}
+
+fn view_stats(v: &ViewAcc) -> ViewStats {
+    let valid = v.valid();
+    ViewStats {
+        pixels: v.pixels,
+        valid,
+        invalid_fraction: fraction(v.pixels - valid, v.pixels),
+        mean: (valid > 0).then(|| v.sum / valid as f64),
+        percentiles: Percentiles::from_fn(|q| v.fine.quantile(q)),
+    }
+}
+
+fn bands(c: &Coverage) -> Vec<Band> {
+    let n = c.sums.len();
+    (0..n)
+        .map(|i| {
+            let h = &c.hists[i];
+            Band {
+                from: i as f64 / n as f64,
+                to: (i + 1) as f64 / n as f64,
+                valid_fraction: fraction(c.valid[i], c.pixels[i]),
+                mean: (c.valid[i] > 0).then(|| c.sums[i] / c.valid[i] as f64),
+                p5: h.quantile(0.05),
+                p50: h.quantile(0.5),
+                p95: h.quantile(0.95),
+            }
+        })
+        .collect()
+}
+
+fn gap_check(g: &EdgeHist) -> GapCheck {
+    GapCheck { bins: g.counts.len(), edges: g.edges.clone(), counts: g.counts.clone(), empty: g.empty_bins() }
+}
+
+impl PixelStats {
+    /// `gap`: the gap-check histogram that applies to this group (the category's own bins, or
+    /// the dataset-wide ones for the overall group).
+    pub fn new(acc: &PixelAcc, gap: Option<&EdgeHist>) -> Self {
+        let [l, r] = &acc.views;
+        let pixels = l.pixels + r.pixels;
+        let valid = l.valid() + r.valid();
+        let fine = acc.fine_both();
+        let in_support = gap.map(|g| fraction(g.counts.iter().sum(), valid));
+        PixelStats {
+            pixels,
+            valid,
+            invalid_fraction: fraction(pixels - valid, pixels),
+            nonfinite_valid: l.nonfinite + r.nonfinite,
+            min: (valid > 0).then(|| l.min.min(r.min)),
+            max: (valid > 0).then(|| l.max.max(r.max)),
+            mean: (valid > 0).then(|| (l.sum + r.sum) / valid as f64),
+            percentiles: Percentiles::from_fn(|q| fine.quantile(q)),
+            outside_range: fine.below + fine.above,
+            in_support_fraction: in_support,
+            left: view_stats(l),
+            right: view_stats(r),
+            histogram: acc.display.clone(),
+            gap_check: gap.map(gap_check),
+            rows: bands(&acc.rows),
+            cols: bands(&acc.cols),
+        }
+    }
+}
+
+impl CategoryStats {
+    /// Derives the numbers and decides OK/FAIL/SKIP.
+    pub fn new(name: &str, samples: u64, objects: ObjectStats, pixels: Option<PixelStats>) -> Self {
+        let mut problems = Vec::new();
+        let mut status = Status::Ok;
+        if samples == 0 {
+            status = Status::Skip;
+            problems.push("no samples".to_string());
+        } else if objects.count == 0 {
+            status = Status::Skip;
+            problems.push("no content objects with a target disparity".to_string());
+        } else {
+            if let (Some(d), Some(c)) = (objects.ks_distance, objects.ks_critical)
+                && d > c
+            {
+                problems.push(format!("object-level KS {d:.4} > critical {c:.4}"));
+            }
+            match &pixels {
+                None => problems.push("no disparity maps could be read".to_string()),
+                Some(p) => {
+                    if p.valid == 0 {
+                        problems.push("no valid pixels".to_string());
+                    }
+                    if p.nonfinite_valid > 0 {
+                        problems.push(format!("{} valid pixels are NaN or infinite", p.nonfinite_valid));
+                    }
+                    if let Some(g) = &p.gap_check
+                        && !g.empty.is_empty()
+                    {
+                        let list: Vec<String> = g.empty.iter().take(6).map(|[a, b]| format!("[{a:.2}, {b:.2})")).collect();
+                        let more = if g.empty.len() > 6 { format!(" and {} more", g.empty.len() - 6) } else { String::new() };
+                        problems.push(format!("gap: {}/{} pixel bins empty inside the law's support: {}{more}", g.empty.len(), g.bins, list.join(" ")));
+                    }
+                }
+            }
+            if !problems.is_empty() {
+                status = Status::Fail;
+            }
+        }
+        Self { name: name.to_string(), samples, objects, pixels, status, problems }
+    }
+
+    /// One line for the terminal: status, the numbers the decision used, and the problems.
+    pub fn line(&self, name_width: usize) -> String {
+        let tag = match self.status {
+            Status::Ok => "OK  ",
+            Status::Fail => "FAIL",
+            Status::Skip => "SKIP",
+        };
+        let mut s = format!("{tag} {:<name_width$} {:>6} scenes {:>7} objects", self.name, self.samples, self.objects.count);
+        if let (Some(d), Some(c)) = (self.objects.ks_distance, self.objects.ks_critical) {
+            s += &format!("  KS {d:.4} {} {c:.4}", if d > c { ">" } else { "<=" });
+        }
+        if let Some(p) = &self.pixels {
+            if let Some(g) = &p.gap_check {
+                s += &format!("  empty bins {}/{}", g.empty.len(), g.bins);
+            }
+            if let Some(q) = &p.percentiles {
+                s += &format!("  px p1/p50/p99 {:.2}/{:.2}/{:.2}", q.p1, q.p50, q.p99);
+            }
+            s += &format!("  invalid {:.1}%", 100.0 * p.invalid_fraction);
+        }
+        if !self.problems.is_empty() {
+            s += &format!("  -- {}", self.problems.join("; "));
+        }
+        s
+    }
+}
