@@ -1,4 +1,7 @@
-"""Materials from MaterialSpec: flat colour (textureless) or procedural textures in object space."""
+"""Principled BSDF materials from a MaterialSpec: flat, procedural or photo base colour, with the
+roughness / metallic / transmission / IOR the spec gives; and the alpha-cut leaf material."""
+
+import os
 
 import bpy
 
@@ -10,6 +13,7 @@ _PATTERNS = {
     "wave": ("ShaderNodeTexWave", "Fac"),
     "brick": ("ShaderNodeTexBrick", "Fac"),
     "magic": ("ShaderNodeTexMagic", "Fac"),
+    "gradient": ("ShaderNodeTexGradient", "Fac"),
 }
 
 
@@ -17,29 +21,112 @@ def _rgba(c):
     return (c[0], c[1], c[2], 1.0)
 
 
-def make_material(name, spec):
+def _input(node, *names):
+    for n in names:
+        if n in node.inputs:
+            return node.inputs[n]
+    raise KeyError("%s has none of the inputs %s" % (node.bl_idname, names))
+
+
+def _object_coords(nodes, links, scale, rotation=0.0):
+    coords = nodes.new("ShaderNodeTexCoord")
+    mapping = nodes.new("ShaderNodeMapping")
+    mapping.inputs["Scale"].default_value = (scale, scale, scale)
+    mapping.inputs["Rotation"].default_value = (0.0, 0.0, rotation)
+    links.new(coords.outputs["Object"], mapping.inputs["Vector"])
+    return mapping.outputs["Vector"]
+
+
+def _base_color(nodes, links, bsdf, base, skipped):
+    kind = base["kind"]
+    target = bsdf.inputs["Base Color"]
+    if kind == "flat":
+        target.default_value = _rgba(base["color"])
+    elif kind == "procedural":
+        node_type, output = _PATTERNS[base["pattern"]]
+        tex = nodes.new(node_type)
+        if "Scale" in tex.inputs:
+            tex.inputs["Scale"].default_value = 1.0
+        if "Detail" in tex.inputs:
+            tex.inputs["Detail"].default_value = min(base["detail"], 15.0)
+        links.new(_object_coords(nodes, links, base["scale"]), tex.inputs["Vector"])
+        ramp = nodes.new("ShaderNodeValToRGB")
+        ramp.color_ramp.elements[0].color = _rgba(base["color_a"])
+        ramp.color_ramp.elements[1].color = _rgba(base["color_b"])
+        links.new(tex.outputs[output], ramp.inputs["Fac"])
+        links.new(ramp.outputs["Color"], target)
+    elif kind == "image":
+        path = base["path"]
+        try:
+            if not os.path.isfile(path):
+                raise RuntimeError("file not found")
+            image = bpy.data.images.load(path, check_existing=True)
+            if image.size[0] == 0 or image.size[1] == 0:
+                raise RuntimeError("image has no pixels")
+        except RuntimeError as e:
+            skipped.append({"path": path, "reason": "texture cannot be loaded: %s" % e})
+            target.default_value = _rgba(base["fallback"])
+            return
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image
+        # Box projection in object space textures meshes that have no UVs.
+        tex.projection = "BOX"
+        tex.projection_blend = 0.2
+        tex.extension = "REPEAT"
+        links.new(_object_coords(nodes, links, base["scale"], base["rotation"]), tex.inputs["Vector"])
+        links.new(tex.outputs["Color"], target)
+    else:
+        raise ValueError("unknown base colour kind %r" % kind)
+
+
+def make_material(name, spec, skipped):
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = nodes["Principled BSDF"]
+    _base_color(nodes, links, bsdf, spec["base"], skipped)
     bsdf.inputs["Roughness"].default_value = spec["roughness"]
-    kind = spec["kind"]
-    if kind == "flat":
-        bsdf.inputs["Base Color"].default_value = _rgba(spec["color"])
-        return mat
-    if kind != "procedural":
-        raise ValueError("unknown material kind %r" % kind)
-    node_type, output = _PATTERNS[spec["pattern"]]
-    coords = nodes.new("ShaderNodeTexCoord")
-    tex = nodes.new(node_type)
-    if "Scale" in tex.inputs:
-        tex.inputs["Scale"].default_value = spec["scale"]
-    if "Detail" in tex.inputs:
-        tex.inputs["Detail"].default_value = min(spec["detail"], 15.0)
-    links.new(coords.outputs["Object"], tex.inputs["Vector"])
-    ramp = nodes.new("ShaderNodeValToRGB")
-    ramp.color_ramp.elements[0].color = _rgba(spec["color_a"])
-    ramp.color_ramp.elements[1].color = _rgba(spec["color_b"])
-    links.new(tex.outputs[output], ramp.inputs["Fac"])
-    links.new(ramp.outputs["Color"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Metallic"].default_value = spec["metallic"]
+    _input(bsdf, "Transmission Weight", "Transmission").default_value = spec["transmission"]
+    bsdf.inputs["IOR"].default_value = spec["ior"]
+    return mat
+
+
+def make_leaf_material(name, spec, skipped):
+    """A leaf: the spec's surface inside an ellipse of the quad's UV square, fully transparent
+    outside. The mask is exactly 0 or 1 (a comparison, no blur), so the depth pass stays
+    deterministic: cut-out pixels show whatever is behind the leaf."""
+    mat = make_material(name, spec, skipped)
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = nodes["Principled BSDF"]
+    out = nodes["Material Output"]
+    uv = nodes.new("ShaderNodeTexCoord")
+    sep = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(uv.outputs["UV"], sep.inputs["Vector"])
+
+    def centred_square(axis):
+        sub = nodes.new("ShaderNodeMath")
+        sub.operation = "SUBTRACT"
+        sub.inputs[1].default_value = 0.5
+        links.new(sep.outputs[axis], sub.inputs[0])
+        sq = nodes.new("ShaderNodeMath")
+        sq.operation = "MULTIPLY"
+        links.new(sub.outputs[0], sq.inputs[0])
+        links.new(sub.outputs[0], sq.inputs[1])
+        return sq.outputs[0]
+
+    add = nodes.new("ShaderNodeMath")
+    add.operation = "ADD"
+    links.new(centred_square("X"), add.inputs[0])
+    links.new(centred_square("Y"), add.inputs[1])
+    inside = nodes.new("ShaderNodeMath")
+    inside.operation = "LESS_THAN"
+    inside.inputs[1].default_value = 0.25
+    links.new(add.outputs[0], inside.inputs[0])
+    transparent = nodes.new("ShaderNodeBsdfTransparent")
+    mix = nodes.new("ShaderNodeMixShader")
+    links.new(inside.outputs[0], mix.inputs["Fac"])
+    links.new(transparent.outputs[0], mix.inputs[1])
+    links.new(bsdf.outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], out.inputs["Surface"])
     return mat

@@ -1,78 +1,23 @@
-"""Builds a Blender scene from a SceneSpec: rig, geometry, materials, lights, world.
+"""Builds a Blender scene from a SceneSpec: rig, geometry with modifiers, materials, lights, world.
+It obeys the spec; the only choices it makes are deterministic fallbacks for broken assets."""
 
-Geometry is made with bmesh (no operators, no context needed). Object-space primitives fit the
-unit sphere; the spec's scale sizes them.
-"""
-
-import math
-
-import bmesh
 import bpy
 
+import geometry
 import materials
 
-SPEC_FORMAT_VERSION = 1
+SPEC_FORMAT_VERSION = 2
 
 
 def reset():
     """Back to an empty factory scene, so nothing of the previous spec survives."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    for block in (bpy.data.meshes, bpy.data.materials, bpy.data.images, bpy.data.lights, bpy.data.cameras):
+    for block in (bpy.data.meshes, bpy.data.materials, bpy.data.images, bpy.data.lights, bpy.data.cameras, bpy.data.textures):
         for item in list(block):
             block.remove(item)
 
 
-def _torus(bm, major_segments, minor_segments, minor_ratio):
-    big = 1.0 / (1.0 + minor_ratio)
-    small = big * minor_ratio
-    rings = []
-    for i in range(major_segments):
-        u = 2.0 * math.pi * i / major_segments
-        ring = []
-        for j in range(minor_segments):
-            v = 2.0 * math.pi * j / minor_segments
-            r = big + small * math.cos(v)
-            ring.append(bm.verts.new((r * math.cos(u), r * math.sin(u), small * math.sin(v))))
-        rings.append(ring)
-    for i in range(major_segments):
-        a, b = rings[i], rings[(i + 1) % major_segments]
-        for j in range(minor_segments):
-            k = (j + 1) % minor_segments
-            bm.faces.new((a[j], b[j], b[k], a[k]))
-
-
-def make_mesh(name, shape):
-    kind = shape["kind"]
-    mesh = bpy.data.meshes.new(name)
-    if kind == "mesh":
-        mesh.from_pydata([tuple(v) for v in shape["vertices"]], [], [tuple(t) for t in shape["triangles"]])
-        mesh.validate()
-        return mesh
-    bm = bmesh.new()
-    if kind == "plane":
-        vs = [bm.verts.new(p) for p in ((-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0))]
-        bm.faces.new(vs)
-    elif kind == "cube":
-        bmesh.ops.create_cube(bm, size=2.0 / math.sqrt(3.0))
-    elif kind == "uv_sphere":
-        bmesh.ops.create_uvsphere(bm, u_segments=shape["segments"], v_segments=shape["rings"], radius=1.0)
-    elif kind == "ico_sphere":
-        bmesh.ops.create_icosphere(bm, subdivisions=shape["subdivisions"], radius=1.0)
-    elif kind == "cylinder":
-        r = 1.0 / math.sqrt(2.0)
-        bmesh.ops.create_cone(bm, cap_ends=True, segments=shape["vertices"], radius1=r, radius2=r, depth=2.0 * r)
-    elif kind == "torus":
-        _torus(bm, shape["major_segments"], shape["minor_segments"], shape["minor_ratio"])
-    else:
-        bm.free()
-        raise ValueError("unknown shape kind %r" % kind)
-    bm.to_mesh(mesh)
-    bm.free()
-    return mesh
-
-
 def _add_cameras(scene, rig, render):
-    cams = {}
     for view, sign in (("left", -1.0), ("right", 1.0)):
         cam = bpy.data.cameras.new("camera_" + view)
         cam.type = "PERSP"
@@ -89,26 +34,36 @@ def _add_cameras(scene, rig, render):
         ob.location = (sign * rig["baseline_m"] / 2.0, 0.0, 0.0)
         ob.rotation_euler = (0.0, 0.0, 0.0)
         scene.collection.objects.link(ob)
-        cams[view] = ob
-    return cams
 
 
 def _add_light(scene, i, light):
     kind = light["kind"]
+    name = "light_%03d" % i
     if kind == "point":
-        data = bpy.data.lights.new("light_%03d" % i, type="POINT")
+        data = bpy.data.lights.new(name, type="POINT")
         data.energy = light["power_w"]
         data.shadow_soft_size = light["radius"]
+    elif kind == "spot":
+        data = bpy.data.lights.new(name, type="SPOT")
+        data.energy = light["power_w"]
+        data.shadow_soft_size = light["radius"]
+        data.spot_size = light["spot_size"]
+        data.spot_blend = light["blend"]
+    elif kind == "area":
+        data = bpy.data.lights.new(name, type="AREA")
+        data.energy = light["power_w"]
+        data.shape = "SQUARE"
+        data.size = light["size"]
     elif kind == "sun":
-        data = bpy.data.lights.new("light_%03d" % i, type="SUN")
+        data = bpy.data.lights.new(name, type="SUN")
         data.energy = light["strength"]
     else:
         raise ValueError("unknown light kind %r" % kind)
     data.color = tuple(light["color"])
-    ob = bpy.data.objects.new("light_%03d" % i, data)
-    if kind == "point":
+    ob = bpy.data.objects.new(name, data)
+    if "location" in light:
         ob.location = tuple(light["location"])
-    else:
+    if "rotation" in light:
         ob.rotation_euler = tuple(light["rotation"])
     scene.collection.objects.link(ob)
 
@@ -122,24 +77,81 @@ def _set_world(scene, world_spec):
     scene.world = world
 
 
+def _add_modifiers(scene, ob, modifiers):
+    for i, m in enumerate(modifiers):
+        kind = m["kind"]
+        name = "%s_%d_%s" % (ob.name, i, kind)
+        if kind == "wireframe":
+            mod = ob.modifiers.new(name, "WIREFRAME")
+            mod.thickness = m["thickness"]
+            mod.use_even_offset = True
+            mod.use_replace = True
+            mod.use_boundary = True
+        elif kind == "subdivide":
+            mod = ob.modifiers.new(name, "SUBSURF")
+            mod.levels = m["levels"]
+            mod.render_levels = m["levels"]
+        elif kind == "displace":
+            tex = bpy.data.textures.new(name, "CLOUDS")
+            tex.noise_scale = m["noise_scale"]
+            anchor = bpy.data.objects.new(name + "_anchor", None)
+            anchor.location = tuple(m["offset"])
+            scene.collection.objects.link(anchor)
+            mod = ob.modifiers.new(name, "DISPLACE")
+            mod.texture = tex
+            mod.strength = m["strength"]
+            mod.texture_coords = "OBJECT"
+            mod.texture_coords_object = anchor
+        elif kind == "boolean_cut":
+            shape = {"kind": "cube"} if m["cutter"] == "cube" else {"kind": "uv_sphere", "segments": 24, "rings": 12}
+            cutter_mesh, _ = geometry.make_mesh(name + "_cutter", shape, [])
+            cutter = bpy.data.objects.new(name + "_cutter", cutter_mesh)
+            scene.collection.objects.link(cutter)
+            # Parented with an identity inverse: its transform is in the object's own space.
+            cutter.parent = ob
+            cutter.location = tuple(m["location"])
+            cutter.rotation_euler = tuple(m["rotation"])
+            cutter.scale = tuple(m["scale"])
+            cutter.hide_render = True
+            cutter.display_type = "WIRE"
+            mod = ob.modifiers.new(name, "BOOLEAN")
+            mod.operation = "DIFFERENCE"
+            mod.solver = "EXACT"
+            mod.object = cutter
+        else:
+            raise ValueError("unknown modifier kind %r" % kind)
+
+
 def build(spec, threads, device):
+    """Builds the scene; returns (scene, skipped_assets, notes)."""
     if spec.get("format_version") != SPEC_FORMAT_VERSION:
         raise ValueError("SceneSpec format_version %r is not %d" % (spec.get("format_version"), SPEC_FORMAT_VERSION))
     scene = bpy.context.scene
     import render_views
     render_views.configure(scene, spec, threads, device)
-    scene["stereogen_cameras"] = ["camera_left", "camera_right"]
     _add_cameras(scene, spec["rig"], spec["render"])
     _set_world(scene, spec["world"])
+    skipped, notes = [], []
     for obj in spec["objects"]:
-        mesh = make_mesh(obj["name"], obj["shape"])
-        mesh.materials.append(materials.make_material(obj["name"], obj["material"]))
+        try:
+            mesh, used = geometry.make_mesh(obj["name"], obj["shape"], skipped)
+        except geometry.AssetError as e:
+            # Every candidate failed: the scene goes on without this object.
+            notes.append("%s dropped: %s" % (obj["name"], e))
+            continue
+        if used is not None:
+            notes.append("%s uses %s" % (obj["name"], used))
+        mesh.materials.append(materials.make_material(obj["name"], obj["material"], skipped))
+        leaf = obj["shape"].get("leaf_material")
+        if leaf is not None:
+            mesh.materials.append(materials.make_leaf_material(obj["name"] + "_leaf", leaf, skipped))
         ob = bpy.data.objects.new(obj["name"], mesh)
         ob.location = tuple(obj["location"])
         ob.rotation_mode = "XYZ"
         ob.rotation_euler = tuple(obj["rotation"])
         ob.scale = tuple(obj["scale"])
         scene.collection.objects.link(ob)
+        _add_modifiers(scene, ob, obj.get("modifiers", []))
     for i, light in enumerate(spec["lights"]):
         _add_light(scene, i, light)
-    return scene
+    return scene, skipped, notes

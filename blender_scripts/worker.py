@@ -97,10 +97,10 @@ def main():
             spec = req["spec"]
             t0 = time.perf_counter()
             scene_builder.reset()
-            scene = scene_builder.build(spec, opts["threads"], opts["device"])
+            scene, skipped, notes = scene_builder.build(spec, opts["threads"], opts["device"])
             timings["build_s"] = time.perf_counter() - t0
             files = render_views.render_both(scene, spec, req["out_dir"], timings)
-            send({"status": "ok", "files": files, "timings": timings, "rss_bytes": rss_bytes()})
+            send({"status": "ok", "files": files, "timings": timings, "rss_bytes": rss_bytes(), "skipped_assets": skipped, "notes": notes})
         except Exception as e:  # one bad spec must not take the worker down
             send({
                 "status": "error",

@@ -10,7 +10,8 @@ use std::time::Duration;
 
 use stereo_io::DisparityMap;
 use stereogen::dataset::DatasetLayout;
-use stereogen::plan::SceneSpec;
+use stereogen::plan::recipe::CountRange;
+use stereogen::plan::{Dist, Recipe, SceneSpec};
 use stereogen::render::runtime::{discover_or_install, stereogen_home};
 use stereogen::render::scripts::install_scripts;
 use stereogen::render::{RenderService, WorkerConfig};
@@ -61,4 +62,27 @@ pub fn stereogen_bin() -> PathBuf {
     let bin = profile_dir.join("stereogen");
     assert!(bin.is_file(), "{} is missing: run the tests with `cargo test --workspace` so the CLI is built", bin.display());
     bin
+}
+
+/// A preset shrunk so a sample renders in about a second: 64×48, 2 samples, few objects.
+pub fn tiny_recipe(preset: &str) -> Recipe {
+    let mut r = Recipe::preset(preset).expect("preset");
+    r.camera.width = 64;
+    r.camera.height = 48;
+    r.render.samples = 2;
+    r.render.denoise = false;
+    r.placement.disparity_px = Dist::uniform(3.0, 20.0);
+    r.placement.background_disparity_px = Dist::uniform(0.5, 1.5);
+    r.trees.branches = CountRange { min: 3, max: 4 };
+    for c in &mut r.categories {
+        c.objects = CountRange { min: 2, max: 3 };
+    }
+    r
+}
+
+/// Writes [`tiny_recipe`] as TOML into `dir` and returns its path.
+pub fn write_tiny_recipe(dir: &std::path::Path, preset: &str) -> PathBuf {
+    let path = dir.join(format!("tiny-{preset}.toml"));
+    std::fs::write(&path, toml::to_string(&tiny_recipe(preset)).expect("recipes serialise")).expect("write recipe");
+    path
 }

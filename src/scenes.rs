@@ -1,17 +1,29 @@
 //! Hand-made scenes with known geometry for the exactness tests.
 
 use stereogen::plan::spec::{PixelFilter, SPEC_FORMAT_VERSION};
-use stereogen::plan::{LightSpec, MaterialSpec, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, StereoRig, WorldSpec};
+use stereogen::plan::{BaseColor, LightSpec, MaterialClass, MaterialSpec, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, StereoRig, WorldSpec};
 
 pub fn rig() -> StereoRig {
     StereoRig { width: 160, height: 120, focal_mm: 35.0, sensor_width_mm: 36.0, baseline_m: 0.1 }
 }
 
 fn textured() -> MaterialSpec {
-    MaterialSpec::Procedural { pattern: Pattern::Checker, scale: 8.0, color_a: [0.9, 0.8, 0.2], color_b: [0.1, 0.2, 0.6], roughness: 0.5, detail: 2.0 }
+    MaterialSpec {
+        class: MaterialClass::Textured,
+        base: BaseColor::Procedural { pattern: Pattern::Checker, scale: 8.0, color_a: [0.9, 0.8, 0.2], color_b: [0.1, 0.2, 0.6], detail: 2.0 },
+        roughness: 0.5,
+        metallic: 0.0,
+        transmission: 0.0,
+        ior: 1.45,
+    }
 }
 
-fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
+/// A hand-made object (not placed by the disparity law).
+pub fn object(name: &str, shape: Shape, location: [f64; 3], rotation: [f64; 3], scale: [f64; 3], material: MaterialSpec) -> ObjectSpec {
+    ObjectSpec { name: name.into(), role: ObjectRole::Content, source: "test".into(), shape, modifiers: Vec::new(), location, rotation, scale, material, target_disparity: None }
+}
+
+pub fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
     SceneSpec {
         format_version: SPEC_FORMAT_VERSION,
         id: id.into(),
@@ -26,8 +38,8 @@ fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
     }
 }
 
-fn plane(name: &str, location: [f64; 3], rotation: [f64; 3], half: f64) -> ObjectSpec {
-    ObjectSpec { name: name.into(), shape: Shape::Plane, location, rotation, scale: [half, half, 1.0], material: textured(), target_disparity: None }
+pub fn plane(name: &str, location: [f64; 3], rotation: [f64; 3], half: f64) -> ObjectSpec {
+    object(name, Shape::Plane, location, rotation, [half, half, 1.0], textured())
 }
 
 /// A plane facing the rig at planar depth `z`, much larger than the view.
@@ -70,15 +82,7 @@ pub fn sphere_mesh(segments: u32, rings: u32) -> Shape {
 
 /// A sphere of radius 0.35 at depth 2 in front of a wall at depth 4.
 pub fn sphere_before_wall() -> SceneSpec {
-    let sphere = ObjectSpec {
-        name: "sphere".into(),
-        shape: sphere_mesh(96, 48),
-        location: [0.05, 0.03, -2.0],
-        rotation: [0.3, 0.2, 0.1],
-        scale: [0.35; 3],
-        material: MaterialSpec::Flat { color: [0.7, 0.3, 0.3], roughness: 0.4 },
-        target_disparity: None,
-    };
+    let sphere = object("sphere", sphere_mesh(96, 48), [0.05, 0.03, -2.0], [0.3, 0.2, 0.1], [0.35; 3], MaterialSpec::flat([0.7, 0.3, 0.3], 0.4));
     base("sphere", vec![plane("wall", [0.0, 0.0, -4.0], [0.0; 3], 40.0), sphere])
 }
 

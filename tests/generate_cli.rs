@@ -6,8 +6,8 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen::plan::recipe::DEFAULT_RECIPE_TOML;
-use stereogen_e2e::stereogen_bin;
+use stereogen::plan::recipe::PRESETS;
+use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
 
 /// Checksums are recomputed with coreutils' sha256sum, independently of the generator.
 fn sha256_hex(path: &Path) -> String {
@@ -15,19 +15,12 @@ fn sha256_hex(path: &Path) -> String {
     String::from_utf8(out.stdout).unwrap().split_whitespace().next().unwrap().to_string()
 }
 
-/// The built-in recipe shrunk so a sample renders in about a second.
+/// The default preset shrunk so a sample renders in about a second.
 fn tiny_recipe(dir: &Path) -> PathBuf {
-    let text = DEFAULT_RECIPE_TOML
-        .replace("width = 320", "width = 64")
-        .replace("height = 240", "height = 48")
-        .replace("samples = 16", "samples = 2")
-        .replace("count = [4, 9]", "count = [2, 3]")
-        .replace("disparity_px = [4.0, 72.0]", "disparity_px = [3.0, 20.0]")
-        .replace("disparity_px = 2.0", "disparity_px = 1.5");
-    let path = dir.join("tiny.toml");
-    std::fs::write(&path, text).unwrap();
-    path
+    write_tiny_recipe(dir, "crestereo")
 }
+
+const DEFAULT_RECIPE_TOML: &str = PRESETS[0].1;
 
 fn generate_cmd(recipe: &Path, out: &Path, count: u64) -> Command {
     generate_with_seed(recipe, out, count, 5)
@@ -66,8 +59,10 @@ fn assert_complete_dataset(out: &Path, count: u64) {
         }
         stereo_io::read_disparity_exr(&layout.abs(&e.files.disp_left)).expect("readable disparity");
     }
-    let category = out.join(&entries[0].category);
-    let files: Vec<String> = std::fs::read_dir(&category).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let mut files = Vec::new();
+    for category in entries.iter().map(|e| e.category.clone()).collect::<std::collections::BTreeSet<_>>() {
+        files.extend(std::fs::read_dir(out.join(&category)).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()));
+    }
     assert_eq!(files.len() as u64, 5 * count, "no stray files: {files:?}");
 }
 
@@ -162,8 +157,8 @@ fn bad_input_gives_one_clear_line() {
     assert_one_line_error(generate_cmd(&missing, &out, 1), "missing field `baseline_m`");
 
     let range = dir.path().join("range.toml");
-    std::fs::write(&range, DEFAULT_RECIPE_TOML.replace("samples = 16", "samples = 0")).unwrap();
-    assert_one_line_error(generate_cmd(&range, &out, 1), "`render.samples` = 0");
+    std::fs::write(&range, DEFAULT_RECIPE_TOML.replace("samples = 32", "samples = 0")).unwrap();
+    assert_one_line_error(generate_cmd(&range, &out, 1), "`render.samples` is invalid");
 
     assert_one_line_error(generate_cmd(&dir.path().join("nope.toml"), &out, 1), "cannot read recipe");
 
@@ -193,7 +188,7 @@ fn a_dataset_refuses_another_seed_or_recipe() {
     assert!(run(generate_cmd(&recipe, &out, 1)).status.success());
     assert_one_line_error(generate_with_seed(&recipe, &out, 1, 6), "was generated with --seed 5");
     let other = dir.path().join("other.toml");
-    std::fs::write(&other, std::fs::read_to_string(&recipe).unwrap().replace("samples = 2", "samples = 3")).unwrap();
+    std::fs::write(&other, std::fs::read_to_string(&recipe).unwrap().replace("samples = 2\n", "samples = 3\n")).unwrap();
     assert_one_line_error(generate_cmd(&other, &out, 1), "was generated with another recipe");
 }
 

@@ -8,6 +8,7 @@ use anyhow::{Context, bail};
 use clap::{Parser, Subcommand};
 
 use crate::dataset::{DatasetLayout, GenerateOptions, finalize_sample, generate};
+use crate::assets::AssetIndex;
 use crate::plan::{Recipe, SceneSpec, plan_scene};
 use crate::render::protocol::Device;
 use crate::render::runtime::{discover_or_install, stereogen_home};
@@ -42,6 +43,39 @@ pub struct RuntimeArgs {
     pub retries: u32,
 }
 
+/// Which recipe, and the asset folders that override its `[sources]`.
+#[derive(Debug, clap::Args)]
+pub struct RecipeArgs {
+    /// A built-in preset (crestereo, shapenet, tree, hole, reflective) or a recipe TOML file.
+    #[arg(long, value_name = "PRESET|FILE", default_value = crate::plan::recipe::DEFAULT_PRESET)]
+    pub recipe: String,
+    /// ShapeNetCore root (v1 or v2 layout); overrides the recipe's `sources.shapenet`.
+    #[arg(long, value_name = "DIR")]
+    pub shapenet: Option<PathBuf>,
+    /// A folder of meshes (OBJ, GLB/GLTF, PLY, STL, OFF); overrides `sources.meshes`.
+    #[arg(long, value_name = "DIR")]
+    pub meshes: Option<PathBuf>,
+    /// A folder of photos used as textures; overrides `sources.textures`.
+    #[arg(long, value_name = "DIR")]
+    pub textures: Option<PathBuf>,
+}
+
+impl RecipeArgs {
+    pub fn load(&self) -> anyhow::Result<Recipe> {
+        let mut recipe = Recipe::load_or_preset(&self.recipe)?;
+        if let Some(d) = &self.shapenet {
+            recipe.sources.shapenet = Some(d.clone());
+        }
+        if let Some(d) = &self.meshes {
+            recipe.sources.meshes = Some(d.clone());
+        }
+        if let Some(d) = &self.textures {
+            recipe.sources.textures = Some(d.clone());
+        }
+        Ok(recipe)
+    }
+}
+
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Install the managed Blender environment (bpy 4.5 LTS from PyPI) and check that it starts.
@@ -52,9 +86,8 @@ pub enum Command {
     /// Render a dataset: samples START..START+COUNT of RECIPE with SEED. Re-running the same
     /// command resumes: finished samples are skipped, interrupted ones are redone.
     Generate {
-        /// Recipe TOML [default: the built-in recipe of textured primitives].
-        #[arg(long, value_name = "FILE")]
-        recipe: Option<PathBuf>,
+        #[command(flatten)]
+        recipe: RecipeArgs,
         /// Output dataset directory (created if missing).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
@@ -81,8 +114,8 @@ pub enum Command {
     },
     /// Print the SceneSpec of one sample as JSON (pure planning, no Blender).
     Plan {
-        #[arg(long, value_name = "FILE")]
-        recipe: Option<PathBuf>,
+        #[command(flatten)]
+        recipe: RecipeArgs,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         #[arg(long, default_value_t = 0)]
@@ -153,13 +186,6 @@ fn parse_shard(s: &str) -> Result<(u64, u64), String> {
     Ok((k, n))
 }
 
-fn load_recipe(path: Option<&PathBuf>) -> anyhow::Result<Recipe> {
-    Ok(match path {
-        Some(p) => Recipe::load(p)?,
-        None => Recipe::builtin_default(),
-    })
-}
-
 fn worker_config(rt: &RuntimeArgs, workers: usize) -> anyhow::Result<WorkerConfig> {
     let home = stereogen_home();
     let runtime = discover_or_install(rt.blender.as_deref(), &home)?;
@@ -185,7 +211,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             worker.shutdown();
         }
         Command::Generate { recipe, out, count, seed, start, shard, workers, no_progress, runtime } => {
-            let recipe = load_recipe(recipe.as_ref())?;
+            let recipe = recipe.load()?;
             let mut opts = GenerateOptions::new(&out, recipe, seed, count);
             opts.start = start;
             opts.shard = shard;
@@ -212,8 +238,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             }
         }
         Command::Plan { recipe, seed, index } => {
-            let recipe = load_recipe(recipe.as_ref())?;
-            println!("{}", plan_scene(&recipe, seed, index).to_json());
+            let recipe = recipe.load()?;
+            let assets = AssetIndex::build(&recipe.sources, &stereogen_home())?;
+            println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
         Command::Render { spec, out, runtime } => {
             let text = std::fs::read_to_string(&spec).with_context(|| format!("cannot read {}", spec.display()))?;

@@ -5,6 +5,7 @@
 //! - [`render`]: finding or installing Blender's Python, and the worker processes that render specs.
 //! - [`dataset`]: the on-disk layout, manifest, atomic writes and resumable generation.
 
+pub mod assets;
 pub mod cli;
 pub mod dataset;
 pub mod plan;

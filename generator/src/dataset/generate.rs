@@ -15,6 +15,7 @@ use serde::Serialize;
 use super::layout::DatasetLayout;
 use super::manifest::Manifest;
 use super::sample::finalize_sample;
+use crate::assets::{AssetIndex, SkippedAsset};
 use crate::plan::{Recipe, plan_scene};
 use crate::render::protocol::{Device, Fault};
 use crate::render::runtime::{discover_or_install, stereogen_home};
@@ -103,12 +104,26 @@ impl FaultPlan {
     }
 }
 
-fn append_failure(layout: &DatasetLayout, index: u64, error: &str) {
+fn append_line(path: &std::path::Path, line: &str) {
     use std::io::Write;
-    let line = serde_json::json!({ "index": index, "error": error }).to_string();
-    let appended = std::fs::OpenOptions::new().create(true).append(true).open(layout.failures()).and_then(|mut f| writeln!(f, "{line}"));
+    let appended = std::fs::OpenOptions::new().create(true).append(true).open(path).and_then(|mut f| writeln!(f, "{line}"));
     if let Err(e) = appended {
-        tracing::error!("cannot record failure of sample {index}: {e}");
+        tracing::error!("cannot append to {}: {e}", path.display());
+    }
+}
+
+fn append_failure(layout: &DatasetLayout, index: u64, error: &str) {
+    append_line(&layout.failures(), &serde_json::json!({ "index": index, "error": error }).to_string());
+}
+
+/// Assets the index or a worker refused go to `skipped_assets.jsonl`, once per run and file.
+fn record_skipped(layout: &DatasetLayout, seen: &Mutex<BTreeSet<std::path::PathBuf>>, skipped: &[SkippedAsset], index: Option<u64>) {
+    let mut seen = seen.lock().unwrap();
+    for s in skipped {
+        if seen.insert(s.path.clone()) {
+            tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);
+            append_line(&layout.skipped_assets(), &serde_json::json!({ "path": s.path, "reason": s.reason, "sample": index }).to_string());
+        }
     }
 }
 
@@ -147,6 +162,9 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
     }
 
     let home = stereogen_home();
+    let assets = AssetIndex::build(&opts.recipe.sources, &home)?;
+    let seen_skipped = Mutex::new(BTreeSet::new());
+    record_skipped(&layout, &seen_skipped, &assets.skipped, None);
     let runtime = discover_or_install(opts.blender.as_deref(), &home)?;
     let script = install_scripts(&home).with_context(|| format!("cannot write the Blender scripts under {}", home.display()))?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u32;
@@ -182,7 +200,7 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
                 let mut service = RenderService::new(cfg.clone());
                 while !stop.load(Ordering::SeqCst) {
                     let Some(index) = queue.lock().unwrap().pop_front() else { break };
-                    let spec = plan_scene(&opts.recipe, opts.seed, index);
+                    let spec = plan_scene(&opts.recipe, &assets, opts.seed, index);
                     let t0 = Instant::now();
                     let outcome = service.render(&spec, |attempt| faults.fault(index, attempt));
                     let outcome = outcome.map_err(|e| {
@@ -193,6 +211,7 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
                     });
                     match outcome {
                         Ok(rendered) => {
+                            record_skipped(&layout, &seen_skipped, &rendered.reply.skipped_assets, Some(index));
                             let seconds = t0.elapsed().as_secs_f64();
                             let files = rendered.reply.files.as_ref().expect("ok replies carry files");
                             let finished = finalize_sample(&layout, &spec, files, seconds).and_then(|entry| manifest.lock().unwrap().append(&entry));

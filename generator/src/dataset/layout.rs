@@ -4,6 +4,7 @@
 //! <out>/dataset.json                   recipe, seed and version the dataset was made with
 //! <out>/manifest.jsonl                 one line per finished sample (written last)
 //! <out>/failures.jsonl                 samples that failed, with the reason
+//! <out>/skipped_assets.jsonl           mesh/texture files that could not be used, with the reason
 //! <out>/<category>/<id>_left.png       and _right.png
 //! <out>/<category>/<id>_left.disp.exr  and _right.disp.exr (float32 disparity + validity)
 //! <out>/<category>/<id>.scene.json     the SceneSpec that reproduces the sample
@@ -57,6 +58,10 @@ impl DatasetLayout {
 
     pub fn failures(&self) -> PathBuf {
         self.root.join("failures.jsonl")
+    }
+
+    pub fn skipped_assets(&self) -> PathBuf {
+        self.root.join("skipped_assets.jsonl")
     }
 
     pub fn info(&self) -> PathBuf {

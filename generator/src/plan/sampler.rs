@@ -1,36 +1,45 @@
-//! Turns (recipe, seed, index) into a `SceneSpec`.
+//! Turns (recipe, assets, seed, index) into a `SceneSpec`.
 //!
-//! Placement follows the paper's disparity law: each object first gets a target disparity, its
-//! depth follows from the rig (Z = f·B/d), its image position is drawn inside the part of the
-//! frustum both cameras see at that depth, and its world size grows with Z so its image size
-//! stays in the recipe's range and near objects do not wall off the view.
+//! Placement follows the paper's disparity law: each content object first gets a target
+//! disparity from the recipe's law, its depth follows from the rig (Z = f·B/d), its image
+//! position is drawn inside the part of the frustum both cameras see at that depth, and its world
+//! size grows with Z so its image size stays in the recipe's range and near objects do not wall
+//! off the view.
 
+use std::collections::BTreeMap;
 use std::f64::consts::PI;
 
 use rand::Rng;
 use rand::seq::IndexedRandom;
-use rand_distr::{Distribution, Uniform};
 
-use super::recipe::{PrimitiveKind, Range, Recipe};
+use super::recipe::{CategoryRecipe, LightKind, Recipe, ShapeSource};
 use super::rig::StereoRig;
 use super::rng::SeedTree;
+use super::shapes::{net, primitive, wireframe};
 use super::spec::{
-    LightSpec, MaterialSpec, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec, SPEC_FORMAT_VERSION,
+    BaseColor, LightSpec, MaterialClass, MaterialSpec, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec, SPEC_FORMAT_VERSION,
 };
+use super::tree::{TreeParams, grow};
+use crate::assets::AssetIndex;
 
-/// Fraction of the image kept free at each border when placing object centres.
-const PLACEMENT_MARGIN: f64 = 0.05;
+/// Mesh candidates per object: the worker falls back along them when one fails to load.
+const MESH_CANDIDATES: usize = 3;
 
-fn uniform<R: Rng>(rng: &mut R, r: Range) -> f64 {
-    if r.min == r.max { r.min } else { Uniform::new_inclusive(r.min, r.max).expect("validated range").sample(rng) }
-}
-
-fn log_uniform<R: Rng>(rng: &mut R, r: Range) -> f64 {
-    uniform(rng, Range { min: r.min.ln(), max: r.max.ln() }).exp()
-}
-
-fn count<R: Rng>(rng: &mut R, min: u32, max: u32) -> u32 {
-    rng.random_range(min..=max)
+/// Picks a key by weight; keys iterate in a fixed order, so the draw is reproducible.
+pub fn pick_weighted<K: Copy + Ord, R: Rng>(rng: &mut R, weights: &BTreeMap<K, f64>) -> K {
+    let total: f64 = weights.values().sum();
+    let mut x = rng.random_range(0.0..total);
+    let mut last = None;
+    for (k, w) in weights {
+        if *w > 0.0 {
+            if x < *w {
+                return *k;
+            }
+            x -= w;
+            last = Some(*k);
+        }
+    }
+    last.expect("validated: a positive weight exists")
 }
 
 fn random_color<R: Rng>(rng: &mut R) -> [f64; 3] {
@@ -42,21 +51,30 @@ pub fn sample_id(index: u64) -> String {
     format!("{index:07}")
 }
 
+/// The category scene `index` draws (needed before planning, e.g. to find its folder).
+pub fn scene_category(recipe: &Recipe, seed: u64, index: u64) -> &CategoryRecipe {
+    let mut rng = SeedTree::for_sample(seed, index).child("category").rng();
+    let weights: BTreeMap<usize, f64> = recipe.categories.iter().enumerate().map(|(i, c)| (i, c.weight)).collect();
+    &recipe.categories[pick_weighted(&mut rng, &weights)]
+}
+
 /// Plans sample `index` of a dataset made from `recipe` with `seed`.
-pub fn plan_scene(recipe: &Recipe, seed: u64, index: u64) -> SceneSpec {
+pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -> SceneSpec {
     let root = SeedTree::for_sample(seed, index);
+    let category = scene_category(recipe, seed, index);
     let mut rig_rng = root.child("rig").rng();
     let cam = &recipe.camera;
     let rig = StereoRig {
         width: cam.width,
         height: cam.height,
-        focal_mm: uniform(&mut rig_rng, cam.focal_mm),
+        focal_mm: cam.focal_mm.sample(&mut rig_rng),
         sensor_width_mm: cam.sensor_width_mm,
-        baseline_m: uniform(&mut rig_rng, cam.baseline_m),
+        baseline_m: cam.baseline_m.sample(&mut rig_rng),
     };
 
-    let background_depth = rig.depth_for_disparity(recipe.background.disparity_px);
-    let nearest_depth = rig.depth_for_disparity(recipe.objects.disparity_px.max);
+    let mut bg_rng = root.child("background").rng();
+    let background_depth = rig.depth_for_disparity(recipe.placement.background_disparity_px.sample(&mut bg_rng));
+    let nearest_depth = rig.depth_for_disparity(recipe.placement.disparity_px.support().1);
     let render = RenderSettings {
         samples: recipe.render.samples,
         denoise: recipe.render.denoise,
@@ -68,49 +86,43 @@ pub fn plan_scene(recipe: &Recipe, seed: u64, index: u64) -> SceneSpec {
         clip_end: background_depth * 2.0,
     };
 
-    let mut objects = vec![background_wall(&rig, background_depth, root.child("background"))];
-    let mut count_rng = root.child("object_count").rng();
-    let n_objects = count(&mut count_rng, recipe.objects.count.min, recipe.objects.count.max);
+    let mut objects = vec![background_wall(recipe, assets, &rig, background_depth, root.child("background"))];
+    let n_objects = category.objects.sample(&mut root.child("object_count").rng());
     for i in 0..n_objects {
-        objects.push(place_object(recipe, &rig, root.child("objects").nth(u64::from(i)), i));
+        objects.push(content_object(recipe, category, assets, &rig, root.child("objects").nth(u64::from(i)), i));
     }
 
     let mut light_rng = root.child("lights").rng();
-    let n_lights = count(&mut light_rng, recipe.lights.count.min, recipe.lights.count.max);
-    let lights = (0..n_lights)
-        .map(|i| point_light(recipe, &rig, nearest_depth, background_depth, root.child("lights").nth(u64::from(i))))
-        .collect();
+    let n_lights = recipe.lights.count.sample(&mut light_rng);
+    let lights = (0..n_lights).map(|i| light(recipe, &rig, nearest_depth, background_depth, root.child("lights").nth(u64::from(i)))).collect();
     let mut world_rng = root.child("world").rng();
     let grey = world_rng.random_range(0.6..1.0);
     let world = WorldSpec {
-        color: [grey, grey * world_rng.random_range(0.9..1.0), grey * world_rng.random_range(0.85..1.0)],
-        strength: uniform(&mut world_rng, recipe.lights.world_strength),
+        color: [grey, grey * world_rng.random_range(0.85..1.0), grey * world_rng.random_range(0.8..1.0)],
+        strength: recipe.lights.world_strength.sample(&mut world_rng),
     };
 
-    SceneSpec {
-        format_version: SPEC_FORMAT_VERSION,
-        id: sample_id(index),
-        category: recipe.name.clone(),
-        seed,
-        index,
-        rig,
-        render,
-        world,
-        objects,
-        lights,
-    }
+    SceneSpec { format_version: SPEC_FORMAT_VERSION, id: sample_id(index), category: category.name.clone(), seed, index, rig, render, world, objects, lights }
 }
 
 /// A textured wall at the far end, large enough to fill both cameras' views.
-fn background_wall(rig: &StereoRig, depth: f64, node: SeedTree) -> ObjectSpec {
+fn background_wall(recipe: &Recipe, assets: &AssetIndex, rig: &StereoRig, depth: f64, node: SeedTree) -> ObjectSpec {
     let f = rig.f_px();
     let half_w = (f64::from(rig.width) / 2.0 / f * depth + rig.baseline_m / 2.0) * 1.15;
     let half_h = f64::from(rig.height) / 2.0 / f * depth * 1.15;
-    let mut rng = node.rng();
-    let material = procedural_material(&mut rng, 4.0, 40.0);
+    let mut rng = node.child("material").rng();
+    let class = pick_weighted(&mut rng, &recipe.materials.background);
+    let mut material = material(recipe, assets, class, &mut rng);
+    // The wall is large: keep its texture from turning into noise by scaling repeats to its size.
+    if let BaseColor::Procedural { scale, .. } | BaseColor::Image { scale, .. } = &mut material.base {
+        *scale = (*scale).clamp(0.5, 6.0);
+    }
     ObjectSpec {
         name: "background".into(),
+        role: ObjectRole::Background,
+        source: "wall".into(),
         shape: Shape::Plane,
+        modifiers: Vec::new(),
         location: [0.0, 0.0, -depth],
         rotation: [0.0, 0.0, 0.0],
         scale: [half_w, half_h, 1.0],
@@ -119,132 +131,146 @@ fn background_wall(rig: &StereoRig, depth: f64, node: SeedTree) -> ObjectSpec {
     }
 }
 
-fn procedural_material<R: Rng>(rng: &mut R, min_scale: f64, max_scale: f64) -> MaterialSpec {
-    MaterialSpec::Procedural {
-        pattern: *Pattern::ALL.choose(rng).expect("non-empty"),
-        scale: log_uniform(rng, Range { min: min_scale, max: max_scale }),
-        color_a: random_color(rng),
-        color_b: random_color(rng),
-        roughness: rng.random_range(0.1..0.9),
-        detail: rng.random_range(0.0..8.0),
-    }
+/// A surface of the given class.
+pub fn material<R: Rng>(recipe: &Recipe, assets: &AssetIndex, class: MaterialClass, rng: &mut R) -> MaterialSpec {
+    let m = &recipe.materials;
+    let textured_base = |rng: &mut R| {
+        let scale = m.texture_scale.sample(rng);
+        match assets.textures.choose(rng) {
+            Some(path) => BaseColor::Image { path: path.clone(), scale, rotation: rng.random_range(0.0..2.0 * PI), fallback: random_color(rng) },
+            None => BaseColor::Procedural {
+                pattern: *Pattern::ALL.choose(rng).expect("non-empty"),
+                scale,
+                color_a: random_color(rng),
+                color_b: random_color(rng),
+                detail: rng.random_range(0.0..8.0),
+            },
+        }
+    };
+    let (base, roughness, metallic, transmission) = match class {
+        MaterialClass::Textured => (textured_base(rng), m.roughness.sample(rng), 0.0, 0.0),
+        MaterialClass::Textureless => (BaseColor::Flat { color: random_color(rng) }, m.roughness.sample(rng), 0.0, 0.0),
+        MaterialClass::Glossy => {
+            let base = if rng.random_bool(0.5) { textured_base(rng) } else { BaseColor::Flat { color: random_color(rng) } };
+            (base, rng.random_range(0.0..0.12), 0.0, 0.0)
+        }
+        MaterialClass::Metallic => {
+            let tint: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.55..1.0));
+            (BaseColor::Flat { color: tint }, rng.random_range(0.0..0.35), 1.0, 0.0)
+        }
+        MaterialClass::Glass => {
+            let tint: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.75..1.0));
+            (BaseColor::Flat { color: tint }, rng.random_range(0.0..0.08), 0.0, 1.0)
+        }
+    };
+    MaterialSpec { class, base, roughness, metallic, transmission, ior: m.ior.sample(rng) }
 }
 
-fn place_object(recipe: &Recipe, rig: &StereoRig, node: SeedTree, i: u32) -> ObjectSpec {
-    let o = &recipe.objects;
+fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetIndex, rig: &StereoRig, node: SeedTree, i: u32) -> ObjectSpec {
+    let p = &recipe.placement;
     let mut rng = node.child("placement").rng();
-    let d = uniform(&mut rng, o.disparity_px);
+    let d = p.disparity_px.sample(&mut rng);
     let z = rig.depth_for_disparity(d);
     let (w, h) = (f64::from(rig.width), f64::from(rig.height));
     // The centre must project into both images: u_left in [d, W] keeps u_right = u_left - d >= 0.
-    let (mu, mv) = (PLACEMENT_MARGIN * w, PLACEMENT_MARGIN * h);
+    let (mu, mv) = (p.margin * w, p.margin * h);
     let u_lo = (mu + d).min(w - mu);
     let u = rng.random_range(u_lo..=(w - mu));
     let v = rng.random_range(mv..=(h - mv));
     let location = rig.unproject_left(u, v, z);
     // Diameter `angular_size * W` pixels at depth z: the world radius grows linearly with z.
-    let angular = uniform(&mut rng, o.angular_size);
-    let radius = angular * w / 2.0 * z / rig.f_px();
-    let proportions: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.7..1.3));
-    let rotation: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.0..2.0 * PI));
+    let radius = p.angular_size.sample(&mut rng) * w / 2.0 * z / rig.f_px();
+    let mut rotation: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.0..2.0 * PI));
 
     let mut shape_rng = node.child("shape").rng();
-    let shape = match *o.shapes.choose(&mut shape_rng).expect("validated non-empty") {
-        PrimitiveKind::Cube => Shape::Cube,
-        PrimitiveKind::UvSphere => Shape::UvSphere { segments: 32, rings: 16 },
-        PrimitiveKind::IcoSphere => Shape::IcoSphere { subdivisions: shape_rng.random_range(1..=3) },
-        PrimitiveKind::Cylinder => Shape::Cylinder { vertices: 32 },
-        PrimitiveKind::Torus => {
-            Shape::Torus { major_segments: 48, minor_segments: 16, minor_ratio: shape_rng.random_range(0.15..0.5) }
-        }
-    };
-
+    let mut source = pick_weighted(&mut shape_rng, &category.shapes);
+    // Without the folders, the built-in procedural shapes stand in (the demo needs no downloads).
+    if (source == ShapeSource::Shapenet && assets.shapenet.is_empty()) || (source == ShapeSource::Meshes && assets.meshes.is_empty()) {
+        source = ShapeSource::Primitive;
+    }
     let mut mat_rng = node.child("material").rng();
-    let material = if mat_rng.random_bool(o.textured_fraction) {
-        procedural_material(&mut mat_rng, 1.0, 20.0)
-    } else {
-        MaterialSpec::Flat { color: random_color(&mut mat_rng), roughness: mat_rng.random_range(0.1..0.9) }
+    let class = pick_weighted(&mut mat_rng, &category.materials);
+    let material = material(recipe, assets, class, &mut mat_rng);
+
+    let mut proportions = [1.0; 3];
+    let (shape, modifiers) = match source {
+        ShapeSource::Primitive => {
+            let (shape, modifiers, props) = primitive(&recipe.primitives, &mut shape_rng);
+            proportions = props;
+            (shape, modifiers)
+        }
+        ShapeSource::Wireframe => wireframe(&recipe.holes, &mut shape_rng),
+        ShapeSource::Net => (net(&recipe.holes, &mut shape_rng), Vec::new()),
+        ShapeSource::Shapenet | ShapeSource::Meshes => {
+            let pool = if source == ShapeSource::Shapenet { &assets.shapenet } else { &assets.meshes };
+            let candidates = (0..MESH_CANDIDATES.min(pool.len())).map(|_| pool.choose(&mut shape_rng).expect("non-empty").path.clone()).collect();
+            (Shape::MeshFile { candidates, max_triangles: recipe.sources.max_triangles }, Vec::new())
+        }
+        ShapeSource::Tree => {
+            let t = &recipe.trees;
+            let params = TreeParams::draw(&mut shape_rng, &t.levels, &t.branches, &t.length_ratio, &t.down_angle_deg, &t.curve_deg, &t.trunk_radius, &t.leaves_per_branch, &t.leaf_size);
+            let tree = grow(&params, &mut shape_rng);
+            // Trees stand up: object +Z becomes world +Y, with a random yaw and a slight lean.
+            rotation = [-PI / 2.0 + shape_rng.random_range(-0.15..0.15), shape_rng.random_range(0.0..2.0 * PI), shape_rng.random_range(-0.15..0.15)];
+            let leaf_color = [shape_rng.random_range(0.05..0.35), shape_rng.random_range(0.25..0.7), shape_rng.random_range(0.02..0.2)];
+            let leaf = MaterialSpec { class: MaterialClass::Textureless, base: BaseColor::Flat { color: leaf_color }, roughness: 0.6, metallic: 0.0, transmission: 0.0, ior: 1.45 };
+            (Shape::Skeleton { strands: tree.strands, sides: 8, leaves: tree.leaves, leaf_material: Some(Box::new(leaf)) }, Vec::new())
+        }
     };
 
     ObjectSpec {
         name: format!("object_{i:03}"),
+        role: ObjectRole::Content,
+        source: serde_json::to_value(source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
         shape,
+        modifiers,
         location,
         rotation,
-        scale: proportions.map(|p| p * radius),
+        scale: proportions.map(|q| q * radius),
         material,
         target_disparity: Some(d),
     }
 }
 
-fn point_light(recipe: &Recipe, rig: &StereoRig, near: f64, far: f64, node: SeedTree) -> LightSpec {
-    let mut rng = node.rng();
-    let z = rng.random_range((near * 0.5)..(far * 0.9));
-    let u = rng.random_range(0.0..f64::from(rig.width));
-    let v = rng.random_range(0.0..f64::from(rig.height));
-    // Power scales with depth squared so a light deep in a large scene still reaches it.
-    let power_w = log_uniform(&mut rng, recipe.lights.power_w) * z * z;
-    let hue: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.3..1.0));
-    LightSpec::Point { location: rig.unproject_left(u, v, z), color: hue, power_w, radius: 0.05 * z }
+/// Approximate linear-RGB colour of a blackbody at `kelvin` (Tanner Helland's fit of the
+/// Planckian locus in sRGB, then linearised), normalised so its brightest channel is 1.
+pub fn blackbody_rgb(kelvin: f64) -> [f64; 3] {
+    let t = kelvin / 100.0;
+    let r = if t <= 66.0 { 255.0 } else { 329.698_727_446 * (t - 60.0).powf(-0.133_204_759_2) };
+    let g = if t <= 66.0 { 99.470_802_586_1 * t.ln() - 161.119_568_166_1 } else { 288.122_169_528_3 * (t - 60.0).powf(-0.075_514_849_2) };
+    let b = if t >= 66.0 { 255.0 } else if t <= 19.0 { 0.0 } else { 138.517_731_223_1 * (t - 10.0).ln() - 305.044_792_730_7 };
+    let lin = |c: f64| {
+        let c = (c / 255.0).clamp(0.0, 1.0);
+        if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+    };
+    let rgb = [lin(r), lin(g), lin(b)];
+    let m = rgb.iter().copied().fold(1e-9, f64::max);
+    rgb.map(|c| c / m)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::plan::rig::View;
-
-    #[test]
-    fn planning_is_a_pure_function_of_seed_and_index() {
-        let r = Recipe::builtin_default();
-        assert_eq!(plan_scene(&r, 7, 11).to_json(), plan_scene(&r, 7, 11).to_json());
-        assert_ne!(plan_scene(&r, 7, 11).to_json(), plan_scene(&r, 7, 12).to_json());
-        assert_ne!(plan_scene(&r, 7, 11).to_json(), plan_scene(&r, 8, 11).to_json());
-    }
-
-    #[test]
-    fn objects_hit_their_disparity_inside_both_views_and_scale_with_depth() {
-        let r = Recipe::builtin_default();
-        for index in 0..300 {
-            let spec = plan_scene(&r, 1, index);
-            let rig = &spec.rig;
-            for o in spec.objects.iter().filter(|o| o.target_disparity.is_some()) {
-                let d = o.target_disparity.unwrap();
-                assert!(d >= r.objects.disparity_px.min && d <= r.objects.disparity_px.max);
-                let (ul, vl) = rig.project(View::Left, o.location).unwrap();
-                let (ur, vr) = rig.project(View::Right, o.location).unwrap();
-                assert!((ul - ur - d).abs() < 1e-9, "projected disparity {} != target {d}", ul - ur);
-                assert!((vl - vr).abs() < 1e-12);
-                for u in [ul, ur] {
-                    assert!((0.0..=f64::from(rig.width)).contains(&u), "centre outside a view: {u}");
-                }
-                assert!((0.0..=f64::from(rig.height)).contains(&vl));
-                // Angular size: mean radius / depth is inside the recipe's range (proportions 0.7..1.3).
-                let z = -o.location[2];
-                let mean_radius = o.scale.iter().sum::<f64>() / 3.0;
-                let angular = 2.0 * mean_radius * rig.f_px() / z / f64::from(rig.width);
-                assert!(angular >= r.objects.angular_size.min * 0.7 - 1e-9);
-                assert!(angular <= r.objects.angular_size.max * 1.3 + 1e-9);
-            }
-        }
-    }
-
-    #[test]
-    fn background_fills_both_views_behind_every_object() {
-        let r = Recipe::builtin_default();
-        let spec = plan_scene(&r, 3, 0);
-        let bg = &spec.objects[0];
-        let z_bg = -bg.location[2];
-        let rig = &spec.rig;
-        for view in [View::Left, View::Right] {
-            for corner in [[-1.0, -1.0], [1.0, 1.0], [-1.0, 1.0], [1.0, -1.0]] {
-                let p = [bg.location[0] + corner[0] * bg.scale[0], bg.location[1] + corner[1] * bg.scale[1], -z_bg];
-                let (u, v) = rig.project(view, p).unwrap();
-                assert!(u < 0.0 || u > f64::from(rig.width));
-                assert!(v < 0.0 || v > f64::from(rig.height));
-            }
-        }
-        for o in &spec.objects[1..] {
-            assert!(-o.location[2] < z_bg);
-        }
+/// A light at a random place inside the scene volume (between the nearest objects and the wall).
+fn light(recipe: &Recipe, rig: &StereoRig, near: f64, far: f64, node: SeedTree) -> LightSpec {
+    let l = &recipe.lights;
+    let mut rng = node.rng();
+    let kind = pick_weighted(&mut rng, &l.kinds);
+    let color = if rng.random_bool(l.blackbody_fraction) {
+        blackbody_rgb(l.temperature_k.sample(&mut rng))
+    } else {
+        std::array::from_fn(|_| rng.random_range(0.2..1.0))
+    };
+    let z = rng.random_range((near * 0.5)..(far * 0.9));
+    // Lights may sit a little outside the view so that they light it from the side.
+    let u = rng.random_range(-0.2..1.2) * f64::from(rig.width);
+    let v = rng.random_range(-0.2..1.2) * f64::from(rig.height);
+    let location = rig.unproject_left(u, v, z);
+    // Power scales with depth squared so a light deep in a large scene still reaches it.
+    let power_w = l.power_w.sample(&mut rng) * z * z;
+    // Aim lights roughly into the scene (−Z), with some spread.
+    let rotation = [rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6), rng.random_range(0.0..2.0 * PI)];
+    match kind {
+        LightKind::Point => LightSpec::Point { location, color, power_w, radius: 0.02 * z },
+        LightKind::Spot => LightSpec::Spot { location, rotation, color, power_w, radius: 0.02 * z, spot_size: rng.random_range(0.4..1.6), blend: rng.random_range(0.05..0.5) },
+        LightKind::Area => LightSpec::Area { location, rotation, color, power_w, size: rng.random_range(0.05..0.3) * z },
+        LightKind::Sun => LightSpec::Sun { rotation, color, strength: l.sun_strength.sample(&mut rng) },
     }
 }

@@ -1,12 +1,14 @@
 //! `SceneSpec`: everything the Blender worker needs to build and render one sample, and nothing
 //! it would have to decide itself. Serialised as JSON next to every sample (`<id>.scene.json`).
 
+use std::path::PathBuf;
+
 use serde::{Deserialize, Serialize};
 
 use super::rig::StereoRig;
 
 /// Version of the SceneSpec schema; the worker refuses specs it does not know.
-pub const SPEC_FORMAT_VERSION: u32 = 1;
+pub const SPEC_FORMAT_VERSION: u32 = 2;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -14,6 +16,7 @@ pub struct SceneSpec {
     pub format_version: u32,
     /// File stem of the sample, unique inside its category.
     pub id: String,
+    /// Scene category (the recipe category it was drawn from): the sub-folder of the sample.
     pub category: String,
     pub seed: u64,
     pub index: u64,
@@ -27,7 +30,7 @@ pub struct SceneSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RenderSettings {
-    /// Cycles path-tracing samples per pixel (does not affect the depth pass).
+    /// Cycles path-tracing samples per pixel of the colour pass (the depth pass uses one).
     pub samples: u32,
     pub denoise: bool,
     /// Cycles noise seed.
@@ -49,7 +52,7 @@ pub enum PixelFilter {
     Box,
 }
 
-/// Ambient world light (a uniform background colour that also lights the scene).
+/// Uniform world light (background colour that also lights the scene).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WorldSpec {
@@ -57,23 +60,36 @@ pub struct WorldSpec {
     pub strength: f64,
 }
 
+/// What the object is for: the background wall, or scene content placed by the disparity law.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectRole {
+    Background,
+    Content,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObjectSpec {
     pub name: String,
+    pub role: ObjectRole,
+    /// Which shape source made it (primitive, shapenet, meshes, tree, wireframe, net, wall, test).
+    pub source: String,
     pub shape: Shape,
+    /// Blender modifiers applied in order (wireframe, displacement, subdivision, boolean cut).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub modifiers: Vec<Modifier>,
     /// Rig-space location (metres), XYZ Euler rotation (radians), per-axis scale.
     pub location: [f64; 3],
     pub rotation: [f64; 3],
     pub scale: [f64; 3],
     pub material: MaterialSpec,
-    /// The disparity the planner aimed this object's centre at (None for backgrounds and
-    /// hand-made scenes); kept for distribution checks.
+    /// The disparity the planner aimed this object's centre at (content objects only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target_disparity: Option<f64>,
 }
 
-/// Geometry in object space; every primitive fits the unit sphere before `scale`.
+/// Geometry in object space; every shape fits the unit sphere before `scale`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Shape {
@@ -85,20 +101,99 @@ pub enum Shape {
     IcoSphere { subdivisions: u32 },
     /// Cylinder along Z, radius and half-height 1/√2.
     Cylinder { vertices: u32 },
+    /// Cone along Z with the same bounds as the cylinder; `top_ratio` = top radius / bottom radius.
+    Cone { vertices: u32, top_ratio: f64 },
     /// Torus in the XY plane; `minor_ratio` = tube radius / ring radius, outer radius 1.
     Torus { major_segments: u32, minor_segments: u32, minor_ratio: f64 },
-    /// Explicit triangles (used by exactness tests and any caller that brings its own mesh).
+    /// A subdivided square (−1/√2..1/√2), useful with the wireframe modifier as a grid of holes.
+    Grid { x_segments: u32, y_segments: u32 },
+    /// Blender's Suzanne, scaled into the unit sphere.
+    Monkey,
+    /// Explicit triangles (exactness tests, and callers that bring their own mesh).
     Mesh { vertices: Vec<[f64; 3]>, triangles: Vec<[u32; 3]> },
+    /// A mesh file. The worker loads the first candidate that imports, is not empty and has at
+    /// most `max_triangles`, normalises it to the unit bounding sphere, and reports the others
+    /// as skipped assets. Candidates are drawn by the planner, so the choice is deterministic.
+    MeshFile { candidates: Vec<PathBuf>, max_triangles: u64 },
+    /// Tubes along polylines (tree branches, net strands) and alpha-cut leaf quads.
+    Skeleton { strands: Vec<Strand>, sides: u32, leaves: Vec<Leaf>, leaf_material: Option<Box<MaterialSpec>> },
+}
+
+/// A tube along a polyline, with a radius at every point (object space).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Strand {
+    pub points: Vec<[f64; 3]>,
+    pub radii: Vec<f64>,
+}
+
+/// A leaf: a quad centred at `center`, spanned by `u` (half-width vector) and `v` (half-length
+/// vector), cut to an ellipse by a 0/1 alpha mask.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Leaf {
+    pub center: [f64; 3],
+    pub u: [f64; 3],
+    pub v: [f64; 3],
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum MaterialSpec {
-    /// One colour everywhere: the textureless case.
-    Flat { color: [f64; 3], roughness: f64 },
-    /// A procedural Blender texture mapped in object coordinates (works without UVs),
-    /// blended between two colours.
-    Procedural { pattern: Pattern, scale: f64, color_a: [f64; 3], color_b: [f64; 3], roughness: f64, detail: f64 },
+pub enum Modifier {
+    /// Keeps only a lattice of the edges, `thickness` in object units (holes and open-work).
+    Wireframe { thickness: f64 },
+    /// Catmull–Clark subdivision.
+    Subdivide { levels: u32 },
+    /// Pushes vertices along normals by a noise texture.
+    Displace { strength: f64, noise_scale: f64, offset: [f64; 3] },
+    /// Cuts a cube or sphere (object space) out of the shape.
+    BooleanCut { cutter: Cutter, location: [f64; 3], rotation: [f64; 3], scale: [f64; 3] },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Cutter {
+    Cube,
+    Sphere,
+}
+
+/// The kind of surface, as the recipe's material weights name it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaterialClass {
+    /// Photo or procedural texture.
+    Textured,
+    /// One flat colour: no features to match.
+    Textureless,
+    /// Low-roughness dielectric with strong highlights.
+    Glossy,
+    /// Metallic = 1: mirror-like reflections.
+    Metallic,
+    /// Transmission = 1: refracting glass. Ground truth is its first surface.
+    Glass,
+}
+
+/// A Principled BSDF surface.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    pub class: MaterialClass,
+    pub base: BaseColor,
+    pub roughness: f64,
+    pub metallic: f64,
+    pub transmission: f64,
+    pub ior: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum BaseColor {
+    Flat { color: [f64; 3] },
+    /// A procedural Blender texture in object coordinates, blended between two colours.
+    Procedural { pattern: Pattern, scale: f64, color_a: [f64; 3], color_b: [f64; 3], detail: f64 },
+    /// A photo, box-projected in object coordinates (works without UVs); `scale` = repeats per
+    /// object unit (large = strongly repetitive). `fallback` is used if Blender cannot load it.
+    Image { path: PathBuf, scale: f64, rotation: f64, fallback: [f64; 3] },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -110,10 +205,18 @@ pub enum Pattern {
     Wave,
     Brick,
     Magic,
+    Gradient,
 }
 
 impl Pattern {
-    pub const ALL: [Pattern; 6] = [Pattern::Noise, Pattern::Voronoi, Pattern::Checker, Pattern::Wave, Pattern::Brick, Pattern::Magic];
+    pub const ALL: [Pattern; 7] = [Pattern::Noise, Pattern::Voronoi, Pattern::Checker, Pattern::Wave, Pattern::Brick, Pattern::Magic, Pattern::Gradient];
+}
+
+impl MaterialSpec {
+    /// A diffuse flat-colour surface.
+    pub fn flat(color: [f64; 3], roughness: f64) -> Self {
+        Self { class: MaterialClass::Textureless, base: BaseColor::Flat { color }, roughness, metallic: 0.0, transmission: 0.0, ior: 1.45 }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -121,7 +224,11 @@ impl Pattern {
 pub enum LightSpec {
     /// Omni light; `radius` softens shadows.
     Point { location: [f64; 3], color: [f64; 3], power_w: f64, radius: f64 },
-    /// Directional light pointing along −Z rotated by `rotation` (XYZ Euler).
+    /// Cone light pointing along its local −Z, `spot_size` full angle (radians).
+    Spot { location: [f64; 3], rotation: [f64; 3], color: [f64; 3], power_w: f64, radius: f64, spot_size: f64, blend: f64 },
+    /// Square emitter of side `size` facing its local −Z.
+    Area { location: [f64; 3], rotation: [f64; 3], color: [f64; 3], power_w: f64, size: f64 },
+    /// Directional light along its local −Z.
     Sun { rotation: [f64; 3], color: [f64; 3], strength: f64 },
 }
 
@@ -135,5 +242,10 @@ impl SceneSpec {
 
     pub fn from_json(text: &str) -> Result<Self, serde_json::Error> {
         serde_json::from_str(text)
+    }
+
+    /// Target disparities of the content objects (the object-level sample of the disparity law).
+    pub fn target_disparities(&self) -> impl Iterator<Item = f64> + '_ {
+        self.objects.iter().filter(|o| o.role == ObjectRole::Content).filter_map(|o| o.target_disparity)
     }
 }

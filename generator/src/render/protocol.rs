@@ -66,4 +66,11 @@ pub struct RenderReply {
     pub rss_bytes: Option<u64>,
     #[serde(default)]
     pub error: Option<String>,
+    /// Mesh or texture files the worker could not use for this spec (it fell back to the next
+    /// candidate or a flat colour).
+    #[serde(default)]
+    pub skipped_assets: Vec<crate::assets::SkippedAsset>,
+    /// What the worker did beyond the spec: which mesh candidate it used, objects it dropped.
+    #[serde(default)]
+    pub notes: Vec<String>,
 }

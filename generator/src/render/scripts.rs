@@ -9,6 +9,7 @@ const SCRIPTS: &[(&str, &str)] = &[
     ("worker.py", include_str!("../../../blender_scripts/worker.py")),
     ("scene_builder.py", include_str!("../../../blender_scripts/scene_builder.py")),
     ("materials.py", include_str!("../../../blender_scripts/materials.py")),
+    ("geometry.py", include_str!("../../../blender_scripts/geometry.py")),
     ("render_views.py", include_str!("../../../blender_scripts/render_views.py")),
 ];
 

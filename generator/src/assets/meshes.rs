@@ -1,0 +1,149 @@
+//! ShapeNetCore (v1 and v2 layouts) and plain mesh folders.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use serde::{Deserialize, Serialize};
+use walkdir::WalkDir;
+
+use super::SkippedAsset;
+use super::cache::{cached, tree_stamp};
+
+/// Mesh formats the worker imports (OFF and other trimesh formats go through trimesh).
+pub const MESH_EXTENSIONS: &[&str] = &["obj", "glb", "gltf", "ply", "stl", "off"];
+
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MeshAsset {
+    pub path: PathBuf,
+    /// ShapeNet synset id (e.g. "03001627"), when known.
+    pub synset: Option<String>,
+    /// Human name of the synset from `taxonomy.json` (e.g. "chair"), when known.
+    pub label: Option<String>,
+}
+
+fn has_mesh_extension(path: &Path) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| MESH_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
+/// Synset id → first name, from ShapeNet's `taxonomy.json` if present.
+fn taxonomy(root: &Path) -> BTreeMap<String, String> {
+    #[derive(Deserialize)]
+    struct Entry {
+        #[serde(rename = "synsetId")]
+        synset_id: String,
+        name: String,
+    }
+    let Ok(text) = std::fs::read_to_string(root.join("taxonomy.json")) else { return BTreeMap::new() };
+    let Ok(entries) = serde_json::from_str::<Vec<Entry>>(&text) else {
+        tracing::warn!("{}: not a ShapeNet taxonomy; synset names unavailable", root.join("taxonomy.json").display());
+        return BTreeMap::new();
+    };
+    entries.into_iter().map(|e| (e.synset_id, e.name.split(',').next().unwrap_or_default().trim().to_string())).collect()
+}
+
+fn check_root(root: &Path, what: &str) -> anyhow::Result<()> {
+    if !root.is_dir() {
+        bail!("{what} folder {} does not exist or is not a directory", root.display());
+    }
+    Ok(())
+}
+
+/// Indexes `<synset>/<model>/model.obj` (v1) and `<synset>/<model>/models/model_normalized.obj` (v2).
+pub fn index_shapenet(root: &Path, synsets: &[String], home: &Path) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
+    check_root(root, "ShapeNet")?;
+    let key = format!("{}|{}", root.canonicalize().unwrap_or_else(|_| root.to_path_buf()).display(), synsets.join(","));
+    let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) = cached(home, "shapenet", &key, &tree_stamp(root), || {
+        let names = taxonomy(root);
+        let mut found = Vec::new();
+        let mut skipped = Vec::new();
+        for entry in WalkDir::new(root).follow_links(true).min_depth(3).max_depth(4).sort_by_file_name() {
+            let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
+            let rel = entry.path().strip_prefix(root).unwrap_or(entry.path());
+            let parts: Vec<String> = rel.components().map(|c| c.as_os_str().to_string_lossy().into_owned()).collect();
+            let is_model = matches!(parts.as_slice(), [_, _, f] if f == "model.obj") || matches!(parts.as_slice(), [_, _, d, f] if d == "models" && f == "model_normalized.obj");
+            if !is_model {
+                continue;
+            }
+            let synset = parts[0].clone();
+            if !synsets.is_empty() && !synsets.contains(&synset) {
+                continue;
+            }
+            if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
+                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason: "empty file".into() });
+                continue;
+            }
+            found.push(MeshAsset { path: entry.path().to_path_buf(), label: names.get(&synset).cloned(), synset: Some(synset) });
+        }
+        Ok((found, skipped))
+    })?;
+    if found.is_empty() {
+        bail!("ShapeNet folder {} holds no <synset>/<model>/model.obj or .../models/model_normalized.obj{}", root.display(), if synsets.is_empty() { String::new() } else { format!(" for synsets {}", synsets.join(", ")) });
+    }
+    Ok((found, skipped))
+}
+
+/// Indexes every mesh file under `root`.
+pub fn index_mesh_folder(root: &Path, home: &Path) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
+    check_root(root, "mesh")?;
+    let key = root.canonicalize().unwrap_or_else(|_| root.to_path_buf()).display().to_string();
+    let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) = cached(home, "meshes", &key, &tree_stamp(root), || {
+        let mut found = Vec::new();
+        let mut skipped = Vec::new();
+        for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
+            let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
+            if !entry.file_type().is_file() || !has_mesh_extension(entry.path()) {
+                continue;
+            }
+            if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
+                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason: "empty file".into() });
+                continue;
+            }
+            found.push(MeshAsset { path: entry.path().to_path_buf(), synset: None, label: None });
+        }
+        Ok((found, skipped))
+    })?;
+    if found.is_empty() {
+        bail!("mesh folder {} holds no {} files", root.display(), MESH_EXTENSIONS.join("/"));
+    }
+    Ok((found, skipped))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn both_shapenet_layouts_are_found_and_empty_files_skipped() {
+        let root = tempfile::tempdir().unwrap();
+        let home = tempfile::tempdir().unwrap();
+        let v1 = root.path().join("03001627/aaa");
+        let v2 = root.path().join("04379243/bbb/models");
+        let empty = root.path().join("04379243/ccc/models");
+        for d in [&v1, &v2, &empty] {
+            std::fs::create_dir_all(d).unwrap();
+        }
+        std::fs::write(v1.join("model.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        std::fs::write(v2.join("model_normalized.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        std::fs::write(empty.join("model_normalized.obj"), "").unwrap();
+        std::fs::write(root.path().join("taxonomy.json"), r#"[{"synsetId":"03001627","name":"chair,seat","children":[],"numInstances":1}]"#).unwrap();
+        let (found, skipped) = index_shapenet(root.path(), &[], home.path()).unwrap();
+        assert_eq!(found.len(), 2);
+        assert_eq!(found[0].label.as_deref(), Some("chair"));
+        assert_eq!(skipped.len(), 1);
+        let (only, _) = index_shapenet(root.path(), &["04379243".into()], home.path()).unwrap();
+        assert_eq!(only.len(), 1);
+        // Cached, then invalidated by a new model.
+        let extra = root.path().join("03001627/ddd");
+        std::fs::create_dir_all(&extra).unwrap();
+        std::fs::write(extra.join("model.obj"), "v 0 0 0\n").unwrap();
+        assert_eq!(index_shapenet(root.path(), &[], home.path()).unwrap().0.len(), 3);
+    }
+
+    #[test]
+    fn missing_folder_is_a_clear_error() {
+        let home = tempfile::tempdir().unwrap();
+        let err = index_mesh_folder(Path::new("/no/such/meshes"), home.path()).unwrap_err().to_string();
+        assert!(err.contains("/no/such/meshes") && err.contains("does not exist"), "{err}");
+    }
+}
