@@ -1,0 +1,186 @@
+//! Builds the `stereogen` Python module with maturin into a cached venv and runs its pytest
+//! suite (crates/stereogen-py/pytests) against fixtures whose Rust readings are saved as .npy.
+//!
+//! The venv lives under $STEREOGEN_HOME/python (pinned maturin, pytest, numpy from PyPI, made
+//! once); the module is built in `<target>/python-ext` so maturin's build environment does not
+//! invalidate the workspace's own pyo3 build.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::json;
+use stereo_io::*;
+
+const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
+
+fn run(cmd: &mut Command, what: &str) {
+    let out = cmd.output().unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
+    assert!(out.status.success(), "{what} failed ({}):\n{}\n{}", out.status, String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+}
+
+/// A venv with the pinned packages, made once (under a file lock) and reused.
+pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
+    let base = stereogen::render::runtime::stereogen_home().join("python");
+    std::fs::create_dir_all(&base).unwrap();
+    let lock = std::fs::File::create(base.join(".lock")).unwrap();
+    // SAFETY: flock on an open descriptor; released when `lock` is dropped.
+    assert_eq!(unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX) }, 0);
+    let venv = base.join(format!("{name}-{}", pins.join("-").replace("==", "")));
+    if !venv.join(".complete").is_file() {
+        let _ = std::fs::remove_dir_all(&venv);
+        let python = std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").unwrap_or_else(|_| "python3".into());
+        run(Command::new(&python).args(["-m", "venv"]).arg(&venv), "python3 -m venv");
+        run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"]).args(pins), "pip install");
+        std::fs::write(venv.join(".complete"), pins.join("\n")).unwrap();
+    }
+    venv
+}
+
+fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    exe.ancestors().nth(3).expect("<target>/<profile>/deps/<test>").to_path_buf()
+}
+
+/// Builds the module with maturin and installs the wheel into `venv`.
+pub fn install_module(venv: &Path) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let wheels = tempfile::tempdir().unwrap();
+    run(
+        Command::new(venv.join("bin/maturin"))
+            .args(["build", "--release", "--auditwheel", "skip", "--manifest-path"])
+            .arg(root.join("crates/stereogen-py/Cargo.toml"))
+            .arg("--interpreter")
+            .arg(venv.join("bin/python"))
+            .arg("--out")
+            .arg(wheels.path())
+            .env("CARGO_TARGET_DIR", target_dir().join("python-ext")),
+        "maturin build",
+    );
+    let wheel = std::fs::read_dir(wheels.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|x| x == "whl")).expect("a wheel");
+    run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", "--no-deps", "--force-reinstall"]).arg(&wheel), "pip install wheel");
+}
+
+fn rgb(w: usize, h: usize, seed: u8) -> RgbImage {
+    RgbImage { width: w, height: h, data: (0..w * h * 3).map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed)).collect() }
+}
+
+fn disp(w: usize, h: usize, seed: f32) -> DisparityMap {
+    let mut m = DisparityMap::new(w, h);
+    for (i, (d, v)) in m.data.iter_mut().zip(m.valid.iter_mut()).enumerate() {
+        *v = i % 6 != 1;
+        *d = if *v { seed + i as f32 * 0.75 } else { 0.0 };
+    }
+    m
+}
+
+fn npy(path: PathBuf, h: usize, w: usize, c: usize, data: Vec<f32>) {
+    write_npy(&path, &NpyArray { shape: if c == 1 { vec![h, w] } else { vec![h, w, c] }, data }).unwrap();
+}
+
+/// Writes the fixture datasets and the Rust readers' results; returns the expectations.
+fn fixtures(dir: &Path) -> serde_json::Value {
+    let (w, h) = (5, 4);
+    // Ours: two samples.
+    let ours = dir.join("ours");
+    let cat = ours.join("primitives");
+    std::fs::create_dir_all(&cat).unwrap();
+    let mut manifest = String::new();
+    for (i, id) in ["0000000", "0000001"].iter().enumerate() {
+        write_png_rgb(&cat.join(format!("{id}_left.png")), &rgb(w, h, i as u8)).unwrap();
+        write_png_rgb(&cat.join(format!("{id}_right.png")), &rgb(w, h, 50 + i as u8)).unwrap();
+        let meta = DisparityMeta { f_px: Some(80.0), baseline_m: Some(0.12), view: Some("left".into()) };
+        write_disparity_exr(&cat.join(format!("{id}_left.disp.exr")), &disp(w, h, 1.0 + i as f32), &meta).unwrap();
+        write_disparity_exr(&cat.join(format!("{id}_right.disp.exr")), &disp(w, h, 2.0), &meta).unwrap();
+        let files = json!({"left": format!("primitives/{id}_left.png"), "right": format!("primitives/{id}_right.png"), "disp_left": format!("primitives/{id}_left.disp.exr"), "disp_right": format!("primitives/{id}_right.disp.exr"), "scene": format!("primitives/{id}.scene.json")});
+        manifest += &(json!({"id": id, "category": "primitives", "index": i, "files": files, "width": w, "height": h, "f_px": 80.0, "baseline_m": 0.12, "cx": 2.5, "cy": 2.0}).to_string() + "\n");
+    }
+    std::fs::write(ours.join("manifest.jsonl"), manifest).unwrap();
+    // Middlebury: inf = invalid, calib.txt.
+    let mb = dir.join("middlebury/Piano");
+    std::fs::create_dir_all(&mb).unwrap();
+    write_png_rgb(&mb.join("im0.png"), &rgb(w, h, 7)).unwrap();
+    write_png_rgb(&mb.join("im1.png"), &rgb(w, h, 8)).unwrap();
+    write_disparity_pfm(&mb.join("disp0.pfm"), &disp(w, h, 30.5)).unwrap();
+    std::fs::write(mb.join("calib.txt"), "cam0=[2826.171 0 1292.2; 0 2826.171 965.806; 0 0 1]\ncam1=[2826.171 0 1415.97; 0 2826.171 965.806; 0 0 1]\ndoffs=123.77\nbaseline=178.089\nwidth=5\nheight=4\nndisp=260\n").unwrap();
+    // KITTI 2015 with a non-occlusion mask.
+    let kt = dir.join("kitti/training");
+    for d in ["image_2", "image_3", "disp_occ_0", "disp_noc_0"] {
+        std::fs::create_dir_all(kt.join(d)).unwrap();
+    }
+    write_png_rgb(&kt.join("image_2/000000_10.png"), &rgb(w, h, 9)).unwrap();
+    write_png_rgb(&kt.join("image_3/000000_10.png"), &rgb(w, h, 10)).unwrap();
+    write_disparity_png16(&kt.join("disp_occ_0/000000_10.png"), &disp(w, h, 4.0), 256.0).unwrap();
+    let mut noc = disp(w, h, 4.0);
+    noc.valid[0] = false;
+    write_disparity_png16(&kt.join("disp_noc_0/000000_10.png"), &noc, 256.0).unwrap();
+
+    // What the Rust readers return, for pytest to compare with.
+    let refs = dir.join("ref");
+    std::fs::create_dir_all(&refs).unwrap();
+    let mut datasets = serde_json::Map::new();
+    for name in ["ours", "middlebury", "kitti"] {
+        let ds = open_dataset(&dir.join(name), None).unwrap();
+        let mut ids = vec![];
+        let mut meta = serde_json::Map::new();
+        for i in 0..ds.len() {
+            let s = ds.sample(i).unwrap();
+            ids.push(s.meta.id.clone());
+            let f = |v: &[u8]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+            npy(refs.join(format!("{name}_{i}_left.npy")), h, w, 3, f(&s.left.data));
+            npy(refs.join(format!("{name}_{i}_right.npy")), h, w, 3, f(&s.right.data));
+            npy(refs.join(format!("{name}_{i}_disp_left.npy")), h, w, 1, s.disp_left.data.clone());
+            npy(refs.join(format!("{name}_{i}_valid_left.npy")), h, w, 1, s.valid_mask().iter().map(|&v| v as u8 as f32).collect());
+            for (k, v) in [("f_px", s.meta.f_px), ("baseline_m", s.meta.baseline_m), ("cx", s.meta.cx)] {
+                if let Some(v) = v {
+                    meta.insert(k.into(), json!(v));
+                }
+            }
+            if let Some(n) = s.meta.ndisp {
+                meta.insert("ndisp".into(), json!(n));
+            }
+        }
+        datasets.insert(name.into(), json!({"format": ds.format().name(), "len": ds.len(), "ids": ids, "meta": meta}));
+    }
+    let exr = "primitives/0000001_left.disp.exr";
+    let (m, em) = read_disparity(&ours.join(exr), None).unwrap();
+    npy(refs.join("exr_disp.npy"), h, w, 1, m.data.clone());
+    npy(refs.join("exr_valid.npy"), h, w, 1, m.valid.iter().map(|&v| v as u8 as f32).collect());
+
+    // Broken inputs and the messages Rust gives for them.
+    let bad = dir.join("bad");
+    std::fs::create_dir_all(&bad).unwrap();
+    std::fs::write(bad.join("cut.pfm"), b"Pf\n4 4\n-1.0\n\0\0").unwrap();
+    std::fs::write(bad.join("noise.exr"), b"\x76\x2f\x31\x01garbage").unwrap();
+    let mut errors = vec![];
+    for p in [bad.join("cut.pfm"), bad.join("noise.exr"), bad.join("missing.pfm")] {
+        let e = read_disparity(&p, None).unwrap_err();
+        let ty = if matches!(e, Error::Io { .. }) { "OSError" } else { "ValueError" };
+        errors.push(json!({"call": "read_disparity", "path": p, "type": ty, "message": e.to_string()}));
+    }
+    let broken = dir.join("broken_ours");
+    std::fs::create_dir_all(broken.join("primitives")).unwrap();
+    std::fs::copy(ours.join("manifest.jsonl"), broken.join("manifest.jsonl")).unwrap();
+    std::fs::write(broken.join("primitives/0000000_left.png"), b"\x89PNG\r\n\x1a\nbroken").unwrap();
+    let e = open_dataset(&broken, None).unwrap().sample(0).unwrap_err();
+    errors.push(json!({"call": "open_dataset", "path": broken, "type": "ValueError", "message": e.to_string()}));
+
+    json!({"datasets": datasets, "exr": exr, "exr_f_px": em.f_px, "errors": errors})
+}
+
+#[test]
+fn python_module_matches_the_rust_readers() {
+    let venv = ensure_venv("venv-test", PY_PINS);
+    install_module(&venv);
+    let dir = tempfile::tempdir().unwrap();
+    let expect = fixtures(dir.path());
+    std::fs::write(dir.path().join("expect.json"), serde_json::to_string_pretty(&expect).unwrap()).unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    run(
+        Command::new(venv.join("bin/python"))
+            .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
+            .arg(root.join("crates/stereogen-py/pytests"))
+            .env("STEREOGEN_PY_FIXTURES", dir.path())
+            .env("STEREOGEN_BIN", stereogen_e2e::stereogen_bin()),
+        "pytest",
+    );
+}
