@@ -8,25 +8,40 @@ use super::hist::{EdgeHist, UniformHist};
 /// Bins of all pixel-level histograms of one stats run (shared by every category so they merge).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Binning {
-    /// Upper end of the pixel histograms (px); the lower end is 0.
+    /// Upper end of the full-range histograms (px); their lower end is 0.
     pub hi: f64,
-    /// Bins of the fine histogram that percentiles are read from.
+    /// Bins of the fine full-range histogram that percentiles are read from.
     pub fine_bins: usize,
-    /// Bins of the histogram written to stats.json and plotted.
+    /// Range and bins of the histogram inside the law's support (written and plotted).
+    pub support: (f64, f64),
     pub display_bins: usize,
     /// Disparity bins of each row/column coverage histogram.
     pub coverage_bins: usize,
     /// Image rows and columns are grouped into this many bands (by relative position).
     pub rows: usize,
     pub cols: usize,
+    /// Pixels at or above this disparity count as content (the law's minimum: recipes keep the
+    /// background wall below it); row/column disparity bands describe content pixels only.
+    pub content_min: f64,
 }
 
+/// Fine bins of the full-range histogram: percentiles resolve `hi / FINE_BINS`.
+pub const FINE_BINS: usize = 16384;
+
 impl Binning {
-    /// Fine bins: a multiple of the display bins, about 16k, so percentiles resolve ~hi/16384.
-    pub fn new(hi: f64, display_bins: usize, width: usize, height: usize) -> Self {
-        let display_bins = display_bins.max(1);
-        let fine_bins = display_bins * (16384 / display_bins).max(1);
-        Self { hi, fine_bins, display_bins, coverage_bins: 256, rows: height.clamp(1, 96), cols: width.clamp(1, 128) }
+    /// `support`: the law's support (widened by 0.5 px each side when it is a single value).
+    pub fn new(hi: f64, support: (f64, f64), display_bins: usize, width: usize, height: usize) -> Self {
+        let (lo, up) = if support.1 > support.0 { support } else { (support.0 - 0.5, support.1 + 0.5) };
+        Self {
+            hi,
+            fine_bins: FINE_BINS,
+            support: (lo, up),
+            display_bins: display_bins.max(1),
+            coverage_bins: 256,
+            rows: height.clamp(1, 96),
+            cols: width.clamp(1, 128),
+            content_min: support.0,
+        }
     }
 }
 
@@ -63,18 +78,21 @@ impl ViewAcc {
     }
 }
 
-/// Disparity by image row (or column) band: a histogram, sum and pixel counts per band.
+/// Disparity by image row (or column) band: pixel, valid and content counts per band, and a
+/// histogram and sum of the content pixels' disparities.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Coverage {
     pub hists: Vec<UniformHist>,
     pub sums: Vec<f64>,
+    pub content: Vec<u64>,
     pub valid: Vec<u64>,
     pub pixels: Vec<u64>,
 }
 
 impl Coverage {
     fn new(bands: usize, b: &Binning) -> Self {
-        Self { hists: vec![UniformHist::new(0.0, b.hi, b.coverage_bins); bands], sums: vec![0.0; bands], valid: vec![0; bands], pixels: vec![0; bands] }
+        let z = vec![0; bands];
+        Self { hists: vec![UniformHist::new(0.0, b.hi, b.coverage_bins); bands], sums: vec![0.0; bands], content: z.clone(), valid: z.clone(), pixels: z }
     }
 
     fn merge(&mut self, o: &Self) {
@@ -83,6 +101,7 @@ impl Coverage {
         }
         for i in 0..self.sums.len() {
             self.sums[i] += o.sums[i];
+            self.content[i] += o.content[i];
             self.valid[i] += o.valid[i];
             self.pixels[i] += o.pixels[i];
         }
@@ -100,7 +119,7 @@ impl Coverage {
 pub struct PixelAcc {
     /// Left and right views.
     pub views: [ViewAcc; 2],
-    /// Both views, display bins.
+    /// Both views, display bins over the law's support.
     pub display: UniformHist,
     /// Gap-check bins of this category (equal-mass bins of the law for its object count).
     pub gap: Option<EdgeHist>,
@@ -108,6 +127,7 @@ pub struct PixelAcc {
     pub gap_all: Option<EdgeHist>,
     pub rows: Coverage,
     pub cols: Coverage,
+    pub content_min: f64,
     pub maps: u64,
 }
 
@@ -115,11 +135,12 @@ impl PixelAcc {
     pub fn new(b: &Binning, gap_edges: Option<&[f64]>, all_edges: Option<&[f64]>) -> Self {
         Self {
             views: [ViewAcc::new(b), ViewAcc::new(b)],
-            display: UniformHist::new(0.0, b.hi, b.display_bins),
+            display: UniformHist::new(b.support.0, b.support.1, b.display_bins),
             gap: gap_edges.map(|e| EdgeHist::new(e.to_vec())),
             gap_all: all_edges.map(|e| EdgeHist::new(e.to_vec())),
             rows: Coverage::new(b.rows, b),
             cols: Coverage::new(b.cols, b),
+            content_min: b.content_min,
             maps: 0,
         }
     }
@@ -127,6 +148,7 @@ impl PixelAcc {
     /// Adds every pixel of one view's map (`view` 0 = left, 1 = right).
     pub fn add_map(&mut self, view: usize, map: &DisparityMap) {
         let (w, h) = (map.width, map.height);
+        let content_min = self.content_min;
         let col_band: Vec<usize> = (0..w).map(|x| self.cols.band(x, w)).collect();
         let v = &mut self.views[view];
         v.pixels += (w * h) as u64;
@@ -158,12 +180,16 @@ impl PixelAcc {
                 if let Some(g) = &mut self.gap_all {
                     g.add(d);
                 }
-                self.rows.hists[rb].add(d);
-                self.rows.sums[rb] += d;
                 self.rows.valid[rb] += 1;
-                self.cols.hists[cb].add(d);
-                self.cols.sums[cb] += d;
                 self.cols.valid[cb] += 1;
+                if d >= content_min {
+                    self.rows.content[rb] += 1;
+                    self.rows.hists[rb].add(d);
+                    self.rows.sums[rb] += d;
+                    self.cols.content[cb] += 1;
+                    self.cols.hists[cb].add(d);
+                    self.cols.sums[cb] += d;
+                }
             }
         }
         self.maps += 1;
@@ -213,7 +239,7 @@ mod tests {
 
     #[test]
     fn counts_valid_invalid_and_bands() {
-        let b = Binning { hi: 10.0, fine_bins: 100, display_bins: 10, coverage_bins: 10, rows: 2, cols: 4 };
+        let b = Binning { hi: 10.0, fine_bins: 100, support: (0.0, 10.0), display_bins: 10, coverage_bins: 10, rows: 2, cols: 4, content_min: 2.0 };
         let mut acc = PixelAcc::new(&b, Some(&[0.0, 5.0, 10.0]), None);
         // 4x2 map: top row valid with disparity x+1 (1..4), bottom row invalid except x=3 (NaN).
         let m = map(4, 2, |x, y| if y == 0 { Some(x as f32 + 1.0) } else if x == 3 { Some(f32::NAN) } else { None });
@@ -225,9 +251,12 @@ mod tests {
         assert_eq!(acc.gap.as_ref().unwrap().counts, vec![4, 0]);
         assert_eq!(acc.rows.valid, vec![4, 0]);
         assert_eq!(acc.rows.pixels, vec![4, 4]);
-        assert_eq!(acc.rows.sums, vec![10.0, 0.0]);
+        // Content pixels (disparity >= 2) only: 2 + 3 + 4.
+        assert_eq!(acc.rows.content, vec![3, 0]);
+        assert_eq!(acc.rows.sums, vec![9.0, 0.0]);
         assert_eq!(acc.cols.valid, vec![1, 1, 1, 1]);
-        assert_eq!(acc.cols.sums, vec![1.0, 2.0, 3.0, 4.0]);
+        assert_eq!(acc.cols.content, vec![0, 1, 1, 1]);
+        assert_eq!(acc.cols.sums, vec![0.0, 2.0, 3.0, 4.0]);
         // Merging doubles every count.
         let mut twice = acc.clone();
         twice.merge(&acc);
@@ -242,7 +271,7 @@ mod tests {
 
     #[test]
     fn bands_follow_relative_position() {
-        let b = Binning { hi: 10.0, fine_bins: 10, display_bins: 10, coverage_bins: 10, rows: 2, cols: 2 };
+        let b = Binning { hi: 10.0, fine_bins: 10, support: (0.0, 10.0), display_bins: 10, coverage_bins: 10, rows: 2, cols: 2, content_min: 0.0 };
         let mut acc = PixelAcc::new(&b, None, None);
         // A 6x3 map: rows 0 and 1 go to band 0 (y*2/3 = 0, 0), row 2 to band 1.
         acc.add_map(1, &map(6, 3, |_, y| Some(y as f32)));

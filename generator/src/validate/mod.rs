@@ -37,7 +37,7 @@ pub fn run_cli(opts: &StatsOptions, out: Option<PathBuf>, plot: bool, check: boo
         }
     }
     if check && !report.pass {
-        anyhow::bail!("stats --check: the dataset does not follow its recipe (see the FAIL lines above)");
+        anyhow::bail!("stats --check: the dataset does not follow its recipe (see the FAIL and ERROR lines above)");
     }
     Ok(report)
 }

@@ -4,10 +4,11 @@
 //! `fonts/DejaVuSans.LICENSE`): a fresh machine needs no fontconfig, freetype or font package.
 //!
 //! - `stats_objects.png`: object-level target disparities (all categories) vs the law's density.
-//! - `stats_pixels.png`: pixel-level disparity of both views vs the law, empty gap bins in red.
+//! - `stats_pixels.png`: pixel-level disparity of both views inside the law's range vs the law,
+//!   empty gap bins shaded red.
 //! - `stats_categories.png`: one panel per category: pixel and object histograms, law, gaps.
-//! - `stats_coverage.png`: disparity (p5–p95 band, median, mean) and valid fraction by image row
-//!   and column.
+//! - `stats_coverage.png`: disparity of content pixels (p5–p95 band, median, mean) by image row
+//!   and column, and the fraction of content (and valid) pixels per row and column.
 
 use std::path::{Path, PathBuf};
 use std::sync::Once;
@@ -182,17 +183,29 @@ fn status_text(c: &CategoryStats) -> &'static str {
     }
 }
 
-/// A panel of one category's pixel-level histogram (optionally with its object histogram).
+/// The x range of the law panels: the law's support with 8% padding.
+fn law_range(report: &StatsReport) -> (f64, f64) {
+    let (lo, hi) = (report.law_support[0], report.law_support[1]);
+    let pad = ((hi - lo) * 0.08).max(0.5);
+    ((lo - pad).max(0.0), hi + pad)
+}
+
+/// A panel of one category's pixel-level histogram inside the law's support, normalised over
+/// the pixels inside it (so it compares with the law's density), optionally with its object
+/// histogram.
 fn pixel_panel<'a>(c: &CategoryStats, report: &'a StatsReport, title: String, with_objects: bool) -> Panel<'a> {
-    let (bars, scale, empty) = match &c.pixels {
-        Some(p) => (
-            Some((density_bars(&p.histogram, p.valid), format!("pixels, both views ({:.2e} valid)", p.valid as f64))),
-            p.in_support_fraction.unwrap_or(1.0),
-            p.gap_check.as_ref().map(|g| g.empty.clone()).unwrap_or_default(),
-        ),
-        None => (None, 1.0, Vec::new()),
+    let (bars, empty) = match &c.pixels {
+        Some(p) => {
+            let inside: u64 = p.histogram.counts.iter().sum();
+            let share = 100.0 * inside as f64 / p.valid.max(1) as f64;
+            (
+                Some((density_bars(&p.histogram, inside), format!("pixels in the law's range ({share:.1}% of {:.2e} valid)", p.valid as f64))),
+                p.gap_check.as_ref().map(|g| g.empty.clone()).unwrap_or_default(),
+            )
+        }
+        None => (None, Vec::new()),
     };
-    Panel { title, x: (report.pixel_range[0], report.pixel_range[1]), bars, outline: if with_objects { object_bars(c) } else { None }, law: Some((&report.law, scale)), empty }
+    Panel { title, x: law_range(report), bars, outline: if with_objects { object_bars(c) } else { None }, law: Some((&report.law, 1.0)), empty }
 }
 
 fn coverage_panel(area: &Area, title: &str, x_desc: &str, bands: &[Band], y_max: f64) -> anyhow::Result<()> {
@@ -238,18 +251,27 @@ fn valid_panel(area: &Area, title: &str, x_desc: &str, report: &StatsReport, row
         .y_label_area_size(55)
         .build_cartesian_2d(0.0..1.0, 0.0..1.05)
         .map_err(plot_err)?;
-    chart.configure_mesh().x_desc(x_desc).y_desc("valid fraction").label_style(("sans-serif", 13)).axis_desc_style(("sans-serif", 14)).light_line_style(WHITE).draw().map_err(plot_err)?;
+    chart.configure_mesh().x_desc(x_desc).y_desc("fraction of pixels").label_style(("sans-serif", 13)).axis_desc_style(("sans-serif", 14)).light_line_style(WHITE).draw().map_err(plot_err)?;
     let groups = report.categories.iter().filter(|c| c.pixels.is_some()).enumerate().map(|(i, c)| (c, PALETTE[i % PALETTE.len()], 1)).chain([(&report.overall, BLACK, 3)]);
     for (c, color, width) in groups {
         let p = c.pixels.as_ref().expect("filtered");
         let bands = if rows { &p.rows } else { &p.cols };
         chart
-            .draw_series(LineSeries::new(bands.iter().map(|b| (0.5 * (b.from + b.to), b.valid_fraction)), color.stroke_width(width)))
+            .draw_series(LineSeries::new(bands.iter().map(|b| (0.5 * (b.from + b.to), b.content_fraction)), color.stroke_width(width)))
             .map_err(plot_err)?
-            .label(c.name.as_str())
+            .label(format!("{} content", c.name))
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(width)));
     }
-    chart.configure_series_labels().position(SeriesLabelPosition::LowerRight).label_font(("sans-serif", 12)).background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(plot_err)?;
+    if let Some(p) = &report.overall.pixels {
+        let grey = RGBColor(150, 150, 150);
+        let bands = if rows { &p.rows } else { &p.cols };
+        chart
+            .draw_series(LineSeries::new(bands.iter().map(|b| (0.5 * (b.from + b.to), b.valid_fraction)), grey.stroke_width(2)))
+            .map_err(plot_err)?
+            .label("all valid")
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], grey.stroke_width(2)));
+    }
+    chart.configure_series_labels().position(SeriesLabelPosition::MiddleRight).label_font(("sans-serif", 12)).background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(plot_err)?;
     Ok(())
 }
 
@@ -258,13 +280,11 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
     std::fs::create_dir_all(dir)?;
     let mut written = Vec::new();
     let all = &report.overall;
-    let (lo, hi) = (report.law_support[0], report.law_support[1]);
-    let pad = ((hi - lo) * 0.08).max(0.5);
 
     let path = dir.join("stats_objects.png");
     render(&path, (1000, 600), |root| {
         let title = format!("Object-level target disparity vs recipe law - {}, {}", ks_text(all), status_text(all));
-        let panel = Panel { title, x: ((lo - pad).max(0.0), hi + pad), bars: None, outline: object_bars(all), law: Some((&report.law, 1.0)), empty: Vec::new() };
+        let panel = Panel { title, x: law_range(report), bars: None, outline: object_bars(all), law: Some((&report.law, 1.0)), empty: Vec::new() };
         draw_panel(root, &panel)
     })?;
     written.push(path);
@@ -272,7 +292,7 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
     let path = dir.join("stats_pixels.png");
     render(&path, (1000, 600), |root| {
         let gaps = all.pixels.as_ref().and_then(|p| p.gap_check.as_ref()).map_or("no gap check".to_string(), |g| format!("{}/{} gap bins empty", g.empty.len(), g.bins));
-        let title = format!("Pixel-level disparity (valid pixels, both views) - {} samples, {gaps}", report.samples);
+        let title = format!("Pixel-level disparity inside the law's range (both views) - {} samples, {gaps}", report.samples);
         draw_panel(root, &pixel_panel(all, report, title, false))
     })?;
     written.push(path);
@@ -294,10 +314,10 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
         let panels = root.split_evenly((2, 2));
         let Some(p) = &all.pixels else { return Ok(()) };
         let y_max = p.rows.iter().chain(&p.cols).filter_map(|b| b.p95).fold(0.0, f64::max).max(1e-3) * 1.15;
-        coverage_panel(&panels[0], "Disparity by image row (all valid pixels)", "row (0 = top, 1 = bottom)", &p.rows, y_max)?;
-        coverage_panel(&panels[1], "Disparity by image column (all valid pixels)", "column (0 = left, 1 = right)", &p.cols, y_max)?;
-        valid_panel(&panels[2], "Valid-pixel fraction by row", "row (0 = top, 1 = bottom)", report, true)?;
-        valid_panel(&panels[3], "Valid-pixel fraction by column", "column (0 = left, 1 = right)", report, false)?;
+        coverage_panel(&panels[0], "Content disparity by image row (pixels at or above the law's min)", "row (0 = top, 1 = bottom)", &p.rows, y_max)?;
+        coverage_panel(&panels[1], "Content disparity by image column", "column (0 = left, 1 = right)", &p.cols, y_max)?;
+        valid_panel(&panels[2], "Content-pixel fraction by row", "row (0 = top, 1 = bottom)", report, true)?;
+        valid_panel(&panels[3], "Content-pixel fraction by column", "column (0 = left, 1 = right)", report, false)?;
         Ok(())
     })?;
     written.push(path);

@@ -79,12 +79,15 @@ pub struct GapCheck {
     pub empty: Vec<[f64; 2]>,
 }
 
-/// Disparity of the valid pixels of one band of rows or columns (relative position 0..1).
+/// One band of image rows or columns (relative position 0..1): how many of its pixels are valid,
+/// how many are content (disparity at or above the law's minimum, i.e. not the background wall),
+/// and the disparity of the content pixels.
 #[derive(Debug, Clone, Serialize)]
 pub struct Band {
     pub from: f64,
     pub to: f64,
     pub valid_fraction: f64,
+    pub content_fraction: f64,
     pub mean: Option<f64>,
     pub p5: Option<f64>,
     pub p50: Option<f64>,
@@ -109,7 +112,10 @@ pub struct PixelStats {
     pub in_support_fraction: Option<f64>,
     pub left: ViewStats,
     pub right: ViewStats,
+    /// Both views, `--bins` bins over the law's support (`below`/`above`: the rest).
     pub histogram: UniformHist,
+    /// Both views, 64 bins over `pixel_range`.
+    pub histogram_full: UniformHist,
     pub gap_check: Option<GapCheck>,
     pub rows: Vec<Band>,
     pub cols: Vec<Band>,
@@ -162,7 +168,8 @@ fn bands(c: &Coverage) -> Vec<Band> {
                 from: i as f64 / n as f64,
                 to: (i + 1) as f64 / n as f64,
                 valid_fraction: fraction(c.valid[i], c.pixels[i]),
-                mean: (c.valid[i] > 0).then(|| c.sums[i] / c.valid[i] as f64),
+                content_fraction: fraction(c.content[i], c.pixels[i]),
+                mean: (c.content[i] > 0).then(|| c.sums[i] / c.content[i] as f64),
                 p5: h.quantile(0.05),
                 p50: h.quantile(0.5),
                 p95: h.quantile(0.95),
@@ -198,6 +205,7 @@ impl PixelStats {
             left: view_stats(l),
             right: view_stats(r),
             histogram: acc.display.clone(),
+            histogram_full: fine.coarsen(fine.bins() / 64),
             gap_check: gap.map(gap_check),
             rows: bands(&acc.rows),
             cols: bands(&acc.cols),

@@ -12,7 +12,7 @@ use super::report::{CategoryStats, ObjectStats, PixelStats, StatsReport, Status}
 use crate::dataset::{DatasetInfo, DatasetLayout, Manifest, ManifestEntry};
 use crate::plan::{Dist, SceneSpec};
 
-/// Default number of bins of the pixel-level histogram in stats.json and the plots.
+/// Default number of bins of the pixel-level histogram over the law's support (stats.json, plots).
 pub const DEFAULT_BINS: usize = 64;
 
 #[derive(Debug, Clone)]
@@ -20,7 +20,7 @@ pub struct StatsOptions {
     pub dataset: PathBuf,
     /// Significance of the KS test and of the gap check's bin-count rule.
     pub ks_alpha: f64,
-    /// Pixel-level histogram bins (stats.json and plots); [`DEFAULT_BINS`] when unset.
+    /// Bins of the pixel-level histogram over the law's support; [`DEFAULT_BINS`] when unset.
     pub bins: Option<usize>,
     /// Gap-check bins for every category; chosen from the object count when unset.
     pub gap_bins: Option<usize>,
@@ -117,7 +117,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
 
     let width = entries.iter().map(|e| e.width as usize).max().unwrap_or(1);
     let height = entries.iter().map(|e| e.height as usize).max().unwrap_or(1);
-    let binning = Binning::new(pixel_hi(&entries, &law), opts.bins.unwrap_or(DEFAULT_BINS).clamp(1, 4096), width, height);
+    let binning = Binning::new(pixel_hi(&entries, &law), (law_min, law_max), opts.bins.unwrap_or(DEFAULT_BINS).clamp(1, 4096), width, height);
 
     // Pixel level: every map once, in parallel, never more than one pair per thread in memory.
     let new_acc = |c: usize| PixelAcc::new(&binning, gap_edges[c].as_deref(), all_edges.as_deref());
@@ -131,7 +131,11 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
                     let path = root.join(rel);
                     match stereo_io::read_disparity_exr(&path) {
                         Ok((map, _)) => accs[c].get_or_insert_with(|| new_acc(c)).add_map(view, &map),
-                        Err(err) => errs.push(format!("{}: {err}", path.display())),
+                        Err(err) => {
+                            // stereo-io errors name their file; add it only if one does not.
+                            let msg = err.to_string();
+                            errs.push(if msg.contains(&*path.to_string_lossy()) { msg } else { format!("{}: {msg}", path.display()) });
+                        }
                     }
                 }
                 (accs, errs)
@@ -221,9 +225,9 @@ pub fn summary_lines(report: &StatsReport) -> Vec<String> {
         let tested = report.categories.iter().filter(|c| c.status == Status::Ok).count();
         format!("verdict: PASS ({tested} of {} categories tested, all follow the law)", report.categories.len())
     } else if failing.is_empty() {
-        format!("verdict: FAIL ({} unreadable files)", report.errors.len())
+        format!("verdict: FAIL ({} unreadable file(s))", report.errors.len())
     } else {
-        format!("verdict: FAIL ({} miss the target{})", failing.join(", "), if report.errors.is_empty() { String::new() } else { format!("; {} unreadable files", report.errors.len()) })
+        format!("verdict: FAIL ({} miss the target{})", failing.join(", "), if report.errors.is_empty() { String::new() } else { format!("; {} unreadable file(s)", report.errors.len()) })
     });
     lines
 }
