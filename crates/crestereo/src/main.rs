@@ -55,6 +55,12 @@ enum Command {
         what: BenchWhat,
         #[arg(long, default_value_t = 2)]
         threads: usize,
+        /// Training-step size override: batch,height,width,iters (default 2,384,512,10).
+        #[arg(long, value_delimiter = ',')]
+        train_size: Option<Vec<usize>>,
+        /// Inference size override: height,width (default 480,640).
+        #[arg(long, value_delimiter = ',')]
+        infer_size: Option<Vec<usize>>,
     },
 }
 
@@ -91,16 +97,24 @@ fn main() -> Result<()> {
             set_threads(threads);
             infer(&left, &right, &output, pfm.as_deref(), viz.as_deref(), weights.as_deref(), iters, stages as usize)
         }
-        Command::Bench { what, threads } => {
+        Command::Bench { what, threads, train_size, infer_size } => {
             set_threads(threads);
+            let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
+            let is = infer_size.unwrap_or_else(|| vec![480, 640]);
+            if ts.len() != 4 || is.len() != 2 {
+                bail!("--train-size takes batch,height,width,iters and --infer-size height,width");
+            }
             match what {
-                BenchWhat::Train => bench_train(),
-                BenchWhat::Infer => bench_infer(),
+                BenchWhat::Train => bench_train(ts[0], ts[1], ts[2], ts[3]),
+                BenchWhat::Infer => bench_infer(is[0], is[1]),
                 BenchWhat::All => {
                     let exe = std::env::current_exe()?;
+                    let ts: Vec<String> = ts.iter().map(|v| v.to_string()).collect();
+                    let is: Vec<String> = is.iter().map(|v| v.to_string()).collect();
                     for w in ["train", "infer"] {
                         let status = std::process::Command::new(&exe)
                             .args(["bench", "--what", w, "--threads", &threads.to_string()])
+                            .args(["--train-size", &ts.join(","), "--infer-size", &is.join(",")])
                             .status()?;
                         if !status.success() {
                             bail!("bench {w} failed");
@@ -165,10 +179,9 @@ fn random_images<B: Backend>(n: usize, h: usize, w: usize, device: &B::Device) -
     (l, r)
 }
 
-fn bench_train() -> Result<()> {
+fn bench_train(n: usize, h: usize, w: usize, iters: usize) -> Result<()> {
     type B = CpuAutodiffBackend;
     let device = Default::default();
-    let (n, h, w, iters) = (2, 384, 512, 10);
     let model = CREStereoConfig::new().init::<B>(&device);
     let mut optim = AdamConfig::new().with_beta_1(0.9).with_beta_2(0.999).with_epsilon(1e-8).init();
     let (l, r) = random_images::<B>(n, h, w, &device);
@@ -191,10 +204,9 @@ fn bench_train() -> Result<()> {
     Ok(())
 }
 
-fn bench_infer() -> Result<()> {
+fn bench_infer(h: usize, w: usize) -> Result<()> {
     type B = CpuBackend;
     let device = Default::default();
-    let (h, w) = (480, 640);
     let model = CREStereoConfig::new().init::<B>(&device);
     let (l, r) = random_images::<B>(1, h, w, &device);
     let t0 = Instant::now();
