@@ -4,6 +4,7 @@
 //! - [`plan`]: recipes and the pure-data `SceneSpec` (no Blender).
 //! - [`render`]: finding or installing Blender's Python, and the worker processes that render specs.
 //! - [`dataset`]: the on-disk layout, manifest, atomic writes and resumable generation.
+//! - [`validate`]: `stereogen stats`: disparity statistics, the check against the recipe's law, plots.
 
 pub mod assets;
 pub mod cli;

@@ -133,6 +133,7 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
             disparity_left: summary(&left),
             disparity_right: summary(&right),
             render_seconds: 0.0,
+            notes: Vec::new(),
             sha256: BTreeMap::new(),
             stereogen_version: "test".into(),
         };
@@ -258,4 +259,16 @@ fn unreadable_maps_and_plots() {
     assert!(text.contains("verdict: FAIL (1 unreadable file(s))"), "{text}");
     assert_eq!(report["errors"].as_array().unwrap().len(), 1);
     assert_eq!(text.matches("0000001_right.disp.exr").count(), 1, "{text}");
+}
+
+#[test]
+fn an_empty_dataset_does_not_pass() {
+    let tmp = tempfile::tempdir().unwrap();
+    make_dataset(tmp.path(), Mode::Follows);
+    std::fs::write(tmp.path().join("manifest.jsonl"), "").unwrap();
+    let (o, text, report) = stats(tmp.path(), &["--check"]);
+    assert!(!o.status.success(), "{text}");
+    assert!(text.contains("verdict: FAIL (the dataset has no samples)"), "{text}");
+    assert_eq!(report["samples"], 0);
+    assert!(category_lines(&text).iter().all(|l| l.starts_with("SKIP")), "{text}");
 }

@@ -95,6 +95,8 @@ struct Panel<'a> {
     /// Law density curve and its scale (fraction of the plotted mass inside the support).
     law: Option<(&'a Dist, f64)>,
     empty: Vec<[f64; 2]>,
+    /// Edges of the gap-check bins, drawn as faint vertical lines.
+    gap_edges: Vec<f64>,
 }
 
 fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
@@ -131,6 +133,14 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
             .map_err(plot_err)?
             .label(format!("empty gap bin ({})", p.empty.len()))
             .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], LAW.mix(0.18).filled()));
+    }
+    if !p.gap_edges.is_empty() {
+        let grey = RGBColor(150, 60, 170).mix(0.75);
+        chart
+            .draw_series(p.gap_edges.iter().map(|&x| PathElement::new(vec![(x, 0.0), (x, y_max)], grey.stroke_width(1))))
+            .map_err(plot_err)?
+            .label(format!("gap-check bins ({})", p.gap_edges.len().saturating_sub(1)))
+            .legend(move |(x, y)| PathElement::new(vec![(x + 9, y - 6), (x + 9, y + 6)], grey.stroke_width(1)));
     }
     if let Some((bars, label)) = &p.bars {
         chart
@@ -194,18 +204,19 @@ fn law_range(report: &StatsReport) -> (f64, f64) {
 /// the pixels inside it (so it compares with the law's density), optionally with its object
 /// histogram.
 fn pixel_panel<'a>(c: &CategoryStats, report: &'a StatsReport, title: String, with_objects: bool) -> Panel<'a> {
-    let (bars, empty) = match &c.pixels {
+    let (bars, empty, gap_edges) = match &c.pixels {
         Some(p) => {
             let inside: u64 = p.histogram.counts.iter().sum();
             let share = 100.0 * inside as f64 / p.valid.max(1) as f64;
             (
                 Some((density_bars(&p.histogram, inside), format!("pixels in the law's range ({share:.1}% of {:.2e} valid)", p.valid as f64))),
                 p.gap_check.as_ref().map(|g| g.empty.clone()).unwrap_or_default(),
+                p.gap_check.as_ref().map(|g| g.edges.clone()).unwrap_or_default(),
             )
         }
-        None => (None, Vec::new()),
+        None => (None, Vec::new(), Vec::new()),
     };
-    Panel { title, x: law_range(report), bars, outline: if with_objects { object_bars(c) } else { None }, law: Some((&report.law, 1.0)), empty }
+    Panel { title, x: law_range(report), bars, outline: if with_objects { object_bars(c) } else { None }, law: Some((&report.law, 1.0)), empty, gap_edges }
 }
 
 fn coverage_panel(area: &Area, title: &str, x_desc: &str, bands: &[Band], y_max: f64) -> anyhow::Result<()> {
@@ -284,7 +295,7 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
     let path = dir.join("stats_objects.png");
     render(&path, (1000, 600), |root| {
         let title = format!("Object-level target disparity vs recipe law - {}, {}", ks_text(all), status_text(all));
-        let panel = Panel { title, x: law_range(report), bars: None, outline: object_bars(all), law: Some((&report.law, 1.0)), empty: Vec::new() };
+        let panel = Panel { title, x: law_range(report), bars: None, outline: object_bars(all), law: Some((&report.law, 1.0)), empty: Vec::new(), gap_edges: Vec::new() };
         draw_panel(root, &panel)
     })?;
     written.push(path);

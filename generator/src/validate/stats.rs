@@ -2,6 +2,8 @@
 //! sample), then stream every disparity EXR through the accumulators in parallel.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Instant;
 
 use anyhow::{Context, bail};
 use rayon::prelude::*;
@@ -68,6 +70,26 @@ fn pixel_hi(entries: &[ManifestEntry], law: &Dist) -> f64 {
 
 type Fold = (Vec<Option<PixelAcc>>, Vec<String>);
 
+/// A line on stderr at every 10% of a large pass (from whichever thread crosses the mark).
+struct Progress {
+    total: usize,
+    done: AtomicUsize,
+    start: Instant,
+}
+
+impl Progress {
+    fn new(total: usize) -> Self {
+        Self { total, done: AtomicUsize::new(0), start: Instant::now() }
+    }
+
+    fn tick(&self) {
+        let n = self.done.fetch_add(1, Ordering::Relaxed) + 1;
+        if self.total >= 2000 && n * 10 / self.total != (n - 1) * 10 / self.total {
+            eprintln!("stats: {n}/{} samples read ({:.0} s)", self.total, self.start.elapsed().as_secs_f64());
+        }
+    }
+}
+
 /// Computes the statistics of the dataset at `opts.dataset`.
 pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
     if !(opts.ks_alpha > 0.0 && opts.ks_alpha < 1.0) {
@@ -121,6 +143,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
 
     // Pixel level: every map once, in parallel, never more than one pair per thread in memory.
     let new_acc = |c: usize| PixelAcc::new(&binning, gap_edges[c].as_deref(), all_edges.as_deref());
+    let progress = Progress::new(entries.len());
     let (accs, read_errors): Fold = entries
         .par_iter()
         .fold(
@@ -138,6 +161,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
                         }
                     }
                 }
+                progress.tick();
                 (accs, errs)
             },
         )
@@ -174,7 +198,8 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
     let mut all_objects: Vec<f64> = objects.concat();
     let overall_pixels = total.as_ref().map(|a| PixelStats::new(a, a.gap_all.as_ref()));
     let overall = CategoryStats::new("all", entries.len() as u64, ObjectStats::new(&mut all_objects, &law, opts.ks_alpha), overall_pixels);
-    let pass = errors.is_empty() && overall.status != Status::Fail && cats.iter().all(|c| c.status != Status::Fail);
+    // An empty dataset proves nothing: it does not pass.
+    let pass = !entries.is_empty() && errors.is_empty() && overall.status != Status::Fail && cats.iter().all(|c| c.status != Status::Fail);
     let gap_rule = match opts.gap_bins {
         Some(k) => format!("{k} equal-mass bins of the law (--gap-bins)"),
         None => format!("largest k <= {MAX_GAP_BINS} with k*(1-1/k)^n <= {} for n objects; equal-mass bins of the law", opts.ks_alpha),
@@ -224,6 +249,8 @@ pub fn summary_lines(report: &StatsReport) -> Vec<String> {
     lines.push(if report.pass {
         let tested = report.categories.iter().filter(|c| c.status == Status::Ok).count();
         format!("verdict: PASS ({tested} of {} categories tested, all follow the law)", report.categories.len())
+    } else if report.samples == 0 {
+        "verdict: FAIL (the dataset has no samples)".to_string()
     } else if failing.is_empty() {
         format!("verdict: FAIL ({} unreadable file(s))", report.errors.len())
     } else {
