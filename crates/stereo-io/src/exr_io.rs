@@ -117,6 +117,7 @@ fn decode_flat(bytes: &[u8], path: &Path) -> IoResult<Layer<AnyChannels<FlatSamp
         .all_channels()
         .first_valid_layer()
         .all_attributes()
+        .non_parallel()
         .from_buffered(std::io::Cursor::new(bytes))
         .map_err(|e| exr_err(path, e))?;
     Ok(image.layer_data)

@@ -230,6 +230,11 @@ fn read_mask(path: &Path, kind: MaskKind) -> Result<(usize, usize, Vec<bool>)> {
     Ok((img.width, img.height, keep))
 }
 
+/// Joins a decoding thread; a panic there (a decoder bug) continues on this thread.
+fn join<T>(h: std::thread::ScopedJoinHandle<'_, T>) -> T {
+    h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))
+}
+
 fn same_size(path: &Path, what: &str, got: (usize, usize), want: (usize, usize)) -> Result<()> {
     if got != want {
         return Err(Error::format(path, format!("{what} is {}x{} but the left image is {}x{}", got.0, got.1, want.0, want.1)));
@@ -252,26 +257,36 @@ impl StereoDataset for FileListDataset {
     }
     fn sample(&self, index: usize) -> Result<StereoSample> {
         let f = self.samples.get(index).ok_or_else(|| Error::format(&self.root, format!("sample index {index} is out of range: the {} dataset has {} samples", self.format, self.samples.len())))?;
-        let left = read_rgb(&f.left)?;
+        // The files are independent: decode them on parallel threads (a sample is 4+ files of
+        // which each decoder uses about one core).
+        let (left, right, disp_left, disp_right, masks) = std::thread::scope(|sc| {
+            let right = sc.spawn(|| read_rgb(&f.right));
+            let disp_left = sc.spawn(|| read_disp(&f.disp_left.0, f.disp_left.1));
+            let disp_right = f.disp_right.as_ref().map(|(p, k)| sc.spawn(move || read_disp(p, *k)));
+            let masks: Vec<_> = f.masks.iter().map(|(p, kind)| sc.spawn(move || read_mask(p, *kind))).collect();
+            let left = read_rgb(&f.left);
+            (left, join(right), join(disp_left), disp_right.map(join), masks.into_iter().map(join).collect::<Vec<_>>())
+        });
+        let left = left?;
         let size = (left.width, left.height);
-        let right = read_rgb(&f.right)?;
+        let right = right?;
         same_size(&f.right, "the right image", (right.width, right.height), size)?;
-        let disp_left = read_disp(&f.disp_left.0, f.disp_left.1)?;
+        let disp_left = disp_left?;
         same_size(&f.disp_left.0, "the disparity", (disp_left.width, disp_left.height), size)?;
-        let disp_right = match &f.disp_right {
-            Some((p, k)) => {
-                let d = read_disp(p, *k)?;
+        let disp_right = match (&f.disp_right, disp_right) {
+            (Some((p, _)), Some(d)) => {
+                let d = d?;
                 same_size(p, "the disparity", (d.width, d.height), size)?;
                 Some(d)
             }
-            None => None,
+            _ => None,
         };
         let valid_left = if f.masks.is_empty() {
             None
         } else {
             let mut keep = disp_left.valid.clone();
-            for (p, kind) in &f.masks {
-                let (w, h, m) = read_mask(p, *kind)?;
+            for ((p, _), mask) in f.masks.iter().zip(masks) {
+                let (w, h, m) = mask?;
                 same_size(p, "the mask", (w, h), size)?;
                 keep.iter_mut().zip(m).for_each(|(k, m)| *k &= m);
             }

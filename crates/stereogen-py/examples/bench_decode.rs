@@ -1,0 +1,163 @@
+//! Decode throughput of one 1920×1080 stereo sample (two 8-bit PNG + two float32 EXR with a
+//! validity channel), side by side: Rust (`stereo_io`), Python through the `stereogen` module, and
+//! Python through Pillow + OpenEXR.
+//!
+//! `cargo run --release -p stereogen-py --example bench_decode [-- REPEATS [--rust-only]]`
+//!
+//! Builds the module with maturin into a venv under $STEREOGEN_HOME/python (pinned maturin,
+//! numpy, OpenEXR, Pillow from PyPI) on first use. Prints a table and the ratios.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use stereo_io::*;
+
+const PINS: &[&str] = &["maturin==1.16.0", "numpy==2.4.6", "OpenEXR==3.4.3", "Pillow==12.0.0"];
+const W: usize = 1920;
+const H: usize = 1080;
+
+fn run(cmd: &mut Command, what: &str) -> String {
+    let out = cmd.output().unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
+    assert!(out.status.success(), "{what} failed ({}):\n{}\n{}", out.status, String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn stereogen_home() -> PathBuf {
+    stereogen::render::runtime::stereogen_home()
+}
+
+fn venv() -> PathBuf {
+    let base = stereogen_home().join("python");
+    std::fs::create_dir_all(&base).unwrap();
+    let venv = base.join(format!("venv-bench-{}", PINS.join("-").replace("==", "")));
+    if !venv.join(".complete").is_file() {
+        let _ = std::fs::remove_dir_all(&venv);
+        run(Command::new("python3").args(["-m", "venv"]).arg(&venv), "python3 -m venv");
+        run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"]).args(PINS), "pip install");
+        std::fs::write(venv.join(".complete"), PINS.join("\n")).unwrap();
+    }
+    venv
+}
+
+fn install_module(venv: &Path) {
+    let crate_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let exe = std::env::current_exe().unwrap();
+    let target = exe.ancestors().nth(3).unwrap().join("python-ext");
+    let wheels = tempfile::tempdir().unwrap();
+    run(
+        Command::new(venv.join("bin/maturin"))
+            .args(["build", "--release", "--auditwheel", "skip", "--manifest-path"])
+            .arg(crate_dir.join("Cargo.toml"))
+            .arg("--interpreter")
+            .arg(venv.join("bin/python"))
+            .arg("--out")
+            .arg(wheels.path())
+            .env("CARGO_TARGET_DIR", target),
+        "maturin build",
+    );
+    let wheel = std::fs::read_dir(wheels.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|x| x == "whl")).unwrap();
+    run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--no-deps", "--force-reinstall"]).arg(wheel), "pip install wheel");
+}
+
+/// A photo-like picture (smooth shading, edges, grain) so PNG compresses as it does on renders.
+fn picture(seed: u32) -> RgbImage {
+    let mut data = Vec::with_capacity(W * H * 3);
+    let mut state = seed.wrapping_mul(2_654_435_761).max(1);
+    for y in 0..H {
+        for x in 0..W {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            let grain = (state % 9) as f32 - 4.0;
+            let (fx, fy) = (x as f32 / W as f32, y as f32 / H as f32);
+            let blob = (((fx * 7.0 + seed as f32).sin() * (fy * 5.0).cos()) > 0.2) as u8 as f32 * 60.0;
+            for c in 0..3 {
+                let v = 40.0 + 120.0 * fx * (c as f32 + 1.0) / 3.0 + 50.0 * fy + blob + grain;
+                data.push(v.clamp(0.0, 255.0) as u8);
+            }
+        }
+    }
+    RgbImage { width: W, height: H, data }
+}
+
+/// Smooth disparity with planar pieces and ~8% invalid background, like a render.
+fn disparity(shift: f32) -> DisparityMap {
+    let mut m = DisparityMap::new(W, H);
+    for y in 0..H {
+        for x in 0..W {
+            let i = y * W + x;
+            let (fx, fy) = (x as f32 / W as f32, y as f32 / H as f32);
+            if fy < 0.08 {
+                continue;
+            }
+            m.valid[i] = true;
+            m.data[i] = shift + 4.0 + 60.0 * fy + 25.0 * ((fx * 9.0).sin() * (fy * 4.0).cos()).max(0.0);
+        }
+    }
+    m
+}
+
+fn write_sample(root: &Path) {
+    let cat = root.join("bench");
+    std::fs::create_dir_all(&cat).unwrap();
+    write_png_rgb(&cat.join("0000000_left.png"), &picture(1)).unwrap();
+    write_png_rgb(&cat.join("0000000_right.png"), &picture(2)).unwrap();
+    let meta = DisparityMeta { f_px: Some(1500.0), baseline_m: Some(0.1), view: None };
+    write_disparity_exr(&cat.join("0000000_left.disp.exr"), &disparity(0.0), &meta).unwrap();
+    write_disparity_exr(&cat.join("0000000_right.disp.exr"), &disparity(0.5), &meta).unwrap();
+    let line = format!(
+        r#"{{"id":"0000000","category":"bench","files":{{"left":"bench/0000000_left.png","right":"bench/0000000_right.png","disp_left":"bench/0000000_left.disp.exr","disp_right":"bench/0000000_right.disp.exr","scene":"bench/0000000.scene.json"}},"width":{W},"height":{H},"f_px":1500.0,"baseline_m":0.1,"cx":960.0,"cy":540.0}}"#
+    );
+    std::fs::write(root.join("manifest.jsonl"), line + "\n").unwrap();
+}
+
+fn main() {
+    let repeats: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(10);
+    let dir = tempfile::tempdir().unwrap();
+    write_sample(dir.path());
+    let bytes: u64 = walkdir(dir.path()).iter().map(|p| std::fs::metadata(p).unwrap().len()).sum();
+
+    let ds = open_dataset(dir.path(), None).unwrap();
+    let mut times = vec![];
+    for _ in 0..repeats {
+        let t0 = Instant::now();
+        let s = ds.sample(0).unwrap();
+        times.push(t0.elapsed().as_secs_f64());
+        assert_eq!(s.left.width, W);
+    }
+    times.sort_by(f64::total_cmp);
+    let (rust_min, rust_med) = (times[0], times[times.len() / 2]);
+
+    if std::env::args().any(|a| a == "--rust-only") {
+        println!("Rust stereo_io: best {:.1} ms, median {:.1} ms", rust_min * 1e3, rust_med * 1e3);
+        return;
+    }
+    let venv = venv();
+    install_module(&venv);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/bench_decode.py");
+    let out = run(Command::new(venv.join("bin/python")).arg(script).arg(dir.path()).arg(repeats.to_string()), "bench_decode.py");
+    let py: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    let f = |k: &str| py[k].as_f64().unwrap();
+    let decoded_mb = (W * H * (3 + 3 + 4 + 1 + 4 + 1)) as f64 / 1e6;
+    println!("One {W}x{H} sample: 2 PNG + 2 EXR, {:.1} MB on disk, {decoded_mb:.1} MB decoded; best / median of {repeats}, {} cores", bytes as f64 / 1e6, std::thread::available_parallelism().map_or(1, |n| n.get()));
+    println!("{:<34} {:>9} {:>9} {:>11}", "decoder", "best ms", "median ms", "samples/s");
+    for (name, min, med) in [
+        ("Rust stereo_io", rust_min, rust_med),
+        ("Python stereogen module", f("stereogen_min"), f("stereogen_median")),
+        ("Python Pillow + OpenEXR", f("pillow_openexr_min"), f("pillow_openexr_median")),
+    ] {
+        println!("{name:<34} {:>9.1} {:>9.1} {:>11.2}", min * 1e3, med * 1e3, 1.0 / med);
+    }
+    println!("ratio Pillow+OpenEXR / stereogen module (median): {:.2}x", f("pillow_openexr_median") / f("stereogen_median"));
+    println!("ratio stereogen module / Rust (median): {:.2}x", f("stereogen_median") / rust_med);
+}
+
+fn walkdir(dir: &Path) -> Vec<PathBuf> {
+    let mut out = vec![];
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() { out.extend(walkdir(&p)) } else { out.push(p) }
+    }
+    out
+}
