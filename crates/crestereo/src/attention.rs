@@ -80,7 +80,7 @@ pub struct LoFTREncoderLayer<B: Backend> {
 impl LoFTREncoderLayerConfig {
     pub fn init<B: Backend>(&self, device: &B::Device) -> LoFTREncoderLayer<B> {
         let d = self.d_model;
-        assert!(d % self.nhead == 0);
+        assert!(d.is_multiple_of(self.nhead));
         let lin = |i: usize, o: usize| LinearConfig::new(i, o).with_bias(false).init(device);
         let ln = || LayerNormConfig::new(d).with_epsilon(self.layer_norm_eps).init(device);
         LoFTREncoderLayer {

@@ -27,7 +27,7 @@ pub enum SearchWindow {
 impl SearchWindow {
     /// Window used at iteration `itr` of a level.
     pub fn for_iteration(itr: usize) -> Self {
-        if itr % 2 == 0 { SearchWindow::Row1x9 } else { SearchWindow::Square3x3 }
+        if itr.is_multiple_of(2) { SearchWindow::Row1x9 } else { SearchWindow::Square3x3 }
     }
 
     /// (ry, rx) half-extent.
@@ -69,7 +69,7 @@ pub struct AdaptiveGroupCorrelation<B: Backend> {
 impl AdaptiveGroupCorrelationConfig {
     pub fn init<B: Backend>(&self, fmap1: Tensor<B, 4>, fmap2: Tensor<B, 4>) -> AdaptiveGroupCorrelation<B> {
         assert_eq!(fmap1.dims(), fmap2.dims(), "AGCL: left/right feature shapes differ");
-        assert!(fmap1.dims()[1] % self.groups == 0, "AGCL: channels not divisible by groups");
+        assert!(fmap1.dims()[1].is_multiple_of(self.groups), "AGCL: channels not divisible by groups");
         AdaptiveGroupCorrelation { fmap1, fmap2, groups: self.groups }
     }
 }

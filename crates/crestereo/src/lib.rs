@@ -1,12 +1,29 @@
-//! CREStereo (Li et al., CVPR 2022) on Burn.
+//! CREStereo (Li et al., CVPR 2022) on Burn 0.21.
 //!
 //! The network is a faithful port of the reference implementation: the same parameter names
-//! (so a reference PyTorch state dict loads directly, see [`weights`]), the same cascade
+//! (a reference PyTorch state dict loads directly, see [`weights`]), the same cascade
 //! hand-over and sign conventions, and explicit PyTorch defaults where Burn's differ
-//! (instance norm without affine, `align_corners = true` everywhere, zero padding in the
-//! bilinear sampler, LayerNorm eps 1e-5, bias-free attention projections).
+//! (instance norm without affine, `align_corners = true` everywhere with PyTorch's float32
+//! interpolation weights, zero padding in the bilinear sampler, LayerNorm eps 1e-5, bias-free
+//! attention projections, LoFTR's positional-encoding quirk).
 //!
-//! Tensors are NCHW, float32. Images enter as BGR values in 0..255.
+//! Tensors are NCHW float32. Images enter as **BGR** values in 0..255.
+//!
+//! ```no_run
+//! use crestereo::{CREStereoConfig, CpuBackend, InferenceOptions, infer_disparity};
+//! use crestereo::io::read_bgr;
+//! # fn main() -> anyhow::Result<()> {
+//! let device = Default::default();
+//! let mut model = CREStereoConfig::new().init::<CpuBackend>(&device);
+//! let report = crestereo::weights::load_pytorch(&mut model, "weights.pt", false)?; // applied/missing/unused
+//! let (left, right) = (read_bgr("left.png")?, read_bgr("right.png")?);
+//! let disp = infer_disparity(&model, &left, &right, InferenceOptions { iters: 20, stages: 2 }, &device)?;
+//! crestereo::io::write_exr("disp.exr", disp.width, disp.height, &disp.data)?;
+//! # Ok(()) }
+//! ```
+//!
+//! Training: `model.forward(left, right, iters, None)` returns the `2·iters` full-resolution
+//! predictions (N, 2, H, W), channel 0 = disparity; [`sequence_loss`] is the reference loss.
 
 pub mod attention;
 pub mod corr;

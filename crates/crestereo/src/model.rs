@@ -247,12 +247,11 @@ impl<B: Backend> CREStereo<B> {
                     let window = SearchWindow::for_iteration(itr);
                     flow_dw16 = flow_dw16.detach();
                     let (l, r) = corr_fn_att_dw16.cross_attend(&self.cross_att_fn);
-                    if let Some(t) = trace.as_deref_mut() {
-                        if t.crossatt_left_tokens_call0.is_none() {
+                    if let Some(t) = trace.as_deref_mut()
+                        && t.crossatt_left_tokens_call0.is_none() {
                             t.crossatt_left_tokens_call0 = Some(l.clone());
                             t.crossatt_right_tokens_call0 = Some(r.clone());
                         }
-                    }
                     let corr = corr_fn_att_dw16.corr_offset_maps(
                         from_tokens(l, h16, w16),
                         from_tokens(r, h16, w16),

@@ -23,7 +23,7 @@ pub struct PositionEncodingSine {
 
 impl PositionEncodingSineConfig {
     pub fn init(&self) -> PositionEncodingSine {
-        assert!(self.d_model % 4 == 0, "d_model must be a multiple of 4");
+        assert!(self.d_model.is_multiple_of(4), "d_model must be a multiple of 4");
         PositionEncodingSine { d_model: self.d_model, temp_bug_fix: self.temp_bug_fix }
     }
 }
@@ -39,7 +39,7 @@ impl PositionEncodingSine {
                 (two_k * (-(10000f32).ln() / (d / 2) as f32)).exp()
             } else {
                 // (-ln(10000) / d_model) // 2 == -1.0 for any d_model > 9.2
-                (two_k * -1.0f32).exp()
+                (-two_k).exp()
             };
             for i in 0..h {
                 let y = (i + 1) as f32 * div;

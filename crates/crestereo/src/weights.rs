@@ -98,7 +98,8 @@ pub fn load_weights<B: Backend>(model: CREStereo<B>, path: impl AsRef<Path>, dev
     match path.extension().and_then(|e| e.to_str()) {
         Some("pt") | Some("pth") | Some("bin") => {
             let mut model = model;
-            load_pytorch(&mut model, path, false)?;
+            let report = load_pytorch(&mut model, path, false)?;
+            eprint!("{}: {report}", path.display());
             Ok(model)
         }
         _ => load_record(model, path, device),
