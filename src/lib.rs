@@ -49,7 +49,7 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
     let rendered = service.render(spec, |_| None).expect("render");
     let dir = tempfile::tempdir().expect("tempdir");
     let layout = DatasetLayout::new(dir.path());
-    let entry = stereogen::dataset::finalize_sample(&layout, spec, rendered.reply.files.as_ref().unwrap(), 0.0).expect("finalize");
+    let entry = stereogen::dataset::finalize_sample(&layout, spec, rendered.reply.files.as_ref().unwrap(), &rendered.reply.notes, 0.0).expect("finalize");
     let (left, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_left)).expect("left exr");
     let (right, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_right)).expect("right exr");
     RenderedPair { left, right, dir, layout, entry }
@@ -61,6 +61,19 @@ pub fn stereogen_bin() -> PathBuf {
     let profile_dir = exe.parent().and_then(|deps| deps.parent()).expect("target/<profile>/deps");
     let bin = profile_dir.join("stereogen");
     assert!(bin.is_file(), "{} is missing: run the tests with `cargo test --workspace` so the CLI is built", bin.display());
+    // `cargo test -p stereogen-e2e` rebuilds the library but not the binary: refuse a binary older
+    // than the library it was linked from, rather than test yesterday's code.
+    let mtime = |p: &std::path::Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    let newest_lib = std::fs::read_dir(profile_dir.join("deps"))
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("libstereogen-") && e.file_name().to_string_lossy().ends_with(".rlib"))
+        .filter_map(|e| mtime(&e.path()))
+        .max();
+    if let (Some(lib), Some(b)) = (newest_lib, mtime(&bin)) {
+        assert!(b >= lib, "{} is older than the stereogen library: run `cargo build --release -p stereogen` or `cargo test --workspace`", bin.display());
+    }
     bin
 }
 

@@ -249,7 +249,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let t0 = std::time::Instant::now();
             let rendered = service.render(&spec, |_| None)?;
             let layout = DatasetLayout::new(&out);
-            let entry = finalize_sample(&layout, &spec, rendered.reply.files.as_ref().expect("ok replies carry files"), t0.elapsed().as_secs_f64())?;
+            let entry = finalize_sample(&layout, &spec, rendered.reply.files.as_ref().expect("ok replies carry files"), &rendered.reply.notes, t0.elapsed().as_secs_f64())?;
             println!("{}", serde_json::to_string(&entry)?);
         }
         Command::Export { dataset, format, out, jpeg_quality } => {

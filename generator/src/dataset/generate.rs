@@ -214,7 +214,7 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
                             record_skipped(&layout, &seen_skipped, &rendered.reply.skipped_assets, Some(index));
                             let seconds = t0.elapsed().as_secs_f64();
                             let files = rendered.reply.files.as_ref().expect("ok replies carry files");
-                            let finished = finalize_sample(&layout, &spec, files, seconds).and_then(|entry| manifest.lock().unwrap().append(&entry));
+                            let finished = finalize_sample(&layout, &spec, files, &rendered.reply.notes, seconds).and_then(|entry| manifest.lock().unwrap().append(&entry));
                             match finished {
                                 Ok(()) => {
                                     let mut r = results.lock().unwrap();

@@ -36,6 +36,9 @@ pub struct ManifestEntry {
     pub disparity_left: Option<DisparitySummary>,
     pub disparity_right: Option<DisparitySummary>,
     pub render_seconds: f64,
+    /// What the worker did beyond the spec (which mesh candidate it used, objects it dropped).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
     /// SHA-256 of each file, keyed like `files`.
     pub sha256: BTreeMap<String, String>,
     pub stereogen_version: String,

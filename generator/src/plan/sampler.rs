@@ -214,7 +214,7 @@ fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetInde
             rotation = [-PI / 2.0 + shape_rng.random_range(-0.15..0.15), shape_rng.random_range(0.0..2.0 * PI), shape_rng.random_range(-0.15..0.15)];
             let leaf_color = [shape_rng.random_range(0.05..0.35), shape_rng.random_range(0.25..0.7), shape_rng.random_range(0.02..0.2)];
             let leaf = MaterialSpec { class: MaterialClass::Textureless, base: BaseColor::Flat { color: leaf_color }, roughness: 0.6, metallic: 0.0, transmission: 0.0, ior: 1.45 };
-            (Shape::Skeleton { strands: tree.strands, sides: 8, leaves: tree.leaves, leaf_material: Some(Box::new(leaf)) }, Vec::new())
+            (Shape::Skeleton { strands: tree.strands, strand_levels: tree.strand_levels, sides: 8, leaves: tree.leaves, leaf_material: Some(Box::new(leaf)) }, Vec::new())
         }
     };
 

@@ -103,5 +103,5 @@ pub fn net<R: Rng>(h: &HoleRecipe, rng: &mut R) -> Shape {
             strands.push(Strand { radii: vec![radius; points.len()], points });
         }
     }
-    Shape::Skeleton { strands, sides: 6, leaves: Vec::new(), leaf_material: None }
+    Shape::Skeleton { strands, strand_levels: Vec::new(), sides: 6, leaves: Vec::new(), leaf_material: None }
 }

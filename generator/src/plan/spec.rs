@@ -116,7 +116,15 @@ pub enum Shape {
     /// as skipped assets. Candidates are drawn by the planner, so the choice is deterministic.
     MeshFile { candidates: Vec<PathBuf>, max_triangles: u64 },
     /// Tubes along polylines (tree branches, net strands) and alpha-cut leaf quads.
-    Skeleton { strands: Vec<Strand>, sides: u32, leaves: Vec<Leaf>, leaf_material: Option<Box<MaterialSpec>> },
+    /// `strand_levels[i]` is strand i's branch level (0 = trunk); empty for nets.
+    Skeleton {
+        strands: Vec<Strand>,
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        strand_levels: Vec<u32>,
+        sides: u32,
+        leaves: Vec<Leaf>,
+        leaf_material: Option<Box<MaterialSpec>>,
+    },
 }
 
 /// A tube along a polyline, with a radius at every point (object space).

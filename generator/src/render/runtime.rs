@@ -10,6 +10,8 @@ use fs4::fs_std::FileExt;
 
 /// The `bpy` wheel the managed environment pins (Blender 4.5 LTS).
 pub const BPY_VERSION: &str = "4.5.15";
+/// trimesh loads the mesh formats Blender has no importer for (OFF and others).
+pub const TRIMESH_VERSION: &str = "4.12.2";
 /// The Blender series every runtime must report.
 pub const BLENDER_SERIES: &str = "4.5";
 /// The Python minor version the `bpy` 4.5 wheels are built for.
@@ -76,8 +78,13 @@ pub fn stereogen_home() -> PathBuf {
     home.join(".cache").join("stereogen")
 }
 
+/// The directory name changes with the pinned versions, so an upgrade installs afresh.
+fn managed_env_name() -> String {
+    format!("bpy-{BPY_VERSION}-trimesh-{TRIMESH_VERSION}")
+}
+
 fn managed_env_dir(home: &Path) -> PathBuf {
-    home.join("blender").join(format!("bpy-{BPY_VERSION}"))
+    home.join("blender").join(managed_env_name())
 }
 
 /// The interpreter of the managed environment (it may not exist yet).
@@ -149,7 +156,7 @@ pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
     // Leftovers of an install that was killed.
     if let Ok(entries) = std::fs::read_dir(&parent) {
         for e in entries.flatten() {
-            if e.file_name().to_string_lossy().starts_with(&format!(".bpy-{BPY_VERSION}.tmp-")) {
+            if e.file_name().to_string_lossy().starts_with(&format!(".{}.tmp-", managed_env_name())) {
                 let _ = std::fs::remove_dir_all(e.path());
             }
         }
@@ -161,7 +168,7 @@ pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
     });
     check_bootstrap_python(&bootstrap)?;
 
-    let tmp = parent.join(format!(".bpy-{BPY_VERSION}.tmp-{}", std::process::id()));
+    let tmp = parent.join(format!(".{}.tmp-{}", managed_env_name(), std::process::id()));
     eprintln!("stereogen: installing Blender {BPY_VERSION} (bpy from PyPI, ~370 MB download) into {} ...", final_dir.display());
     let result = (|| {
         run_step("python3 -m venv", Command::new(&bootstrap).args(["-m", "venv"]).arg(&tmp))?;
@@ -171,10 +178,11 @@ pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
             Command::new(&tmp_python)
                 .args(["-m", "pip", "install", "--disable-pip-version-check", "--no-input", "--progress-bar", "on"])
                 .arg(format!("bpy=={BPY_VERSION}"))
+                .arg(format!("trimesh=={TRIMESH_VERSION}"))
                 .stdout(Stdio::inherit())
                 .stderr(Stdio::inherit()),
         )?;
-        run_step("import bpy", Command::new(&tmp_python).args(["-c", "import bpy"]).stdout(Stdio::null()))?;
+        run_step("import bpy, trimesh", Command::new(&tmp_python).args(["-c", "import bpy, trimesh"]).stdout(Stdio::null()))?;
         std::fs::rename(&tmp, &final_dir).map_err(|e| RuntimeError::SetupFailed { step: "rename into place".into(), message: e.to_string() })
     })();
     if result.is_err() {

@@ -62,6 +62,28 @@ pub struct Worker {
     pub hello: Hello,
 }
 
+/// Calls `f` with every line of `stream` until it returns false or the stream ends.
+///
+/// Lines are decoded lossily: Blender echoes file contents and paths that need not be UTF-8, and
+/// a reader that stopped at the first bad byte would close the pipe, and the worker would die on
+/// its next write.
+fn for_each_line(stream: impl std::io::Read, mut f: impl FnMut(String) -> bool) {
+    let mut reader = BufReader::new(stream);
+    let mut buf = Vec::new();
+    loop {
+        buf.clear();
+        match reader.read_until(b'\n', &mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(_) => {
+                let line = String::from_utf8_lossy(&buf).trim_end_matches(['\n', '\r']).to_string();
+                if !f(line) {
+                    break;
+                }
+            }
+        }
+    }
+}
+
 fn tail_text(tail: &Mutex<VecDeque<String>>) -> String {
     let lines = tail.lock().map(|t| t.iter().cloned().collect::<Vec<_>>()).unwrap_or_default();
     let interesting: Vec<&String> = lines.iter().filter(|l| !l.starts_with("Fra:")).collect();
@@ -96,18 +118,12 @@ impl Worker {
 
         let (tx, replies) = mpsc::channel();
         std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines() {
-                let Ok(line) = line else { break };
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
+            for_each_line(stdout, |line| tx.send(line).is_ok());
         });
         let stderr_tail = Arc::new(Mutex::new(VecDeque::with_capacity(STDERR_TAIL_LINES)));
         let tail = Arc::clone(&stderr_tail);
         std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines() {
-                let Ok(line) = line else { break };
+            for_each_line(stderr, |line| {
                 tracing::trace!(target: "blender", "{line}");
                 if let Ok(mut t) = tail.lock() {
                     if t.len() == STDERR_TAIL_LINES {
@@ -115,7 +131,8 @@ impl Worker {
                     }
                     t.push_back(line);
                 }
-            }
+                true
+            });
         });
 
         let mut worker = Worker { child, stdin, replies, stderr_tail, hello: Hello { status: String::new(), blender: String::new(), python: String::new(), rss_bytes: None } };
