@@ -10,6 +10,7 @@
 //! - [`hist`], [`accumulate`]: histograms, percentiles and the streaming accumulators.
 //! - [`plots`]: PNG plots (`--plot`).
 
+pub mod contact_sheet;
 pub mod accumulate;
 pub mod hist;
 pub mod plots;

@@ -38,6 +38,8 @@ const PALETTE: [RGBColor; 8] = [
 ];
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+/// `(lo, hi, density)` bars and their legend label.
+type Bars = Option<(Vec<(f64, f64, f64)>, String)>;
 
 fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("plotting failed: {e:?}")
@@ -89,9 +91,9 @@ struct Panel<'a> {
     title: String,
     x: (f64, f64),
     /// Filled bars (pixel level) and their legend label.
-    bars: Option<(Vec<(f64, f64, f64)>, String)>,
+    bars: Bars,
     /// Outline histogram (object level) and its legend label.
-    outline: Option<(Vec<(f64, f64, f64)>, String)>,
+    outline: Bars,
     /// Law density curve and its scale (fraction of the plotted mass inside the support).
     law: Option<(&'a Dist, f64)>,
     empty: Vec<[f64; 2]>,
@@ -174,7 +176,7 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn object_bars(c: &CategoryStats) -> Option<(Vec<(f64, f64, f64)>, String)> {
+fn object_bars(c: &CategoryStats) -> Bars {
     c.objects.histogram.as_ref().map(|h| (density_bars(h, c.objects.count as u64), format!("object targets (n={})", c.objects.count)))
 }
 
