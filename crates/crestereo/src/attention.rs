@@ -29,7 +29,12 @@ fn elu_plus_one<B: Backend, const D: usize>(x: Tensor<B, D>) -> Tensor<B, D> {
 
 impl LinearAttention {
     /// `q`: (N, L, H, D), `k`, `v`: (N, S, H, D) → (N, L, H, D).
-    pub fn forward<B: Backend>(&self, q: Tensor<B, 4>, k: Tensor<B, 4>, v: Tensor<B, 4>) -> Tensor<B, 4> {
+    pub fn forward<B: Backend>(
+        &self,
+        q: Tensor<B, 4>,
+        k: Tensor<B, 4>,
+        v: Tensor<B, 4>,
+    ) -> Tensor<B, 4> {
         let s = v.dims()[1] as f64;
         let q = elu_plus_one(q).permute([0, 2, 1, 3]); // n h l d
         let k = elu_plus_one(k).permute([0, 2, 1, 3]); // n h s d
@@ -82,7 +87,11 @@ impl LoFTREncoderLayerConfig {
         let d = self.d_model;
         assert!(d.is_multiple_of(self.nhead));
         let lin = |i: usize, o: usize| LinearConfig::new(i, o).with_bias(false).init(device);
-        let ln = || LayerNormConfig::new(d).with_epsilon(self.layer_norm_eps).init(device);
+        let ln = || {
+            LayerNormConfig::new(d)
+                .with_epsilon(self.layer_norm_eps)
+                .init(device)
+        };
         LoFTREncoderLayer {
             q_proj: lin(d, d),
             k_proj: lin(d, d),
@@ -92,7 +101,9 @@ impl LoFTREncoderLayerConfig {
             mlp2: lin(2 * d, d),
             norm1: ln(),
             norm2: ln(),
-            attention: LinearAttentionConfig::new().with_eps(self.attention_eps).init(),
+            attention: LinearAttentionConfig::new()
+                .with_eps(self.attention_eps)
+                .init(),
             nhead: self.nhead,
             layer_norm_eps: self.layer_norm_eps,
             compute_f64: self.compute_f64,
@@ -106,19 +117,31 @@ impl<B: Backend> LoFTREncoderLayer<B> {
         if self.compute_f64 {
             let dtype = x.dtype();
             let f = burn::tensor::FloatDType::F64;
-            return self.forward_impl(x.cast(f), source.cast(f), Some(f)).cast(dtype);
+            return self
+                .forward_impl(x.cast(f), source.cast(f), Some(f))
+                .cast(dtype);
         }
         self.forward_impl(x, source, None)
     }
 
-    fn linear(&self, m: &Linear<B>, x: Tensor<B, 3>, cast: Option<burn::tensor::FloatDType>) -> Tensor<B, 3> {
+    fn linear(
+        &self,
+        m: &Linear<B>,
+        x: Tensor<B, 3>,
+        cast: Option<burn::tensor::FloatDType>,
+    ) -> Tensor<B, 3> {
         match cast {
             None => m.forward(x),
             Some(f) => burn::tensor::module::linear(x, m.weight.val().cast(f), None),
         }
     }
 
-    fn layer_norm(&self, m: &LayerNorm<B>, x: Tensor<B, 3>, cast: Option<burn::tensor::FloatDType>) -> Tensor<B, 3> {
+    fn layer_norm(
+        &self,
+        m: &LayerNorm<B>,
+        x: Tensor<B, 3>,
+        cast: Option<burn::tensor::FloatDType>,
+    ) -> Tensor<B, 3> {
         match cast {
             None => m.forward(x),
             Some(f) => {
@@ -126,19 +149,36 @@ impl<B: Backend> LoFTREncoderLayer<B> {
                 let centered = x - mean;
                 let var = centered.clone().square().mean_dim(2);
                 let gamma = m.gamma.val().cast(f).unsqueeze::<3>();
-                let beta = m.beta.as_ref().expect("LayerNorm with bias").val().cast(f).unsqueeze::<3>();
+                let beta = m
+                    .beta
+                    .as_ref()
+                    .expect("LayerNorm with bias")
+                    .val()
+                    .cast(f)
+                    .unsqueeze::<3>();
                 centered / var.add_scalar(self.layer_norm_eps).sqrt() * gamma + beta
             }
         }
     }
 
-    fn forward_impl(&self, x: Tensor<B, 3>, source: Tensor<B, 3>, cast: Option<burn::tensor::FloatDType>) -> Tensor<B, 3> {
+    fn forward_impl(
+        &self,
+        x: Tensor<B, 3>,
+        source: Tensor<B, 3>,
+        cast: Option<burn::tensor::FloatDType>,
+    ) -> Tensor<B, 3> {
         let [n, l, c] = x.dims();
         let s = source.dims()[1];
         let (h, d) = (self.nhead, c / self.nhead);
-        let q = self.linear(&self.q_proj, x.clone(), cast).reshape([n, l, h, d]);
-        let k = self.linear(&self.k_proj, source.clone(), cast).reshape([n, s, h, d]);
-        let v = self.linear(&self.v_proj, source, cast).reshape([n, s, h, d]);
+        let q = self
+            .linear(&self.q_proj, x.clone(), cast)
+            .reshape([n, l, h, d]);
+        let k = self
+            .linear(&self.k_proj, source.clone(), cast)
+            .reshape([n, s, h, d]);
+        let v = self
+            .linear(&self.v_proj, source, cast)
+            .reshape([n, s, h, d]);
         let message = self.attention.forward(q, k, v).reshape([n, l, c]);
         let message = self.layer_norm(&self.norm1, self.linear(&self.merge, message, cast), cast);
         let hidden = relu(self.linear(&self.mlp1, Tensor::cat(vec![x.clone(), message], 2), cast));

@@ -27,7 +27,11 @@ pub enum SearchWindow {
 impl SearchWindow {
     /// Window used at iteration `itr` of a level.
     pub fn for_iteration(itr: usize) -> Self {
-        if itr.is_multiple_of(2) { SearchWindow::Row1x9 } else { SearchWindow::Square3x3 }
+        if itr.is_multiple_of(2) {
+            SearchWindow::Row1x9
+        } else {
+            SearchWindow::Square3x3
+        }
     }
 
     /// (ry, rx) half-extent.
@@ -67,28 +71,62 @@ pub struct AdaptiveGroupCorrelation<B: Backend> {
 }
 
 impl AdaptiveGroupCorrelationConfig {
-    pub fn init<B: Backend>(&self, fmap1: Tensor<B, 4>, fmap2: Tensor<B, 4>) -> AdaptiveGroupCorrelation<B> {
-        assert_eq!(fmap1.dims(), fmap2.dims(), "AGCL: left/right feature shapes differ");
-        assert!(fmap1.dims()[1].is_multiple_of(self.groups), "AGCL: channels not divisible by groups");
-        AdaptiveGroupCorrelation { fmap1, fmap2, groups: self.groups }
+    pub fn init<B: Backend>(
+        &self,
+        fmap1: Tensor<B, 4>,
+        fmap2: Tensor<B, 4>,
+    ) -> AdaptiveGroupCorrelation<B> {
+        assert_eq!(
+            fmap1.dims(),
+            fmap2.dims(),
+            "AGCL: left/right feature shapes differ"
+        );
+        assert!(
+            fmap1.dims()[1].is_multiple_of(self.groups),
+            "AGCL: channels not divisible by groups"
+        );
+        AdaptiveGroupCorrelation {
+            fmap1,
+            fmap2,
+            groups: self.groups,
+        }
     }
 }
 
 /// Bilinear sampling of `img` (N, C, H, W) at pixel coordinates `x`, `y` (N, P), zero outside —
 /// PyTorch's `grid_sample(align_corners=True, padding_mode="zeros")` on pixel coordinates.
 /// Returns (N, P, C). Differentiable w.r.t. `img` and the coordinates.
-pub fn bilinear_sample_points<B: Backend>(img: Tensor<B, 4>, x: Tensor<B, 2>, y: Tensor<B, 2>) -> Tensor<B, 3> {
+pub fn bilinear_sample_points<B: Backend>(
+    img: Tensor<B, 4>,
+    x: Tensor<B, 2>,
+    y: Tensor<B, 2>,
+) -> Tensor<B, 3> {
     let [n, c, h, w] = img.dims();
     let [_, p] = x.dims();
     let device = img.device();
     // rows: all pixels of all images, plus one zero row for out-of-range corners
     let table = Tensor::cat(
-        vec![img.permute([0, 2, 3, 1]).reshape([n * h * w, c]), Tensor::zeros([1, c], &device)],
+        vec![
+            img.permute([0, 2, 3, 1]).reshape([n * h * w, c]),
+            Tensor::zeros([1, c], &device),
+        ],
         0,
     );
     let zero_row = (n * h * w) as i64;
-    let xs: Vec<f32> = x.clone().detach().into_data().convert::<f32>().into_vec().expect("x coords");
-    let ys: Vec<f32> = y.clone().detach().into_data().convert::<f32>().into_vec().expect("y coords");
+    let xs: Vec<f32> = x
+        .clone()
+        .detach()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .expect("x coords");
+    let ys: Vec<f32> = y
+        .clone()
+        .detach()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .expect("y coords");
     let np = n * p;
     let mut x0f = vec![0f32; np];
     let mut y0f = vec![0f32; np];
@@ -121,7 +159,12 @@ pub fn bilinear_sample_points<B: Backend>(img: Tensor<B, 4>, x: Tensor<B, 2>, y:
     let wx0 = wx1.clone().neg().add_scalar(1.0);
     let wy0 = wy1.clone().neg().add_scalar(1.0);
     let weights = Tensor::stack::<3>(
-        vec![wx0.clone() * wy0.clone(), wx1.clone() * wy0, wx0 * wy1.clone(), wx1 * wy1],
+        vec![
+            wx0.clone() * wy0.clone(),
+            wx1.clone() * wy0,
+            wx0 * wy1.clone(),
+            wx1 * wy1,
+        ],
         0,
     ) // 4 n p
     .reshape([4, np, 1]);
@@ -145,7 +188,9 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
         // prod: (N, K, H, W, C) -> (N, K, H, W, G)
         let [n, k, h, w, c] = prod.dims();
         let g = self.groups;
-        prod.reshape([n, k, h, w, g, c / g]).mean_dim(5).reshape([n, k, h, w, g])
+        prod.reshape([n, k, h, w, g, c / g])
+            .mean_dim(5)
+            .reshape([n, k, h, w, g])
     }
 
     /// The 1/16 cross-attention step: left attends right, then right attends the updated left.
@@ -169,9 +214,21 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
         match att {
             Some(layer) => {
                 let (l, r) = self.cross_attend(layer);
-                self.corr_offset_maps(from_tokens(l, h, w), from_tokens(r, h, w), flow, extra_offset, window)
+                self.corr_offset_maps(
+                    from_tokens(l, h, w),
+                    from_tokens(r, h, w),
+                    flow,
+                    extra_offset,
+                    window,
+                )
             }
-            None => self.corr_offset_maps(self.fmap1.clone(), self.fmap2.clone(), flow, extra_offset, window),
+            None => self.corr_offset_maps(
+                self.fmap1.clone(),
+                self.fmap2.clone(),
+                flow,
+                extra_offset,
+                window,
+            ),
         }
     }
 
@@ -190,8 +247,13 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
         let k = offsets.len();
         assert_eq!(extra_offset.dims(), [n, 2 * k, h, w], "AGCL: offset shape");
         let extra = extra_offset.reshape([n, k, 2, h, w]);
-        let off_x = extra.clone().slice([0..n, 0..k, 0..1, 0..h, 0..w]).reshape([n, k, h, w]);
-        let off_y = extra.slice([0..n, 0..k, 1..2, 0..h, 0..w]).reshape([n, k, h, w]);
+        let off_x = extra
+            .clone()
+            .slice([0..n, 0..k, 0..1, 0..h, 0..w])
+            .reshape([n, k, h, w]);
+        let off_y = extra
+            .slice([0..n, 0..k, 1..2, 0..h, 0..w])
+            .reshape([n, k, h, w]);
         let dx: Vec<f32> = offsets.iter().map(|o| o.0 as f32).collect();
         let dy: Vec<f32> = offsets.iter().map(|o| o.1 as f32).collect();
         let dx = Tensor::<B, 4>::from_data(TensorData::new(dx, [1, k, 1, 1]), &device);
@@ -204,7 +266,8 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
         let sampled = bilinear_sample_points(right, x, y).reshape([n, k, h, w, c]);
         let left = left.permute([0, 2, 3, 1]).reshape([n, 1, h, w, c]);
         let corr = self.group_mean(left * sampled); // n k h w g
-        corr.permute([0, 4, 1, 2, 3]).reshape([n, self.groups * k, h, w])
+        corr.permute([0, 4, 1, 2, 3])
+            .reshape([n, self.groups * k, h, w])
     }
 
     /// Warp-and-shift correlation used at 1/4 (no learned offsets).

@@ -45,7 +45,13 @@ pub(crate) fn conv_forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Ten
 }
 
 /// A PyTorch-style `nn.Conv2d(cin, cout, k, stride, padding)` with symmetric zero padding.
-pub(crate) fn conv_cfg(cin: usize, cout: usize, k: [usize; 2], stride: usize, pad: [usize; 2]) -> Conv2dConfig {
+pub(crate) fn conv_cfg(
+    cin: usize,
+    cout: usize,
+    k: [usize; 2],
+    stride: usize,
+    pad: [usize; 2],
+) -> Conv2dConfig {
     Conv2dConfig::new([cin, cout], k)
         .with_stride([stride, stride])
         .with_padding(PaddingConfig2d::Explicit(pad[0], pad[1], pad[0], pad[1]))
@@ -77,7 +83,8 @@ impl ResidualBlockConfig {
         ResidualBlock {
             conv1: conv_cfg(self.in_planes, self.planes, [3, 3], self.stride, [1, 1]).init(device),
             conv2: conv_cfg(self.planes, self.planes, [3, 3], 1, [1, 1]).init(device),
-            downsample: conv_cfg(self.in_planes, self.planes, [1, 1], self.stride, [0, 0]).init(device),
+            downsample: conv_cfg(self.in_planes, self.planes, [1, 1], self.stride, [0, 0])
+                .init(device),
             norm_eps: self.norm_eps,
         }
     }
@@ -124,8 +131,13 @@ impl BasicEncoderConfig {
     pub fn init<B: Backend>(&self, device: &B::Device) -> BasicEncoder<B> {
         let stage = |cin: usize, cout: usize, stride: usize| -> Vec<ResidualBlock<B>> {
             vec![
-                ResidualBlockConfig::new(cin, cout).with_stride(stride).with_norm_eps(self.norm_eps).init(device),
-                ResidualBlockConfig::new(cout, cout).with_norm_eps(self.norm_eps).init(device),
+                ResidualBlockConfig::new(cin, cout)
+                    .with_stride(stride)
+                    .with_norm_eps(self.norm_eps)
+                    .init(device),
+                ResidualBlockConfig::new(cout, cout)
+                    .with_norm_eps(self.norm_eps)
+                    .init(device),
             ]
         };
         BasicEncoder {
@@ -143,20 +155,35 @@ impl BasicEncoderConfig {
 impl<B: Backend> BasicEncoder<B> {
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
         let dtype = x.dtype();
-        let x = if self.compute_f64 { x.cast(burn::tensor::FloatDType::F64) } else { x };
+        let x = if self.compute_f64 {
+            x.cast(burn::tensor::FloatDType::F64)
+        } else {
+            x
+        };
         let mut x = relu(instance_norm(conv_forward(&self.conv1, x), self.norm_eps));
         for block in self.layer1.iter().chain(&self.layer2).chain(&self.layer3) {
             x = block.forward(x);
         }
         let out = conv_forward(&self.conv2, x);
-        if self.compute_f64 { out.cast(dtype) } else { out }
+        if self.compute_f64 {
+            out.cast(dtype)
+        } else {
+            out
+        }
     }
 
     /// Both images in one batch, as the reference does; returns (fmap1, fmap2).
-    pub fn forward_pair(&self, left: Tensor<B, 4>, right: Tensor<B, 4>) -> (Tensor<B, 4>, Tensor<B, 4>) {
+    pub fn forward_pair(
+        &self,
+        left: Tensor<B, 4>,
+        right: Tensor<B, 4>,
+    ) -> (Tensor<B, 4>, Tensor<B, 4>) {
         let n = left.dims()[0];
         let out = self.forward(Tensor::cat(vec![left, right], 0));
         let [_, c, h, w] = out.dims();
-        (out.clone().slice([0..n, 0..c, 0..h, 0..w]), out.slice([n..2 * n, 0..c, 0..h, 0..w]))
+        (
+            out.clone().slice([0..n, 0..c, 0..h, 0..w]),
+            out.slice([n..2 * n, 0..c, 0..h, 0..w]),
+        )
     }
 }

@@ -42,7 +42,13 @@ impl SepConvGruConfig {
     }
 }
 
-fn gru_step<B: Backend>(h: Tensor<B, 4>, x: Tensor<B, 4>, cz: &Conv2d<B>, cr: &Conv2d<B>, cq: &Conv2d<B>) -> Tensor<B, 4> {
+fn gru_step<B: Backend>(
+    h: Tensor<B, 4>,
+    x: Tensor<B, 4>,
+    cz: &Conv2d<B>,
+    cr: &Conv2d<B>,
+    cq: &Conv2d<B>,
+) -> Tensor<B, 4> {
     let hx = Tensor::cat(vec![h.clone(), x.clone()], 1);
     let z = sigmoid(cz.forward(hx.clone()));
     let r = sigmoid(cr.forward(hx));

@@ -20,7 +20,10 @@ pub struct InferenceOptions {
 
 impl Default for InferenceOptions {
     fn default() -> Self {
-        Self { iters: 20, stages: 2 }
+        Self {
+            iters: 20,
+            stages: 2,
+        }
     }
 }
 
@@ -34,7 +37,10 @@ pub struct Disparity {
 
 /// Image tensor (1, 3, H, W) from a BGR image.
 pub fn image_tensor<B: Backend>(img: &BgrImage, device: &B::Device) -> Tensor<B, 4> {
-    Tensor::from_data(TensorData::new(img.data.clone(), [1, 3, img.height, img.width]), device)
+    Tensor::from_data(
+        TensorData::new(img.data.clone(), [1, 3, img.height, img.width]),
+        device,
+    )
 }
 
 /// The stacked-cascade procedure on (N, 3, H, W) BGR tensors whose size is a multiple of
@@ -42,7 +48,12 @@ pub fn image_tensor<B: Backend>(img: &BgrImage, device: &B::Device) -> Tensor<B,
 /// align_corners) to `H / 2^(stages−1−s)`; the first stage has no initialisation, each later one
 /// is initialised with the previous prediction and runs only the 1/4 level.
 /// Returns the final prediction (N, 2, H, W); channel 0 is the disparity.
-pub fn cascade<B: Backend>(model: &CREStereo<B>, left: Tensor<B, 4>, right: Tensor<B, 4>, opts: InferenceOptions) -> Tensor<B, 4> {
+pub fn cascade<B: Backend>(
+    model: &CREStereo<B>,
+    left: Tensor<B, 4>,
+    right: Tensor<B, 4>,
+    opts: InferenceOptions,
+) -> Tensor<B, 4> {
     assert!(opts.stages >= 1 && opts.iters >= 1);
     let [_, _, h, w] = left.dims();
     let mut flow: Option<Tensor<B, 4>> = None;
@@ -91,12 +102,24 @@ pub fn infer_disparity<B: Backend>(
     let (w, h) = (left.width, left.height);
     let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
     let pad = |t: Tensor<B, 4>| {
-        if (pw, ph) == (w, h) { t } else { t.pad((0, pw - w, 0, ph - h), PadMode::Edge) }
+        if (pw, ph) == (w, h) {
+            t
+        } else {
+            t.pad((0, pw - w, 0, ph - h), PadMode::Edge)
+        }
     };
     let l = pad(image_tensor::<B>(left, device));
     let r = pad(image_tensor::<B>(right, device));
     let pred = cascade(model, l, r, opts);
     let disp = pred.slice([0..1, 0..1, 0..h, 0..w]).reshape([h * w]);
-    let data: Vec<f32> = disp.into_data().convert::<f32>().into_vec().map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    Ok(Disparity { width: w, height: h, data })
+    let data: Vec<f32> = disp
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    Ok(Disparity {
+        width: w,
+        height: h,
+        data,
+    })
 }

@@ -32,12 +32,22 @@ pub fn read_bgr(path: impl AsRef<Path>) -> Result<BgrImage> {
             data[(2 - c) * w * h + i] = v;
         }
     }
-    if matches!(img.color(), image::ColorType::Rgb8 | image::ColorType::Rgba8 | image::ColorType::L8 | image::ColorType::La8) {
+    if matches!(
+        img.color(),
+        image::ColorType::Rgb8
+            | image::ColorType::Rgba8
+            | image::ColorType::L8
+            | image::ColorType::La8
+    ) {
         for v in data.iter_mut() {
             *v = v.round();
         }
     }
-    Ok(BgrImage { width: w, height: h, data })
+    Ok(BgrImage {
+        width: w,
+        height: h,
+        data,
+    })
 }
 
 /// Writes a single-channel float32 EXR (channel "Y").
@@ -100,7 +110,11 @@ fn colormap(t: f32) -> [u8; 3] {
         (0.8, [0.98, 0.62, 0.13]),
         (1.0, [0.48, 0.02, 0.01]),
     ];
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     let mut k = 0;
     while k + 2 < STOPS.len() && t > STOPS[k + 1].0 {
         k += 1;
@@ -162,12 +176,25 @@ fn draw_text(img: &mut image::RgbImage, x0: u32, y0: u32, text: &str, scale: u32
 
 /// Writes a colourised disparity PNG with a vertical colour bar (min at the bottom, max at the
 /// top, labelled) on the right.
-pub fn write_visualisation(path: impl AsRef<Path>, width: usize, height: usize, disp: &[f32]) -> Result<()> {
+pub fn write_visualisation(
+    path: impl AsRef<Path>,
+    width: usize,
+    height: usize,
+    disp: &[f32],
+) -> Result<()> {
     let path = path.as_ref();
     let finite: Vec<f32> = disp.iter().copied().filter(|v| v.is_finite()).collect();
-    let lo = finite.iter().copied().fold(f32::INFINITY, f32::min).min(0.0);
+    let lo = finite
+        .iter()
+        .copied()
+        .fold(f32::INFINITY, f32::min)
+        .min(0.0);
     let hi = finite.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let (lo, hi) = if finite.is_empty() { (0.0, 1.0) } else { (lo, if hi > lo { hi } else { lo + 1.0 }) };
+    let (lo, hi) = if finite.is_empty() {
+        (0.0, 1.0)
+    } else {
+        (lo, if hi > lo { hi } else { lo + 1.0 })
+    };
     let bar_w = 16usize;
     let label_w = 48usize;
     let total_w = width + 8 + bar_w + label_w;
@@ -188,6 +215,13 @@ pub fn write_visualisation(path: impl AsRef<Path>, width: usize, height: usize, 
     let scale = if total_h >= 200 { 2 } else { 1 };
     let lx = (width + 8 + bar_w + 3) as u32;
     draw_text(&mut img, lx, 1, &format!("{hi:.1}"), scale);
-    draw_text(&mut img, lx, (total_h as u32).saturating_sub(6 * scale + 1), &format!("{lo:.1}"), scale);
-    img.save(path).with_context(|| format!("writing PNG {}", path.display()))
+    draw_text(
+        &mut img,
+        lx,
+        (total_h as u32).saturating_sub(6 * scale + 1),
+        &format!("{lo:.1}"),
+        scale,
+    );
+    img.save(path)
+        .with_context(|| format!("writing PNG {}", path.display()))
 }

@@ -40,7 +40,9 @@ pub mod update;
 pub mod upsample;
 pub mod weights;
 
-pub use attention::{LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig};
+pub use attention::{
+    LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig,
+};
 pub use corr::{AdaptiveGroupCorrelation, AdaptiveGroupCorrelationConfig, SearchWindow};
 pub use encoder::{BasicEncoder, BasicEncoderConfig, ResidualBlock, ResidualBlockConfig};
 pub use gru::{SepConvGru, SepConvGruConfig};

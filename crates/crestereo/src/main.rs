@@ -10,10 +10,17 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 use crestereo::io::{read_bgr, write_exr, write_pfm, write_visualisation};
 use crestereo::weights::load_weights;
-use crestereo::{CREStereoConfig, CpuAutodiffBackend, CpuBackend, InferenceOptions, infer_disparity, sequence_loss};
+use crestereo::{
+    CREStereoConfig, CpuAutodiffBackend, CpuBackend, InferenceOptions, infer_disparity,
+    sequence_loss,
+};
 
 #[derive(Parser, Debug)]
-#[command(name = "crestereo", version, about = "CREStereo stereo matching (Burn, CPU)")]
+#[command(
+    name = "crestereo",
+    version,
+    about = "CREStereo stereo matching (Burn, CPU)"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -82,9 +89,11 @@ fn peak_rss_mib() -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()
         .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse::<f64>().ok()))
+            s.lines().find(|l| l.starts_with("VmHWM:")).and_then(|l| {
+                l.split_whitespace()
+                    .nth(1)
+                    .and_then(|v| v.parse::<f64>().ok())
+            })
         })
         .map(|kib| kib / 1024.0)
         .unwrap_or(f64::NAN)
@@ -93,11 +102,35 @@ fn peak_rss_mib() -> f64 {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Infer { left, right, output, pfm, viz, weights, iters, stages, threads } => {
+        Command::Infer {
+            left,
+            right,
+            output,
+            pfm,
+            viz,
+            weights,
+            iters,
+            stages,
+            threads,
+        } => {
             set_threads(threads);
-            infer(&left, &right, &output, pfm.as_deref(), viz.as_deref(), weights.as_deref(), iters, stages as usize)
+            infer(
+                &left,
+                &right,
+                &output,
+                pfm.as_deref(),
+                viz.as_deref(),
+                weights.as_deref(),
+                iters,
+                stages as usize,
+            )
         }
-        Command::Bench { what, threads, train_size, infer_size } => {
+        Command::Bench {
+            what,
+            threads,
+            train_size,
+            infer_size,
+        } => {
             set_threads(threads);
             let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
             let is = infer_size.unwrap_or_else(|| vec![480, 640]);
@@ -151,14 +184,26 @@ fn infer(
             r.height
         );
     }
-    let weights = weights.context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
+    let weights =
+        weights.context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
     let device = Default::default();
     let model = CREStereoConfig::new().init::<CpuBackend>(&device);
     let model = load_weights(model, weights, &device)?;
     let t0 = Instant::now();
     let disp = infer_disparity(&model, &l, &r, InferenceOptions { iters, stages }, &device)?;
-    eprintln!("inference {}x{} ({} stages, {} iters): {:.2}s", l.width, l.height, stages, iters, t0.elapsed().as_secs_f64());
-    if output.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("pfm")) {
+    eprintln!(
+        "inference {}x{} ({} stages, {} iters): {:.2}s",
+        l.width,
+        l.height,
+        stages,
+        iters,
+        t0.elapsed().as_secs_f64()
+    );
+    if output
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
+    {
         write_pfm(output, disp.width, disp.height, &disp.data)?;
     } else {
         write_exr(output, disp.width, disp.height, &disp.data)?;
@@ -172,7 +217,12 @@ fn infer(
     Ok(())
 }
 
-fn random_images<B: Backend>(n: usize, h: usize, w: usize, device: &B::Device) -> (Tensor<B, 4>, Tensor<B, 4>) {
+fn random_images<B: Backend>(
+    n: usize,
+    h: usize,
+    w: usize,
+    device: &B::Device,
+) -> (Tensor<B, 4>, Tensor<B, 4>) {
     use burn::tensor::Distribution;
     let l = Tensor::<B, 4>::random([n, 3, h, w], Distribution::Uniform(0.0, 255.0), device);
     let r = Tensor::<B, 4>::random([n, 3, h, w], Distribution::Uniform(0.0, 255.0), device);
@@ -183,9 +233,17 @@ fn bench_train(n: usize, h: usize, w: usize, iters: usize) -> Result<()> {
     type B = CpuAutodiffBackend;
     let device = Default::default();
     let model = CREStereoConfig::new().init::<B>(&device);
-    let mut optim = AdamConfig::new().with_beta_1(0.9).with_beta_2(0.999).with_epsilon(1e-8).init();
+    let mut optim = AdamConfig::new()
+        .with_beta_1(0.9)
+        .with_beta_2(0.999)
+        .with_epsilon(1e-8)
+        .init();
     let (l, r) = random_images::<B>(n, h, w, &device);
-    let disp = Tensor::<B, 3>::random([n, h, w], burn::tensor::Distribution::Uniform(0.0, 64.0), &device);
+    let disp = Tensor::<B, 3>::random(
+        [n, h, w],
+        burn::tensor::Distribution::Uniform(0.0, 64.0),
+        &device,
+    );
     let valid = Tensor::<B, 3>::ones([n, h, w], &device);
     let t0 = Instant::now();
     let preds = model.forward(l, r, iters, None);
@@ -210,7 +268,15 @@ fn bench_infer(h: usize, w: usize) -> Result<()> {
     let model = CREStereoConfig::new().init::<B>(&device);
     let (l, r) = random_images::<B>(1, h, w, &device);
     let t0 = Instant::now();
-    let pred = crestereo::infer::cascade(&model, l, r, InferenceOptions { iters: 20, stages: 2 });
+    let pred = crestereo::infer::cascade(
+        &model,
+        l,
+        r,
+        InferenceOptions {
+            iters: 20,
+            stages: 2,
+        },
+    );
     let _ = pred.into_data();
     println!(
         "inference (1x{h}x{w}, two-pass, 20 iters, threads {}): {:.2}s, peak RSS {:.0} MiB",

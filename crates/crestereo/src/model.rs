@@ -79,8 +79,10 @@ impl CREStereoConfig {
                 .init(device),
             self_att_fn: att.init(device),
             cross_att_fn: att.init(device),
-            conv_offset_16: conv_cfg(self.feature_dim, self.search_num * 2, [3, 3], 1, [1, 1]).init(device),
-            conv_offset_8: conv_cfg(self.feature_dim, self.search_num * 2, [3, 3], 1, [1, 1]).init(device),
+            conv_offset_16: conv_cfg(self.feature_dim, self.search_num * 2, [3, 3], 1, [1, 1])
+                .init(device),
+            conv_offset_8: conv_cfg(self.feature_dim, self.search_num * 2, [3, 3], 1, [1, 1])
+                .init(device),
             pos_encoding: PositionEncodingSineConfig::new()
                 .with_d_model(self.feature_dim)
                 .with_temp_bug_fix(self.pos_encoding_bug_fix)
@@ -147,7 +149,9 @@ fn hand_over<B: Backend>(flow: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
 
 impl<B: Backend> CREStereo<B> {
     fn offsets(&self, raw: Tensor<B, 4>) -> Tensor<B, 4> {
-        sigmoid(raw).sub_scalar(0.5).mul_scalar(2.0 * self.offset_range)
+        sigmoid(raw)
+            .sub_scalar(0.5)
+            .mul_scalar(2.0 * self.offset_range)
     }
 
     /// Runs the network. `left`, `right`: (N, 3, H, W) BGR in 0..255, H and W multiples of 16.
@@ -176,9 +180,16 @@ impl<B: Backend> CREStereo<B> {
         mut trace: Option<&mut Trace<B>>,
     ) -> Vec<Tensor<B, 4>> {
         let [n, ch, h, w] = left.dims();
-        assert_eq!(left.dims(), right.dims(), "CREStereo: left and right images differ in shape");
+        assert_eq!(
+            left.dims(),
+            right.dims(),
+            "CREStereo: left and right images differ in shape"
+        );
         assert_eq!(ch, 3, "CREStereo: expected 3-channel images");
-        assert!(h % 16 == 0 && w % 16 == 0, "CREStereo: image size {h}x{w} is not a multiple of 16");
+        assert!(
+            h % 16 == 0 && w % 16 == 0,
+            "CREStereo: image size {h}x{w} is not a multiple of 16"
+        );
         let hd = self.hidden_dim;
         let rate = self.upsample_rate;
         let norm = |x: Tensor<B, 4>| x.div_scalar(255.0).mul_scalar(2.0).sub_scalar(1.0);
@@ -248,10 +259,11 @@ impl<B: Backend> CREStereo<B> {
                     flow_dw16 = flow_dw16.detach();
                     let (l, r) = corr_fn_att_dw16.cross_attend(&self.cross_att_fn);
                     if let Some(t) = trace.as_deref_mut()
-                        && t.crossatt_left_tokens_call0.is_none() {
-                            t.crossatt_left_tokens_call0 = Some(l.clone());
-                            t.crossatt_right_tokens_call0 = Some(r.clone());
-                        }
+                        && t.crossatt_left_tokens_call0.is_none()
+                    {
+                        t.crossatt_left_tokens_call0 = Some(l.clone());
+                        t.crossatt_right_tokens_call0 = Some(r.clone());
+                    }
                     let corr = corr_fn_att_dw16.corr_offset_maps(
                         from_tokens(l, h16, w16),
                         from_tokens(r, h16, w16),
@@ -259,14 +271,21 @@ impl<B: Backend> CREStereo<B> {
                         offset_dw16.clone(),
                         window,
                     );
-                    let (net_new, up_mask, delta_flow) =
-                        self.update_block.forward(net_dw16, inp_dw16.clone(), corr.clone(), flow_dw16.clone());
+                    let (net_new, up_mask, delta_flow) = self.update_block.forward(
+                        net_dw16,
+                        inp_dw16.clone(),
+                        corr.clone(),
+                        flow_dw16.clone(),
+                    );
                     net_dw16 = net_new;
                     record(&mut trace, corr, &delta_flow, &up_mask, &net_dw16);
                     flow_dw16 = flow_dw16 + delta_flow;
                     flow = convex_upsample(flow_dw16.clone(), up_mask, rate);
                     let [_, _, fh, fw] = flow.dims();
-                    predictions.push(resize_bilinear_align_corners(flow.clone(), [4 * fh, 4 * fw]).mul_scalar(-4.0));
+                    predictions.push(
+                        resize_bilinear_align_corners(flow.clone(), [4 * fh, 4 * fw])
+                            .mul_scalar(-4.0),
+                    );
                 }
                 // RUM 1/8
                 let [_, _, h8, w8] = corr_fn_dw8.fmap1.dims();
@@ -275,15 +294,23 @@ impl<B: Backend> CREStereo<B> {
                 for itr in 0..iters / 2 {
                     let window = SearchWindow::for_iteration(itr);
                     flow_dw8 = flow_dw8.detach();
-                    let corr = corr_fn_dw8.corr_offset(flow_dw8.clone(), offset_dw8.clone(), window, None);
-                    let (net_new, up_mask, delta_flow) =
-                        self.update_block.forward(net_dw8, inp_dw8.clone(), corr.clone(), flow_dw8.clone());
+                    let corr =
+                        corr_fn_dw8.corr_offset(flow_dw8.clone(), offset_dw8.clone(), window, None);
+                    let (net_new, up_mask, delta_flow) = self.update_block.forward(
+                        net_dw8,
+                        inp_dw8.clone(),
+                        corr.clone(),
+                        flow_dw8.clone(),
+                    );
                     net_dw8 = net_new;
                     record(&mut trace, corr, &delta_flow, &up_mask, &net_dw8);
                     flow_dw8 = flow_dw8 + delta_flow;
                     flow = convex_upsample(flow_dw8.clone(), up_mask, rate);
                     let [_, _, fh, fw] = flow.dims();
-                    predictions.push(resize_bilinear_align_corners(flow.clone(), [2 * fh, 2 * fw]).mul_scalar(-2.0));
+                    predictions.push(
+                        resize_bilinear_align_corners(flow.clone(), [2 * fh, 2 * fw])
+                            .mul_scalar(-2.0),
+                    );
                 }
                 if iters / 2 == 0 {
                     flow = Tensor::zeros([n, 2, h8 * rate, w8 * rate], &fmap1.device());
@@ -297,7 +324,9 @@ impl<B: Backend> CREStereo<B> {
             let window = SearchWindow::for_iteration(itr);
             flow = flow.detach();
             let corr = corr_fn.corr_warp(flow.clone(), window);
-            let (net_new, up_mask, delta_flow) = self.update_block.forward(net, inp.clone(), corr.clone(), flow.clone());
+            let (net_new, up_mask, delta_flow) =
+                self.update_block
+                    .forward(net, inp.clone(), corr.clone(), flow.clone());
             net = net_new;
             record(&mut trace, corr, &delta_flow, &up_mask, &net);
             flow = flow + delta_flow;

@@ -22,11 +22,31 @@ fn convert<R: std::io::Read>(npy: npyz::NpyFile<R>) -> Result<Array> {
     let data: Vec<f32> = match &dtype {
         npyz::DType::Plain(ts) => match (ts.type_char(), ts.size_field()) {
             (npyz::TypeChar::Float, 4) => npy.into_vec::<f32>()?,
-            (npyz::TypeChar::Float, 8) => npy.into_vec::<f64>()?.into_iter().map(|v| v as f32).collect(),
-            (npyz::TypeChar::Bool, 1) => npy.into_vec::<bool>()?.into_iter().map(|v| v as u8 as f32).collect(),
-            (npyz::TypeChar::Int, 8) => npy.into_vec::<i64>()?.into_iter().map(|v| v as f32).collect(),
-            (npyz::TypeChar::Int, 4) => npy.into_vec::<i32>()?.into_iter().map(|v| v as f32).collect(),
-            (npyz::TypeChar::Uint, 1) => npy.into_vec::<u8>()?.into_iter().map(|v| v as f32).collect(),
+            (npyz::TypeChar::Float, 8) => npy
+                .into_vec::<f64>()?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+            (npyz::TypeChar::Bool, 1) => npy
+                .into_vec::<bool>()?
+                .into_iter()
+                .map(|v| v as u8 as f32)
+                .collect(),
+            (npyz::TypeChar::Int, 8) => npy
+                .into_vec::<i64>()?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+            (npyz::TypeChar::Int, 4) => npy
+                .into_vec::<i32>()?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+            (npyz::TypeChar::Uint, 1) => npy
+                .into_vec::<u8>()?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
             _ => bail!("unsupported npy dtype {dtype:?}"),
         },
         _ => bail!("unsupported npy dtype {dtype:?}"),
@@ -38,19 +58,26 @@ fn convert<R: std::io::Read>(npy: npyz::NpyFile<R>) -> Result<Array> {
 pub fn read_npy(path: impl AsRef<Path>) -> Result<Array> {
     let path = path.as_ref();
     let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    let npy = npyz::NpyFile::new(BufReader::new(file)).with_context(|| format!("parsing {}", path.display()))?;
+    let npy = npyz::NpyFile::new(BufReader::new(file))
+        .with_context(|| format!("parsing {}", path.display()))?;
     convert(npy).with_context(|| format!("reading {}", path.display()))
 }
 
 /// Reads every array of a `.npz` file (names without the `.npy` suffix).
 pub fn read_npz(path: impl AsRef<Path>) -> Result<Vec<(String, Array)>> {
     let path = path.as_ref();
-    let mut npz = npyz::npz::NpzArchive::open(path).with_context(|| format!("opening {}", path.display()))?;
+    let mut npz =
+        npyz::npz::NpzArchive::open(path).with_context(|| format!("opening {}", path.display()))?;
     let names: Vec<String> = npz.array_names().map(|s| s.to_string()).collect();
     let mut out = Vec::new();
     for name in names {
-        let npy = npz.by_name(&name)?.with_context(|| format!("{name} missing in {}", path.display()))?;
-        out.push((name.clone(), convert(npy).with_context(|| format!("{name} in {}", path.display()))?));
+        let npy = npz
+            .by_name(&name)?
+            .with_context(|| format!("{name} missing in {}", path.display()))?;
+        out.push((
+            name.clone(),
+            convert(npy).with_context(|| format!("{name} in {}", path.display()))?,
+        ));
     }
     Ok(out)
 }

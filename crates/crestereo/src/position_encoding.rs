@@ -23,8 +23,14 @@ pub struct PositionEncodingSine {
 
 impl PositionEncodingSineConfig {
     pub fn init(&self) -> PositionEncodingSine {
-        assert!(self.d_model.is_multiple_of(4), "d_model must be a multiple of 4");
-        PositionEncodingSine { d_model: self.d_model, temp_bug_fix: self.temp_bug_fix }
+        assert!(
+            self.d_model.is_multiple_of(4),
+            "d_model must be a multiple of 4"
+        );
+        PositionEncodingSine {
+            d_model: self.d_model,
+            temp_bug_fix: self.temp_bug_fix,
+        }
     }
 }
 
@@ -60,7 +66,8 @@ impl PositionEncodingSine {
     pub fn forward<B: Backend>(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
         let [_, c, h, w] = x.dims();
         assert_eq!(c, self.d_model, "positional encoding: channel mismatch");
-        let pe = Tensor::<B, 3>::from_data(TensorData::new(self.table(h, w), [c, h, w]), &x.device());
+        let pe =
+            Tensor::<B, 3>::from_data(TensorData::new(self.table(h, w), [c, h, w]), &x.device());
         x + pe.unsqueeze::<4>()
     }
 }

@@ -63,11 +63,17 @@ impl UpdateBlockConfig {
     pub fn init<B: Backend>(&self, device: &B::Device) -> UpdateBlock<B> {
         let h = self.hidden_dim;
         UpdateBlock {
-            encoder: BasicMotionEncoderConfig::new().with_cor_planes(self.cor_planes).init(device),
-            gru: SepConvGruConfig::new().with_hidden_dim(h).with_input_dim(128 + h).init(device),
+            encoder: BasicMotionEncoderConfig::new()
+                .with_cor_planes(self.cor_planes)
+                .init(device),
+            gru: SepConvGruConfig::new()
+                .with_hidden_dim(h)
+                .with_input_dim(128 + h)
+                .init(device),
             flow_head: FlowHeadConfig::new().with_input_dim(h).init(device),
             mask1: conv_cfg(h, 256, [3, 3], 1, [1, 1]).init(device),
-            mask2: conv_cfg(256, self.mask_size * self.mask_size * 9, [1, 1], 1, [0, 0]).init(device),
+            mask2: conv_cfg(256, self.mask_size * self.mask_size * 9, [1, 1], 1, [0, 0])
+                .init(device),
         }
     }
 }
@@ -85,7 +91,10 @@ impl<B: Backend> UpdateBlock<B> {
         let inp = Tensor::cat(vec![inp, motion], 1);
         let net = self.gru.forward(net, inp);
         let delta_flow = self.flow_head.forward(net.clone());
-        let mask = self.mask2.forward(relu(self.mask1.forward(net.clone()))).mul_scalar(0.25);
+        let mask = self
+            .mask2
+            .forward(relu(self.mask1.forward(net.clone())))
+            .mul_scalar(0.25);
         (net, mask, delta_flow)
     }
 }

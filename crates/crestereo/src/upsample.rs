@@ -10,7 +10,11 @@ use burn::tensor::ops::{InterpolateMode, InterpolateOptions, PadMode};
 /// `src = scale · dst`, `λ1 = src − ⌊src⌋`, `λ0 = 1 − λ1`).
 fn linear_weights(n_in: usize, n_out: usize) -> Vec<f32> {
     let mut m = vec![0f32; n_out * n_in];
-    let scale: f32 = if n_out > 1 { (n_in - 1) as f32 / (n_out - 1) as f32 } else { 0.0 };
+    let scale: f32 = if n_out > 1 {
+        (n_in - 1) as f32 / (n_out - 1) as f32
+    } else {
+        0.0
+    };
     for o in 0..n_out {
         let src = scale * o as f32;
         let i0 = (src as usize).min(n_in - 1);
@@ -26,7 +30,10 @@ fn linear_weights(n_in: usize, n_out: usize) -> Vec<f32> {
 /// Bilinear resize with `align_corners = true` (set explicitly; the reference uses it everywhere),
 /// as two interpolation-matrix products whose weights match PyTorch's float32 arithmetic.
 /// Differentiable.
-pub fn resize_bilinear_align_corners<B: Backend>(x: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
+pub fn resize_bilinear_align_corners<B: Backend>(
+    x: Tensor<B, 4>,
+    size: [usize; 2],
+) -> Tensor<B, 4> {
     let [n, c, h, w] = x.dims();
     let [ho, wo] = size;
     if [h, w] == size {
@@ -34,27 +41,47 @@ pub fn resize_bilinear_align_corners<B: Backend>(x: Tensor<B, 4>, size: [usize; 
     }
     let device = x.device();
     // width: (N·C·H, W) @ (W, Wo)
-    let rw = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(w, wo), [wo, w]), &device).transpose();
+    let rw = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(w, wo), [wo, w]), &device)
+        .transpose();
     let y = x.reshape([n * c * h, w]).matmul(rw).reshape([n * c, h, wo]);
     // height: (N·C·Wo, H) @ (H, Ho)
-    let rh = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(h, ho), [ho, h]), &device).transpose();
-    y.swap_dims(1, 2).reshape([n * c * wo, h]).matmul(rh).reshape([n, c, wo, ho]).swap_dims(2, 3)
+    let rh = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(h, ho), [ho, h]), &device)
+        .transpose();
+    y.swap_dims(1, 2)
+        .reshape([n * c * wo, h])
+        .matmul(rh)
+        .reshape([n, c, wo, ho])
+        .swap_dims(2, 3)
 }
 
 /// Burn's own `interpolate` (bilinear, align_corners = true); coordinates in float64, so it
 /// differs from PyTorch by ~1e-5 relative.
 pub fn resize_bilinear_burn<B: Backend>(x: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
-    interpolate(x, size, InterpolateOptions::new(InterpolateMode::Bilinear).with_align_corners(true))
+    interpolate(
+        x,
+        size,
+        InterpolateOptions::new(InterpolateMode::Bilinear).with_align_corners(true),
+    )
 }
 
 /// Convex upsampling of `flow` (N, 2, H, W) by `rate` with `mask` (N, 9·rate², H, W):
 /// softmax over the 9 neighbours of a zero-padded 3×3 window of `rate · flow`.
 /// Returns (N, 2, rate·H, rate·W).
-pub fn convex_upsample<B: Backend>(flow: Tensor<B, 4>, mask: Tensor<B, 4>, rate: usize) -> Tensor<B, 4> {
+pub fn convex_upsample<B: Backend>(
+    flow: Tensor<B, 4>,
+    mask: Tensor<B, 4>,
+    rate: usize,
+) -> Tensor<B, 4> {
     let [n, c, h, w] = flow.dims();
-    assert_eq!(mask.dims(), [n, 9 * rate * rate, h, w], "convex_upsample: mask shape");
+    assert_eq!(
+        mask.dims(),
+        [n, 9 * rate * rate, h, w],
+        "convex_upsample: mask shape"
+    );
     let mask = softmax(mask.reshape([n, 1, 9, rate, rate, h, w]), 2);
-    let padded = flow.mul_scalar(rate as f64).pad((1, 1, 1, 1), PadMode::Constant(0.0));
+    let padded = flow
+        .mul_scalar(rate as f64)
+        .pad((1, 1, 1, 1), PadMode::Constant(0.0));
     let mut neigh = Vec::with_capacity(9);
     for ky in 0..3 {
         for kx in 0..3 {
@@ -62,6 +89,9 @@ pub fn convex_upsample<B: Backend>(flow: Tensor<B, 4>, mask: Tensor<B, 4>, rate:
         }
     }
     let unfolded = Tensor::stack::<5>(neigh, 2).reshape([n, c, 9, 1, 1, h, w]);
-    let up = (mask * unfolded).sum_dim(2).reshape([n, c, rate, rate, h, w]);
-    up.permute([0, 1, 4, 2, 5, 3]).reshape([n, c, rate * h, rate * w])
+    let up = (mask * unfolded)
+        .sum_dim(2)
+        .reshape([n, c, rate, rate, h, w]);
+    up.permute([0, 1, 4, 2, 5, 3])
+        .reshape([n, c, rate * h, rate * w])
 }

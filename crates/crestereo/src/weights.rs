@@ -25,7 +25,13 @@ pub struct ImportReport {
 
 impl std::fmt::Display for ImportReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "applied {} tensors, missing {}, unused {}", self.applied.len(), self.missing.len(), self.unused.len())?;
+        writeln!(
+            f,
+            "applied {} tensors, missing {}, unused {}",
+            self.applied.len(),
+            self.missing.len(),
+            self.unused.len()
+        )?;
         for m in &self.missing {
             writeln!(f, "  missing: {m}")?;
         }
@@ -55,7 +61,11 @@ const KEY_REMAPS: &[(&str, &str)] = &[
 ///
 /// Fails on any shape mismatch, and on missing parameters unless `allow_missing`.
 /// Unused tensors are reported, not fatal.
-pub fn load_pytorch<B: Backend>(model: &mut CREStereo<B>, path: impl AsRef<Path>, allow_missing: bool) -> Result<ImportReport> {
+pub fn load_pytorch<B: Backend>(
+    model: &mut CREStereo<B>,
+    path: impl AsRef<Path>,
+    allow_missing: bool,
+) -> Result<ImportReport> {
     let path = path.as_ref();
     if !path.exists() {
         bail!("weights file {} does not exist", path.display());
@@ -86,14 +96,21 @@ pub fn load_pytorch<B: Backend>(model: &mut CREStereo<B>, path: impl AsRef<Path>
         unused: result.unused.clone(),
     };
     if !allow_missing && !report.missing.is_empty() {
-        bail!("weights in {} lack parameters of the model:\n{report}", path.display());
+        bail!(
+            "weights in {} lack parameters of the model:\n{report}",
+            path.display()
+        );
     }
     Ok(report)
 }
 
 /// Loads weights from a Burn record (`.mpk`, saved by [`save_record`]) or a PyTorch file
 /// (`.pt` / `.pth`), chosen by extension. Returns the PyTorch import report when applicable.
-pub fn load_weights<B: Backend>(model: CREStereo<B>, path: impl AsRef<Path>, device: &B::Device) -> Result<CREStereo<B>> {
+pub fn load_weights<B: Backend>(
+    model: CREStereo<B>,
+    path: impl AsRef<Path>,
+    device: &B::Device,
+) -> Result<CREStereo<B>> {
     let path = path.as_ref();
     match path.extension().and_then(|e| e.to_str()) {
         Some("pt") | Some("pth") | Some("bin") => {
@@ -116,7 +133,11 @@ pub fn save_record<B: Backend>(model: &CREStereo<B>, path: impl AsRef<Path>) -> 
 }
 
 /// Loads a Burn record saved by [`save_record`].
-pub fn load_record<B: Backend>(model: CREStereo<B>, path: impl AsRef<Path>, device: &B::Device) -> Result<CREStereo<B>> {
+pub fn load_record<B: Backend>(
+    model: CREStereo<B>,
+    path: impl AsRef<Path>,
+    device: &B::Device,
+) -> Result<CREStereo<B>> {
     let recorder = NamedMpkFileRecorder::<FullPrecisionSettings>::new();
     model
         .load_file(path.as_ref().to_path_buf(), &recorder, device)
@@ -145,8 +166,12 @@ pub fn reference_key(burn_path: &str) -> String {
             }
             "mlp1" => out.extend(["mlp".into(), "0".into()]),
             "mlp2" => out.extend(["mlp".into(), "2".into()]),
-            "mask1" if i == 1 && parts[0] == "update_block" => out.extend(["mask".into(), "0".into()]),
-            "mask2" if i == 1 && parts[0] == "update_block" => out.extend(["mask".into(), "2".into()]),
+            "mask1" if i == 1 && parts[0] == "update_block" => {
+                out.extend(["mask".into(), "0".into()])
+            }
+            "mask2" if i == 1 && parts[0] == "update_block" => {
+                out.extend(["mask".into(), "2".into()])
+            }
             "downsample" => out.extend(["downsample".into(), "0".into()]),
             _ => out.push(p.clone()),
         }
@@ -162,10 +187,16 @@ pub struct NamedArray {
     pub data: Vec<f32>,
 }
 
-fn tensor_to_reference_layout<B: Backend, const D: usize>(t: Tensor<B, D>) -> (Vec<usize>, Vec<f32>) {
+fn tensor_to_reference_layout<B: Backend, const D: usize>(
+    t: Tensor<B, D>,
+) -> (Vec<usize>, Vec<f32>) {
     let t = if D == 2 { t.transpose() } else { t };
     let shape = t.dims().to_vec();
-    let data = t.into_data().convert::<f32>().into_vec::<f32>().expect("float tensor");
+    let data = t
+        .into_data()
+        .convert::<f32>()
+        .into_vec::<f32>()
+        .expect("float tensor");
     (shape, data)
 }
 
@@ -184,10 +215,17 @@ pub fn named_parameters<B: Backend>(model: &CREStereo<B>) -> Vec<NamedArray> {
         }
         fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<B, D>>) {
             let (shape, data) = tensor_to_reference_layout(param.val());
-            self.out.push(NamedArray { name: reference_key(&self.path.join(".")), shape, data });
+            self.out.push(NamedArray {
+                name: reference_key(&self.path.join(".")),
+                shape,
+                data,
+            });
         }
     }
-    let mut v = V { path: Vec::new(), out: Vec::new() };
+    let mut v = V {
+        path: Vec::new(),
+        out: Vec::new(),
+    };
     model.visit(&mut v);
     v.out
 }
@@ -219,10 +257,18 @@ pub fn named_gradients<B: burn::tensor::backend::AutodiffBackend>(
                     (shape, vec![0.0; data.len()])
                 }
             };
-            self.out.push(NamedArray { name: reference_key(&self.path.join(".")), shape, data });
+            self.out.push(NamedArray {
+                name: reference_key(&self.path.join(".")),
+                shape,
+                data,
+            });
         }
     }
-    let mut v = V { path: Vec::new(), grads, out: Vec::new() };
+    let mut v = V {
+        path: Vec::new(),
+        grads,
+        out: Vec::new(),
+    };
     model.visit(&mut v);
     v.out
 }

@@ -44,7 +44,10 @@ fn infer_cli_matches_reference_two_pass() {
     let bytes = std::fs::read(&pfm).unwrap();
     let header = b"Pf\n192 128\n-1.0\n";
     assert_eq!(&bytes[..header.len()], header);
-    let body: Vec<f32> = bytes[header.len()..].chunks(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+    let body: Vec<f32> = bytes[header.len()..]
+        .chunks(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
     assert_eq!(body.len(), 192 * 128);
     assert_eq!(body[0], data[127 * 192]);
     let png = image::open(&viz).unwrap();
@@ -66,15 +69,42 @@ fn infer_cli_errors_are_clear() {
     // mismatched sizes
     let small = dir.path().join("small.png");
     image::RgbImage::new(64, 32).save(&small).unwrap();
-    let msg = run_err(&["infer".as_ref(), e.join("left.png").as_os_str(), small.as_os_str(), "-o".as_ref(), out.as_os_str(), "--weights".as_ref(), weights.as_os_str()]);
+    let msg = run_err(&[
+        "infer".as_ref(),
+        e.join("left.png").as_os_str(),
+        small.as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "--weights".as_ref(),
+        weights.as_os_str(),
+    ]);
     assert!(msg.contains("192x128") && msg.contains("64x32"), "{msg}");
     // unreadable image
     let bogus = dir.path().join("bogus.png");
     std::fs::write(&bogus, b"not an image").unwrap();
-    let msg = run_err(&["infer".as_ref(), bogus.as_os_str(), e.join("right.png").as_os_str(), "-o".as_ref(), out.as_os_str(), "--weights".as_ref(), weights.as_os_str()]);
-    assert!(msg.contains("cannot read image") && msg.contains("bogus.png"), "{msg}");
+    let msg = run_err(&[
+        "infer".as_ref(),
+        bogus.as_os_str(),
+        e.join("right.png").as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "--weights".as_ref(),
+        weights.as_os_str(),
+    ]);
+    assert!(
+        msg.contains("cannot read image") && msg.contains("bogus.png"),
+        "{msg}"
+    );
     // missing weights file
     let missing = dir.path().join("none.pt");
-    let msg = run_err(&["infer".as_ref(), e.join("left.png").as_os_str(), e.join("right.png").as_os_str(), "-o".as_ref(), out.as_os_str(), "--weights".as_ref(), missing.as_os_str()]);
+    let msg = run_err(&[
+        "infer".as_ref(),
+        e.join("left.png").as_os_str(),
+        e.join("right.png").as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "--weights".as_ref(),
+        missing.as_os_str(),
+    ]);
     assert!(msg.contains("does not exist"), "{msg}");
 }

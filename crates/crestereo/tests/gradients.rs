@@ -24,7 +24,9 @@ struct Worst {
 
 fn compare(f64_features: bool) -> Worst {
     let device = Default::default();
-    let mut m = crestereo::CREStereoConfig::new().with_f64_features(f64_features).init::<B>(&device);
+    let mut m = crestereo::CREStereoConfig::new()
+        .with_f64_features(f64_features)
+        .init::<B>(&device);
     crestereo::weights::load_pytorch(&mut m, fixtures().join("weights_seed0.pt"), false).unwrap();
     let t = "train_b2_64x128";
     let left = tensor::<B, 4>(&npy(&format!("{t}/left.npy")), &device);
@@ -45,7 +47,10 @@ fn compare(f64_features: bool) -> Worst {
     let mut worst_rel = (0.0f64, String::new());
     let mut worst_zero = (0.0f64, String::new());
     for (name, r) in &reference {
-        let o = ours.iter().find(|g| &g.name == name).unwrap_or_else(|| panic!("no gradient for {name}"));
+        let o = ours
+            .iter()
+            .find(|g| &g.name == name)
+            .unwrap_or_else(|| panic!("no gradient for {name}"));
         assert_eq!(o.shape, r.shape, "{name}: shape");
         let (mut dot, mut oo, mut rr, mut dd) = (0f64, 0f64, 0f64, 0f64);
         for (a, b) in o.data.iter().zip(&r.data) {
@@ -59,8 +64,14 @@ fn compare(f64_features: bool) -> Worst {
         if is_bias_before_instance_norm(name) {
             // exact gradient is 0: both sides must be at the float-noise floor
             let norm = oo.sqrt();
-            println!("{name:<45} |g| ours {norm:.2e}  reference {:.2e}  (exactly zero in exact arithmetic)", rr.sqrt());
-            assert!(norm < 1e-5 && rr.sqrt() < 1e-5, "{name}: gradient should vanish");
+            println!(
+                "{name:<45} |g| ours {norm:.2e}  reference {:.2e}  (exactly zero in exact arithmetic)",
+                rr.sqrt()
+            );
+            assert!(
+                norm < 1e-5 && rr.sqrt() < 1e-5,
+                "{name}: gradient should vanish"
+            );
             if norm > worst_zero.0 {
                 worst_zero = (norm, name.clone());
             }
@@ -68,7 +79,10 @@ fn compare(f64_features: bool) -> Worst {
         }
         let cos = dot / (oo.sqrt() * rr.sqrt()).max(1e-30);
         let rel = dd.sqrt() / rr.sqrt().max(1e-30);
-        println!("{name:<45} cos {cos:.8}  rel.L2 {rel:.3e}  |g| {:.3e}", rr.sqrt());
+        println!(
+            "{name:<45} cos {cos:.8}  rel.L2 {rel:.3e}  |g| {:.3e}",
+            rr.sqrt()
+        );
         if cos < worst_cos.0 {
             worst_cos = (cos, name.clone());
         }
@@ -80,7 +94,11 @@ fn compare(f64_features: bool) -> Worst {
         "f64_features={f64_features}: worst cosine {:.8} ({}), worst relative L2 {:.3e} ({}), largest vanishing-gradient norm {:.2e} ({})",
         worst_cos.0, worst_cos.1, worst_rel.0, worst_rel.1, worst_zero.0, worst_zero.1
     );
-    Worst { cos: worst_cos, rel: worst_rel, zero: worst_zero }
+    Worst {
+        cos: worst_cos,
+        rel: worst_rel,
+        zero: worst_zero,
+    }
 }
 
 /// Encoder and attention in float64: every gradient within the acceptance tolerance.
@@ -89,7 +107,12 @@ fn gradients_match_official_semantics() {
     let w = compare(true);
     assert!(w.cos.0 >= 0.9999, "cosine {} for {}", w.cos.0, w.cos.1);
     assert!(w.rel.0 <= 1e-3, "relative L2 {} for {}", w.rel.0, w.rel.1);
-    assert!(w.zero.0 < 1e-6, "vanishing gradient {} for {}", w.zero.0, w.zero.1);
+    assert!(
+        w.zero.0 < 1e-6,
+        "vanishing gradient {} for {}",
+        w.zero.0,
+        w.zero.1
+    );
 }
 
 /// The all-float32 path: ReLU pre-activations within float32 rounding of zero flip the gradient
@@ -100,5 +123,10 @@ fn gradients_float32_path_agree_in_direction() {
     let w = compare(false);
     assert!(w.cos.0 >= 0.9999, "cosine {} for {}", w.cos.0, w.cos.1);
     assert!(w.rel.0 <= 2e-2, "relative L2 {} for {}", w.rel.0, w.rel.1);
-    assert!(w.zero.0 < 1e-6, "vanishing gradient {} for {}", w.zero.0, w.zero.1);
+    assert!(
+        w.zero.0 < 1e-6,
+        "vanishing gradient {} for {}",
+        w.zero.0,
+        w.zero.1
+    );
 }

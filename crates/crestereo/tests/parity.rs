@@ -25,8 +25,14 @@ fn parameter_count_and_import_report() {
     assert_eq!(params.len(), 94);
     for line in reference.lines().filter(|l| !l.trim().is_empty()) {
         let key = line.split('\t').next().unwrap();
-        let p = params.iter().find(|p| p.name == key).unwrap_or_else(|| panic!("no parameter named {key}"));
-        let expected: Vec<usize> = line.split('\t').nth(1).unwrap()
+        let p = params
+            .iter()
+            .find(|p| p.name == key)
+            .unwrap_or_else(|| panic!("no parameter named {key}"));
+        let expected: Vec<usize> = line
+            .split('\t')
+            .nth(1)
+            .unwrap()
             .trim_matches(|c| c == '(' || c == ')')
             .split(',')
             .filter(|s| !s.trim().is_empty())
@@ -48,25 +54,90 @@ fn train_forward_intermediates_predictions_and_loss() {
 
     let tol = 1e-4;
     let t = "train_b2_64x128";
-    check("fnet_fmap1", &values(trace.fmap1.clone().unwrap()), &npy(&format!("{t}/fnet_fmap1.npy")).data, tol);
-    check("fnet_fmap2", &values(trace.fmap2.clone().unwrap()), &npy(&format!("{t}/fnet_fmap2.npy")).data, tol);
-    check("pos_encoding_pe", &values(trace.pos_encoding.clone().unwrap()), &npy(&format!("{t}/pos_encoding_pe.npy")).data, tol);
-    check("conv_offset_16_raw", &values(trace.conv_offset_16_raw.clone().unwrap()), &npy(&format!("{t}/conv_offset_16_raw.npy")).data, tol);
-    check("conv_offset_8_raw", &values(trace.conv_offset_8_raw.clone().unwrap()), &npy(&format!("{t}/conv_offset_8_raw.npy")).data, tol);
-    check("selfatt_out_left_tokens", &values(trace.selfatt_left_tokens.clone().unwrap()), &npy(&format!("{t}/selfatt_out_left_tokens.npy")).data, tol);
-    check("selfatt_out_right_tokens", &values(trace.selfatt_right_tokens.clone().unwrap()), &npy(&format!("{t}/selfatt_out_right_tokens.npy")).data, tol);
-    check("crossatt_out_left_tokens_call0", &values(trace.crossatt_left_tokens_call0.clone().unwrap()), &npy(&format!("{t}/crossatt_out_left_tokens_call0.npy")).data, tol);
-    check("crossatt_out_right_tokens_call0", &values(trace.crossatt_right_tokens_call0.clone().unwrap()), &npy(&format!("{t}/crossatt_out_right_tokens_call0.npy")).data, tol);
+    check(
+        "fnet_fmap1",
+        &values(trace.fmap1.clone().unwrap()),
+        &npy(&format!("{t}/fnet_fmap1.npy")).data,
+        tol,
+    );
+    check(
+        "fnet_fmap2",
+        &values(trace.fmap2.clone().unwrap()),
+        &npy(&format!("{t}/fnet_fmap2.npy")).data,
+        tol,
+    );
+    check(
+        "pos_encoding_pe",
+        &values(trace.pos_encoding.clone().unwrap()),
+        &npy(&format!("{t}/pos_encoding_pe.npy")).data,
+        tol,
+    );
+    check(
+        "conv_offset_16_raw",
+        &values(trace.conv_offset_16_raw.clone().unwrap()),
+        &npy(&format!("{t}/conv_offset_16_raw.npy")).data,
+        tol,
+    );
+    check(
+        "conv_offset_8_raw",
+        &values(trace.conv_offset_8_raw.clone().unwrap()),
+        &npy(&format!("{t}/conv_offset_8_raw.npy")).data,
+        tol,
+    );
+    check(
+        "selfatt_out_left_tokens",
+        &values(trace.selfatt_left_tokens.clone().unwrap()),
+        &npy(&format!("{t}/selfatt_out_left_tokens.npy")).data,
+        tol,
+    );
+    check(
+        "selfatt_out_right_tokens",
+        &values(trace.selfatt_right_tokens.clone().unwrap()),
+        &npy(&format!("{t}/selfatt_out_right_tokens.npy")).data,
+        tol,
+    );
+    check(
+        "crossatt_out_left_tokens_call0",
+        &values(trace.crossatt_left_tokens_call0.clone().unwrap()),
+        &npy(&format!("{t}/crossatt_out_left_tokens_call0.npy")).data,
+        tol,
+    );
+    check(
+        "crossatt_out_right_tokens_call0",
+        &values(trace.crossatt_right_tokens_call0.clone().unwrap()),
+        &npy(&format!("{t}/crossatt_out_right_tokens_call0.npy")).data,
+        tol,
+    );
     assert_eq!(trace.corr.len(), 20);
     let mut worst = 0f32;
     for i in 0..20 {
-        worst = worst.max(check(&format!("corr/{i:02}"), &values(trace.corr[i].clone()), &npy(&format!("{t}/corr/{i:02}.npy")).data, tol));
-        worst = worst.max(check(&format!("update/{i:02}_delta_flow"), &values(trace.delta_flow[i].clone()), &npy(&format!("{t}/update/{i:02}_delta_flow.npy")).data, tol));
-        worst = worst.max(check(&format!("update/{i:02}_up_mask"), &values(trace.up_mask[i].clone()), &npy(&format!("{t}/update/{i:02}_up_mask.npy")).data, tol));
+        worst = worst.max(check(
+            &format!("corr/{i:02}"),
+            &values(trace.corr[i].clone()),
+            &npy(&format!("{t}/corr/{i:02}.npy")).data,
+            tol,
+        ));
+        worst = worst.max(check(
+            &format!("update/{i:02}_delta_flow"),
+            &values(trace.delta_flow[i].clone()),
+            &npy(&format!("{t}/update/{i:02}_delta_flow.npy")).data,
+            tol,
+        ));
+        worst = worst.max(check(
+            &format!("update/{i:02}_up_mask"),
+            &values(trace.up_mask[i].clone()),
+            &npy(&format!("{t}/update/{i:02}_up_mask.npy")).data,
+            tol,
+        ));
         let net = fixtures().join(format!("{t}/update/{i:02}_net.npy"));
         if net.exists() {
             let r = crestereo::npy::read_npy(net).unwrap();
-            worst = worst.max(check(&format!("update/{i:02}_net"), &values(trace.net[i].clone()), &r.data, tol));
+            worst = worst.max(check(
+                &format!("update/{i:02}_net"),
+                &values(trace.net[i].clone()),
+                &r.data,
+                tol,
+            ));
         }
     }
     println!("worst scaled intermediate error over corr/update: {worst:.3e}");
@@ -91,7 +162,8 @@ fn train_forward_intermediates_predictions_and_loss() {
     assert_eq!(disp_a.data.len(), n * h * w);
     assert_eq!(valid_a.data.len(), n * h * w);
     let disp = Tensor::<B, 3>::from_data(TensorData::new(disp_a.data.clone(), [n, h, w]), &device);
-    let valid = Tensor::<B, 3>::from_data(TensorData::new(valid_a.data.clone(), [n, h, w]), &device);
+    let valid =
+        Tensor::<B, 3>::from_data(TensorData::new(valid_a.data.clone(), [n, h, w]), &device);
     let fixture_loss = npy(&format!("{t}/loss.npy")).data[0] as f64;
     for gamma in [0.8f64, 0.9] {
         let ours = sequence_loss(&preds, disp.clone(), valid.clone(), gamma).into_scalar() as f64;
@@ -102,7 +174,11 @@ fn train_forward_intermediates_predictions_and_loss() {
                 for c in 0..2 {
                     for px in 0..h * w {
                         let pred = reference.data[i * per + (b * 2 + c) * h * w + px] as f64;
-                        let gt = if c == 0 { disp_a.data[b * h * w + px] as f64 } else { 0.0 };
+                        let gt = if c == 0 {
+                            disp_a.data[b * h * w + px] as f64
+                        } else {
+                            0.0
+                        };
                         s += valid_a.data[b * h * w + px] as f64 * (pred - gt).abs();
                     }
                 }
@@ -110,13 +186,18 @@ fn train_forward_intermediates_predictions_and_loss() {
             reference_loss += gamma.powi(19 - i as i32) * s / (n * 2 * h * w) as f64;
         }
         if gamma == 0.8 {
-            assert!((reference_loss - fixture_loss).abs() / fixture_loss < 1e-5, "fixture loss recomputation");
+            assert!(
+                (reference_loss - fixture_loss).abs() / fixture_loss < 1e-5,
+                "fixture loss recomputation"
+            );
             let rel = (ours - fixture_loss).abs() / fixture_loss;
             println!("loss γ=0.8: ours {ours:.7} reference {fixture_loss:.7} rel.err {rel:.3e}");
             assert!(rel <= 1e-5, "loss relative error {rel:e}");
         } else {
             let rel = (ours - reference_loss).abs() / reference_loss;
-            println!("loss γ=0.9: ours {ours:.7} reference-preds {reference_loss:.7} rel.err {rel:.3e}");
+            println!(
+                "loss γ=0.9: ours {ours:.7} reference-preds {reference_loss:.7} rel.err {rel:.3e}"
+            );
             assert!(rel <= 1e-5, "loss (γ=0.9) relative error {rel:e}");
         }
     }
@@ -132,23 +213,48 @@ fn eval_two_pass_cascade() {
     // pass 1 on the ×½ pair, no init
     let l2 = crestereo::resize_bilinear_align_corners(left.clone(), [64, 96]);
     let r2 = crestereo::resize_bilinear_align_corners(right.clone(), [64, 96]);
-    check("left_dw2", &values(l2.clone()), &npy(&format!("{e}/left_dw2.npy")).data, 1e-4);
+    check(
+        "left_dw2",
+        &values(l2.clone()),
+        &npy(&format!("{e}/left_dw2.npy")).data,
+        1e-4,
+    );
     let pred_dw2 = m.forward(l2, r2, 20, None).pop().unwrap();
-    let (err_dw2, _) = max_err(&values(pred_dw2.clone()), &npy(&format!("{e}/pred_dw2.npy")).data);
+    let (err_dw2, _) = max_err(
+        &values(pred_dw2.clone()),
+        &npy(&format!("{e}/pred_dw2.npy")).data,
+    );
     println!("pred_dw2: max|err| {err_dw2:.3e}");
     // pass 2 at full size, initialised, 1/4 level only
-    let pred_full = m.forward(left.clone(), right.clone(), 20, Some(pred_dw2)).pop().unwrap();
-    let (err_full, _) = max_err(&values(pred_full.clone()), &npy(&format!("{e}/pred_full.npy")).data);
+    let pred_full = m
+        .forward(left.clone(), right.clone(), 20, Some(pred_dw2))
+        .pop()
+        .unwrap();
+    let (err_full, _) = max_err(
+        &values(pred_full.clone()),
+        &npy(&format!("{e}/pred_full.npy")).data,
+    );
     println!("pred_full: max|err| {err_full:.3e}");
     assert!(err_dw2 <= 1e-3 && err_full <= 1e-3);
     // the library cascade gives the same result
-    let cascade = crestereo::infer::cascade(&m, left.clone(), right.clone(), crestereo::InferenceOptions { iters: 20, stages: 2 });
+    let cascade = crestereo::infer::cascade(
+        &m,
+        left.clone(),
+        right.clone(),
+        crestereo::InferenceOptions {
+            iters: 20,
+            stages: 2,
+        },
+    );
     let (err_cascade, _) = max_err(&values(cascade), &npy(&format!("{e}/pred_full.npy")).data);
     println!("cascade(): max|err| {err_cascade:.3e}");
     assert!(err_cascade <= 1e-3);
     // single pass without init
     let single = m.forward(left, right, 20, None).pop().unwrap();
-    let (err_single, _) = max_err(&values(single), &npy(&format!("{e}/pred_single_pass_no_init.npy")).data);
+    let (err_single, _) = max_err(
+        &values(single),
+        &npy(&format!("{e}/pred_single_pass_no_init.npy")).data,
+    );
     println!("pred_single_pass_no_init: max|err| {err_single:.3e}");
     assert!(err_single <= 1e-3);
 }

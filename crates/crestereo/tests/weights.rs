@@ -17,7 +17,10 @@ fn wrong_shapes_fail_clearly() {
     let err = load_pytorch(&mut m, fixtures().join("weights_seed0.pt"), false).unwrap_err();
     let msg = format!("{err:#}");
     println!("{msg}");
-    assert!(msg.contains("update_block.encoder.convc1.weight") && msg.contains("ShapeMismatch"), "{msg}");
+    assert!(
+        msg.contains("update_block.encoder.convc1.weight") && msg.contains("ShapeMismatch"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -39,7 +42,11 @@ fn record_round_trip() {
     // and a short forward agrees bit for bit
     let left = Tensor::<B, 4>::ones([1, 3, 32, 32], &device).mul_scalar(100.0);
     let right = Tensor::<B, 4>::ones([1, 3, 32, 32], &device).mul_scalar(90.0);
-    let p1 = values(m.forward(left.clone(), right.clone(), 2, None).pop().unwrap());
+    let p1 = values(
+        m.forward(left.clone(), right.clone(), 2, None)
+            .pop()
+            .unwrap(),
+    );
     let p2 = values(loaded.forward(left, right, 2, None).pop().unwrap());
     assert_eq!(p1, p2);
 }

@@ -12,7 +12,9 @@ use crestereo::{CREStereo, CREStereoConfig};
 pub fn fixtures() -> PathBuf {
     let dir = std::env::var_os("CRESTEREO_FIXTURES")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/crestereo"));
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/reference/crestereo")
+        });
     assert!(
         dir.join("weights_seed0.pt").exists(),
         "CREStereo fixtures not found at {} (expected shared/ beside the repository, or set CRESTEREO_FIXTURES)",
@@ -26,7 +28,11 @@ pub fn npy(rel: &str) -> Array {
 }
 
 pub fn tensor<B: Backend, const D: usize>(a: &Array, device: &B::Device) -> Tensor<B, D> {
-    let shape: [usize; D] = a.shape.clone().try_into().unwrap_or_else(|_| panic!("rank mismatch: {:?}", a.shape));
+    let shape: [usize; D] = a
+        .shape
+        .clone()
+        .try_into()
+        .unwrap_or_else(|_| panic!("rank mismatch: {:?}", a.shape));
     Tensor::from_data(TensorData::new(a.data.clone(), shape), device)
 }
 
@@ -37,7 +43,10 @@ pub fn values<B: Backend, const D: usize>(t: Tensor<B, D>) -> Vec<f32> {
 pub fn model<B: Backend>(device: &B::Device) -> CREStereo<B> {
     let mut m = CREStereoConfig::new().init::<B>(device);
     let report = load_pytorch(&mut m, fixtures().join("weights_seed0.pt"), false).unwrap();
-    assert!(report.missing.is_empty() && report.unused.is_empty(), "{report}");
+    assert!(
+        report.missing.is_empty() && report.unused.is_empty(),
+        "{report}"
+    );
     m
 }
 
@@ -60,6 +69,9 @@ pub fn check(name: &str, ours: &[f32], reference: &[f32], tol: f32) -> f32 {
     let (e, m) = max_err(ours, reference);
     let scaled = e / m.max(1.0);
     println!("{name:<40} max|err| {e:.3e}  (max|ref| {m:.3e}, scaled {scaled:.3e})");
-    assert!(scaled <= tol, "{name}: max error {e:.3e} exceeds {tol:e} (max|ref| {m:.3e})");
+    assert!(
+        scaled <= tol,
+        "{name}: max error {e:.3e} exceeds {tol:e} (max|ref| {m:.3e})"
+    );
     scaled
 }
