@@ -174,6 +174,20 @@ pub enum Command {
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
     },
+    /// A contact sheet PNG: each sample's left image beside its colourised disparity.
+    Sheet {
+        /// The dataset directory.
+        dataset: PathBuf,
+        /// Output PNG.
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+        /// How many samples (the first by index).
+        #[arg(long, default_value_t = 12)]
+        count: usize,
+        /// Samples per row.
+        #[arg(long, default_value_t = 3)]
+        cols: usize,
+    },
 }
 
 fn parse_shard(s: &str) -> Result<(u64, u64), String> {
@@ -236,6 +250,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             if !s.failed.is_empty() {
                 bail!("{} sample(s) failed (listed in {}); re-run the same command to retry them", s.failed.len(), DatasetLayout::new(&out).failures().display());
             }
+        }
+        Command::Sheet { dataset, out, count, cols } => {
+            let n = crate::validate::contact_sheet::write_contact_sheet(&dataset, count, cols, &out)?;
+            eprintln!("stereogen: contact sheet of {n} samples -> {}", out.display());
         }
         Command::Plan { recipe, seed, index } => {
             let recipe = recipe.load()?;
