@@ -1,0 +1,281 @@
+"""A compact PyTorch CREStereo written for the side-by-side bench of `crestereo bench`.
+
+Written from the architecture facts in shared/reference/crestereo/README.md (same state-dict
+names as the reference, so weights_seed0.pt loads). Checked against the fixtures:
+`python torch_reference.py check FIXTURES_DIR`; timed with `python torch_reference.py bench`.
+"""
+import math
+import resource
+import sys
+import time
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+
+class ResBlock(nn.Module):
+    def __init__(self, cin, cout, stride):
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1)
+        self.downsample = nn.Sequential(nn.Conv2d(cin, cout, 1, stride))
+
+    def forward(self, x):
+        y = F.relu(F.instance_norm(self.conv1(x)))
+        y = F.relu(F.instance_norm(self.conv2(y)))
+        return F.relu(F.instance_norm(self.downsample(x)) + y)
+
+
+class Encoder(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.conv1 = nn.Conv2d(3, 64, 7, 2, 3)
+        self.layer1 = nn.Sequential(ResBlock(64, 64, 1), ResBlock(64, 64, 1))
+        self.layer2 = nn.Sequential(ResBlock(64, 96, 2), ResBlock(96, 96, 1))
+        self.layer3 = nn.Sequential(ResBlock(96, 128, 1), ResBlock(128, 128, 1))
+        self.conv2 = nn.Conv2d(128, 256, 1)
+
+    def forward(self, x):
+        x = F.relu(F.instance_norm(self.conv1(x)))
+        return self.conv2(self.layer3(self.layer2(self.layer1(x))))
+
+
+class LoFTRLayer(nn.Module):
+    def __init__(self, d=256, nhead=8):
+        super().__init__()
+        self.nhead = nhead
+        self.q_proj = nn.Linear(d, d, bias=False)
+        self.k_proj = nn.Linear(d, d, bias=False)
+        self.v_proj = nn.Linear(d, d, bias=False)
+        self.merge = nn.Linear(d, d, bias=False)
+        self.mlp = nn.Sequential(nn.Linear(2 * d, 2 * d, bias=False), nn.ReLU(), nn.Linear(2 * d, d, bias=False))
+        self.norm1 = nn.LayerNorm(d)
+        self.norm2 = nn.LayerNorm(d)
+
+    def forward(self, x, src):
+        n, l, c = x.shape
+        h = self.nhead
+        q = F.elu(self.q_proj(x).view(n, l, h, -1)) + 1
+        k = F.elu(self.k_proj(src).view(n, src.shape[1], h, -1)) + 1
+        v = self.v_proj(src).view(n, src.shape[1], h, -1) / src.shape[1]
+        kv = torch.einsum("nshd,nshv->nhdv", k, v)
+        z = 1 / (torch.einsum("nlhd,nhd->nlh", q, k.sum(1)) + 1e-6)
+        msg = torch.einsum("nlhd,nhdv,nlh->nlhv", q, kv, z) * src.shape[1]
+        msg = self.norm1(self.merge(msg.reshape(n, l, c)))
+        return x + self.norm2(self.mlp(torch.cat([x, msg], 2)))
+
+
+class Wrap(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.layers = nn.ModuleList([LoFTRLayer()])
+
+
+class Update(nn.Module):
+    def __init__(self):
+        super().__init__()
+        enc = nn.Module()
+        enc.convc1 = nn.Conv2d(36, 256, 1)
+        enc.convc2 = nn.Conv2d(256, 192, 3, 1, 1)
+        enc.convf1 = nn.Conv2d(2, 128, 7, 1, 3)
+        enc.convf2 = nn.Conv2d(128, 64, 3, 1, 1)
+        enc.conv = nn.Conv2d(256, 126, 3, 1, 1)
+        self.encoder = enc
+        gru = nn.Module()
+        for a in "zrq":
+            setattr(gru, f"conv{a}1", nn.Conv2d(384, 128, (1, 5), 1, (0, 2)))
+            setattr(gru, f"conv{a}2", nn.Conv2d(384, 128, (5, 1), 1, (2, 0)))
+        self.gru = gru
+        fh = nn.Module()
+        fh.conv1 = nn.Conv2d(128, 256, 3, 1, 1)
+        fh.conv2 = nn.Conv2d(256, 2, 3, 1, 1)
+        self.flow_head = fh
+        self.mask = nn.Sequential(nn.Conv2d(128, 256, 3, 1, 1), nn.ReLU(), nn.Conv2d(256, 144, 1))
+
+    def forward(self, net, inp, corr, flow):
+        e = self.encoder
+        c = F.relu(e.convc2(F.relu(e.convc1(corr))))
+        f = F.relu(e.convf2(F.relu(e.convf1(flow))))
+        motion = torch.cat([F.relu(e.conv(torch.cat([c, f], 1))), flow], 1)
+        x = torch.cat([inp, motion], 1)
+        g = self.gru
+        for i in "12":
+            hx = torch.cat([net, x], 1)
+            z = torch.sigmoid(getattr(g, "convz" + i)(hx))
+            r = torch.sigmoid(getattr(g, "convr" + i)(hx))
+            q = torch.tanh(getattr(g, "convq" + i)(torch.cat([r * net, x], 1)))
+            net = (1 - z) * net + z * q
+        fh = self.flow_head
+        return net, 0.25 * self.mask(net), fh.conv2(F.relu(fh.conv1(net)))
+
+
+def grid(n, h, w, dev):
+    ys, xs = torch.meshgrid(torch.arange(h, device=dev), torch.arange(w, device=dev), indexing="ij")
+    return torch.stack([xs, ys]).float()[None].expand(n, -1, -1, -1)
+
+
+def sample(img, x, y):
+    h, w = img.shape[-2:]
+    g = torch.stack([2 * x / (w - 1) - 1, 2 * y / (h - 1) - 1], -1)
+    return F.grid_sample(img, g, align_corners=True)
+
+
+def windows(square):
+    return [(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)] if square else [(dx, 0) for dx in range(-4, 5)]
+
+
+def corr_offset(l, r, flow, off, square):
+    n, c, h, w = l.shape
+    off = off.view(n, 9, 2, h, w)
+    g = grid(n, h, w, l.device)
+    x = torch.stack([g[:, 0] + flow[:, 0] + dx + off[:, k, 0] for k, (dx, dy) in enumerate(windows(square))], 1)
+    y = torch.stack([g[:, 1] + flow[:, 1] + dy + off[:, k, 1] for k, (dx, dy) in enumerate(windows(square))], 1)
+    s = sample(r, x.view(n, 9 * h, w), y.view(n, 9 * h, w)).view(n, 4, c // 4, 9, h, w)
+    return (l.view(n, 4, c // 4, 1, h, w) * s).mean(2).reshape(n, 36, h, w)
+
+
+def corr_warp(l, r, flow, square):
+    n, c, h, w = l.shape
+    g = grid(n, h, w, l.device)
+    rw = sample(r, g[:, 0] + flow[:, 0], g[:, 1] + flow[:, 1])
+    py, px = (1, 1) if square else (0, 4)
+    rp = F.pad(rw, (px, px, py, py), mode="replicate")
+    out = [(l * rp[:, :, dy + py:dy + py + h, dx + px:dx + px + w]).view(n, 4, c // 4, h, w).mean(2)
+           for dx, dy in windows(square)]
+    return torch.stack(out, 2).reshape(n, 36, h, w)
+
+
+def convex_up(flow, mask):
+    n, _, h, w = flow.shape
+    m = torch.softmax(mask.view(n, 1, 9, 4, 4, h, w), 2)
+    u = F.unfold(4 * flow, 3, padding=1).view(n, 2, 9, 1, 1, h, w)
+    return (m * u).sum(2).permute(0, 1, 4, 2, 5, 3).reshape(n, 2, 4 * h, 4 * w)
+
+
+def resize(x, size):
+    return F.interpolate(x, size=size, mode="bilinear", align_corners=True)
+
+
+def pos_enc(c, h, w, dev):
+    div = torch.exp(torch.arange(0, c // 2, 2).float() * -1.0)[:, None, None]
+    ypos = torch.ones(h, w).cumsum(0)[None]
+    xpos = torch.ones(h, w).cumsum(1)[None]
+    pe = torch.zeros(c, h, w)
+    pe[0::4], pe[1::4] = torch.sin(xpos * div), torch.cos(xpos * div)
+    pe[2::4], pe[3::4] = torch.sin(ypos * div), torch.cos(ypos * div)
+    return pe.to(dev)
+
+
+class CREStereo(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.fnet = Encoder()
+        self.update_block = Update()
+        self.self_att_fn = Wrap()
+        self.cross_att_fn = Wrap()
+        self.conv_offset_16 = nn.Conv2d(256, 18, 3, 1, 1)
+        self.conv_offset_8 = nn.Conv2d(256, 18, 3, 1, 1)
+
+    def forward(self, left, right, iters=10, flow_init=None):
+        n = left.shape[0]
+        f1, f2 = self.fnet(torch.cat([2 * (left / 255) - 1, 2 * (right / 255) - 1])).split(n)
+        h4, w4 = f1.shape[-2:]
+        f1_8, f2_8 = F.avg_pool2d(f1, 2), F.avg_pool2d(f2, 2)
+        off8 = (torch.sigmoid(self.conv_offset_8(f1_8)) - 0.5) * 2
+        net, inp = torch.tanh(f1[:, :128]), F.relu(f1[:, 128:])
+        net8, inp8 = F.avg_pool2d(net, 2), F.avg_pool2d(inp, 2)
+        f1_16, f2_16 = F.avg_pool2d(f1, 4), F.avg_pool2d(f2, 4)
+        off16 = (torch.sigmoid(self.conv_offset_16(f1_16)) - 0.5) * 2
+        net16, inp16 = F.avg_pool2d(net, 4), F.avg_pool2d(inp, 4)
+        h16, w16 = f1_16.shape[-2:]
+        pe = pos_enc(256, h16, w16, left.device)
+        tok = lambda t: t.flatten(2).transpose(1, 2)
+        untok = lambda t: t.transpose(1, 2).reshape(n, 256, h16, w16)
+        sa = self.self_att_fn.layers[0]
+        t1, t2 = tok(f1_16 + pe), tok(f2_16 + pe)
+        t1, t2 = sa(t1, t1), sa(t2, t2)
+        ca = self.cross_att_fn.layers[0]
+        preds = []
+        if flow_init is not None:
+            flow = -(h4 / flow_init.shape[2]) * resize(flow_init, (h4, w4))
+        else:
+            flow16 = torch.zeros(n, 2, h16, w16, device=left.device)
+            for i in range(iters // 2):
+                flow16 = flow16.detach()
+                a = ca(t1, t2)
+                b = ca(t2, a)
+                corr = corr_offset(untok(a), untok(b), flow16, off16, i % 2 == 1)
+                net16, mask, d = self.update_block(net16, inp16, corr, flow16)
+                flow16 = flow16 + d
+                flow = convex_up(flow16, mask)
+                preds.append(-4 * resize(flow, (4 * flow.shape[2], 4 * flow.shape[3])))
+            flow8 = -(f1_8.shape[2] / flow.shape[2]) * resize(flow, f1_8.shape[-2:])
+            for i in range(iters // 2):
+                flow8 = flow8.detach()
+                corr = corr_offset(f1_8, f2_8, flow8, off8, i % 2 == 1)
+                net8, mask, d = self.update_block(net8, inp8, corr, flow8)
+                flow8 = flow8 + d
+                flow = convex_up(flow8, mask)
+                preds.append(-2 * resize(flow, (2 * flow.shape[2], 2 * flow.shape[3])))
+            flow = -(h4 / flow.shape[2]) * resize(flow, (h4, w4))
+        for i in range(iters):
+            flow = flow.detach()
+            corr = corr_warp(f1, f2, flow, i % 2 == 1)
+            net, mask, d = self.update_block(net, inp, corr, flow)
+            flow = flow + d
+            preds.append(-convex_up(flow, mask))
+        return preds
+
+
+def seq_loss(preds, disp, valid, gamma):
+    gt = torch.stack([disp, torch.zeros_like(disp)], 1)
+    n = len(preds)
+    return sum(gamma ** (n - i - 1) * (valid[:, None] * (p - gt).abs()).mean() for i, p in enumerate(preds))
+
+
+def check(fixtures):
+    import numpy as np
+    m = CREStereo()
+    m.load_state_dict(torch.load(f"{fixtures}/weights_seed0.pt"))
+    t = f"{fixtures}/train_b2_64x128"
+    ld = lambda p: torch.from_numpy(np.load(p)).float()
+    preds = m(ld(f"{t}/left.npy"), ld(f"{t}/right.npy"), 10)
+    ref = ld(f"{t}/preds.npy")
+    print("max|pred - fixture|", max((p - r).abs().max().item() for p, r in zip(preds, ref)))
+    print("loss", seq_loss(preds, ld(f"{t}/gt_disp.npy"), ld(f"{t}/valid.npy"), 0.8).item())
+
+
+def bench(threads):
+    torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    what = sys.argv[3] if len(sys.argv) > 3 else "train"
+    m = CREStereo()
+    if what == "train":
+        opt = torch.optim.Adam(m.parameters(), lr=4e-4, betas=(0.9, 0.999), eps=1e-8)
+        l, r = torch.rand(2, 3, 384, 512) * 255, torch.rand(2, 3, 384, 512) * 255
+        disp, valid = torch.rand(2, 384, 512) * 64, torch.ones(2, 384, 512)
+        s = time.time()
+        loss = seq_loss(m(l, r, 10), disp, valid, 0.9)
+        fwd = time.time() - s
+        loss.backward()
+        bwd = time.time() - s - fwd
+        opt.step()
+        print(f"torch train step (batch 2, 384x512, iters 10, threads {threads}): forward {fwd:.2f}s, "
+              f"backward {bwd:.2f}s, total incl. Adam {time.time() - s:.2f}s, "
+              f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+    else:
+        l, r = torch.rand(1, 3, 480, 640) * 255, torch.rand(1, 3, 480, 640) * 255
+        with torch.inference_mode():
+            s = time.time()
+            p = m(resize(l, (240, 320)), resize(r, (240, 320)), 20)[-1]
+            m(l, r, 20, flow_init=p)
+        print(f"torch inference (1x480x640, two-pass, 20 iters, threads {threads}): {time.time() - s:.2f}s, "
+              f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+
+
+if __name__ == "__main__":
+    if sys.argv[1] == "check":
+        check(sys.argv[2])
+    else:
+        bench(int(sys.argv[2]) if len(sys.argv) > 2 else 2)
