@@ -148,20 +148,26 @@ pub fn read_disparity_exr(path: &Path) -> IoResult<(DisparityMap, DisparityMeta)
 
 /// [`read_disparity_exr`] from bytes already in memory; `path` names them in errors.
 pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap, DisparityMeta)> {
-    let layer = decode_flat(bytes, path)?;
+    let mut layer = decode_flat(bytes, path)?;
     let (width, height) = (layer.size.width(), layer.size.height());
-    let channels = &layer.channel_data.list;
-    let find = |name: &str| channels.iter().find(|c| c.name.to_string() == name);
-    let disp = find(DISPARITY_CHANNEL).or(if channels.len() == 1 { channels.first() } else { None }).ok_or_else(|| {
+    let channels = &mut layer.channel_data.list;
+    let position = |name: &str| channels.iter().position(|c| c.name.to_string() == name);
+    let (disp_at, valid_at) = (position(DISPARITY_CHANNEL).or(if channels.len() == 1 { Some(0) } else { None }), position(VALID_CHANNEL));
+    let disp_at = disp_at.ok_or_else(|| {
         let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
         Error::format(path, format!("no disparity channel `{DISPARITY_CHANNEL}` (channels: {})", names.join(", ")))
     })?;
-    let data = samples_f32(&disp.sample_data);
-    if data.iter().any(|d| d.is_nan()) {
-        return Err(Error::format(path, "disparity contains NaN"));
+    // Move the decoded samples out instead of copying them (8 MB for a 1080p map).
+    let data = match std::mem::replace(&mut channels[disp_at].sample_data, FlatSamples::F32(Vec::new())) {
+        FlatSamples::F32(v) => v,
+        other => samples_f32(&other),
+    };
+    if let Some(i) = data.iter().position(|d| d.is_nan()) {
+        return Err(Error::format(path, format!("disparity is NaN at pixel ({}, {}); NaN is not accepted", i % width.max(1), i / width.max(1))));
     }
-    let valid = match find(VALID_CHANNEL) {
-        Some(c) => samples_f32(&c.sample_data).iter().map(|&v| v > 0.5).collect(),
+    let valid = match valid_at.map(|i| &channels[i].sample_data) {
+        Some(FlatSamples::F16(v)) => v.iter().map(|x| x.to_f32() > 0.5).collect(),
+        Some(other) => samples_f32(other).iter().map(|&v| v > 0.5).collect(),
         None => data.iter().map(|&d| d.is_finite() && d > 0.0).collect(),
     };
     let view = match layer.attributes.other.get(&Text::from(ATTR_VIEW)) {

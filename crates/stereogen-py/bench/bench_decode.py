@@ -38,13 +38,10 @@ def with_pillow_openexr():
     return out
 
 
-def best(fn, *args):
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn(*args)
-        times.append(time.perf_counter() - t0)
-    return min(times), sorted(times)[len(times) // 2]
+def timed(fn, *args):
+    t0 = time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - t0
 
 
 ds = stereogen.open_dataset(str(root))
@@ -55,6 +52,12 @@ np.testing.assert_array_equal(a[0], b[0])
 np.testing.assert_array_equal(a[2], b[2])
 np.testing.assert_array_equal(a[3], b[3])
 np.testing.assert_array_equal(a[4], b[4])
-s_min, s_med = best(with_stereogen, ds)
-p_min, p_med = best(with_pillow_openexr)
+# Interleaved, so a load change on a shared machine hits both decoders alike.
+ts, tp = [], []
+for _ in range(repeats):
+    ts.append(timed(with_stereogen, ds))
+    tp.append(timed(with_pillow_openexr))
+ts.sort()
+tp.sort()
+s_min, s_med, p_min, p_med = ts[0], ts[len(ts) // 2], tp[0], tp[len(tp) // 2]
 print(json.dumps({"stereogen_min": s_min, "stereogen_median": s_med, "pillow_openexr_min": p_min, "pillow_openexr_median": p_med}))

@@ -119,28 +119,41 @@ fn main() {
     let bytes: u64 = walkdir(dir.path()).iter().map(|p| std::fs::metadata(p).unwrap().len()).sum();
 
     let ds = open_dataset(dir.path(), None).unwrap();
-    let mut times = vec![];
-    for _ in 0..repeats {
-        let t0 = Instant::now();
-        let s = ds.sample(0).unwrap();
-        times.push(t0.elapsed().as_secs_f64());
-        assert_eq!(s.left.width, W);
-    }
-    times.sort_by(f64::total_cmp);
-    let (rust_min, rust_med) = (times[0], times[times.len() / 2]);
-
+    let time_rust = |n: usize| -> Vec<f64> {
+        (0..n)
+            .map(|_| {
+                let t0 = Instant::now();
+                let s = ds.sample(0).unwrap();
+                assert_eq!(s.left.width, W);
+                t0.elapsed().as_secs_f64()
+            })
+            .collect()
+    };
+    let mut times = time_rust(repeats);
+    let stats = |t: &mut Vec<f64>| {
+        t.sort_by(f64::total_cmp);
+        (t[0], t[t.len() / 2])
+    };
+    let (rust_min, rust_med) = stats(&mut times.clone());
     if std::env::args().any(|a| a == "--rust-only") {
         println!("Rust stereo_io: best {:.1} ms, median {:.1} ms", rust_min * 1e3, rust_med * 1e3);
+        let best_of = |f: &dyn Fn()| (0..repeats).map(|_| { let t = Instant::now(); f(); t.elapsed().as_secs_f64() }).fold(f64::INFINITY, f64::min);
+        let cat = dir.path().join("bench");
+        println!("  one PNG, serial: {:.1} ms", 1e3 * best_of(&|| { read_rgb(&cat.join("0000000_left.png")).unwrap(); }));
+        println!("  one EXR, serial: {:.1} ms", 1e3 * best_of(&|| { read_disparity_exr(&cat.join("0000000_left.disp.exr")).unwrap(); }));
         return;
     }
     let venv = venv();
     install_module(&venv);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/bench_decode.py");
     let out = run(Command::new(venv.join("bin/python")).arg(script).arg(dir.path()).arg(repeats.to_string()), "bench_decode.py");
+    // Rust again after Python: half the runs on each side of it, against load drift.
+    times.extend(time_rust(repeats));
+    let (rust_min, rust_med) = stats(&mut times);
     let py: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
     let f = |k: &str| py[k].as_f64().unwrap();
     let decoded_mb = (W * H * (3 + 3 + 4 + 1 + 4 + 1)) as f64 / 1e6;
-    println!("One {W}x{H} sample: 2 PNG + 2 EXR, {:.1} MB on disk, {decoded_mb:.1} MB decoded; best / median of {repeats}, {} cores", bytes as f64 / 1e6, std::thread::available_parallelism().map_or(1, |n| n.get()));
+    println!("One {W}x{H} sample: 2 PNG + 2 EXR, {:.1} MB on disk, {decoded_mb:.1} MB decoded; best / median of {repeats} (Rust: {repeats} before and {repeats} after Python), {} cores", bytes as f64 / 1e6, std::thread::available_parallelism().map_or(1, |n| n.get()));
     println!("{:<34} {:>9} {:>9} {:>11}", "decoder", "best ms", "median ms", "samples/s");
     for (name, min, med) in [
         ("Rust stereo_io", rust_min, rust_med),
