@@ -262,6 +262,21 @@ fn unreadable_maps_and_plots() {
 }
 
 #[test]
+fn a_manifest_line_being_appended_is_left_out() {
+    let tmp = tempfile::tempdir().unwrap();
+    make_dataset(tmp.path(), Mode::Follows);
+    let path = tmp.path().join("manifest.jsonl");
+    let text = std::fs::read_to_string(&path).unwrap();
+    // Cut the last line in half, as a reader racing `generate`'s append would see it.
+    let cut = text.len() - text.lines().last().unwrap().len() / 2 - 1;
+    std::fs::write(&path, &text[..cut]).unwrap();
+    let (o, text, report) = stats(tmp.path(), &["--check"]);
+    assert!(o.status.success(), "{text}");
+    assert!(text.contains("ignoring an unfinished last line"), "{text}");
+    assert_eq!(report["samples"], SCENES - 1);
+}
+
+#[test]
 fn an_empty_dataset_does_not_pass() {
     let tmp = tempfile::tempdir().unwrap();
     make_dataset(tmp.path(), Mode::Follows);
