@@ -44,12 +44,14 @@ pub enum WorkerError {
     Protocol(String),
     #[error("scene failed in Blender: {0}")]
     Scene(String),
+    #[error("cannot create a scratch directory in {0}")]
+    Scratch(String),
 }
 
 impl WorkerError {
     /// Errors that will happen again for every sample: the whole run should stop.
     pub fn is_fatal(&self) -> bool {
-        matches!(self, WorkerError::Start { .. } | WorkerError::WrongVersion { .. })
+        matches!(self, WorkerError::Start { .. } | WorkerError::WrongVersion { .. } | WorkerError::Scratch(_))
     }
 }
 
@@ -268,7 +270,7 @@ impl RenderService {
             let scratch = tempfile::Builder::new()
                 .prefix("stereogen-")
                 .tempdir_in(&self.scratch)
-                .map_err(|e| WorkerError::Start { runtime: "scratch".into(), message: format!("cannot create a temp dir in {}: {e}", self.scratch.display()) })?;
+                .map_err(|e| WorkerError::Scratch(format!("{}: {e}", self.scratch.display())))?;
             let timeout = self.cfg.render_timeout;
             let outcome = self.ensure_worker().and_then(|w| w.render(spec, scratch.path(), fault(attempt), timeout));
             match outcome {
