@@ -126,7 +126,9 @@ fn fraction(a: u64, b: u64) -> f64 {
 }
 
 impl ObjectStats {
-    pub fn new(sample: &mut [f64], law: &Dist, alpha: f64) -> Self {
+    /// Non-finite targets (a broken SceneSpec) are left out.
+    pub fn new(sample: &mut Vec<f64>, law: &Dist, alpha: f64) -> Self {
+        sample.retain(|v| v.is_finite());
         sample.sort_by(f64::total_cmp);
         let n = sample.len();
         let (lo, hi) = law.support();
