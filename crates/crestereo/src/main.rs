@@ -55,6 +55,9 @@ enum Command {
         /// CPU threads (0 = all cores).
         #[arg(long, default_value_t = 0)]
         threads: usize,
+        /// Backend.
+        #[arg(long, value_enum, default_value_t = DeviceKind::Cpu)]
+        device: DeviceKind,
     },
     /// Time one training step and one inference (random weights and inputs).
     Bench {
@@ -69,6 +72,14 @@ enum Command {
         #[arg(long, value_delimiter = ',')]
         infer_size: Option<Vec<usize>>,
     },
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
+enum DeviceKind {
+    /// Flex CPU backend.
+    Cpu,
+    /// CUDA GPU 0 (needs the `cuda` feature).
+    Cuda,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
@@ -112,18 +123,28 @@ fn main() -> Result<()> {
             iters,
             stages,
             threads,
+            device,
         } => {
             set_threads(threads);
-            infer(
-                &left,
-                &right,
-                &output,
-                pfm.as_deref(),
-                viz.as_deref(),
-                weights.as_deref(),
+            let args = InferArgs {
+                left,
+                right,
+                output,
+                pfm,
+                viz,
+                weights,
                 iters,
-                stages as usize,
-            )
+                stages: stages as usize,
+            };
+            match device {
+                DeviceKind::Cpu => infer::<CpuBackend>(&args, &Default::default()),
+                #[cfg(feature = "cuda")]
+                DeviceKind::Cuda => infer::<burn::backend::Cuda>(&args, &Default::default()),
+                #[cfg(not(feature = "cuda"))]
+                DeviceKind::Cuda => {
+                    bail!("this build has no CUDA backend: rebuild with `--features cuda`")
+                }
+            }
         }
         Command::Bench {
             what,
@@ -160,17 +181,19 @@ fn main() -> Result<()> {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn infer(
-    left: &Path,
-    right: &Path,
-    output: &Path,
-    pfm: Option<&Path>,
-    viz: Option<&Path>,
-    weights: Option<&Path>,
+struct InferArgs {
+    left: PathBuf,
+    right: PathBuf,
+    output: PathBuf,
+    pfm: Option<PathBuf>,
+    viz: Option<PathBuf>,
+    weights: Option<PathBuf>,
     iters: usize,
     stages: usize,
-) -> Result<()> {
+}
+
+fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
+    let (left, right): (&Path, &Path) = (&a.left, &a.right);
     let l = read_bgr(left)?;
     let r = read_bgr(right)?;
     if (l.width, l.height) != (r.width, r.height) {
@@ -184,21 +207,32 @@ fn infer(
             r.height
         );
     }
-    let weights =
-        weights.context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
-    let device = Default::default();
-    let model = CREStereoConfig::new().init::<CpuBackend>(&device);
-    let model = load_weights(model, weights, &device)?;
+    let weights = a
+        .weights
+        .as_deref()
+        .context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
+    let model = CREStereoConfig::new().init::<B>(device);
+    let model = load_weights(model, weights, device)?;
     let t0 = Instant::now();
-    let disp = infer_disparity(&model, &l, &r, InferenceOptions { iters, stages }, &device)?;
+    let disp = infer_disparity(
+        &model,
+        &l,
+        &r,
+        InferenceOptions {
+            iters: a.iters,
+            stages: a.stages,
+        },
+        device,
+    )?;
     eprintln!(
         "inference {}x{} ({} stages, {} iters): {:.2}s",
         l.width,
         l.height,
-        stages,
-        iters,
+        a.stages,
+        a.iters,
         t0.elapsed().as_secs_f64()
     );
+    let output: &Path = &a.output;
     if output
         .extension()
         .and_then(|e| e.to_str())
@@ -208,10 +242,10 @@ fn infer(
     } else {
         write_exr(output, disp.width, disp.height, &disp.data)?;
     }
-    if let Some(p) = pfm {
+    if let Some(p) = &a.pfm {
         write_pfm(p, disp.width, disp.height, &disp.data)?;
     }
-    if let Some(v) = viz {
+    if let Some(v) = &a.viz {
         write_visualisation(v, disp.width, disp.height, &disp.data)?;
     }
     Ok(())
