@@ -67,7 +67,7 @@ pub fn quantize_png16(map: &DisparityMap, scale: f32) -> std::result::Result<Vec
             continue;
         }
         let q = (f64::from(d) * f64::from(scale)).round();
-        if !(q.is_finite() && q >= 0.0 && q <= 65535.0) || d < 0.0 {
+        if !(q.is_finite() && (0.0..=65535.0).contains(&q)) || d < 0.0 {
             let (x, y) = (i % map.width, i / map.width);
             return Err(format!("disparity {d} at pixel ({x}, {y}) does not fit a 16-bit PNG with scale {scale} (0..={})", 65535.0 / scale));
         }
