@@ -1,4 +1,4 @@
-//! Random and mutated bytes through the EXR, PFM and 16-bit PNG disparity readers: each must
+//! Random and mutated bytes through the EXR, PFM, 16-bit PNG disparity and .npy readers: each must
 //! return (Ok or an error naming the file), never panic. `STEREO_IO_FUZZ_CASES` raises the case
 //! count for a long run (the suite keeps a short one).
 
@@ -13,7 +13,7 @@ fn cases() -> u32 {
     std::env::var("STEREO_IO_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(300)
 }
 
-fn valid_files() -> (Vec<u8>, Vec<u8>, Vec<u8>) {
+fn valid_files() -> (Vec<u8>, Vec<u8>, Vec<u8>, Vec<u8>) {
     let dir = tempfile::tempdir().unwrap();
     let mut m = DisparityMap::new(13, 7);
     for (i, (d, v)) in m.data.iter_mut().zip(m.valid.iter_mut()).enumerate() {
@@ -25,7 +25,9 @@ fn valid_files() -> (Vec<u8>, Vec<u8>, Vec<u8>) {
     write_disparity_exr(&e, &m, &meta).unwrap();
     write_disparity_pfm(&p, &m).unwrap();
     write_disparity_png16(&n, &m, 32.0).unwrap();
-    (std::fs::read(e).unwrap(), std::fs::read(p).unwrap(), std::fs::read(n).unwrap())
+    let y = dir.path().join("a.npy");
+    write_disparity_npy(&y, &m).unwrap();
+    (std::fs::read(e).unwrap(), std::fs::read(p).unwrap(), std::fs::read(n).unwrap(), std::fs::read(y).unwrap())
 }
 
 /// Applies a mutation: overwrite bytes, truncate, or insert.
@@ -66,26 +68,28 @@ fn run_all(bytes: &[u8]) -> std::result::Result<(), TestCaseError> {
     check("f.exr", decode_disparity_exr(bytes, Path::new("f.exr")))?;
     check("f.pfm", decode_pfm(bytes, Path::new("f.pfm")))?;
     check("f.png", decode_disparity_png16(bytes, Path::new("f.png"), 32.0))?;
+    check("f.npy", stereo_io::npy::decode_npy(bytes, Path::new("f.npy")))?;
     Ok(())
 }
 
 #[test]
 fn readers_never_panic_on_mutated_files() {
-    let (exr, pfm, png) = valid_files();
+    let (exr, pfm, png, npy) = valid_files();
     // The unmutated files decode.
     decode_disparity_exr(&exr, Path::new("a.exr")).unwrap();
     decode_pfm(&pfm, Path::new("a.pfm")).unwrap();
     decode_disparity_png16(&png, Path::new("a.png"), 32.0).unwrap();
+    stereo_io::npy::decode_npy(&npy, Path::new("a.npy")).unwrap();
     let mut runner = TestRunner::new(Config { cases: cases(), failure_persistence: None, ..Config::default() });
     let strategy = (
-        0usize..3,
+        0usize..4,
         prop::collection::vec((any::<usize>(), any::<u8>()), 0..8),
         prop::option::of(any::<usize>()),
         prop::option::of((any::<usize>(), prop::collection::vec(any::<u8>(), 1..16))),
     );
     runner
         .run(&strategy, |(which, edits, cut, insert)| {
-            let base = [&exr, &pfm, &png][which];
+            let base = [&exr, &pfm, &png, &npy][which];
             run_all(&mutate(base, &edits, cut, insert))
         })
         .unwrap();
@@ -96,10 +100,10 @@ fn readers_never_panic_on_mutated_files() {
 fn readers_never_panic_on_random_bytes() {
     let mut runner = TestRunner::new(Config { cases: cases(), failure_persistence: None, ..Config::default() });
     // Random tails after each format's magic, so the parsers get past the first check.
-    let strategy = (0usize..4, prop::collection::vec(any::<u8>(), 0..512));
+    let strategy = (0usize..5, prop::collection::vec(any::<u8>(), 0..512));
     runner
         .run(&strategy, |(prefix, tail)| {
-            let magic: &[u8] = [&b""[..], b"\x76\x2f\x31\x01", b"Pf\n", b"\x89PNG\r\n\x1a\n"][prefix];
+            let magic: &[u8] = [&b""[..], b"\x76\x2f\x31\x01", b"Pf\n", b"\x89PNG\r\n\x1a\n", b"\x93NUMPY\x01\x00"][prefix];
             let mut bytes = magic.to_vec();
             bytes.extend_from_slice(&tail);
             run_all(&bytes)
