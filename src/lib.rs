@@ -89,3 +89,20 @@ pub fn write_tiny_recipe(dir: &std::path::Path, preset: &str) -> PathBuf {
     std::fs::write(&path, toml::to_string(&tiny_recipe(preset)).expect("recipes serialise")).expect("write recipe");
     path
 }
+
+/// Renders `count` scenes of the tiny `crestereo` recipe with the real CLI into `dir/<name>`.
+pub fn generate_tiny_dataset(dir: &std::path::Path, name: &str, count: u64, seed: u64) -> PathBuf {
+    let recipe = write_tiny_recipe(dir, "crestereo");
+    let out = dir.join(name);
+    let o = std::process::Command::new(stereogen_bin())
+        .args(["generate", "--no-progress", "--threads", "1", "--seed", &seed.to_string(), "--count", &count.to_string(), "--recipe"])
+        .arg(&recipe)
+        .arg("--out")
+        .arg(&out)
+        .env_remove("STEREOGEN_FAULT")
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("run stereogen");
+    assert!(o.status.success(), "generate failed: {}", String::from_utf8_lossy(&o.stderr));
+    out
+}

@@ -6,22 +6,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use stereo_io::{DatasetFormat, DisparityMap, open_dataset};
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::stereogen_bin;
 
 fn generate(dir: &Path) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, "crestereo");
-    let out = dir.join("ours");
-    let o = Command::new(stereogen_bin())
-        .args(["generate", "--no-progress", "--threads", "1", "--seed", "3", "--count", "2", "--recipe"])
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&out)
-        .env_remove("STEREOGEN_FAULT")
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "generate failed: {}", String::from_utf8_lossy(&o.stderr));
-    out
+    stereogen_e2e::generate_tiny_dataset(dir, "ours", 2, 3)
 }
 
 fn export(data: &Path, format: &str, out: &Path, extra: &[&str]) -> std::process::Output {

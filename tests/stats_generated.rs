@@ -9,24 +9,12 @@ use std::process::{Command, Output, Stdio};
 use serde_json::Value;
 use stereogen::dataset::{DatasetInfo, Manifest};
 use stereogen::plan::{Dist, SceneSpec};
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::stereogen_bin;
 
 const SCENES: u64 = 24;
 
 fn generate(dir: &Path) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, "crestereo");
-    let out = dir.join("data");
-    let o = Command::new(stereogen_bin())
-        .args(["generate", "--no-progress", "--seed", "3", "--count", &SCENES.to_string(), "--recipe"])
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&out)
-        .env_remove("STEREOGEN_FAULT")
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "generate failed: {}", String::from_utf8_lossy(&o.stderr));
-    out
+    stereogen_e2e::generate_tiny_dataset(dir, "data", SCENES, 3)
 }
 
 fn stats(data: &Path, out: &Path) -> (Output, String) {

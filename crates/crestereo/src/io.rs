@@ -1,6 +1,5 @@
 //! Image input and disparity output: BGR float images, float32 EXR / PFM, colourised PNG.
 
-use std::io::Write;
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
@@ -50,54 +49,30 @@ pub fn read_bgr(path: impl AsRef<Path>) -> Result<BgrImage> {
     })
 }
 
-/// Writes a single-channel float32 EXR (channel "Y").
-pub fn write_exr(path: impl AsRef<Path>, width: usize, height: usize, disp: &[f32]) -> Result<()> {
-    use exr::prelude::*;
-    let path = path.as_ref();
+/// A network prediction as a disparity map: every pixel carries a value, so every pixel is valid.
+fn prediction_map(width: usize, height: usize, disp: &[f32]) -> stereo_io::DisparityMap {
     assert_eq!(disp.len(), width * height);
-    let channel = AnyChannel::new("Y", FlatSamples::F32(disp.to_vec()));
-    let layer = Layer::new(
-        (width, height),
-        LayerAttributes::named("disparity"),
-        Encoding::FAST_LOSSLESS,
-        AnyChannels::sort(vec![channel].into()),
-    );
-    Image::from_layer(layer)
-        .write()
-        .to_file(path)
-        .map_err(|e| anyhow::anyhow!("writing EXR {}: {e}", path.display()))
+    stereo_io::DisparityMap { width, height, data: disp.to_vec(), valid: vec![true; disp.len()] }
 }
 
-/// Reads the first float channel of an EXR written by [`write_exr`]. Returns (w, h, data).
-pub fn read_exr(path: impl AsRef<Path>) -> Result<(usize, usize, Vec<f32>)> {
-    use exr::prelude::*;
+/// Writes a float32 disparity EXR through `stereo-io` (channel `Y`, `valid` all 1).
+pub fn write_exr(path: impl AsRef<Path>, width: usize, height: usize, disp: &[f32]) -> Result<()> {
     let path = path.as_ref();
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .map_err(|e| anyhow::anyhow!("reading EXR {}: {e}", path.display()))?;
-    let size = image.layer_data.size;
-    let ch = &image.layer_data.channel_data.list[0];
-    let data: Vec<f32> = ch.sample_data.values_as_f32().collect();
-    Ok((size.x(), size.y(), data))
+    stereo_io::write_atomically(path, |tmp| stereo_io::write_disparity_exr(tmp, &prediction_map(width, height, disp), &stereo_io::DisparityMeta::default()))?;
+    Ok(())
 }
 
-/// Writes a little-endian greyscale PFM (rows bottom-to-top, as the format requires).
+/// Reads a disparity EXR (ours, or any single-channel float EXR). Returns (w, h, data).
+pub fn read_exr(path: impl AsRef<Path>) -> Result<(usize, usize, Vec<f32>)> {
+    let (map, _) = stereo_io::read_disparity_exr(path.as_ref())?;
+    Ok((map.width, map.height, map.data))
+}
+
+/// Writes a little-endian greyscale PFM (rows bottom-to-top) through `stereo-io`.
 pub fn write_pfm(path: impl AsRef<Path>, width: usize, height: usize, disp: &[f32]) -> Result<()> {
     let path = path.as_ref();
-    assert_eq!(disp.len(), width * height);
-    let mut out = Vec::with_capacity(32 + 4 * disp.len());
-    write!(out, "Pf\n{width} {height}\n-1.0\n")?;
-    for row in (0..height).rev() {
-        for v in &disp[row * width..(row + 1) * width] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    std::fs::write(path, out).with_context(|| format!("writing PFM {}", path.display()))
+    stereo_io::write_atomically(path, |tmp| stereo_io::write_disparity_pfm(tmp, &prediction_map(width, height, disp)))?;
+    Ok(())
 }
 
 /// A perceptual blue→cyan→green→yellow→red ramp, `t` in 0..1.
