@@ -9,8 +9,10 @@ fn generate_help_explains_every_flag() {
     assert!(out.status.success());
     let help = String::from_utf8(out.stdout).unwrap();
     for flag in ["--recipe", "--out", "--count", "--seed", "--start", "--shard", "--workers", "--blender", "--device", "--threads", "--timeout", "--retries", "--no-progress"] {
-        let line = help.lines().find(|l| l.trim_start().starts_with(flag) || l.contains(&format!(" {flag} "))).unwrap_or_else(|| panic!("{flag} missing from help:\n{help}"));
-        let _ = line;
+        // Every flag has a line of its own, followed by an explanation.
+        let at = help.lines().position(|l| l.trim_start().starts_with(flag)).unwrap_or_else(|| panic!("{flag} missing from help:\n{help}"));
+        let explained = help.lines().nth(at).is_some_and(|l| l.trim_start().len() > flag.len() + 12) || help.lines().nth(at + 1).is_some_and(|l| !l.trim().is_empty() && !l.trim_start().starts_with('-'));
+        assert!(explained, "{flag} has no explanation:\n{help}");
     }
     assert!(help.contains("resumes"), "{help}");
 }

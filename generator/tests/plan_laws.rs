@@ -2,7 +2,7 @@
 
 use stereogen::assets::AssetIndex;
 use stereogen::plan::dist::{Shaped, ks_critical, ks_distance};
-use stereogen::plan::recipe::{PRESETS, ShapeSource};
+use stereogen::plan::recipe::PRESETS;
 use stereogen::plan::rig::View;
 use stereogen::plan::{Dist, ObjectRole, Recipe, Shape, plan_scene};
 
@@ -85,7 +85,6 @@ fn categories_and_sources_appear_as_weighted() {
         assert!(sources.contains(s), "{s} missing from {sources:?}");
     }
     assert!(!sources.contains("shapenet"));
-    let _ = ShapeSource::Shapenet;
 }
 
 #[test]
