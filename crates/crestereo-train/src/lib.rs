@@ -1,0 +1,5 @@
+//! Training and evaluation of CREStereo (work in progress: the evaluation metrics come first).
+//!
+//! - [`metrics`]: the stereo error metrics of the paper and the public benchmarks.
+
+pub mod metrics;
