@@ -26,6 +26,6 @@ pub use error::{Error, Result};
 pub use exr_io::{decode_disparity_exr, read_depth_channel, read_disparity_exr, write_disparity_exr};
 pub use formats::{DisparityFormat, read_disparity, write_disparity};
 pub use image_io::{Image, RgbImage, Samples, read_image, read_rgb, write_jpeg_rgb, write_png, write_png_rgb};
-pub use npy::{NpyArray, read_disparity_npy, read_npy, write_disparity_npy, write_npy};
+pub use npy::{NpyArray, read_disparity_npy, read_npy, read_npz, write_disparity_npy, write_npy};
 pub use pfm::{Endian, FloatImage, decode_pfm, read_disparity_pfm, read_pfm, write_disparity_pfm, write_pfm};
 pub use png_disp::{CRESTEREO_SCALE, KITTI_SCALE, decode_disparity_png16, read_disparity_png16, read_disparity_sintel, write_disparity_png16, write_disparity_sintel};

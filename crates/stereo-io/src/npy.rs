@@ -16,6 +16,25 @@ pub struct NpyArray {
     pub data: Vec<f32>,
 }
 
+/// Reads every array of a NumPy `.npz` archive (stored or deflated), names without `.npy`,
+/// in archive order.
+pub fn read_npz(path: &Path) -> Result<Vec<(String, NpyArray)>> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let bad = |m: String| Error::format(path, format!("not a valid .npz archive: {m}"));
+    let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| bad(e.to_string()))?;
+    let mut out = Vec::with_capacity(archive.len());
+    for i in 0..archive.len() {
+        let mut entry = archive.by_index(i).map_err(|e| bad(e.to_string()))?;
+        let name = entry.name().trim_end_matches(".npy").to_string();
+        let mut bytes = Vec::with_capacity(entry.size() as usize);
+        entry.read_to_end(&mut bytes).map_err(|e| bad(format!("{name}: {e}")))?;
+        let array = decode_npy(&bytes, &path.join(&name)).map_err(|e| bad(format!("{name}: {e}")))?;
+        out.push((name, array));
+    }
+    Ok(out)
+}
+
 pub fn read_npy(path: &Path) -> Result<NpyArray> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     decode_npy(&bytes, path)
