@@ -30,28 +30,8 @@ struct Cli {
 enum Command {
     /// Estimate the disparity of a rectified pair (left view).
     Infer {
-        /// Left image (PNG/JPEG).
-        left: PathBuf,
-        /// Right image (PNG/JPEG).
-        right: PathBuf,
-        /// Output disparity: float32 EXR (channel "Y"), or PFM if the name ends in .pfm.
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Also write a PFM copy here.
-        #[arg(long)]
-        pfm: Option<PathBuf>,
-        /// Colourised disparity PNG with a colour bar.
-        #[arg(long)]
-        viz: Option<PathBuf>,
-        /// Weights: a reference PyTorch state dict (.pt/.pth) or a Burn record (.mpk).
-        #[arg(long, env = "CRESTEREO_WEIGHTS")]
-        weights: Option<PathBuf>,
-        /// Refinement iterations per pass.
-        #[arg(long, default_value_t = 20)]
-        iters: usize,
-        /// Stacked cascades: 1, 2 (reference test procedure) or 3.
-        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
-        stages: u8,
+        #[command(flatten)]
+        args: InferArgs,
         /// CPU threads (0 = all cores).
         #[arg(long, default_value_t = 0)]
         threads: usize,
@@ -113,29 +93,8 @@ fn peak_rss_mib() -> f64 {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Infer {
-            left,
-            right,
-            output,
-            pfm,
-            viz,
-            weights,
-            iters,
-            stages,
-            threads,
-            device,
-        } => {
+        Command::Infer { args, threads, device } => {
             set_threads(threads);
-            let args = InferArgs {
-                left,
-                right,
-                output,
-                pfm,
-                viz,
-                weights,
-                iters,
-                stages: stages as usize,
-            };
             match device {
                 DeviceKind::Cpu => infer::<CpuBackend>(&args, &Default::default()),
                 #[cfg(feature = "cuda")]
@@ -181,15 +140,30 @@ fn main() -> Result<()> {
     }
 }
 
+#[derive(Debug, clap::Args)]
 struct InferArgs {
+    /// Left image (PNG/JPEG).
     left: PathBuf,
+    /// Right image (PNG/JPEG).
     right: PathBuf,
+    /// Output disparity: float32 EXR (channel "Y"), or PFM if the name ends in .pfm.
+    #[arg(short, long)]
     output: PathBuf,
+    /// Also write a PFM copy here.
+    #[arg(long)]
     pfm: Option<PathBuf>,
+    /// Colourised disparity PNG with a colour bar.
+    #[arg(long)]
     viz: Option<PathBuf>,
+    /// Weights: a reference PyTorch state dict (.pt/.pth) or a Burn record (.mpk).
+    #[arg(long, env = "CRESTEREO_WEIGHTS")]
     weights: Option<PathBuf>,
+    /// Refinement iterations per pass.
+    #[arg(long, default_value_t = 20)]
     iters: usize,
-    stages: usize,
+    /// Stacked cascades: 1, 2 (reference test procedure) or 3.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
+    stages: u8,
 }
 
 fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
@@ -220,7 +194,7 @@ fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
         &r,
         InferenceOptions {
             iters: a.iters,
-            stages: a.stages,
+            stages: usize::from(a.stages),
         },
         device,
     )?;
@@ -228,7 +202,7 @@ fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
         "inference {}x{} ({} stages, {} iters): {:.2}s",
         l.width,
         l.height,
-        a.stages,
+        usize::from(a.stages),
         a.iters,
         t0.elapsed().as_secs_f64()
     );
