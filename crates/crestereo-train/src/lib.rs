@@ -1,7 +1,23 @@
-//! Training and evaluation of CREStereo (work in progress: the evaluation metrics come first).
+//! Training and evaluation of CREStereo, and the `crestereo` command.
 //!
-//! - [`metrics`]: the stereo error metrics of the paper and the public benchmarks.
-//! - [`schedule`]: the learning-rate schedule (warm-up, constant, linear decay).
+//! - [`config`]: the training config (TOML), defaulting to the paper's recipe.
+//! - [`data`]: datasets mixed by weight, decoded and augmented ahead of the step, deterministic.
+//! - [`augment`]: the reference augmentation, one unit per transform.
+//! - [`train`]: the loop — sequence loss with a non-finite guard, gradient accumulation, Adam on
+//!   the [`schedule`], [`checkpoint`]s with exact resume, CSV and [`tensorboard`] logs.
+//! - [`eval`] and [`metrics`]: EPE, RMS, Bad-τ, D1, A50–A99, mxIoU over any dataset.
+//! - [`synthetic`]: analytic stereo pairs for tests and quick checks.
+//! - [`cli`]: `crestereo infer | train | eval | plot | bench`.
 
+pub mod augment;
+pub mod checkpoint;
+pub mod cli;
+pub mod config;
+pub mod data;
+pub mod eval;
 pub mod metrics;
+pub mod plot;
 pub mod schedule;
+pub mod synthetic;
+pub mod tensorboard;
+pub mod train;

@@ -1,0 +1,97 @@
+//! `crestereo eval`: weights × dataset → printed table, JSON report, per-image CSV.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use burn::prelude::*;
+use crestereo::CREStereoConfig;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::checkpoint::weights_file;
+use crate::eval::{EvalOptions, evaluate};
+
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Dataset root (any layout stereo-io reads).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Force the dataset layout instead of detecting it.
+    #[arg(long)]
+    pub format: Option<String>,
+    /// Weights: .pt/.pth (reference), .mpk, a checkpoint directory, or a run (newest checkpoint).
+    #[arg(long, env = "CRESTEREO_WEIGHTS")]
+    pub weights: Option<PathBuf>,
+    /// Evaluate an untrained network initialised with this seed (a baseline) instead of weights.
+    #[arg(long, conflicts_with = "weights")]
+    pub untrained_seed: Option<u64>,
+    #[arg(long, default_value_t = 20)]
+    pub iters: usize,
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
+    pub stages: u8,
+    /// Evaluate at most N samples (0 = all).
+    #[arg(long, default_value_t = 0)]
+    pub limit: usize,
+    /// Foreground masks `<DIR>/<sample id>.png` for mxIoU / mxIoUbd.
+    #[arg(long)]
+    pub fg_masks: Option<PathBuf>,
+    /// Boundary band p of mxIoUbd.
+    #[arg(long, default_value_t = 4)]
+    pub boundary: usize,
+    /// The JSON report.
+    #[arg(long, default_value = "eval.json")]
+    pub json: PathBuf,
+    /// The per-image CSV (default: beside the JSON, `<name>.per_image.csv`).
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+}
+
+pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
+    let format = a.format.as_deref().map(|f| f.parse().map_err(|e: String| anyhow::anyhow!("--format: {e}"))).transpose()?;
+    let dataset = stereo_io::open_dataset(&a.data, format).with_context(|| format!("cannot open {}", a.data.display()))?;
+    if dataset.is_empty() {
+        bail!("{} holds no samples", a.data.display());
+    }
+    let (model, weights) = match (&a.weights, a.untrained_seed) {
+        (Some(w), _) => {
+            let file = weights_file(w)?;
+            let model = crestereo::weights::load_weights(CREStereoConfig::new().init::<B>(device), &file, device)?;
+            (model, file.display().to_string())
+        }
+        (None, Some(seed)) => {
+            B::seed(device, seed);
+            (CREStereoConfig::new().init::<B>(device), format!("untrained (seed {seed})"))
+        }
+        (None, None) => bail!("no weights: pass --weights FILE|CHECKPOINT|RUN (or --untrained-seed N for a baseline)"),
+    };
+    if let Some(dir) = &a.fg_masks
+        && !dir.is_dir()
+    {
+        bail!("--fg-masks {}: not a directory", dir.display());
+    }
+    let opts = EvalOptions {
+        iters: a.iters,
+        stages: usize::from(a.stages),
+        limit: a.limit,
+        fg_masks: a.fg_masks.clone(),
+        boundary_px: a.boundary,
+        ..EvalOptions::default()
+    };
+    let n = if a.limit > 0 { dataset.len().min(a.limit) } else { dataset.len() };
+    let bar = ProgressBar::new(n as u64);
+    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    let report = evaluate(&model, dataset.as_ref(), &weights, &opts, device, |i, _, r| {
+        bar.set_position(i as u64);
+        if let Some(m) = r.all {
+            bar.set_message(format!("{}: EPE {:.3}", r.id, m.epe));
+        }
+    })?;
+    bar.finish_and_clear();
+    let csv = a.csv.clone().unwrap_or_else(|| a.json.with_extension("per_image.csv"));
+    report.write(&a.json, &csv)?;
+    print!("{}", report.table());
+    eprintln!("wrote {} and {}", a.json.display(), csv.display());
+    if report.images == 0 {
+        bail!("no image could be evaluated ({} failed)", report.failed.len());
+    }
+    Ok(())
+}

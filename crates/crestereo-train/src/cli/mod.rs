@@ -1,0 +1,208 @@
+//! The `crestereo` command line: `infer`, `train`, `eval`, `plot` and `bench`.
+
+mod bench;
+mod eval;
+mod infer;
+mod train;
+
+use std::process::ExitCode;
+
+use anyhow::{Result, bail};
+use clap::{Parser, Subcommand, ValueEnum};
+use crestereo::{CpuAutodiffBackend, CpuBackend};
+
+#[derive(Parser, Debug)]
+#[command(name = "crestereo", version, about = "CREStereo stereo matching on Burn: inference, training, evaluation")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Estimate the disparity of a rectified pair (left view).
+    Infer {
+        #[command(flatten)]
+        args: infer::InferArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// Train (or continue training) a model on stereogen output and public stereo datasets.
+    Train {
+        #[command(flatten)]
+        args: train::TrainArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// Evaluate weights on a dataset: EPE, RMS, Bad-τ, D1, A50–A99, mxIoU; JSON + per-image CSV.
+    Eval {
+        #[command(flatten)]
+        args: eval::EvalArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// Draw a run's loss and validation curves as a PNG.
+    Plot {
+        /// The training run directory (reads train_log.csv and val_log.csv).
+        run: std::path::PathBuf,
+        /// Output PNG.
+        #[arg(short, long)]
+        out: std::path::PathBuf,
+        /// Moving-average window (steps) of the smoothed loss line.
+        #[arg(long, default_value_t = 25)]
+        smooth: usize,
+    },
+    /// Write analytic stereo pairs (two textured planes, exact disparity for both views) in the
+    /// CREStereo layout: a smoke test of a training setup without rendering anything.
+    Synth {
+        #[arg(long)]
+        out: std::path::PathBuf,
+        #[arg(long, default_value_t = 8)]
+        count: usize,
+        /// Image size HxW.
+        #[arg(long, default_value = "64x128")]
+        size: String,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// Time one training step and one inference (random weights and inputs).
+    Bench {
+        #[arg(long, value_enum, default_value_t = BenchWhat::All)]
+        what: BenchWhat,
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Training-step size override: batch,height,width,iters (default 2,384,512,10).
+        #[arg(long, value_delimiter = ',')]
+        train_size: Option<Vec<usize>>,
+        /// Inference size override: height,width (default 480,640).
+        #[arg(long, value_delimiter = ',')]
+        infer_size: Option<Vec<usize>>,
+    },
+}
+
+#[derive(Debug, clap::Args)]
+struct BackendArgs {
+    /// CPU threads for tensor work (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Backend, chosen at run time.
+    #[arg(long, value_enum, default_value_t = DeviceKind::Cpu)]
+    device: DeviceKind,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
+enum DeviceKind {
+    /// Flex CPU backend.
+    Cpu,
+    /// CUDA GPU 0 (needs a build with `--features cuda`).
+    Cuda,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
+enum BenchWhat {
+    All,
+    Train,
+    Infer,
+}
+
+fn set_threads(n: usize) {
+    if n > 0 {
+        // SAFETY: called at start-up before any other thread exists.
+        unsafe { std::env::set_var("RAYON_NUM_THREADS", n.to_string()) };
+    }
+}
+
+/// Runs `$body` with `B` bound to the chosen backend (`$ad` for autodiff, `$plain` otherwise).
+macro_rules! with_backend {
+    ($kind:expr, $ad:tt, |$b:ident| $body:expr) => {
+        match $kind {
+            DeviceKind::Cpu => {
+                type $b = with_backend!(@cpu $ad);
+                $body
+            }
+            #[cfg(feature = "cuda")]
+            DeviceKind::Cuda => {
+                type $b = with_backend!(@cuda $ad);
+                $body
+            }
+            #[cfg(not(feature = "cuda"))]
+            DeviceKind::Cuda => bail!("this build has no CUDA backend: rebuild with `--features cuda`"),
+        }
+    };
+    (@cpu true) => { CpuAutodiffBackend };
+    (@cpu false) => { CpuBackend };
+    (@cuda true) => { burn::backend::Autodiff<burn::backend::Cuda> };
+    (@cuda false) => { burn::backend::Cuda };
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Infer { args, backend } => {
+            set_threads(backend.threads);
+            with_backend!(backend.device, false, |B| infer::infer::<B>(&args, &Default::default()))
+        }
+        Command::Train { args, backend } => {
+            set_threads(backend.threads);
+            with_backend!(backend.device, true, |B| train::run::<B>(&args, &Default::default()))
+        }
+        Command::Eval { args, backend } => {
+            set_threads(backend.threads);
+            with_backend!(backend.device, false, |B| eval::run::<B>(&args, &Default::default()))
+        }
+        Command::Plot { run, out, smooth } => {
+            crate::plot::plot_run(&run, &out, smooth)?;
+            eprintln!("wrote {}", out.display());
+            Ok(())
+        }
+        Command::Synth { out, count, size, seed } => {
+            let [h, w] = train::parse_crop(&size)?;
+            crate::synthetic::write_crestereo_dataset(&out, count, w, h, seed)?;
+            eprintln!("wrote {count} pairs of {w}x{h} to {}", out.display());
+            Ok(())
+        }
+        Command::Bench { what, threads, train_size, infer_size } => {
+            set_threads(threads);
+            let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
+            let is = infer_size.unwrap_or_else(|| vec![480, 640]);
+            if ts.len() != 4 || is.len() != 2 {
+                bail!("--train-size takes batch,height,width,iters and --infer-size height,width");
+            }
+            match what {
+                BenchWhat::Train => bench::bench_train(ts[0], ts[1], ts[2], ts[3]),
+                BenchWhat::Infer => bench::bench_infer(is[0], is[1]),
+                BenchWhat::All => {
+                    // Separate processes, so each peak RSS is its own.
+                    let exe = std::env::current_exe()?;
+                    let ts: Vec<String> = ts.iter().map(|v| v.to_string()).collect();
+                    let is: Vec<String> = is.iter().map(|v| v.to_string()).collect();
+                    for w in ["train", "infer"] {
+                        let status = std::process::Command::new(&exe)
+                            .args(["bench", "--what", w, "--threads", &threads.to_string()])
+                            .args(["--train-size", &ts.join(","), "--infer-size", &is.join(",")])
+                            .status()?;
+                        if !status.success() {
+                            bail!("bench {w} failed");
+                        }
+                    }
+                    Ok(())
+                }
+            }
+        }
+    }
+}
+
+/// The whole program: parse, run, print the error chain on failure.
+pub fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("CRESTEREO_LOG").unwrap_or_else(|_| "info".into()))
+        .with_writer(std::io::stderr)
+        .without_time()
+        .init();
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

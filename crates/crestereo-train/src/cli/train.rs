@@ -1,0 +1,209 @@
+//! `crestereo train`: a config file and/or flags → [`crate::train::train`].
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use burn::tensor::backend::AutodiffBackend;
+
+use crate::config::{DatasetEntry, TrainConfig, ValidationSettings};
+use crate::train::{TrainOptions, train};
+
+#[derive(Debug, clap::Args)]
+pub struct TrainArgs {
+    /// The run directory: config copy, logs, TensorBoard events, checkpoints.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training config (TOML). Without it the paper's recipe is used; flags below override it.
+    /// With --resume and no --config, the run's own config.toml is used.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Training data, repeatable: DIR, DIR:FORMAT or DIR:FORMAT@WEIGHT (e.g. ours@98 and
+    /// mb:middlebury@2). Replaces the config's datasets.
+    #[arg(long = "data", value_name = "DIR[:FORMAT][@WEIGHT]")]
+    pub data: Vec<String>,
+    /// Held-out data evaluated every --val-every steps.
+    #[arg(long)]
+    pub val: Option<PathBuf>,
+    #[arg(long)]
+    pub val_every: Option<u64>,
+    /// Validation samples at most (0 = all).
+    #[arg(long)]
+    pub val_limit: Option<usize>,
+    /// Continue the run from its newest checkpoint (model, optimiser, schedule, data position).
+    #[arg(long)]
+    pub resume: bool,
+    /// Total optimiser steps of the run (the schedule spans them unless the config fixes it).
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Stop after this step, with a checkpoint, leaving the schedule as if the run went on.
+    #[arg(long)]
+    pub stop_at: Option<u64>,
+    #[arg(long)]
+    pub batch_size: Option<usize>,
+    #[arg(long)]
+    pub accumulate: Option<usize>,
+    /// Training crop, HxW (multiples of 16).
+    #[arg(long, value_name = "HxW")]
+    pub crop: Option<String>,
+    #[arg(long)]
+    pub iters: Option<usize>,
+    #[arg(long)]
+    pub lr: Option<f64>,
+    #[arg(long)]
+    pub warmup_steps: Option<u64>,
+    #[arg(long)]
+    pub decay_start: Option<u64>,
+    #[arg(long)]
+    pub gamma: Option<f64>,
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Data loader threads.
+    #[arg(long)]
+    pub workers: Option<usize>,
+    #[arg(long)]
+    pub checkpoint_every: Option<u64>,
+    /// Checkpoints kept.
+    #[arg(long)]
+    pub keep: Option<usize>,
+    /// Start from these weights (.pt / .mpk) instead of a random init.
+    #[arg(long)]
+    pub init_weights: Option<PathBuf>,
+    /// Hide the progress bar.
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+fn parse_data(spec: &str) -> Result<DatasetEntry> {
+    let (rest, weight) = match spec.rsplit_once('@') {
+        Some((r, w)) => (r, w.parse::<f64>().with_context(|| format!("--data {spec}: weight `{w}` is not a number"))?),
+        None => (spec, 1.0),
+    };
+    let (path, format) = match rest.rsplit_once(':') {
+        Some((p, f)) if !f.contains('/') => (p, Some(f.to_string())),
+        _ => (rest, None),
+    };
+    let path = std::path::absolute(path).with_context(|| format!("--data {spec}"))?;
+    Ok(DatasetEntry { path, format, weight })
+}
+
+pub fn parse_crop(s: &str) -> Result<[usize; 2]> {
+    let (h, w) = s.split_once(['x', 'X']).with_context(|| format!("--crop {s}: expected HxW, e.g. 384x512"))?;
+    Ok([h.trim().parse().with_context(|| format!("--crop {s}"))?, w.trim().parse().with_context(|| format!("--crop {s}"))?])
+}
+
+/// The config a run uses: file (or the run's stored one on resume) then flags.
+pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
+    let stored = a.out.join("config.toml");
+    let mut cfg = match (&a.config, a.resume && stored.is_file()) {
+        (Some(path), _) => TrainConfig::from_file(path)?,
+        (None, true) => {
+            let text = std::fs::read_to_string(&stored)?;
+            toml::from_str(&text).with_context(|| format!("corrupt {}", stored.display()))?
+        }
+        (None, false) => TrainConfig::default(),
+    };
+    if !a.data.is_empty() {
+        cfg.datasets = a.data.iter().map(|s| parse_data(s)).collect::<Result<_>>()?;
+    }
+    if let Some(v) = &a.val {
+        let path = std::path::absolute(v)?;
+        cfg.validation = Some(match cfg.validation.take() {
+            Some(old) => ValidationSettings { path, ..old },
+            None => ValidationSettings { path, format: None, every: 5000, limit: 0, iters: 20, stages: 2 },
+        });
+    }
+    if let Some(val) = cfg.validation.as_mut() {
+        if let Some(e) = a.val_every {
+            val.every = e;
+        }
+        if let Some(l) = a.val_limit {
+            val.limit = l;
+        }
+    } else if a.val_every.is_some() || a.val_limit.is_some() {
+        bail!("--val-every / --val-limit need validation data (--val DIR or [validation] in the config)");
+    }
+    macro_rules! set {
+        ($field:expr, $flag:expr) => {
+            if let Some(v) = $flag {
+                $field = v;
+            }
+        };
+    }
+    set!(cfg.steps, a.steps);
+    set!(cfg.batch_size, a.batch_size);
+    set!(cfg.accumulate, a.accumulate);
+    set!(cfg.iters, a.iters);
+    set!(cfg.gamma, a.gamma);
+    set!(cfg.seed, a.seed);
+    set!(cfg.schedule.lr, a.lr);
+    set!(cfg.schedule.warmup_steps, a.warmup_steps);
+    set!(cfg.schedule.decay_start, a.decay_start);
+    set!(cfg.loader.workers, a.workers);
+    set!(cfg.checkpoint.every, a.checkpoint_every);
+    set!(cfg.checkpoint.keep, a.keep);
+    if let Some(c) = &a.crop {
+        cfg.augment.crop = parse_crop(c)?;
+    }
+    if let Some(w) = &a.init_weights {
+        cfg.init_weights = Some(std::path::absolute(w)?);
+    }
+    // A shortened run keeps the paper's phases in proportion rather than failing validation.
+    if a.steps.is_some() && a.config.is_none() && a.decay_start.is_none() && cfg.schedule.decay_start > cfg.steps {
+        let s = cfg.steps as f64;
+        cfg.schedule.warmup_steps = a.warmup_steps.unwrap_or((s * 0.02).round() as u64);
+        cfg.schedule.decay_start = (s * 0.6).round() as u64;
+        tracing::info!(
+            "schedule scaled to {} steps: warm-up {}, decay from {} (the paper's 6k/180k of 300k)",
+            cfg.steps,
+            cfg.schedule.warmup_steps,
+            cfg.schedule.decay_start
+        );
+    }
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+pub fn run<B: AutodiffBackend>(a: &TrainArgs, device: &B::Device) -> Result<()> {
+    let cfg = build_config(a)?;
+    let eff = cfg.batch_size * cfg.accumulate;
+    tracing::info!(
+        "training {} steps, batch {} × {} = {eff}, crop {}x{}, iters {}, lr {:e}, run {}",
+        cfg.steps,
+        cfg.batch_size,
+        cfg.accumulate,
+        cfg.augment.crop[0],
+        cfg.augment.crop[1],
+        cfg.iters,
+        cfg.schedule.lr,
+        a.out.display()
+    );
+    let opts = TrainOptions { resume: a.resume, progress: !a.no_progress, stop_at: a.stop_at };
+    let out = train::<B>(&cfg, &a.out, &opts, device)?;
+    eprintln!(
+        "step {} of {}: loss {} → {}, {:.2} samples/s, {} skipped steps{}",
+        out.step,
+        cfg.steps,
+        out.first_loss.map_or("-".into(), |l| format!("{l:.4}")),
+        out.last_loss.map_or("-".into(), |l| format!("{l:.4}")),
+        out.samples_per_s,
+        out.skipped_steps,
+        out.checkpoint.map_or(String::new(), |c| format!(", checkpoint {}", c.display()))
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn data_specs() {
+        let d = parse_data("/x/ours@98").unwrap();
+        assert_eq!((d.path, d.format, d.weight), (PathBuf::from("/x/ours"), None, 98.0));
+        let d = parse_data("/x/mb:middlebury@2").unwrap();
+        assert_eq!((d.format.as_deref(), d.weight), (Some("middlebury"), 2.0));
+        assert!(parse_data("/x@abc").unwrap_err().to_string().contains("weight"));
+        assert_eq!(parse_crop("128x256").unwrap(), [128, 256]);
+        assert!(parse_crop("128").is_err());
+    }
+}

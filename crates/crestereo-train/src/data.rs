@@ -1,0 +1,381 @@
+//! The training data stream: datasets mixed by weight, decoded and augmented on worker threads
+//! ahead of the training step, delivered in a fixed order.
+//!
+//! Determinism: sample number `k` of a run is a pure function of `(seed, k)` — which dataset and
+//! which index come from a sequential [`Planner`] (replayable, so the data position after a
+//! resume is just `k`), and the augmentation draws from an RNG seeded with `(seed, k)`. Worker
+//! count and timing therefore never change what the model sees.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
+
+use anyhow::{Context, Result, bail};
+use burn::prelude::*;
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use stereo_io::{DatasetFormat, StereoDataset, open_dataset};
+
+use crate::augment::{AugmentConfig, TrainSample, augment_random};
+use crate::config::DatasetEntry;
+
+/// The training datasets, opened, with their normalised weights.
+pub struct MixedSource {
+    pub datasets: Vec<Box<dyn StereoDataset>>,
+    pub names: Vec<String>,
+    pub weights: Vec<f64>,
+}
+
+impl MixedSource {
+    pub fn open(entries: &[DatasetEntry]) -> Result<Self> {
+        let mut datasets = Vec::new();
+        let mut names = Vec::new();
+        for (i, e) in entries.iter().enumerate() {
+            let format = e
+                .format
+                .as_deref()
+                .map(|f| f.parse::<DatasetFormat>().map_err(|m| anyhow::anyhow!("datasets[{i}].format: {m}")))
+                .transpose()?;
+            let ds = open_dataset(&e.path, format)
+                .with_context(|| format!("datasets[{i}]: cannot open {}", e.path.display()))?;
+            if ds.is_empty() {
+                bail!("datasets[{i}]: {} holds no samples", e.path.display());
+            }
+            names.push(format!("{} ({}, {} samples)", e.path.display(), ds.format(), ds.len()));
+            datasets.push(ds);
+        }
+        let total: f64 = entries.iter().map(|e| e.weight).sum();
+        let weights = entries.iter().map(|e| e.weight / total).collect();
+        Ok(Self { datasets, names, weights })
+    }
+}
+
+/// One planned sample: its number in the run, where it comes from, and its augmentation seed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SamplePlan {
+    pub ordinal: u64,
+    pub dataset: usize,
+    pub index: usize,
+    pub seed: u64,
+}
+
+/// Chooses the dataset of every sample by weight, and walks each dataset in its own shuffled
+/// epochs (every sample once per epoch) so small datasets are not drawn with replacement.
+pub struct Planner {
+    seed: u64,
+    weights: Vec<f64>,
+    lens: Vec<usize>,
+    pick: ChaCha8Rng,
+    epochs: Vec<(u64, Vec<usize>, usize)>,
+    next: u64,
+}
+
+/// SplitMix64 finaliser: decorrelates nearby integers into seeds.
+pub fn mix_seed(a: u64, b: u64) -> u64 {
+    let mut z = a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_add(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+impl Planner {
+    pub fn new(seed: u64, weights: &[f64], lens: &[usize]) -> Self {
+        assert_eq!(weights.len(), lens.len());
+        let mut p = Self {
+            seed,
+            weights: weights.to_vec(),
+            lens: lens.to_vec(),
+            pick: ChaCha8Rng::seed_from_u64(mix_seed(seed, 0x5EED)),
+            epochs: Vec::new(),
+            next: 0,
+        };
+        p.epochs = (0..lens.len()).map(|d| (0, p.permutation(d, 0), 0)).collect();
+        p
+    }
+
+    fn permutation(&self, dataset: usize, epoch: u64) -> Vec<usize> {
+        let mut order: Vec<usize> = (0..self.lens[dataset]).collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(mix_seed(mix_seed(self.seed, dataset as u64 + 1), epoch));
+        order.shuffle(&mut rng);
+        order
+    }
+
+    /// The ordinal of the sample [`Self::next_plan`] returns next.
+    pub fn position(&self) -> u64 {
+        self.next
+    }
+
+    pub fn next_plan(&mut self) -> SamplePlan {
+        let u: f64 = self.pick.random();
+        let mut dataset = self.weights.len() - 1;
+        let mut acc = 0.0;
+        for (d, w) in self.weights.iter().enumerate() {
+            acc += w;
+            if u < acc {
+                dataset = d;
+                break;
+            }
+        }
+        if self.epochs[dataset].2 == self.lens[dataset] {
+            let epoch = self.epochs[dataset].0 + 1;
+            self.epochs[dataset] = (epoch, self.permutation(dataset, epoch), 0);
+        }
+        let (_, order, pos) = &mut self.epochs[dataset];
+        let index = order[*pos];
+        *pos += 1;
+        let ordinal = self.next;
+        self.next += 1;
+        SamplePlan { ordinal, dataset, index, seed: mix_seed(self.seed ^ 0xA06_u64, ordinal) }
+    }
+
+    /// Replays the plan up to sample `ordinal` (cheap: no decoding), for resuming.
+    pub fn skip_to(&mut self, ordinal: u64) {
+        assert!(ordinal >= self.next, "cannot rewind a planner");
+        while self.next < ordinal {
+            self.next_plan();
+        }
+    }
+}
+
+/// A decoded, augmented sample and where it came from.
+#[derive(Debug, Clone)]
+pub struct LoadedSample {
+    pub plan: SamplePlan,
+    /// The sample actually used (differs from `plan.index` when that one was unreadable).
+    pub index: usize,
+    pub sample: TrainSample,
+}
+
+/// Samples that could not be read and were replaced by a neighbour.
+#[derive(Debug, Clone)]
+pub struct SkippedSample {
+    pub dataset: String,
+    pub id: String,
+    pub error: String,
+}
+
+/// Decodes one plan; an unreadable sample is replaced by the next index of the same dataset
+/// (deterministically), up to `retries` times.
+pub fn load_sample(
+    source: &MixedSource,
+    plan: SamplePlan,
+    augment: &AugmentConfig,
+    retries: usize,
+    skipped: &Mutex<Vec<SkippedSample>>,
+) -> Result<LoadedSample> {
+    let ds = &source.datasets[plan.dataset];
+    let mut errors = Vec::new();
+    for attempt in 0..=retries {
+        let index = (plan.index + attempt) % ds.len();
+        match ds.sample(index) {
+            Ok(sample) => {
+                let mut rng = ChaCha8Rng::seed_from_u64(plan.seed);
+                let sample = augment_random(&sample, augment, &mut rng);
+                return Ok(LoadedSample { plan, index, sample });
+            }
+            Err(e) => {
+                let id = ds.id(index).unwrap_or("?").to_string();
+                tracing::warn!("skipping unreadable training sample {id} of {}: {e}", source.names[plan.dataset]);
+                skipped.lock().unwrap().push(SkippedSample {
+                    dataset: source.names[plan.dataset].clone(),
+                    id,
+                    error: e.to_string(),
+                });
+                errors.push(e.to_string());
+            }
+        }
+    }
+    bail!(
+        "{} consecutive unreadable samples in {} from index {} — last error: {}",
+        retries + 1,
+        source.names[plan.dataset],
+        plan.index,
+        errors.last().map(String::as_str).unwrap_or("?")
+    )
+}
+
+/// Background decoding: a planner thread hands out plans, `workers` threads decode and augment,
+/// and [`Loader::next_sample`] returns results in plan order. At most `prefetch` samples exist
+/// ahead of the consumer (planned, in progress or waiting), so memory stays bounded.
+pub struct Loader {
+    results: Receiver<(u64, Result<LoadedSample>)>,
+    waiting: BTreeMap<u64, Result<LoadedSample>>,
+    next: u64,
+    credit: Arc<(Mutex<u64>, Condvar)>,
+    stop: Arc<AtomicBool>,
+    threads: Vec<JoinHandle<()>>,
+    pub skipped: Arc<Mutex<Vec<SkippedSample>>>,
+}
+
+impl Loader {
+    /// Starts the stream at sample `start` of `planner`'s sequence.
+    pub fn start(
+        source: Arc<MixedSource>,
+        mut planner: Planner,
+        start: u64,
+        augment: AugmentConfig,
+        workers: usize,
+        prefetch: usize,
+        retries: usize,
+    ) -> Self {
+        planner.skip_to(start);
+        let workers = workers.max(1);
+        let prefetch = prefetch.max(1) as u64;
+        let stop = Arc::new(AtomicBool::new(false));
+        // `credit` = the highest ordinal (exclusive) the planner may hand out.
+        let credit = Arc::new((Mutex::new(start + prefetch), Condvar::new()));
+        let skipped = Arc::new(Mutex::new(Vec::new()));
+        let (job_tx, job_rx) = sync_channel::<SamplePlan>(workers);
+        let job_rx = Arc::new(Mutex::new(job_rx));
+        let (res_tx, res_rx) = sync_channel(prefetch as usize + workers);
+        let mut threads = Vec::new();
+        {
+            let (credit, stop) = (credit.clone(), stop.clone());
+            threads.push(std::thread::spawn(move || plan_loop(planner, job_tx, &credit, &stop)));
+        }
+        for _ in 0..workers {
+            let (job_rx, res_tx, source, augment, stop, skipped): (_, SyncSender<_>, _, _, _, _) =
+                (job_rx.clone(), res_tx.clone(), source.clone(), augment.clone(), stop.clone(), skipped.clone());
+            threads.push(std::thread::spawn(move || {
+                loop {
+                    let plan = match job_rx.lock().unwrap().recv() {
+                        Ok(p) => p,
+                        Err(_) => return,
+                    };
+                    if stop.load(Ordering::Relaxed) {
+                        return;
+                    }
+                    let out = load_sample(&source, plan, &augment, retries, &skipped);
+                    if res_tx.send((plan.ordinal, out)).is_err() {
+                        return;
+                    }
+                }
+            }));
+        }
+        Self { results: res_rx, waiting: BTreeMap::new(), next: start, credit, stop, threads, skipped }
+    }
+
+    /// The ordinal of the next sample [`Self::next_sample`] returns: the data position to store
+    /// in a checkpoint.
+    pub fn position(&self) -> u64 {
+        self.next
+    }
+
+    pub fn next_sample(&mut self) -> Result<LoadedSample> {
+        loop {
+            if let Some(r) = self.waiting.remove(&self.next) {
+                self.next += 1;
+                let (lock, cv) = &*self.credit;
+                *lock.lock().unwrap() += 1;
+                cv.notify_all();
+                return r;
+            }
+            let (ordinal, r) = self.results.recv().context("the data loader threads stopped")?;
+            self.waiting.insert(ordinal, r);
+        }
+    }
+
+    /// The next `n` samples.
+    pub fn next_batch(&mut self, n: usize) -> Result<Vec<LoadedSample>> {
+        (0..n).map(|_| self.next_sample()).collect()
+    }
+}
+
+fn plan_loop(mut planner: Planner, jobs: SyncSender<SamplePlan>, credit: &(Mutex<u64>, Condvar), stop: &AtomicBool) {
+    let (lock, cv) = credit;
+    loop {
+        {
+            let mut limit = lock.lock().unwrap();
+            while planner.position() >= *limit && !stop.load(Ordering::Relaxed) {
+                limit = cv.wait(limit).unwrap();
+            }
+        }
+        if stop.load(Ordering::Relaxed) || jobs.send(planner.next_plan()).is_err() {
+            return;
+        }
+    }
+}
+
+impl Drop for Loader {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        self.credit.1.notify_all();
+        // Unblock workers waiting to hand over a result.
+        while self.results.try_recv().is_ok() {}
+        let threads = std::mem::take(&mut self.threads);
+        // Dropping the receiver ends any worker blocked in `send`; the planner exits on `stop`.
+        let (_, dead) = sync_channel(1);
+        drop(std::mem::replace(&mut self.results, dead));
+        for t in threads {
+            let _ = t.join();
+        }
+    }
+}
+
+/// A training batch as tensors: images (N, 3, H, W) BGR 0..255, disparity and validity (N, H, W).
+pub struct Batch<B: Backend> {
+    pub left: Tensor<B, 4>,
+    pub right: Tensor<B, 4>,
+    pub disp: Tensor<B, 3>,
+    pub valid: Tensor<B, 3>,
+}
+
+/// Stacks samples of one size into tensors.
+pub fn collate<B: Backend>(samples: &[TrainSample], device: &B::Device) -> Result<Batch<B>> {
+    let first = samples.first().context("empty batch")?;
+    let (h, w, n) = (first.height, first.width, samples.len());
+    let mut left = Vec::with_capacity(n * 3 * h * w);
+    let mut right = Vec::with_capacity(n * 3 * h * w);
+    let mut disp = Vec::with_capacity(n * h * w);
+    let mut valid = Vec::with_capacity(n * h * w);
+    for s in samples {
+        if (s.height, s.width) != (h, w) {
+            bail!("batch mixes sample sizes {}x{} and {}x{}", h, w, s.height, s.width);
+        }
+        left.extend_from_slice(&s.left);
+        right.extend_from_slice(&s.right);
+        disp.extend_from_slice(&s.disp);
+        valid.extend_from_slice(&s.valid);
+    }
+    Ok(Batch {
+        left: Tensor::from_data(TensorData::new(left, [n, 3, h, w]), device),
+        right: Tensor::from_data(TensorData::new(right, [n, 3, h, w]), device),
+        disp: Tensor::from_data(TensorData::new(disp, [n, h, w]), device),
+        valid: Tensor::from_data(TensorData::new(valid, [n, h, w]), device),
+    })
+}
+
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn planner_mixes_by_weight_and_covers_each_epoch() {
+        let mut p = Planner::new(7, &[0.98, 0.02], &[50, 3]);
+        let plans: Vec<_> = (0..20_000).map(|_| p.next_plan()).collect();
+        let small = plans.iter().filter(|s| s.dataset == 1).count() as f64 / plans.len() as f64;
+        assert!((small - 0.02).abs() < 0.005, "share {small}");
+        // The first 50 draws of dataset 0 are one permutation of its indices.
+        let mut first: Vec<usize> = plans.iter().filter(|s| s.dataset == 0).take(50).map(|s| s.index).collect();
+        first.sort();
+        assert_eq!(first, (0..50).collect::<Vec<_>>());
+        assert!(plans.iter().enumerate().all(|(k, s)| s.ordinal == k as u64));
+    }
+
+    #[test]
+    fn planner_replays_and_depends_on_the_seed() {
+        let mut a = Planner::new(3, &[0.5, 0.5], &[10, 20]);
+        let all: Vec<_> = (0..100).map(|_| a.next_plan()).collect();
+        let mut b = Planner::new(3, &[0.5, 0.5], &[10, 20]);
+        b.skip_to(60);
+        let tail: Vec<_> = (0..40).map(|_| b.next_plan()).collect();
+        assert_eq!(&all[60..], &tail[..]);
+        let mut c = Planner::new(4, &[0.5, 0.5], &[10, 20]);
+        let other: Vec<_> = (0..100).map(|_| c.next_plan()).collect();
+        assert_ne!(all, other);
+    }
+}

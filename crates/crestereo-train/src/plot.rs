@@ -1,0 +1,156 @@
+//! The loss curve of a run as a PNG (`crestereo plot`): training loss per step with a moving
+//! average on a log axis, and the training / validation EPE beside it.
+
+use std::path::Path;
+use std::sync::Once;
+
+use anyhow::{Context, Result, anyhow, bail};
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+
+// The generator's bundled DejaVu Sans (Bitstream Vera licence): no system font libraries needed.
+const FONT: &[u8] = include_bytes!("../../../generator/src/validate/fonts/DejaVuSans.ttf");
+
+fn register() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        if register_font("sans-serif", FontStyle::Normal, FONT).is_err() {
+            panic!("the bundled DejaVu Sans font does not parse");
+        }
+    });
+}
+
+fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow!("plotting failed: {e:?}")
+}
+
+/// Columns of a CSV by header name: `(step, value)` pairs of finite values.
+fn read_columns(path: &Path, want: &[&str]) -> Result<Vec<Vec<(f64, f64)>>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let idx: Vec<usize> = want
+        .iter()
+        .map(|w| header.iter().position(|h| h == w).ok_or_else(|| anyhow!("{}: no column `{w}`", path.display())))
+        .collect::<Result<_>>()?;
+    let mut out = vec![Vec::new(); want.len()];
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        let Some(step) = cells.first().and_then(|s| s.parse::<f64>().ok()) else { continue };
+        for (k, &i) in idx.iter().enumerate() {
+            if let Some(v) = cells.get(i).and_then(|s| s.parse::<f64>().ok()).filter(|v| v.is_finite()) {
+                out[k].push((step, v));
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Trailing moving average over `window` points.
+pub fn moving_average(points: &[(f64, f64)], window: usize) -> Vec<(f64, f64)> {
+    let window = window.max(1);
+    let mut sum = 0.0;
+    let mut out = Vec::with_capacity(points.len());
+    for (i, &(x, y)) in points.iter().enumerate() {
+        sum += y;
+        if i >= window {
+            sum -= points[i - window].1;
+        }
+        out.push((x, sum / (i + 1).min(window) as f64));
+    }
+    out
+}
+
+pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
+    let cols = read_columns(&run.join("train_log.csv"), &["loss", "epe"])?;
+    let (loss, epe) = (&cols[0], &cols[1]);
+    if loss.is_empty() {
+        bail!("{} has no finite loss rows yet", run.join("train_log.csv").display());
+    }
+    let val = match run.join("val_log.csv") {
+        p if p.is_file() => read_columns(&p, &["epe"])?.remove(0),
+        _ => Vec::new(),
+    };
+    register();
+    let (w, h) = (1200u32, 480u32);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(err)?;
+        let (left, right) = root.split_horizontally(w / 2);
+        let x_max = loss.last().map_or(1.0, |p| p.0).max(1.0);
+        let (lo, hi) = loss.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+        let mut chart = ChartBuilder::on(&left)
+            .caption("training loss", ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..x_max, (lo.max(1e-6) * 0.9..hi * 1.1).log_scale())
+            .map_err(err)?;
+        chart.configure_mesh().x_desc("step").y_desc("sequence loss").draw().map_err(err)?;
+        chart.draw_series(LineSeries::new(loss.iter().copied(), RGBColor(170, 190, 230).stroke_width(1))).map_err(err)?.label("per step").legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(170, 190, 230)));
+        chart
+            .draw_series(LineSeries::new(moving_average(loss, smooth), RGBColor(31, 119, 180).stroke_width(2)))
+            .map_err(err)?
+            .label(format!("moving average ({smooth})"))
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(31, 119, 180)));
+        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)?;
+
+        let e_hi = epe.iter().chain(&val).fold(0.0f64, |a, p| a.max(p.1)).max(1e-3);
+        let mut chart = ChartBuilder::on(&right)
+            .caption("end-point error (px)", ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..x_max, 0.0..e_hi * 1.05)
+            .map_err(err)?;
+        chart.configure_mesh().x_desc("step").y_desc("EPE").draw().map_err(err)?;
+        chart
+            .draw_series(LineSeries::new(moving_average(epe, smooth), RGBColor(255, 127, 14).stroke_width(2)))
+            .map_err(err)?
+            .label("training crops (moving average)")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(255, 127, 14)));
+        if !val.is_empty() {
+            chart
+                .draw_series(LineSeries::new(val.iter().copied(), RGBColor(44, 160, 44).stroke_width(2)))
+                .map_err(err)?
+                .label("validation (full images)")
+                .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(44, 160, 44)));
+            chart.draw_series(val.iter().map(|&p| Circle::new(p, 4, RGBColor(44, 160, 44).filled()))).map_err(err)?;
+        }
+        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)?;
+        root.present().map_err(err)?;
+    }
+    let img = stereo_io::Image { width: w as usize, height: h as usize, channels: 3, samples: stereo_io::Samples::U8(buf) };
+    stereo_io::write_png(out, &img)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moving_average_is_trailing() {
+        let p: Vec<(f64, f64)> = (0..5).map(|i| (i as f64, i as f64)).collect();
+        let m = moving_average(&p, 2);
+        assert_eq!(m.iter().map(|p| p.1).collect::<Vec<_>>(), [0.0, 0.5, 1.5, 2.5, 3.5]);
+    }
+
+    #[test]
+    fn plots_a_log() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut csv = String::from("step,samples,lr,loss,epe,samples_per_s,elapsed_s,skipped_steps\n");
+        for s in 1..=50 {
+            csv.push_str(&format!("{s},{},{},{},{},1,1,0\n", 2 * s, 4e-4, 10.0 / s as f64, 5.0 / s as f64));
+        }
+        csv.push_str("51,102,4e-4,NaN,NaN,1,1,1\n");
+        std::fs::write(dir.path().join("train_log.csv"), csv).unwrap();
+        std::fs::write(dir.path().join("val_log.csv"), "step,images,epe\n25,4,2.0\n50,4,1.0\n").unwrap();
+        let out = dir.path().join("loss.png");
+        plot_run(dir.path(), &out, 5).unwrap();
+        let img = stereo_io::read_image(&out).unwrap();
+        assert_eq!((img.width, img.height), (1200, 480));
+        assert!(plot_run(tempfile::tempdir().unwrap().path(), &out, 5).is_err());
+    }
+}

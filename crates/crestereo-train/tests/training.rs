@@ -1,0 +1,193 @@
+//! The training loop on Flex with real data files: the loader's determinism, exact resume,
+//! checkpoint pruning, the non-finite guard, and that the network learns (overfitting).
+//!
+//! Sizes are small (64×128 crops, few iterations) so the suite stays within CI's budget; the
+//! code paths are the ones a full-size run takes.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use crestereo::weights::{load_record, named_parameters};
+use crestereo::{CREStereoConfig, CpuAutodiffBackend, CpuBackend};
+use crestereo_train::augment::AugmentConfig;
+use crestereo_train::checkpoint::list_checkpoints;
+use crestereo_train::config::{DatasetEntry, TrainConfig};
+use crestereo_train::data::{Loader, MixedSource, Planner};
+use crestereo_train::synthetic::write_crestereo_dataset;
+use crestereo_train::train::{TrainOptions, train};
+
+fn dataset(dir: &Path, count: usize) {
+    write_crestereo_dataset(dir, count, 128, 64, 11).unwrap();
+}
+
+/// A tiny run: 64×128 crops with the paper's augmentation, batch 1 × 2 accumulated, 2 iterations.
+fn tiny_config(data: &Path, steps: u64) -> TrainConfig {
+    let mut cfg = TrainConfig::default();
+    cfg.datasets = vec![DatasetEntry { path: data.to_path_buf(), format: None, weight: 1.0 }];
+    cfg.steps = steps;
+    cfg.batch_size = 1;
+    cfg.accumulate = 2;
+    cfg.iters = 2;
+    cfg.augment.crop = [64, 128];
+    cfg.augment.scale = [0.8, 1.0];
+    cfg.schedule.warmup_steps = 4;
+    cfg.schedule.decay_start = steps / 2;
+    cfg.loader.workers = 2;
+    cfg.loader.prefetch = 4;
+    cfg.checkpoint.every = 5;
+    cfg.checkpoint.keep = 2;
+    cfg
+}
+
+fn weights(checkpoint: &Path) -> Vec<(String, Vec<f32>)> {
+    let device = Default::default();
+    let model = load_record(CREStereoConfig::new().init::<CpuBackend>(&device), checkpoint.join("model.mpk"), &device).unwrap();
+    named_parameters(&model).into_iter().map(|p| (p.name, p.data)).collect()
+}
+
+#[test]
+fn loader_order_does_not_depend_on_threads_and_resumes_mid_stream() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path(), 6);
+    let cfg = tiny_config(dir.path(), 1);
+    let source = Arc::new(MixedSource::open(&cfg.datasets).unwrap());
+    let planner = || Planner::new(5, &source.weights, &[source.datasets[0].len()]);
+    let take = |start: u64, workers: usize, n: usize| {
+        let mut l = Loader::start(source.clone(), planner(), start, cfg.augment.clone(), workers, 3, 2);
+        (0..n).map(|_| l.next_sample().unwrap()).collect::<Vec<_>>()
+    };
+    let one = take(0, 1, 14);
+    let many = take(0, 4, 14);
+    let resumed = take(9, 3, 5);
+    for (a, b) in one.iter().zip(&many) {
+        assert_eq!((a.plan, a.index), (b.plan, b.index));
+        assert_eq!(a.sample, b.sample, "sample {} differs with 4 workers", a.plan.ordinal);
+    }
+    for (a, b) in one[9..].iter().zip(&resumed) {
+        assert_eq!(a.sample, b.sample, "resumed stream differs at {}", a.plan.ordinal);
+    }
+    // Every sample is augmented differently (different seeds), and an epoch covers all 6.
+    assert_ne!(one[0].sample, one[6].sample);
+    let mut first: Vec<usize> = one[..6].iter().map(|s| s.index).collect();
+    first.sort();
+    assert_eq!(first, (0..6).collect::<Vec<_>>());
+    assert_eq!(one[0].sample.left.len(), 3 * 64 * 128);
+}
+
+#[test]
+fn an_unreadable_sample_is_replaced_and_listed() {
+    let dir = tempfile::tempdir().unwrap();
+    dataset(dir.path(), 4);
+    std::fs::write(dir.path().join("pair002_left.jpg"), b"not a jpeg").unwrap();
+    let cfg = tiny_config(dir.path(), 1);
+    let source = Arc::new(MixedSource::open(&cfg.datasets).unwrap());
+    let mut l = Loader::start(source.clone(), Planner::new(1, &source.weights, &[4]), 0, AugmentConfig::none([64, 128]), 2, 4, 3);
+    let got: Vec<_> = (0..8).map(|_| l.next_sample().unwrap()).collect();
+    assert!(got.iter().all(|s| s.index != 2), "the corrupt sample was used");
+    assert!(got.iter().any(|s| s.plan.index == 2), "the corrupt sample was never drawn");
+    let skipped = l.skipped.lock().unwrap().clone();
+    assert!(!skipped.is_empty() && skipped[0].id.contains("pair002"), "{skipped:?}");
+    // A dataset where nothing can be read stops with a clear error instead of spinning.
+    for f in std::fs::read_dir(dir.path()).unwrap() {
+        let p = f.unwrap().path();
+        if p.to_string_lossy().ends_with("_left.jpg") {
+            std::fs::write(&p, b"broken").unwrap();
+        }
+    }
+    let mut l = Loader::start(source.clone(), Planner::new(1, &source.weights, &[4]), 0, AugmentConfig::none([64, 128]), 1, 2, 3);
+    let e = l.next_sample().unwrap_err().to_string();
+    assert!(e.contains("4 consecutive unreadable samples"), "{e}");
+}
+
+#[test]
+fn resumed_run_matches_a_straight_run_exactly() {
+    let data = tempfile::tempdir().unwrap();
+    dataset(data.path(), 5);
+    let cfg = tiny_config(data.path(), 20);
+    let device = Default::default();
+    let straight = tempfile::tempdir().unwrap();
+    let quiet = TrainOptions { progress: false, ..TrainOptions::default() };
+    let a = train::<CpuAutodiffBackend>(&cfg, straight.path(), &quiet, &device).unwrap();
+    assert_eq!(a.step, 20);
+    let split = tempfile::tempdir().unwrap();
+    let b1 = train::<CpuAutodiffBackend>(&cfg, split.path(), &TrainOptions { stop_at: Some(10), ..quiet.clone() }, &device).unwrap();
+    assert_eq!(b1.step, 10);
+    // Without --resume a run with checkpoints is refused rather than overwritten.
+    let e = train::<CpuAutodiffBackend>(&cfg, split.path(), &quiet, &device).unwrap_err().to_string();
+    assert!(e.contains("--resume"), "{e}");
+    let b2 = train::<CpuAutodiffBackend>(&cfg, split.path(), &TrainOptions { resume: true, ..quiet.clone() }, &device).unwrap();
+    assert_eq!((b2.resumed_from, b2.step), (Some(10), 20));
+
+    let wa = weights(&a.checkpoint.unwrap());
+    let wb = weights(&b2.checkpoint.unwrap());
+    assert_eq!(wa.len(), wb.len());
+    let mut moved = 0.0f64;
+    for ((name, x), (_, y)) in wa.iter().zip(&wb) {
+        assert!(x == y, "{name} differs between the straight and the resumed run");
+        moved += x.iter().map(|v| f64::from(v.abs())).sum::<f64>();
+    }
+    assert!(moved.is_finite() && moved > 0.0);
+    // The logs continue the same curve: identical loss columns.
+    let log = |d: &Path| -> Vec<String> {
+        std::fs::read_to_string(d.join("train_log.csv")).unwrap().lines().map(|l| l.split(',').take(5).collect::<Vec<_>>().join(",")).collect()
+    };
+    assert_eq!(log(straight.path()), log(split.path()));
+    assert_eq!(log(straight.path()).len(), 21);
+    // Checkpoints every 5 steps, the newest 2 kept, no temp directories left.
+    let kept: Vec<u64> = list_checkpoints(straight.path()).unwrap().into_iter().map(|c| c.0).collect();
+    assert_eq!(kept, [15, 20]);
+    let names: Vec<String> = std::fs::read_dir(straight.path().join("checkpoints")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+    assert_eq!(names.len(), 2, "{names:?}");
+    // TensorBoard events were written for every step.
+    let tb = std::fs::read_dir(straight.path().join("tensorboard")).unwrap().next().unwrap().unwrap().path();
+    let scalars = crestereo_train::tensorboard::read_scalars(&tb).unwrap();
+    assert_eq!(scalars.iter().filter(|s| s.1 == "train/loss").count(), 20);
+}
+
+#[test]
+fn non_finite_losses_skip_the_step_and_are_logged() {
+    let data = tempfile::tempdir().unwrap();
+    dataset(data.path(), 2);
+    let mut cfg = tiny_config(data.path(), 4);
+    cfg.accumulate = 1;
+    // An absurd learning rate: the first update throws the weights to ~1e30, the next forward
+    // overflows, and every later step must be skipped rather than written into the weights.
+    cfg.schedule.lr = 1e30;
+    cfg.schedule.warmup_steps = 0;
+    cfg.schedule.floor_fraction = 1.0;
+    let run = tempfile::tempdir().unwrap();
+    let out = train::<CpuAutodiffBackend>(&cfg, run.path(), &TrainOptions::default(), &Default::default()).unwrap();
+    assert_eq!(out.step, 4);
+    assert_eq!(out.skipped_steps, 3, "{out:?}");
+    let csv = std::fs::read_to_string(run.path().join("train_log.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert!(rows[0].split(',').nth(3).unwrap().parse::<f64>().unwrap().is_finite());
+    assert!(rows[1..].iter().all(|r| r.split(',').nth(3) == Some("NaN") && r.ends_with(&format!(",{}", r.split(',').nth(0).unwrap().parse::<u64>().unwrap() - 1))), "{csv}");
+    // The saved weights are the finite ones from before the blow-up.
+    let w = weights(&out.checkpoint.unwrap());
+    assert!(w.iter().all(|(_, v)| v.iter().all(|x| x.is_finite())));
+}
+
+#[test]
+fn overfits_a_single_batch() {
+    let data = tempfile::tempdir().unwrap();
+    dataset(data.path(), 2);
+    let mut cfg = tiny_config(data.path(), 150);
+    cfg.batch_size = 2;
+    cfg.accumulate = 1;
+    cfg.iters = 4;
+    // One fixed batch: no augmentation, full 64×128 images, both samples every step.
+    cfg.augment = AugmentConfig::none([64, 128]);
+    cfg.schedule.warmup_steps = 0;
+    cfg.schedule.decay_start = 150;
+    cfg.checkpoint.every = 1000;
+    let run = tempfile::tempdir().unwrap();
+    let out = train::<CpuAutodiffBackend>(&cfg, run.path(), &TrainOptions::default(), &Default::default()).unwrap();
+    let csv = std::fs::read_to_string(run.path().join("train_log.csv")).unwrap();
+    let losses: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(3).unwrap().parse().unwrap()).collect();
+    let start = losses[0];
+    let end = losses[losses.len() - 5..].iter().sum::<f64>() / 5.0;
+    eprintln!("overfit: loss {start:.3} → {end:.3} ({:.1}%) over {} steps, {:.2} samples/s", 100.0 * end / start, losses.len(), out.samples_per_s);
+    assert_eq!(out.skipped_steps, 0);
+    assert!(end < 0.1 * start, "loss {start} → {end}: not below 10% of the start");
+}
