@@ -207,8 +207,12 @@ impl TrainConfig {
     pub fn from_file(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read training config {}", path.display()))?;
-        let mut cfg: TrainConfig = toml::from_str(&text)
-            .map_err(|e| anyhow::anyhow!("training config {}: {e}", path.display()))?;
+        let mut cfg: TrainConfig = toml::from_str(&text).map_err(|e| {
+            // One line: the message and where, rather than toml's multi-line snippet.
+            let line = e.span().map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            let at = line.map_or(String::new(), |l| format!(" (line {l})"));
+            anyhow::anyhow!("training config {}{at}: {}", path.display(), e.message().trim())
+        })?;
         let base = path.parent().unwrap_or(Path::new("."));
         cfg.resolve_paths(base);
         cfg.validate().with_context(|| format!("training config {}", path.display()))?;

@@ -130,7 +130,7 @@ fn foreground(dir: &Path, id: &str, width: usize, height: usize) -> Result<Vec<b
     if (img.width, img.height) != (width, height) {
         bail!("foreground mask {} is {}x{}, the image {}x{}", path.display(), img.width, img.height, width, height);
     }
-    // The first channel decides (grey masks, or any colour mask painted black on white).
+    // Non-zero in the first channel = foreground.
     let c = img.channels;
     Ok(match &img.samples {
         stereo_io::Samples::U8(v) => v.chunks(c).map(|px| px[0] > 0).collect(),

@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::Result;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use stereo_io::{CRESTEREO_SCALE, DisparityMap, RgbImage, write_disparity_png16, write_png_rgb};
+use stereo_io::{CRESTEREO_SCALE, DisparityMap, RgbImage, write_disparity_png16};
 
 /// A smooth random colour texture: bilinear interpolation of a coarse random grid, plus a fine
 /// hash pattern of the texture coordinate so every window is distinctive.
@@ -46,6 +46,8 @@ pub struct SyntheticPair {
     pub right: RgbImage,
     pub disp_left: DisparityMap,
     pub disp_right: DisparityMap,
+    /// The rectangle in the left view (the foreground of mxIoU).
+    pub foreground: Vec<bool>,
 }
 
 /// A background at disparity `d_bg` and a rectangle at `d_fg` (> `d_bg`), both integer so the
@@ -64,6 +66,7 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
     let mut right = left.clone();
     let mut disp_left = DisparityMap::new(width, height);
     let mut disp_right = DisparityMap::new(width, height);
+    let mut foreground = vec![false; width * height];
     let put = |img: &mut RgbImage, x: usize, y: usize, c: [f64; 3]| {
         for k in 0..3 {
             img.data[(y * width + x) * 3 + k] = c[k].round() as u8;
@@ -75,7 +78,9 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
             let xf = x as f64;
             // Left view: the rectangle covers [x0, x1); the background point at x is seen at
             // x − d_bg in the right view, so its texture coordinate is x + (offset) in both.
-            let (c, d) = if in_rows && xf >= x0 && xf < x1 { (fg.at(xf - x0, y as f64), d_fg) } else { (bg.at(xf + 32.0, y as f64), d_bg) };
+            let inside = in_rows && xf >= x0 && xf < x1;
+            foreground[y * width + x] = inside;
+            let (c, d) = if inside { (fg.at(xf - x0, y as f64), d_fg) } else { (bg.at(xf + 32.0, y as f64), d_bg) };
             put(&mut left, x, y, c);
             disp_left.data[y * width + x] = d as f32;
             disp_left.valid[y * width + x] = true;
@@ -90,11 +95,12 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
             disp_right.valid[y * width + x] = true;
         }
     }
-    SyntheticPair { left, right, disp_left, disp_right }
+    SyntheticPair { left, right, disp_left, disp_right, foreground }
 }
 
 /// Writes `count` synthetic pairs in the CREStereo release layout (`<name>_left.jpg`, …, ×32
-/// PNG disparity) under `dir`. JPEG at quality 95: the layout's own format.
+/// PNG disparity) under `dir`, JPEG at quality 95 (the layout's own format), and each pair's
+/// foreground mask as `dir/foreground/<name>.png` (for `crestereo eval --fg-masks`).
 pub fn write_crestereo_dataset(dir: &Path, count: usize, width: usize, height: usize, seed: u64) -> Result<()> {
     std::fs::create_dir_all(dir)?;
     for i in 0..count {
@@ -104,14 +110,10 @@ pub fn write_crestereo_dataset(dir: &Path, count: usize, width: usize, height: u
         stereo_io::write_jpeg_rgb(&dir.join(format!("{name}_right.jpg")), &p.right, 95)?;
         write_disparity_png16(&dir.join(format!("{name}_left.disp.png")), &p.disp_left, CRESTEREO_SCALE)?;
         write_disparity_png16(&dir.join(format!("{name}_right.disp.png")), &p.disp_right, CRESTEREO_SCALE)?;
+        let mask = p.foreground.iter().map(|f| if *f { 255 } else { 0 }).collect();
+        std::fs::create_dir_all(dir.join("foreground"))?;
+        stereo_io::write_png(&dir.join("foreground").join(format!("{name}.png")), &stereo_io::Image { width, height, channels: 1, samples: stereo_io::Samples::U8(mask) })?;
     }
-    Ok(())
-}
-
-/// Writes a pair as plain PNGs (for `crestereo infer` style tests).
-pub fn write_pair_pngs(dir: &Path, pair: &SyntheticPair) -> Result<()> {
-    write_png_rgb(&dir.join("left.png"), &pair.left)?;
-    write_png_rgb(&dir.join("right.png"), &pair.right)?;
     Ok(())
 }
 
