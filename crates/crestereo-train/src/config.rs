@@ -269,7 +269,7 @@ impl TrainConfig {
         if self.batch_size == 0 || self.accumulate == 0 {
             bail!("batch_size and accumulate must be at least 1");
         }
-        if self.iters < 2 || self.iters % 2 != 0 {
+        if self.iters < 2 || !self.iters.is_multiple_of(2) {
             bail!("iters must be an even number ≥ 2 (half run at 1/16 and half at 1/8), got {}", self.iters);
         }
         if !(self.gamma > 0.0 && self.gamma <= 1.0) {

@@ -68,8 +68,8 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
     let mut disp_right = DisparityMap::new(width, height);
     let mut foreground = vec![false; width * height];
     let put = |img: &mut RgbImage, x: usize, y: usize, c: [f64; 3]| {
-        for k in 0..3 {
-            img.data[(y * width + x) * 3 + k] = c[k].round() as u8;
+        for (dst, v) in img.data[(y * width + x) * 3..][..3].iter_mut().zip(c) {
+            *dst = v.round() as u8;
         }
     };
     for y in 0..height {

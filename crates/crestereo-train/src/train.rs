@@ -217,7 +217,7 @@ pub fn train<B: AutodiffBackend>(cfg: &TrainConfig, run: &Path, opts: &TrainOpti
         let loss_shown = if finite { loss_sum } else { f64::NAN };
         bar.set_position(state.step);
         bar.set_message(format!("loss {loss_shown:.4} epe {epe_sum:.3} lr {lr:.2e} {rate:.2} samples/s"));
-        if state.step % cfg.log.every == 0 || state.step == end || !finite {
+        if state.step.is_multiple_of(cfg.log.every) || state.step == end || !finite {
             append(&train_csv, &format!("{},{},{lr:e},{loss_shown},{},{rate:.4},{:.2},{}", state.step, state.samples, if finite { epe_sum } else { f64::NAN }, state.elapsed_s, state.skipped_steps))?;
             if let Some(tb) = tb.as_mut() {
                 tb.scalar("train/loss", state.step, loss_shown)?;
@@ -228,7 +228,7 @@ pub fn train<B: AutodiffBackend>(cfg: &TrainConfig, run: &Path, opts: &TrainOpti
             }
         }
         if let Some((v, ds)) = &validation
-            && (state.step % v.every == 0 || state.step == end)
+            && (state.step.is_multiple_of(v.every) || state.step == end)
         {
             let opts = EvalOptions { iters: v.iters, stages: v.stages, limit: v.limit, ..EvalOptions::default() };
             let report = evaluate(&model.valid(), ds.as_ref(), "training", &opts, device, |_, _, _| {})?;
@@ -244,7 +244,7 @@ pub fn train<B: AutodiffBackend>(cfg: &TrainConfig, run: &Path, opts: &TrainOpti
                 bar.println(format!("step {}: validation EPE {:.3}, Bad-2 {:.2}% on {} images", state.step, m.epe, m.bad_2, report.images));
             }
         }
-        if state.step % cfg.checkpoint.every == 0 || state.step == end {
+        if state.step.is_multiple_of(cfg.checkpoint.every) || state.step == end {
             outcome.checkpoint = Some(save_checkpoint(run, &model, &optim, &state, cfg.checkpoint.keep)?);
             last_checkpoint_step = Some(state.step);
         }
