@@ -54,7 +54,7 @@ pub struct SyntheticPair {
 /// two views sample the textures at the same points.
 pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let d_bg = rng.random_range(2..8) as f64;
+    let d_bg = rng.random_range(4..16) as f64;
     let d_fg = d_bg + rng.random_range(4..(width / 8).max(6)) as f64;
     let (rw, rh) = (rng.random_range(width / 4..width / 2), rng.random_range(height / 4..height / 2));
     let x0 = rng.random_range(d_fg as usize..width - rw) as f64;

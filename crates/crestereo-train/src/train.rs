@@ -117,6 +117,20 @@ fn batch_epe<B: Backend>(pred: &Tensor<B, 4>, disp: &Tensor<B, 3>, valid: &Tenso
     if count > 0.0 { err / count } else { f64::NAN }
 }
 
+/// A freshly initialised network whose weights depend only on `seed`. Burn's backends draw
+/// initial weights from one process-wide RNG, so two threads initialising at once (tests, or a
+/// tool running several evaluations) would interleave their draws; the lock keeps seed → weights
+/// a function. (Found by the accumulation test: in-process runs started from different weights.)
+pub fn seeded_model<B: Backend>(seed: u64, device: &B::Device) -> CREStereo<B> {
+    static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
+    B::seed(device, seed);
+    let model = CREStereoConfig::new().init(device);
+    // Burn creates parameters lazily, on first use: read them all now, inside the lock.
+    let _ = crestereo::weights::named_parameters(&model);
+    model
+}
+
 /// Trains (or continues) a run. Generic over the autodiff backend: Flex on CPU, CUDA with the
 /// `cuda` feature.
 pub fn train<B: AutodiffBackend>(cfg: &TrainConfig, run: &Path, opts: &TrainOptions, device: &B::Device) -> Result<TrainOutcome> {
@@ -135,8 +149,7 @@ pub fn train<B: AutodiffBackend>(cfg: &TrainConfig, run: &Path, opts: &TrainOpti
         None => None,
     };
 
-    B::seed(device, cfg.seed);
-    let mut model: CREStereo<B> = CREStereoConfig::new().init(device);
+    let mut model: CREStereo<B> = seeded_model(cfg.seed, device);
     if let Some(w) = &cfg.init_weights {
         model = crestereo::weights::load_weights(model, w, device)?;
     }

@@ -58,8 +58,7 @@ pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
             (model, file.display().to_string())
         }
         (None, Some(seed)) => {
-            B::seed(device, seed);
-            (CREStereoConfig::new().init::<B>(device), format!("untrained (seed {seed})"))
+            (crate::train::seeded_model::<B>(seed, device), format!("untrained (seed {seed})"))
         }
         (None, None) => bail!("no weights: pass --weights FILE|CHECKPOINT|RUN (or --untrained-seed N for a baseline)"),
     };
