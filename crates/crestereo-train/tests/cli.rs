@@ -1,5 +1,7 @@
 //! The `crestereo infer` command on the fixture PNGs, and its error messages.
 
+// The model crate's fixture helpers, not a second copy of them.
+#[path = "../../crestereo/tests/common/mod.rs"]
 mod common;
 
 use std::process::Command;
