@@ -192,6 +192,13 @@ pub struct ValidationSettings {
     pub stages: usize,
 }
 
+impl ValidationSettings {
+    /// Validation on `path` with the defaults a `[validation]` table gets.
+    pub fn new(path: PathBuf) -> Self {
+        Self { path, format: None, every: default_val_every(), limit: 0, iters: default_val_iters(), stages: default_val_stages() }
+    }
+}
+
 fn default_val_every() -> u64 {
     5000
 }
@@ -200,6 +207,11 @@ fn default_val_iters() -> usize {
 }
 fn default_val_stages() -> usize {
     2
+}
+
+/// A stereo-io layout name (`None` = detect from the files); `key` names the setting in errors.
+pub fn parse_format(name: Option<&str>, key: &str) -> Result<Option<stereo_io::DatasetFormat>> {
+    name.map(|f| f.parse().map_err(|e: String| anyhow::anyhow!("{key}: {e}"))).transpose()
 }
 
 impl TrainConfig {
@@ -217,6 +229,16 @@ impl TrainConfig {
         cfg.resolve_paths(base);
         cfg.validate().with_context(|| format!("training config {}", path.display()))?;
         Ok(cfg)
+    }
+
+    /// The config a run directory was started with (`<run>/config.toml`), if any.
+    pub fn stored(run: &Path) -> Result<Option<Self>> {
+        let path = run.join("config.toml");
+        if !path.is_file() {
+            return Ok(None);
+        }
+        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        Ok(Some(toml::from_str(&text).with_context(|| format!("corrupt {}", path.display()))?))
     }
 
     /// Makes every path absolute relative to `base`, so a copy of the config stored in the run
@@ -258,10 +280,7 @@ impl TrainConfig {
             if !(d.weight > 0.0 && d.weight.is_finite()) {
                 bail!("datasets[{i}].weight must be a positive number, got {}", d.weight);
             }
-            if let Some(f) = &d.format {
-                f.parse::<stereo_io::DatasetFormat>()
-                    .map_err(|e| anyhow::anyhow!("datasets[{i}].format: {e}"))?;
-            }
+            parse_format(d.format.as_deref(), &format!("datasets[{i}].format"))?;
         }
         if self.steps == 0 {
             bail!("steps must be at least 1");
@@ -298,10 +317,7 @@ impl TrainConfig {
             if v.every == 0 || v.iters == 0 || !(1..=3).contains(&v.stages) {
                 bail!("validation: every and iters must be ≥ 1 and stages in 1..=3");
             }
-            if let Some(f) = &v.format {
-                f.parse::<stereo_io::DatasetFormat>()
-                    .map_err(|e| anyhow::anyhow!("validation.format: {e}"))?;
-            }
+            parse_format(v.format.as_deref(), "validation.format")?;
         }
         Ok(())
     }

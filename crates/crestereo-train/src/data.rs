@@ -7,6 +7,7 @@
 //! count and timing therefore never change what the model sees.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::sync::{Arc, Condvar, Mutex};
@@ -17,10 +18,10 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use stereo_io::{DatasetFormat, StereoDataset, open_dataset};
+use stereo_io::{StereoDataset, open_dataset};
 
 use crate::augment::{AugmentConfig, TrainSample, augment_random};
-use crate::config::DatasetEntry;
+use crate::config::{DatasetEntry, parse_format};
 
 /// The training datasets, opened, with their normalised weights.
 pub struct MixedSource {
@@ -34,16 +35,7 @@ impl MixedSource {
         let mut datasets = Vec::new();
         let mut names = Vec::new();
         for (i, e) in entries.iter().enumerate() {
-            let format = e
-                .format
-                .as_deref()
-                .map(|f| f.parse::<DatasetFormat>().map_err(|m| anyhow::anyhow!("datasets[{i}].format: {m}")))
-                .transpose()?;
-            let ds = open_dataset(&e.path, format)
-                .with_context(|| format!("datasets[{i}]: cannot open {}", e.path.display()))?;
-            if ds.is_empty() {
-                bail!("datasets[{i}]: {} holds no samples", e.path.display());
-            }
+            let ds = open_data(&e.path, e.format.as_deref(), &format!("datasets[{i}]"))?;
             names.push(format!("{} ({}, {} samples)", e.path.display(), ds.format(), ds.len()));
             datasets.push(ds);
         }
@@ -51,6 +43,16 @@ impl MixedSource {
         let weights = entries.iter().map(|e| e.weight / total).collect();
         Ok(Self { datasets, names, weights })
     }
+}
+
+/// Opens a dataset that must hold samples; `key` names it in errors (`datasets[0]`, `--data`).
+pub fn open_data(path: &Path, format: Option<&str>, key: &str) -> Result<Box<dyn StereoDataset>> {
+    let format = parse_format(format, &format!("{key}.format"))?;
+    let ds = open_dataset(path, format).with_context(|| format!("{key}: cannot open {}", path.display()))?;
+    if ds.is_empty() {
+        bail!("{key}: {} holds no samples", path.display());
+    }
+    Ok(ds)
 }
 
 /// One planned sample: its number in the run, where it comes from, and its augmentation seed.
@@ -303,13 +305,11 @@ impl Drop for Loader {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
         self.credit.1.notify_all();
-        // Unblock workers waiting to hand over a result.
-        while self.results.try_recv().is_ok() {}
-        let threads = std::mem::take(&mut self.threads);
-        // Dropping the receiver ends any worker blocked in `send`; the planner exits on `stop`.
+        // Dropping the receiver ends any worker blocked in `send` (and with the workers gone,
+        // a planner blocked in `send`); a waiting planner exits on `stop`.
         let (_, dead) = sync_channel(1);
         drop(std::mem::replace(&mut self.results, dead));
-        for t in threads {
+        for t in std::mem::take(&mut self.threads) {
             let _ = t.join();
         }
     }

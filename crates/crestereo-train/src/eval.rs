@@ -11,7 +11,7 @@ use burn::prelude::*;
 use crestereo::io::BgrImage;
 use crestereo::{CREStereo, InferenceOptions, infer_disparity};
 use serde::Serialize;
-use stereo_io::{RgbImage, StereoDataset, StereoSample};
+use stereo_io::{StereoDataset, StereoSample};
 
 use crate::metrics::{DisparityMetrics, boundary_band, disparity_metrics, max_iou};
 
@@ -84,18 +84,6 @@ pub struct EvalReport {
     pub per_image: Vec<ImageResult>,
 }
 
-/// The network's input from a decoded image: planar BGR 0..255.
-pub fn bgr(img: &RgbImage) -> BgrImage {
-    let n = img.width * img.height;
-    let mut data = vec![0f32; 3 * n];
-    for i in 0..n {
-        for c in 0..3 {
-            data[(2 - c) * n + i] = f32::from(img.data[i * 3 + c]);
-        }
-    }
-    BgrImage { width: img.width, height: img.height, data }
-}
-
 /// Non-occluded pixels: the dataset's mask, else the left-right check when a right-view map
 /// exists, else `None`.
 pub fn nonocc_mask(sample: &StereoSample, tolerance: f32) -> Option<(Vec<bool>, NonOccSource)> {
@@ -141,7 +129,7 @@ fn foreground(dir: &Path, id: &str, width: usize, height: usize) -> Result<Vec<b
 /// Evaluates one decoded sample.
 pub fn evaluate_sample<B: Backend>(model: &CREStereo<B>, sample: &StereoSample, id: &str, opts: &EvalOptions, device: &B::Device) -> Result<ImageResult> {
     let t0 = Instant::now();
-    let pred = infer_disparity(model, &bgr(&sample.left), &bgr(&sample.right), InferenceOptions { iters: opts.iters, stages: opts.stages }, device)?;
+    let pred = infer_disparity(model, &BgrImage::from_rgb(&sample.left), &BgrImage::from_rgb(&sample.right), InferenceOptions { iters: opts.iters, stages: opts.stages }, device)?;
     let seconds = t0.elapsed().as_secs_f64();
     let truth = &sample.disp_left;
     let all = disparity_metrics(&pred.data, &truth.data, &truth.valid);
@@ -326,7 +314,7 @@ fn csv_field(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stereo_io::{DisparityMap, SampleMeta};
+    use stereo_io::{DisparityMap, RgbImage, SampleMeta};
 
     fn sample(left: &[f32], right: Option<&[f32]>, w: usize) -> StereoSample {
         let map = |d: &[f32]| DisparityMap { width: w, height: 1, data: d.to_vec(), valid: d.iter().map(|v| *v > 0.0).collect() };

@@ -101,7 +101,7 @@ impl EventWriter {
 }
 
 /// Reads the scalars back: `(step, tag, value)` per summary value. Checks both CRCs of every
-/// record. Used by the tests and by `crestereo plot` on runs without a CSV.
+/// record (the tests' independent check of what the writer produced).
 pub fn read_scalars(path: &Path) -> Result<Vec<(i64, String, f32)>> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     let mut out = Vec::new();

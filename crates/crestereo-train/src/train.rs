@@ -22,7 +22,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::checkpoint::{TrainState, list_checkpoints, load_checkpoint, save_checkpoint};
 use crate::config::TrainConfig;
-use crate::data::{Loader, MixedSource, Planner, collate};
+use crate::data::{Loader, MixedSource, Planner, collate, open_data};
 use crate::eval::{EvalOptions, evaluate};
 use crate::tensorboard::EventWriter;
 
@@ -93,15 +93,14 @@ fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<(u6
     if !resume && latest.is_some() {
         bail!("{} already holds checkpoints: pass --resume to continue it, or choose another --out", run.display());
     }
-    if resume && stored.is_file() {
-        let text = std::fs::read_to_string(&stored)?;
-        let old: TrainConfig = toml::from_str(&text).with_context(|| format!("corrupt {}", stored.display()))?;
-        if identity(&old) != identity(cfg) {
-            bail!(
-                "the config differs from the one this run started with ({}) in seed, batch, iters, loss, optimiser, schedule, augmentation or data — resume with the same config (steps, loader, checkpoint, log and validation settings may change)",
-                stored.display()
-            );
-        }
+    if resume
+        && let Some(old) = TrainConfig::stored(run)?
+        && identity(&old) != identity(cfg)
+    {
+        bail!(
+            "the config differs from the one this run started with ({}) in seed, batch, iters, loss, optimiser, schedule, augmentation or data — resume with the same config (steps, loader, checkpoint, log and validation settings may change)",
+            stored.display()
+        );
     }
     let text = toml::to_string_pretty(cfg).context("cannot serialise the config")?;
     stereo_io::write_bytes_atomically(&stored, text.as_bytes()).with_context(|| format!("cannot write {}", stored.display()))?;
@@ -142,10 +141,7 @@ pub fn train<B: AutodiffBackend>(cfg: &TrainConfig, run: &Path, opts: &TrainOpti
         tracing::info!("training data {:.1}%: {name}", 100.0 * w);
     }
     let validation = match &cfg.validation {
-        Some(v) => {
-            let format = v.format.as_deref().map(|f| f.parse().map_err(|e: String| anyhow::anyhow!(e))).transpose()?;
-            Some((v, stereo_io::open_dataset(&v.path, format).with_context(|| format!("validation data {}", v.path.display()))?))
-        }
+        Some(v) => Some((v, open_data(&v.path, v.format.as_deref(), "validation")?)),
         None => None,
     };
 

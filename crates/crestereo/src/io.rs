@@ -5,11 +5,42 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 
 /// A planar float image (3, H, W) in BGR order, values 0..255 — the network's input format.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct BgrImage {
     pub width: usize,
     pub height: usize,
+    /// `3 · height · width` values: the whole B plane, then G, then R.
     pub data: Vec<f32>,
+}
+
+impl BgrImage {
+    pub fn zeros(width: usize, height: usize) -> Self {
+        Self { width, height, data: vec![0.0; 3 * width * height] }
+    }
+
+    /// Interleaved 8-bit RGB (as `stereo-io` decodes images) to planar BGR.
+    pub fn from_rgb(img: &stereo_io::RgbImage) -> Self {
+        let n = img.width * img.height;
+        assert_eq!(img.data.len(), 3 * n, "RGB buffer does not match {}x{}", img.width, img.height);
+        let mut out = Self::zeros(img.width, img.height);
+        for (i, rgb) in img.data.chunks_exact(3).enumerate() {
+            out.data[i] = f32::from(rgb[2]);
+            out.data[n + i] = f32::from(rgb[1]);
+            out.data[2 * n + i] = f32::from(rgb[0]);
+        }
+        out
+    }
+
+    /// Channel `c` (0 = B, 1 = G, 2 = R).
+    pub fn plane(&self, c: usize) -> &[f32] {
+        let n = self.width * self.height;
+        &self.data[c * n..(c + 1) * n]
+    }
+
+    pub fn plane_mut(&mut self, c: usize) -> &mut [f32] {
+        let n = self.width * self.height;
+        &mut self.data[c * n..(c + 1) * n]
+    }
 }
 
 /// Reads a PNG / JPEG (any 8- or 16-bit colour or grey file) and returns it as BGR 0..255,

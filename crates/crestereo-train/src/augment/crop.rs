@@ -2,7 +2,7 @@
 
 use stereo_io::DisparityMap;
 
-use super::PlanarBgr;
+use super::BgrImage;
 
 /// Offset of a `crop`-long window in a `size`-long axis: among the `|size − crop| + 1` possible
 /// positions, the one at fraction `frac`. Negative when the image is smaller than the crop: the
@@ -22,9 +22,9 @@ fn inside(i: usize, offset: isize, size: usize) -> Option<usize> {
 
 /// The `crop = [height, width]` window whose top-left corner is at (`top`, `left`) in the
 /// image; pixels outside the image are 0.
-pub fn crop_image(img: &PlanarBgr, top: isize, left: isize, crop: [usize; 2]) -> PlanarBgr {
+pub fn crop_image(img: &BgrImage, top: isize, left: isize, crop: [usize; 2]) -> BgrImage {
     let [out_h, out_w] = crop;
-    let mut out = PlanarBgr::zeros(out_w, out_h);
+    let mut out = BgrImage::zeros(out_w, out_h);
     for channel in 0..3 {
         let src = img.plane(channel);
         let dst = out.plane_mut(channel);

@@ -13,7 +13,7 @@
 //! the same order, so a training sample is a pure function of (sample, config, seed) and the
 //! units can be tested with hand-made parameters.
 //!
-//! Images travel as [`PlanarBgr`]: f32 planes in B, G, R order, because that is what the
+//! Images travel as [`BgrImage`]: f32 planes in B, G, R order, because that is what the
 //! network was trained on (the reference reads with OpenCV) and what [`TrainSample`] carries.
 //!
 //! Deviations from the reference, all deliberate:
@@ -42,7 +42,8 @@ mod test_support;
 mod warp;
 
 use rand::Rng;
-use stereo_io::{RgbImage, StereoSample};
+pub use crestereo::io::BgrImage;
+use stereo_io::StereoSample;
 
 pub use config::AugmentConfig;
 pub use crop::{crop_disparity, crop_image, crop_offset};
@@ -66,57 +67,9 @@ pub struct TrainSample {
     pub valid: Vec<f32>,
 }
 
-/// An image as three f32 planes in B, G, R order, row-major, values nominally 0..255.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PlanarBgr {
-    pub width: usize,
-    pub height: usize,
-    /// `3 · height · width` values: the whole B plane, then G, then R.
-    pub data: Vec<f32>,
-}
-
-impl PlanarBgr {
-    pub fn zeros(width: usize, height: usize) -> Self {
-        Self {
-            width,
-            height,
-            data: vec![0.0; 3 * width * height],
-        }
-    }
-
-    fn plane(&self, channel: usize) -> &[f32] {
-        let n = self.width * self.height;
-        &self.data[channel * n..(channel + 1) * n]
-    }
-
-    fn plane_mut(&mut self, channel: usize) -> &mut [f32] {
-        let n = self.width * self.height;
-        &mut self.data[channel * n..(channel + 1) * n]
-    }
-}
-
-/// Interleaved 8-bit RGB to planar f32 BGR.
-pub fn to_planar_bgr(img: &RgbImage) -> PlanarBgr {
-    let n = img.width * img.height;
-    assert_eq!(
-        img.data.len(),
-        3 * n,
-        "RGB buffer does not match {}x{}",
-        img.width,
-        img.height
-    );
-    let mut out = PlanarBgr::zeros(img.width, img.height);
-    for (i, rgb) in img.data.chunks_exact(3).enumerate() {
-        out.data[i] = f32::from(rgb[2]);
-        out.data[n + i] = f32::from(rgb[1]);
-        out.data[2 * n + i] = f32::from(rgb[0]);
-    }
-    out
-}
-
 fn into_train_sample(
-    left: PlanarBgr,
-    right: PlanarBgr,
+    left: BgrImage,
+    right: BgrImage,
     disp: &[f32],
     valid: &[bool],
 ) -> TrainSample {
@@ -185,8 +138,8 @@ fn assert_same_size(sample: &StereoSample) {
 /// When the images and the disparity of `sample` differ in size.
 pub fn augment(sample: &StereoSample, cfg: &AugmentConfig, params: &AugmentParams) -> TrainSample {
     assert_same_size(sample);
-    let mut left = to_planar_bgr(&sample.left);
-    let mut right = to_planar_bgr(&sample.right);
+    let mut left = BgrImage::from_rgb(&sample.left);
+    let mut right = BgrImage::from_rgb(&sample.right);
     let swapped_disp;
     let disp = match (&sample.disp_right, params.swap) {
         (Some(disp_right), true) => {
@@ -244,8 +197,8 @@ pub fn to_train_sample(sample: &StereoSample) -> TrainSample {
         .map(|(&v, d)| v && d.is_finite())
         .collect();
     into_train_sample(
-        to_planar_bgr(&sample.left),
-        to_planar_bgr(&sample.right),
+        BgrImage::from_rgb(&sample.left),
+        BgrImage::from_rgb(&sample.right),
         &sample.disp_left.data,
         &valid,
     )

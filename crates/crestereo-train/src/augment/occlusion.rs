@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::PlanarBgr;
+use super::BgrImage;
 
 /// An occluding box on the right image, placed after resizing and cropping.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -33,7 +33,7 @@ impl OcclusionBox {
 /// Paints the box with the image's own mean colour (taken over the whole image, padding
 /// included, as in the reference). Only the right image gets it: left-view ground truth stays
 /// meaningful while the network learns to fill in matches it cannot see.
-pub fn occlude_right(img: &mut PlanarBgr, occlusion: &OcclusionBox) {
+pub fn occlude_right(img: &mut BgrImage, occlusion: &OcclusionBox) {
     let (width, height) = (img.width, img.height);
     let [top, bottom, left, right] = occlusion.rect(height, width);
     for channel in 0..3 {

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::PlanarBgr;
+use super::BgrImage;
 
 /// Brightness, contrast and gamma factors for one image.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -21,7 +21,7 @@ impl Photometric {
 }
 
 /// ITU-R 601 luma weights, the ones PIL's grey conversion uses.
-fn mean_grey(img: &PlanarBgr) -> f64 {
+fn mean_grey(img: &BgrImage) -> f64 {
     let n = (img.width * img.height).max(1) as f64;
     let sum = |channel: usize| {
         img.plane(channel)
@@ -35,7 +35,7 @@ fn mean_grey(img: &PlanarBgr) -> f64 {
 /// Brightness (scale towards black), contrast (blend with the image's mean grey) and gamma
 /// (`255 · (v/255)^γ`), in that order like PIL's `ImageEnhance` + lookup table; each step is
 /// clamped to 0..255 as an 8-bit image would be.
-pub fn photometric(img: &mut PlanarBgr, factors: &Photometric) {
+pub fn photometric(img: &mut BgrImage, factors: &Photometric) {
     let brightness = factors.brightness as f32;
     for v in &mut img.data {
         *v = (*v * brightness).clamp(0.0, 255.0);
@@ -57,7 +57,7 @@ mod tests {
     use super::*;
     use crate::augment::test_support::*;
 
-    fn mid_grey_image() -> PlanarBgr {
+    fn mid_grey_image() -> BgrImage {
         planar_from_fn(W, H, |c, x, y| {
             60.0 + noise(x as i64, y as i64, c as u64) * 0.5
         })

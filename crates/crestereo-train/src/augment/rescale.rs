@@ -2,7 +2,7 @@
 
 use stereo_io::DisparityMap;
 
-use super::PlanarBgr;
+use super::BgrImage;
 
 /// Size of a `height × width` image resized by `scale`, rounded like OpenCV's `fx`/`fy` resize.
 pub fn scaled_size(height: usize, width: usize, scale: f64) -> (usize, usize) {
@@ -18,7 +18,7 @@ fn source_coordinate(i: usize, scale: f64) -> f64 {
 }
 
 /// Bilinear resize by `scale` with edge pixels repeated (OpenCV `INTER_LINEAR`).
-pub fn rescale_image(img: &PlanarBgr, scale: f64) -> PlanarBgr {
+pub fn rescale_image(img: &BgrImage, scale: f64) -> BgrImage {
     let (out_h, out_w) = scaled_size(img.height, img.width, scale);
     let taps = |out_n: usize, in_n: usize| -> Vec<(usize, usize, f32)> {
         (0..out_n)
@@ -32,7 +32,7 @@ pub fn rescale_image(img: &PlanarBgr, scale: f64) -> PlanarBgr {
     };
     let x_taps = taps(out_w, img.width);
     let y_taps = taps(out_h, img.height);
-    let mut out = PlanarBgr::zeros(out_w, out_h);
+    let mut out = BgrImage::zeros(out_w, out_h);
     for channel in 0..3 {
         let src = img.plane(channel);
         let dst = out.plane_mut(channel);

@@ -2,10 +2,10 @@
 
 use stereo_io::DisparityMap;
 
-use super::PlanarBgr;
+use super::BgrImage;
 
 /// Mirrors an image left to right.
-pub fn mirror_image(img: &PlanarBgr) -> PlanarBgr {
+pub fn mirror_image(img: &BgrImage) -> BgrImage {
     let mut out = img.clone();
     for row in out.data.chunks_exact_mut(img.width) {
         row.reverse();
@@ -33,10 +33,10 @@ pub fn mirror_disparity(disp: &DisparityMap) -> DisparityMap {
 /// `W−1−x_r − d` in the new right image, so the right-view disparity, mirrored, is exactly the
 /// new left-view disparity with `x_right = x_left − d`.
 pub fn swap_and_mirror(
-    left: &PlanarBgr,
-    right: &PlanarBgr,
+    left: &BgrImage,
+    right: &BgrImage,
     disp_right: &DisparityMap,
-) -> (PlanarBgr, PlanarBgr, DisparityMap) {
+) -> (BgrImage, BgrImage, DisparityMap) {
     (
         mirror_image(right),
         mirror_image(left),
@@ -48,12 +48,11 @@ pub fn swap_and_mirror(
 mod tests {
     use super::*;
     use crate::augment::test_support::*;
-    use crate::augment::to_planar_bgr;
 
     #[test]
     fn swap_and_mirror_keeps_the_pair_consistent() {
         let scene = two_plane_scene(W, H);
-        let (left, right) = (to_planar_bgr(&scene.left), to_planar_bgr(&scene.right));
+        let (left, right) = (BgrImage::from_rgb(&scene.left), BgrImage::from_rgb(&scene.right));
         let disp_right = scene.disp_right.as_ref().unwrap();
         let (new_left, new_right, new_disp) = swap_and_mirror(&left, &right, disp_right);
         assert_eq!(at(&new_left, 2, 0, 3), at(&right, 2, W - 1, 3));

@@ -2,7 +2,7 @@
 
 use stereo_io::{DisparityMap, RgbImage, SampleMeta, StereoSample};
 
-use super::{PlanarBgr, TrainSample, into_train_sample};
+use super::{BgrImage, TrainSample, into_train_sample};
 
 pub(super) const W: usize = 48;
 pub(super) const H: usize = 32;
@@ -22,8 +22,8 @@ pub(super) fn planar_from_fn(
     width: usize,
     height: usize,
     f: impl Fn(usize, usize, usize) -> f32,
-) -> PlanarBgr {
-    let mut img = PlanarBgr::zeros(width, height);
+) -> BgrImage {
+    let mut img = BgrImage::zeros(width, height);
     for c in 0..3 {
         for y in 0..height {
             for x in 0..width {
@@ -34,7 +34,7 @@ pub(super) fn planar_from_fn(
     img
 }
 
-pub(super) fn at(img: &PlanarBgr, c: usize, x: usize, y: usize) -> f32 {
+pub(super) fn at(img: &BgrImage, c: usize, x: usize, y: usize) -> f32 {
     img.data[c * img.width * img.height + y * img.width + x]
 }
 
@@ -154,8 +154,8 @@ pub(super) fn assert_consistent(s: &TrainSample, tolerance: f32) -> usize {
 }
 
 pub(super) fn train_sample_of(
-    left: PlanarBgr,
-    right: PlanarBgr,
+    left: BgrImage,
+    right: BgrImage,
     disp: DisparityMap,
 ) -> TrainSample {
     into_train_sample(left, right, &disp.data, &disp.valid)

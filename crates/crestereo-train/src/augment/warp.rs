@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::PlanarBgr;
+use super::BgrImage;
 
 /// Rotation about a point and vertical shift of the right image.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -36,13 +36,13 @@ fn bilinear_taps(width: usize, height: usize, x: f64, y: f64) -> [(Option<usize>
 /// Rotates the (right) image about `warp`'s centre, then shifts it vertically; bilinear, black
 /// where nothing maps. Only the right image is warped, so the left-view ground truth stays
 /// exact while the pair stops being perfectly rectified.
-pub fn warp_right(img: &PlanarBgr, warp: &RightWarp) -> PlanarBgr {
+pub fn warp_right(img: &BgrImage, warp: &RightWarp) -> BgrImage {
     let (width, height) = (img.width, img.height);
     let plane_len = width * height;
     let (sin, cos) = warp.angle_deg.to_radians().sin_cos();
     let centre_y = warp.centre_frac[0] * height as f64;
     let centre_x = warp.centre_frac[1] * width as f64;
-    let mut out = PlanarBgr::zeros(width, height);
+    let mut out = BgrImage::zeros(width, height);
     for y in 0..height {
         for x in 0..width {
             // The forward map rotates by +angle (on screen) and then shifts; undo both to find

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use burn::prelude::*;
 use crestereo::CREStereoConfig;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -46,11 +46,7 @@ pub struct EvalArgs {
 }
 
 pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
-    let format = a.format.as_deref().map(|f| f.parse().map_err(|e: String| anyhow::anyhow!("--format: {e}"))).transpose()?;
-    let dataset = stereo_io::open_dataset(&a.data, format).with_context(|| format!("cannot open {}", a.data.display()))?;
-    if dataset.is_empty() {
-        bail!("{} holds no samples", a.data.display());
-    }
+    let dataset = crate::data::open_data(&a.data, a.format.as_deref(), "--data")?;
     let (model, weights) = match (&a.weights, a.untrained_seed) {
         (Some(w), _) => {
             let file = weights_file(w)?;
@@ -75,10 +71,10 @@ pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
         boundary_px: a.boundary,
         ..EvalOptions::default()
     };
-    let n = if a.limit > 0 { dataset.len().min(a.limit) } else { dataset.len() };
-    let bar = ProgressBar::new(n as u64);
+    let bar = ProgressBar::new(0);
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-    let report = evaluate(&model, dataset.as_ref(), &weights, &opts, device, |i, _, r| {
+    let report = evaluate(&model, dataset.as_ref(), &weights, &opts, device, |i, n, r| {
+        bar.set_length(n as u64);
         bar.set_position(i as u64);
         if let Some(m) = r.all {
             bar.set_message(format!("{}: EPE {:.3}", r.id, m.epe));

@@ -93,14 +93,10 @@ pub fn parse_crop(s: &str) -> Result<[usize; 2]> {
 
 /// The config a run uses: file (or the run's stored one on resume) then flags.
 pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
-    let stored = a.out.join("config.toml");
-    let mut cfg = match (&a.config, a.resume && stored.is_file()) {
-        (Some(path), _) => TrainConfig::from_file(path)?,
-        (None, true) => {
-            let text = std::fs::read_to_string(&stored)?;
-            toml::from_str(&text).with_context(|| format!("corrupt {}", stored.display()))?
-        }
-        (None, false) => TrainConfig::default(),
+    let mut cfg = match &a.config {
+        Some(path) => TrainConfig::from_file(path)?,
+        None if a.resume => TrainConfig::stored(&a.out)?.unwrap_or_default(),
+        None => TrainConfig::default(),
     };
     if !a.data.is_empty() {
         cfg.datasets = a.data.iter().map(|s| parse_data(s)).collect::<Result<_>>()?;
@@ -109,7 +105,7 @@ pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
         let path = std::path::absolute(v)?;
         cfg.validation = Some(match cfg.validation.take() {
             Some(old) => ValidationSettings { path, ..old },
-            None => ValidationSettings { path, format: None, every: 5000, limit: 0, iters: 20, stages: 2 },
+            None => ValidationSettings::new(path),
         });
     }
     if let Some(val) = cfg.validation.as_mut() {
