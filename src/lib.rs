@@ -49,7 +49,7 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
     let rendered = service.render(spec, |_| None).expect("render");
     let dir = tempfile::tempdir().expect("tempdir");
     let layout = DatasetLayout::new(dir.path());
-    let entry = stereogen::dataset::finalize_sample(&layout, spec, rendered.reply.files.as_ref().unwrap(), &rendered.reply.notes, 0.0).expect("finalize");
+    let entry = stereogen::dataset::finalize_sample(&layout, spec, rendered.reply.files.as_ref().unwrap(), &rendered.reply.notes, 0.0, &Default::default()).expect("finalize");
     let (left, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_left)).expect("left exr");
     let (right, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_right)).expect("right exr");
     RenderedPair { left, right, dir, layout, entry }

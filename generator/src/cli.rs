@@ -132,18 +132,24 @@ pub enum Command {
         #[command(flatten)]
         runtime: RuntimeArgs,
     },
-    /// Write DATASET (ours) in another layout: crestereo (the official trainer's `*_left.jpg` +
-    /// `*.disp.png` x32), kitti (`training/image_2`, `disp_occ_0` x256) or middlebury (`im0.png`,
-    /// `disp0.pfm`, `calib.txt`). Images are hard links where the format matches.
+    /// Write DATASET in another layout: crestereo (the official trainer's `*_left.jpg` +
+    /// `*.disp.png` x32), kitti (KITTI 2015: `training/image_2`, `disp_occ_0` x256) or middlebury
+    /// (`im0.png`, `disp0.pfm`, `calib.txt`). DATASET is ours or any layout the readers know.
+    /// Images are hard links where the source file is what the layout stores.
     Export {
-        /// The stereogen dataset directory (with manifest.jsonl).
+        /// The dataset directory (ours holds manifest.jsonl).
         dataset: PathBuf,
-        #[arg(long, value_enum)]
-        format: crate::dataset::export::ExportFormat,
+        /// The layout to write: crestereo, kitti or middlebury.
+        #[arg(long, value_name = "LAYOUT")]
+        format: stereo_io::WritableFormat,
+        /// The layout of DATASET (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012,
+        /// kitti2015, sintel, fallingthings) [default: recognised from its files].
+        #[arg(long, value_name = "LAYOUT")]
+        from_format: Option<stereo_io::DatasetFormat>,
         /// Output directory (created if missing).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// crestereo only: write real JPEGs of this quality (1-100) instead of linking our PNGs.
+        /// crestereo only: write real JPEGs of this quality (1-100) instead of linking the source images.
         #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
         jpeg_quality: Option<u8>,
     },
@@ -267,13 +273,21 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let t0 = std::time::Instant::now();
             let rendered = service.render(&spec, |_| None)?;
             let layout = DatasetLayout::new(&out);
-            let entry = finalize_sample(&layout, &spec, rendered.reply.files.as_ref().expect("ok replies carry files"), &rendered.reply.notes, t0.elapsed().as_secs_f64())?;
+            let entry = finalize_sample(&layout, &spec, rendered.reply.files.as_ref().expect("ok replies carry files"), &rendered.reply.notes, t0.elapsed().as_secs_f64(), &Default::default())?;
             println!("{}", serde_json::to_string(&entry)?);
         }
-        Command::Export { dataset, format, out, jpeg_quality } => {
-            let opts = crate::dataset::export::ExportOptions { dataset, format, out: out.clone(), jpeg_quality };
+        Command::Export { dataset, format, from_format, out, jpeg_quality } => {
+            let opts = crate::dataset::export::ExportOptions { dataset, from: from_format, format, out: out.clone(), jpeg_quality };
             let s = crate::dataset::export::export(&opts)?;
-            eprintln!("stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid) -> {}", s.samples, s.linked, s.written, s.dropped_pixels, out.display());
+            eprintln!(
+                "stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid, {} without a right-view disparity) -> {}",
+                s.samples,
+                s.linked,
+                s.written,
+                s.dropped_pixels,
+                s.without_right_disparity,
+                out.display()
+            );
         }
         Command::Stats { dataset, plot, check, ks_alpha, bins, gap_bins, out } => {
             let opts = crate::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins };

@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::Result;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use stereo_io::{CRESTEREO_SCALE, DisparityMap, RgbImage, write_disparity_png16};
+use stereo_io::{DisparityMap, ImageEncoding, RgbImage, SampleMeta, StereoSample, WritableFormat};
 
 /// A smooth random colour texture: bilinear interpolation of a coarse random grid, plus a fine
 /// hash pattern of the texture coordinate so every window is distinctive.
@@ -98,20 +98,19 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
     SyntheticPair { left, right, disp_left, disp_right, foreground }
 }
 
-/// Writes `count` synthetic pairs in the CREStereo release layout (`<name>_left.jpg`, …, ×32
-/// PNG disparity) under `dir`, JPEG at quality 95 (the layout's own format), and each pair's
-/// foreground mask as `dir/foreground/<name>.png` (for `crestereo eval --fg-masks`).
+/// Writes `count` synthetic pairs in the CREStereo release layout through stereo-io's writer
+/// (`<name>_left.jpg`, …, ×32 PNG disparity) under `dir`, JPEG at quality 95 (the layout's own
+/// format), and each pair's foreground mask as `dir/foreground/<name>.png` (for
+/// `crestereo eval --fg-masks`).
 pub fn write_crestereo_dataset(dir: &Path, count: usize, width: usize, height: usize, seed: u64) -> Result<()> {
-    std::fs::create_dir_all(dir)?;
+    let mut writer = stereo_io::create_writer(WritableFormat::Crestereo, dir, ImageEncoding::Jpeg(95))?;
+    std::fs::create_dir_all(dir.join("foreground"))?;
     for i in 0..count {
         let p = synthetic_pair(width, height, crate::data::mix_seed(seed, i as u64));
         let name = format!("pair{i:03}");
-        stereo_io::write_jpeg_rgb(&dir.join(format!("{name}_left.jpg")), &p.left, 95)?;
-        stereo_io::write_jpeg_rgb(&dir.join(format!("{name}_right.jpg")), &p.right, 95)?;
-        write_disparity_png16(&dir.join(format!("{name}_left.disp.png")), &p.disp_left, CRESTEREO_SCALE)?;
-        write_disparity_png16(&dir.join(format!("{name}_right.disp.png")), &p.disp_right, CRESTEREO_SCALE)?;
+        let sample = StereoSample { left: p.left, right: p.right, disp_left: p.disp_left, disp_right: Some(p.disp_right), valid_left: None, meta: SampleMeta::default() };
+        writer.write(i, &name, &sample)?;
         let mask = p.foreground.iter().map(|f| if *f { 255 } else { 0 }).collect();
-        std::fs::create_dir_all(dir.join("foreground"))?;
         stereo_io::write_png(&dir.join("foreground").join(format!("{name}.png")), &stereo_io::Image { width, height, channels: 1, samples: stereo_io::Samples::U8(mask) })?;
     }
     Ok(())

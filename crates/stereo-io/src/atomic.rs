@@ -6,10 +6,18 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
+/// Marks the temporary names of [`temp_sibling`].
+const TEMP_MARK: &str = ".partial-";
+
 /// A hidden temporary name in the same directory (same filesystem, so `rename` is atomic).
 pub fn temp_sibling(path: &Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{name}.partial-{}", std::process::id()))
+    path.with_file_name(format!(".{name}{TEMP_MARK}{}", std::process::id()))
+}
+
+/// Whether a file name is one of [`temp_sibling`]'s (left behind if a process died mid-write).
+pub fn is_temp_name(name: &str) -> bool {
+    name.starts_with('.') && name.contains(TEMP_MARK)
 }
 
 /// Calls `write` with a temporary path beside `path`, then renames it into place.

@@ -4,7 +4,9 @@
 //!   16-bit PNG with a scale and Sintel's RGB packing ([`png_disp`]), NumPy `.npy` ([`npy`]);
 //!   [`read_disparity`]/[`write_disparity`] pick the format from the file name.
 //! - Images: 8/16-bit, grey/colour, PNG/JPEG ([`image_io`]).
-//! - Datasets: ours and the public stereo sets behind one trait ([`datasets`]).
+//! - Datasets: ours and the public stereo sets behind one trait ([`datasets`]), each layout with
+//!   its file names, reader and writer; our manifest and dataset description
+//!   ([`datasets::stereogen`], also at [`stereogen`]).
 //!
 //! Every reader names the file and the problem in its error; nothing here panics on bad input.
 
@@ -17,9 +19,15 @@ pub mod formats;
 pub mod image_io;
 pub mod npy;
 pub mod pfm;
+pub mod pixel_coords;
 pub mod png_disp;
 
-pub use atomic::{temp_sibling, write_atomically, write_bytes_atomically};
+pub use datasets::stereogen;
+
+pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomically};
+pub use datasets::export::{ExportOptions, export_dataset};
+pub use datasets::stereogen::{DatasetInfo, DatasetLayout, DisparitySummary, Manifest, ManifestContents, ManifestEntry, SamplePaths, read_manifest};
+pub use datasets::write::{DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, create_writer};
 pub use datasets::{DatasetFormat, SampleMeta, StereoDataset, StereoSample, detect_format, open_dataset};
 pub use disparity::{DisparityMap, DisparityMeta, DisparityStats};
 pub use error::{Error, Result};

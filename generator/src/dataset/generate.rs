@@ -12,7 +12,7 @@ use fs4::fs_std::FileExt;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
-use super::layout::DatasetLayout;
+use super::layout::{CreateDataset, DatasetLayout};
 use super::manifest::Manifest;
 use super::sample::finalize_sample;
 use crate::assets::{AssetIndex, SkippedAsset};
@@ -151,7 +151,10 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
         tracing::info!("removed {removed} partial file(s) left by an interrupted run");
     }
     let (manifest, done) = Manifest::open(&layout.manifest())?;
-    let done: BTreeSet<u64> = done.iter().map(|e| e.index).collect();
+    if done.has_unfinished_line() {
+        tracing::warn!("{}: dropped a torn last line left by an interrupted run", layout.manifest().display());
+    }
+    let done: BTreeSet<u64> = done.entries.iter().map(|e| e.index).collect();
 
     let indices: Vec<u64> = (opts.start..opts.start + opts.count).filter(|i| opts.shard.is_none_or(|(k, n)| i % n == k)).collect();
     let pending: VecDeque<u64> = indices.iter().copied().filter(|i| !done.contains(i)).collect();
@@ -214,7 +217,7 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
                             record_skipped(&layout, &seen_skipped, &rendered.reply.skipped_assets, Some(index));
                             let seconds = t0.elapsed().as_secs_f64();
                             let files = rendered.reply.files.as_ref().expect("ok replies carry files");
-                            let finished = finalize_sample(&layout, &spec, files, &rendered.reply.notes, seconds).and_then(|entry| manifest.lock().unwrap().append(&entry));
+                            let finished = finalize_sample(&layout, &spec, files, &rendered.reply.notes, seconds, &Default::default()).and_then(|entry| Ok(manifest.lock().unwrap().append(&entry)?));
                             match finished {
                                 Ok(()) => {
                                     let mut r = results.lock().unwrap();

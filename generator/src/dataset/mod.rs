@@ -7,6 +7,6 @@ pub mod manifest;
 pub mod sample;
 
 pub use generate::{GenerateOptions, GenerateSummary, generate};
-pub use layout::{DatasetInfo, DatasetLayout, SamplePaths};
-pub use manifest::{DisparitySummary, Manifest, ManifestEntry};
+pub use layout::{CreateDataset, DatasetInfo, DatasetLayout, SamplePaths};
+pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
 pub use sample::finalize_sample;

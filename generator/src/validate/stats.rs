@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::accumulate::{Binning, PixelAcc};
 use super::hist::{MAX_GAP_BINS, equal_mass_edges, gap_bins_for};
 use super::report::{CategoryStats, ObjectStats, PixelStats, StatsReport, Status};
-use crate::dataset::{DatasetInfo, DatasetLayout, ManifestEntry};
+use crate::dataset::{DatasetInfo, DatasetLayout, ManifestEntry, read_manifest};
 use crate::plan::{Dist, SceneSpec};
 
 /// Default number of bins of the pixel-level histogram over the law's support (stats.json, plots).
@@ -44,10 +44,13 @@ struct Loaded {
 
 fn load(root: &Path) -> anyhow::Result<Loaded> {
     let layout = DatasetLayout::new(root);
-    let info_path = layout.info();
-    let text = std::fs::read_to_string(&info_path).with_context(|| format!("{} is not a stereogen dataset: cannot read {}", root.display(), info_path.display()))?;
-    let info: DatasetInfo = serde_json::from_str(&text).with_context(|| format!("{} is not a stereogen dataset description", info_path.display()))?;
-    let entries = read_manifest(&layout.manifest())?;
+    let info: DatasetInfo = layout.read_info().with_context(|| format!("{} is not a stereogen dataset", root.display()))?;
+    // stats may run while `generate` appends: an unfinished last line is left out, with a note.
+    let manifest = read_manifest(&layout.manifest())?;
+    if manifest.has_unfinished_line() {
+        eprintln!("stats: {}: ignoring an unfinished last line (generation still running?)", layout.manifest().display());
+    }
+    let entries = manifest.entries;
     let mut categories: Vec<String> = info.recipe.categories.iter().map(|c| c.name.clone()).collect();
     for e in &entries {
         if !categories.contains(&e.category) {
@@ -55,25 +58,6 @@ fn load(root: &Path) -> anyhow::Result<Loaded> {
         }
     }
     Ok(Loaded { info, entries, categories })
-}
-
-/// The complete manifest lines. A last line without its newline is an append still in progress
-/// (stats may run while `generate` is writing) and is left out; any other bad line is an error.
-fn read_manifest(path: &Path) -> anyhow::Result<Vec<ManifestEntry>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let complete = match text.rfind('\n') {
-        Some(i) => &text[..=i],
-        None => "",
-    };
-    if complete.len() < text.len() {
-        eprintln!("stats: {}: ignoring an unfinished last line (generation still running?)", path.display());
-    }
-    complete
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).with_context(|| format!("{}: line {} is not a manifest entry", path.display(), i + 1)))
-        .collect()
 }
 
 /// Upper end of the pixel histograms: the largest disparity the manifest reports, or the law's

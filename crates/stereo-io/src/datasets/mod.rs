@@ -1,10 +1,22 @@
-//! Stereo dataset readers: one [`StereoDataset`] trait, one [`StereoSample`], a reader for each
-//! layout, and [`open_dataset`] that recognises a layout from its root folder.
+//! Stereo datasets on disk: one [`StereoDataset`] trait, one [`StereoSample`], and a module per
+//! layout that holds its file names, its reader and (where the layout makes sense as an output)
+//! its writer ([`write`]). [`open_dataset`] recognises a layout from its root folder;
+//! [`export::export_dataset`] converts between layouts.
 //!
-//! Every reader lists its samples when opened (sorted by path, so indices are stable) and decodes
-//! files only in [`StereoDataset::sample`].
+//! Every reader lists its samples when opened (sorted by path, so indices are stable; ours in
+//! manifest order) and decodes files only in [`StereoDataset::sample`].
 
-mod layouts;
+pub mod crestereo;
+mod detect;
+pub mod export;
+pub mod falling_things;
+pub mod kitti;
+pub mod middlebury;
+mod scan;
+pub mod sceneflow;
+pub mod sintel;
+pub mod stereogen;
+pub mod write;
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -15,7 +27,7 @@ use crate::disparity::DisparityMap;
 use crate::error::{Error, Result};
 use crate::image_io::{RgbImage, read_rgb};
 
-pub use layouts::detect_format;
+pub use detect::detect_format;
 
 /// A dataset layout.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -93,6 +105,11 @@ impl FromStr for DatasetFormat {
 }
 
 /// What is known about a sample besides its pixels.
+///
+/// `cx`, `cy` use **0-based pixel centres** (pixel `i`'s centre is at `x = i`; the convention of
+/// OpenCV `K` matrices and Middlebury/ETH3D `calib.txt`, see [`crate::pixel_coords`]): our
+/// manifest's continuous `cx = W/2` reads as `(W − 1)/2`. Falling Things' values are passed on
+/// as its `_camera_settings.json` gives them.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SampleMeta {
     /// The dataset layout it came from.
@@ -106,6 +123,7 @@ pub struct SampleMeta {
     pub f_px: Option<f64>,
     /// Baseline in metres, where the dataset gives it.
     pub baseline_m: Option<f64>,
+    /// Principal point, 0-based pixel centres.
     pub cx: Option<f64>,
     pub cy: Option<f64>,
     /// Middlebury/ETH3D `ndisp`: an upper bound of the disparity range.
@@ -306,7 +324,7 @@ pub fn open_dataset(root: &Path, format: Option<DatasetFormat>) -> Result<Box<dy
         Some(f) => f,
         None => detect_format(root)?,
     };
-    let samples = layouts::scan(format, root)?;
+    let samples = scan::scan(format, root)?;
     if samples.is_empty() {
         return Err(Error::format(root, format!("no {format} samples found")));
     }

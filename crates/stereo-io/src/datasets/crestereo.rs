@@ -1,0 +1,97 @@
+//! CREStereo's release layout: `<prefix>_left.jpg`, `<prefix>_right.jpg`,
+//! `<prefix>_left.disp.png`, `<prefix>_right.disp.png` (16-bit, d·32, 0 = invalid), anywhere
+//! below the root. The official loader globs `**/*_left.jpg` and cuts the name at its last `_`.
+
+use std::path::{Path, PathBuf};
+
+use super::scan::{file_name, rel_id, require, walk};
+use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under, write_png16, write_right_disparity};
+use super::{DatasetFormat, DispKind, SampleFiles, SampleMeta, StereoSample};
+use crate::error::Result;
+use crate::png_disp::CRESTEREO_SCALE;
+
+/// What names a sample's left image; also how the layout is recognised.
+pub const LEFT_IMAGE_SUFFIX: &str = "_left.jpg";
+pub const RIGHT_IMAGE_SUFFIX: &str = "_right.jpg";
+pub const LEFT_DISPARITY_SUFFIX: &str = "_left.disp.png";
+pub const RIGHT_DISPARITY_SUFFIX: &str = "_right.disp.png";
+
+/// The files of the sample at `prefix` (a path without the suffixes).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CrestereoPaths {
+    pub left: PathBuf,
+    pub right: PathBuf,
+    pub disp_left: PathBuf,
+    pub disp_right: PathBuf,
+}
+
+impl CrestereoPaths {
+    pub fn new(prefix: &Path) -> Self {
+        let with = |suffix: &str| {
+            let mut name = prefix.as_os_str().to_owned();
+            name.push(suffix);
+            PathBuf::from(name)
+        };
+        Self { left: with(LEFT_IMAGE_SUFFIX), right: with(RIGHT_IMAGE_SUFFIX), disp_left: with(LEFT_DISPARITY_SUFFIX), disp_right: with(RIGHT_DISPARITY_SUFFIX) }
+    }
+}
+
+pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
+    let mut out = Vec::new();
+    for e in walk(root, 8) {
+        let name = file_name(e.path());
+        let Some(stem) = name.strip_suffix(LEFT_IMAGE_SUFFIX) else { continue };
+        let prefix = e.path().parent().unwrap_or(root).join(stem);
+        let paths = CrestereoPaths::new(&prefix);
+        let right = require(paths.right, "right image", e.path())?;
+        let disp = require(paths.disp_left, "left disparity", e.path())?;
+        out.push(SampleFiles {
+            id: rel_id(root, &prefix),
+            left: paths.left,
+            right,
+            disp_left: (disp, DispKind::Png16(CRESTEREO_SCALE)),
+            disp_right: paths.disp_right.is_file().then_some((paths.disp_right, DispKind::Png16(CRESTEREO_SCALE))),
+            masks: vec![],
+            meta: SampleMeta::default(),
+        });
+    }
+    Ok(out)
+}
+
+/// Writes samples as `<root>/<name>_left.jpg`, … . With [`ImageEncoding::Lossless`] the `.jpg`
+/// files are links to the source images (PNG or JPEG) or PNG bytes.
+pub struct CrestereoWriter {
+    root: PathBuf,
+    images: ImageEncoding,
+    summary: WriteSummary,
+}
+
+impl CrestereoWriter {
+    pub fn new(root: &Path, images: ImageEncoding) -> Self {
+        Self { root: root.to_path_buf(), images, summary: WriteSummary::default() }
+    }
+}
+
+impl DatasetWriter for CrestereoWriter {
+    fn format(&self) -> DatasetFormat {
+        DatasetFormat::Crestereo
+    }
+    fn root(&self) -> &Path {
+        &self.root
+    }
+    fn summary(&self) -> &WriteSummary {
+        &self.summary
+    }
+
+    fn write(&mut self, _n: usize, name: &str, s: &StereoSample) -> Result<()> {
+        let paths = CrestereoPaths::new(&under(&self.root, name)?);
+        mkdir(paths.left.parent().unwrap_or(&self.root))?;
+        let linkable = [ImageFile::PngRgb8, ImageFile::Jpeg];
+        place_image(&s.meta.left_path, &s.left, &paths.left, &linkable, self.images, &mut self.summary)?;
+        place_image(&s.meta.right_path, &s.right, &paths.right, &linkable, self.images, &mut self.summary)?;
+        write_png16(&paths.disp_left, &s.disp_left, CRESTEREO_SCALE, &mut self.summary)?;
+        write_right_disparity(&paths.disp_right, s, &mut self.summary, |d, sum| write_png16(&paths.disp_right, d, CRESTEREO_SCALE, sum))?;
+        self.summary.samples += 1;
+        Ok(())
+    }
+}

@@ -1,0 +1,72 @@
+//! Converting a dataset: any layout [`open_dataset`] reads, written in a layout that has a
+//! writer, with an index of where each sample came from.
+
+use std::path::Path;
+
+use super::write::{ImageEncoding, WritableFormat, WriteSummary, create_writer};
+use super::{DatasetFormat, SampleMeta, open_dataset};
+use crate::error::{Error, Result};
+
+/// The index an export writes beside the samples: one line per sample, `n` (its number in the
+/// output, KITTI's file number), the source's category (ours; empty for other layouts) and id,
+/// tab-separated.
+pub const EXPORT_INDEX_FILE: &str = "stereogen_samples.tsv";
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExportOptions {
+    /// The source's layout; recognised from its folder when `None`.
+    pub from: Option<DatasetFormat>,
+    pub to: WritableFormat,
+    pub images: ImageEncoding,
+}
+
+/// The name a sample gets in the output: ours keep `<category>/<id>`; others are named by their
+/// id (a path below the source root) made flat, without the image extension, so the output
+/// holds none of the folder names by which the source's layout is recognised.
+fn export_name(format: DatasetFormat, meta: &SampleMeta) -> String {
+    match (format, meta.extra.get("category")) {
+        (DatasetFormat::Stereogen, Some(category)) => format!("{category}/{}", meta.id),
+        _ => {
+            let id = meta.id.trim_end_matches(".png").trim_end_matches(".jpg");
+            id.replace(['/', '\\'], "_")
+        }
+    }
+}
+
+/// Writes every sample of the dataset at `source` into `out` as `opts.to`; returns what was written.
+pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result<WriteSummary> {
+    if !source.is_dir() {
+        return Err(Error::format(source, "no such dataset directory (a stereogen dataset holds manifest.jsonl; the other layouts are listed by `open_dataset`)"));
+    }
+    if out.canonicalize().ok().is_some_and(|o| source.canonicalize().ok().is_some_and(|s| o == s)) {
+        return Err(Error::format(out, "the output must differ from the dataset directory"));
+    }
+    let dataset = open_dataset(source, opts.from)?;
+    let mut writer = create_writer(opts.to, out, opts.images)?;
+    let mut index = String::new();
+    for n in 0..dataset.len() {
+        let sample = dataset.sample(n)?;
+        let name = export_name(dataset.format(), &sample.meta);
+        writer.write(n, &name, &sample).map_err(|e| Error::format(source, format!("sample {}: {e}", sample.meta.id)))?;
+        let category = sample.meta.extra.get("category").map_or("", String::as_str);
+        index.push_str(&format!("{n:06}\t{category}\t{}\n", sample.meta.id));
+    }
+    crate::atomic::write_bytes_atomically(&out.join(EXPORT_INDEX_FILE), index.as_bytes())?;
+    Ok(writer.summary().clone())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_keep_our_categories_and_flatten_other_ids() {
+        let mut meta = SampleMeta { id: "0000003".into(), ..Default::default() };
+        meta.extra.insert("category".into(), "tree".into());
+        assert_eq!(export_name(DatasetFormat::Stereogen, &meta), "tree/0000003");
+        let meta = SampleMeta { id: "FlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png".into(), ..Default::default() };
+        assert_eq!(export_name(DatasetFormat::SceneFlow, &meta), "FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006");
+        let meta = SampleMeta { id: "trainingF/Adirondack".into(), ..Default::default() };
+        assert_eq!(export_name(DatasetFormat::Middlebury, &meta), "trainingF_Adirondack");
+    }
+}

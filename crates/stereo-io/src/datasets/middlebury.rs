@@ -1,0 +1,187 @@
+//! Middlebury 2014 / MiddEval3 (`<scene>/im0.png`, `im1.png`, `disp0.pfm`, `disp1.pfm`,
+//! `calib.txt`) and ETH3D two-view (the same with `disp0GT.pfm`, `mask0nocc.png`). PFM
+//! disparity, `inf` = unknown.
+//!
+//! `calib.txt` (vision.middlebury.edu/stereo/data/scenes2014): `cam0`/`cam1` = `[f 0 cx; 0 f cy;
+//! 0 0 1]` of the rectified views, `doffs = cx1 − cx0`, `baseline` in mm, `width`, `height`,
+//! `ndisp` (a bound: disparities lie in `0 .. ndisp−1`), `isint`, `vmin`/`vmax` (a tight range).
+//! The page does not say where pixel centres lie; its matrices are OpenCV-style `K` matrices and
+//! are used as such (0-based pixel centres), which is the convention of
+//! [`SampleMeta`](super::SampleMeta) too: `cx`, `cy` pass through unchanged both ways.
+
+use std::path::{Path, PathBuf};
+
+use super::scan::{file_name, rel_id, require, walk};
+use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under, write_right_disparity};
+use super::{DatasetFormat, DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
+use crate::error::{Error, Result};
+
+pub const LEFT_IMAGE: &str = "im0.png";
+pub const RIGHT_IMAGE: &str = "im1.png";
+pub const LEFT_DISPARITY: &str = "disp0.pfm";
+pub const RIGHT_DISPARITY: &str = "disp1.pfm";
+pub const CALIBRATION: &str = "calib.txt";
+/// ETH3D's left disparity.
+pub const ETH3D_LEFT_DISPARITY: &str = "disp0GT.pfm";
+/// Non-occlusion mask: 255 = non-occluded, 128 = occluded, 0 = unknown.
+pub const NONOCCLUDED_MASK: &str = "mask0nocc.png";
+
+/// Parses a `calib.txt` into `meta`: `cam0` gives `f_px`, `cx`, `cy`; `baseline` (mm) gives
+/// `baseline_m`; `ndisp`; every other key goes to `meta.extra` as text.
+pub(crate) fn parse_calib(path: &Path, meta: &mut SampleMeta) -> Result<()> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    for line in text.lines() {
+        let Some((k, v)) = line.split_once('=') else { continue };
+        let (k, v) = (k.trim(), v.trim());
+        let num = |s: &str| s.parse::<f64>().map_err(|_| Error::format(path, format!("`{k}` value {s:?} is not a number")));
+        match k {
+            "cam0" => {
+                let nums: Vec<f64> = v.trim_matches(['[', ']']).split([' ', ';']).filter(|s| !s.is_empty()).map(num).collect::<Result<_>>()?;
+                if nums.len() != 9 {
+                    return Err(Error::format(path, format!("cam0 has {} numbers, expected a 3x3 matrix", nums.len())));
+                }
+                meta.f_px = Some(nums[0]);
+                meta.cx = Some(nums[2]);
+                meta.cy = Some(nums[5]);
+            }
+            "baseline" => meta.baseline_m = Some(num(v)? / 1000.0),
+            "ndisp" => meta.ndisp = Some(num(v)? as u32),
+            _ => {
+                meta.extra.insert(k.to_string(), v.to_string());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// What a written `calib.txt` holds. Principal point in 0-based pixel centres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    pub f_px: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// `cx1 − cx0`: 0 for a rig whose views share their intrinsics.
+    pub doffs: f64,
+    pub baseline_m: f64,
+    pub width: usize,
+    pub height: usize,
+    pub ndisp: u32,
+    pub vmin: f64,
+    pub vmax: f64,
+}
+
+impl Calibration {
+    /// The calibration of `s` as Middlebury states it; an error naming what the sample lacks.
+    fn of_sample(s: &StereoSample) -> std::result::Result<Self, String> {
+        let m = &s.meta;
+        let missing: Vec<&str> = [("f_px", m.f_px), ("baseline_m", m.baseline_m), ("cx", m.cx), ("cy", m.cy)].into_iter().filter(|(_, v)| v.is_none()).map(|(k, _)| k).collect();
+        if !missing.is_empty() {
+            return Err(format!("calib.txt needs the focal length, baseline and principal point; the source gives no {}", missing.join(", ")));
+        }
+        let doffs = match m.extra.get("doffs") {
+            Some(t) => t.parse::<f64>().map_err(|_| format!("doffs {t:?} is not a number"))?,
+            None => 0.0,
+        };
+        let (vmin, vmax) = s.disp_left.stats().map_or((0.0, 0.0), |st| (f64::from(st.min).floor(), f64::from(st.max).ceil()));
+        let ndisp = (vmax as u32 + 1).max(m.ndisp.unwrap_or(1));
+        Ok(Self { f_px: m.f_px.unwrap(), cx: m.cx.unwrap(), cy: m.cy.unwrap(), doffs, baseline_m: m.baseline_m.unwrap(), width: s.left.width, height: s.left.height, ndisp, vmin, vmax })
+    }
+
+    pub fn to_text(&self) -> String {
+        let cam = |cx: f64| format!("[{} 0 {cx}; 0 {} {}; 0 0 1]", self.f_px, self.f_px, self.cy);
+        format!(
+            "cam0={}\ncam1={}\ndoffs={}\nbaseline={}\nwidth={}\nheight={}\nndisp={}\nisint=0\nvmin={}\nvmax={}\n",
+            cam(self.cx),
+            cam(self.cx + self.doffs),
+            self.doffs,
+            self.baseline_m * 1000.0,
+            self.width,
+            self.height,
+            self.ndisp,
+            self.vmin,
+            self.vmax
+        )
+    }
+}
+
+/// Middlebury (`disp0.pfm`, optional `disp1.pfm`, `calib.txt` required) or ETH3D
+/// (`disp0GT.pfm`, optional `calib.txt` and `mask0nocc.png`).
+pub(crate) fn scan(root: &Path, format: DatasetFormat) -> Result<Vec<SampleFiles>> {
+    let (disp_name, disp_right_name) = match format {
+        DatasetFormat::Eth3d => (ETH3D_LEFT_DISPARITY, None),
+        _ => (LEFT_DISPARITY, Some(RIGHT_DISPARITY)),
+    };
+    let mut out = Vec::new();
+    for e in walk(root, 4) {
+        if file_name(e.path()) != disp_name {
+            continue;
+        }
+        let dir = e.path().parent().unwrap_or(root);
+        let left = require(dir.join(LEFT_IMAGE), "left image im0.png", dir)?;
+        let right = require(dir.join(RIGHT_IMAGE), "right image im1.png", dir)?;
+        let mut meta = SampleMeta::default();
+        let calib = dir.join(CALIBRATION);
+        if calib.is_file() {
+            parse_calib(&calib, &mut meta)?;
+        } else if format == DatasetFormat::Middlebury {
+            return Err(Error::format(&calib, "missing: Middlebury scenes carry a calib.txt"));
+        }
+        let disp_r = disp_right_name.map(|n| dir.join(n)).filter(|p| p.is_file());
+        let mask = dir.join(NONOCCLUDED_MASK);
+        out.push(SampleFiles {
+            id: rel_id(root, dir),
+            left,
+            right,
+            disp_left: (e.path().to_path_buf(), DispKind::Pfm),
+            disp_right: disp_r.map(|p| (p, DispKind::Pfm)),
+            masks: if mask.is_file() { vec![(mask, MaskKind::Is255)] } else { vec![] },
+            meta,
+        });
+    }
+    Ok(out)
+}
+
+/// Writes each sample as a scene folder `<root>/<name with / as _>/`: `im0.png`, `im1.png`,
+/// `disp0.pfm`, `disp1.pfm` (where the sample has a right-view disparity) and `calib.txt`
+/// (which needs the sample's focal length, baseline and principal point: an error without).
+pub struct MiddleburyWriter {
+    root: PathBuf,
+    summary: WriteSummary,
+}
+
+impl MiddleburyWriter {
+    pub fn new(root: &Path) -> Self {
+        Self { root: root.to_path_buf(), summary: WriteSummary::default() }
+    }
+}
+
+impl DatasetWriter for MiddleburyWriter {
+    fn format(&self) -> DatasetFormat {
+        DatasetFormat::Middlebury
+    }
+    fn root(&self) -> &Path {
+        &self.root
+    }
+    fn summary(&self) -> &WriteSummary {
+        &self.summary
+    }
+
+    fn write(&mut self, _n: usize, name: &str, s: &StereoSample) -> Result<()> {
+        let dir = under(&self.root, &name.replace('/', "_"))?;
+        let calib = Calibration::of_sample(s).map_err(|m| Error::format(dir.join(CALIBRATION), m))?;
+        mkdir(&dir)?;
+        let png = [ImageFile::PngRgb8];
+        place_image(&s.meta.left_path, &s.left, &dir.join(LEFT_IMAGE), &png, ImageEncoding::Lossless, &mut self.summary)?;
+        place_image(&s.meta.right_path, &s.right, &dir.join(RIGHT_IMAGE), &png, ImageEncoding::Lossless, &mut self.summary)?;
+        crate::pfm::write_disparity_pfm(&dir.join(LEFT_DISPARITY), &s.disp_left)?;
+        let right = dir.join(RIGHT_DISPARITY);
+        write_right_disparity(&right, s, &mut self.summary, |d, sum| {
+            sum.written += 1;
+            crate::pfm::write_disparity_pfm(&right, d)
+        })?;
+        crate::atomic::write_bytes_atomically(&dir.join(CALIBRATION), calib.to_text().as_bytes())?;
+        self.summary.written += 2;
+        self.summary.samples += 1;
+        Ok(())
+    }
+}

@@ -1,0 +1,187 @@
+//! Our own layout, as `stereogen generate` writes it and every reader reads it.
+//!
+//! ```text
+//! <root>/dataset.json                   recipe, seed and version the dataset was made with
+//! <root>/manifest.jsonl                 one line per finished sample (written last)
+//! <root>/failures.jsonl                 samples that failed, with the reason
+//! <root>/skipped_assets.jsonl           mesh/texture files that could not be used, with the reason
+//! <root>/.stereogen.lock                held by the one process writing the directory
+//! <root>/<category>/<id>_left.png       and _right.png (8-bit sRGB)
+//! <root>/<category>/<id>_left.disp.exr  and _right.disp.exr (float32 disparity + validity)
+//! <root>/<category>/<id>.scene.json     the SceneSpec that reproduces the sample
+//! ```
+//!
+//! The writer is the generator: it names files with [`DatasetLayout::sample_paths`], writes each
+//! atomically, then appends the [`ManifestEntry`] through [`Manifest`].
+
+mod manifest;
+
+use std::path::{Path, PathBuf};
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
+
+use super::{DispKind, SampleFiles, SampleMeta};
+use crate::error::{Error, Result};
+use crate::pixel_coords::continuous_to_pixel_centres;
+
+/// `dataset.json`: what the dataset was made with.
+pub const DATASET_INFO_FILE: &str = "dataset.json";
+/// `manifest.jsonl`: the finished samples.
+pub const MANIFEST_FILE: &str = "manifest.jsonl";
+/// `failures.jsonl`: samples that failed, with the reason.
+pub const FAILURES_FILE: &str = "failures.jsonl";
+/// `skipped_assets.jsonl`: asset files that could not be used, with the reason.
+pub const SKIPPED_ASSETS_FILE: &str = "skipped_assets.jsonl";
+/// The lock file of the process writing the directory.
+pub const LOCK_FILE: &str = ".stereogen.lock";
+
+/// Paths of one sample's files, relative to the dataset root.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SamplePaths {
+    pub left: PathBuf,
+    pub right: PathBuf,
+    pub disp_left: PathBuf,
+    pub disp_right: PathBuf,
+    pub scene: PathBuf,
+}
+
+impl SamplePaths {
+    /// The files of sample `id` of `category`: `<category>/<id>_left.png`, `_right.png`,
+    /// `_left.disp.exr`, `_right.disp.exr`, `<id>.scene.json`.
+    pub fn new(category: &str, id: &str) -> Self {
+        let c = PathBuf::from(category);
+        Self {
+            left: c.join(format!("{id}_left.png")),
+            right: c.join(format!("{id}_right.png")),
+            disp_left: c.join(format!("{id}_left.disp.exr")),
+            disp_right: c.join(format!("{id}_right.disp.exr")),
+            scene: c.join(format!("{id}.scene.json")),
+        }
+    }
+
+    /// Every file with its key (the keys of the manifest's `files` and `sha256`).
+    pub fn all(&self) -> [(&'static str, &Path); 5] {
+        [("left", &self.left), ("right", &self.right), ("disp_left", &self.disp_left), ("disp_right", &self.disp_right), ("scene", &self.scene)]
+    }
+}
+
+/// `dataset.json`. `R` is the recipe: `serde_json::Value` for readers that do not interpret it,
+/// the generator's `Recipe` for the generator.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DatasetInfo<R = serde_json::Value> {
+    pub stereogen_version: String,
+    pub seed: u64,
+    pub recipe_fingerprint: String,
+    pub recipe: R,
+}
+
+/// Where each file of one of our dataset directories lives.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DatasetLayout {
+    pub root: PathBuf,
+}
+
+impl DatasetLayout {
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+
+    pub fn info(&self) -> PathBuf {
+        self.root.join(DATASET_INFO_FILE)
+    }
+
+    pub fn manifest(&self) -> PathBuf {
+        self.root.join(MANIFEST_FILE)
+    }
+
+    pub fn failures(&self) -> PathBuf {
+        self.root.join(FAILURES_FILE)
+    }
+
+    pub fn skipped_assets(&self) -> PathBuf {
+        self.root.join(SKIPPED_ASSETS_FILE)
+    }
+
+    pub fn lock(&self) -> PathBuf {
+        self.root.join(LOCK_FILE)
+    }
+
+    /// The files of sample `id` of `category`, relative to the root ([`SamplePaths::new`]).
+    pub fn sample_paths(&self, category: &str, id: &str) -> SamplePaths {
+        SamplePaths::new(category, id)
+    }
+
+    pub fn abs(&self, rel: &Path) -> PathBuf {
+        self.root.join(rel)
+    }
+
+    /// Reads `dataset.json`, with the recipe as `R`.
+    pub fn read_info<R: DeserializeOwned>(&self) -> Result<DatasetInfo<R>> {
+        let path = self.info();
+        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+        serde_json::from_str(&text).map_err(|e| Error::format(&path, format!("not a stereogen dataset description: {e}")))
+    }
+
+    /// Writes `dataset.json` atomically.
+    pub fn write_info<R: Serialize>(&self, info: &DatasetInfo<R>) -> Result<()> {
+        let path = self.info();
+        let json = serde_json::to_string_pretty(info).map_err(|e| Error::format(&path, format!("cannot encode the dataset description: {e}")))?;
+        crate::atomic::write_bytes_atomically(&path, json.as_bytes())
+    }
+
+    /// Removes the temporary files ([`crate::temp_sibling`]) a run killed mid-write left in the
+    /// root and its category folders; returns how many.
+    pub fn remove_partial_files(&self) -> usize {
+        let mut removed = 0;
+        let Ok(dirs) = std::fs::read_dir(&self.root) else { return 0 };
+        for dir in dirs.flatten().map(|e| e.path()).chain(std::iter::once(self.root.clone())) {
+            let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+            for e in entries.flatten() {
+                if crate::atomic::is_temp_name(&e.file_name().to_string_lossy()) && std::fs::remove_file(e.path()).is_ok() {
+                    removed += 1;
+                }
+            }
+        }
+        removed
+    }
+}
+
+/// What the dataset readers see of a manifest entry. `cx`, `cy` go over into the pixel-centre
+/// convention of [`SampleMeta`].
+fn sample_meta(e: &ManifestEntry) -> SampleMeta {
+    let mut meta = SampleMeta {
+        id: e.id.clone(),
+        f_px: Some(e.f_px),
+        baseline_m: Some(e.baseline_m),
+        cx: Some(continuous_to_pixel_centres(e.cx)),
+        cy: Some(continuous_to_pixel_centres(e.cy)),
+        ..Default::default()
+    };
+    meta.extra.insert("category".into(), e.category.clone());
+    for (k, v) in [("index", e.index), ("seed", e.seed), ("width", u64::from(e.width)), ("height", u64::from(e.height))] {
+        meta.extra.insert(k.into(), v.to_string());
+    }
+    meta
+}
+
+/// Our samples in manifest order.
+pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
+    let layout = DatasetLayout::new(root);
+    let contents = read_manifest(&layout.manifest())?;
+    Ok(contents
+        .entries
+        .iter()
+        .map(|e| SampleFiles {
+            id: e.id.clone(),
+            left: layout.abs(&e.files.left),
+            right: layout.abs(&e.files.right),
+            disp_left: (layout.abs(&e.files.disp_left), DispKind::Exr),
+            disp_right: Some((layout.abs(&e.files.disp_right), DispKind::Exr)),
+            masks: vec![],
+            meta: sample_meta(e),
+        })
+        .collect())
+}

@@ -1,0 +1,273 @@
+//! Writing samples in another trainer's layout: a [`DatasetWriter`] per layout (each beside its
+//! reader, sharing its file names), and what they have in common.
+//!
+//! | layout | writer | files of one sample |
+//! | --- | --- | --- |
+//! | `crestereo` | [`CrestereoWriter`](super::crestereo::CrestereoWriter) | `<name>_left.jpg`, `_right.jpg`, `_left.disp.png`, `_right.disp.png` (d·32) |
+//! | `kitti2015` | [`Kitti2015Writer`](super::kitti::Kitti2015Writer) | `training/image_2/NNNNNN_10.png`, `image_3/`, `disp_occ_0/`, `disp_occ_1/` (d·256) |
+//! | `middlebury` | [`MiddleburyWriter`](super::middlebury::MiddleburyWriter) | `<name>/im0.png`, `im1.png`, `disp0.pfm`, `disp1.pfm`, `calib.txt` |
+//!
+//! Our own layout is written by the generator (it renders; it does not convert).
+//!
+//! Images: where the sample's source file ([`SampleMeta::left_path`](super::SampleMeta)) is
+//! already encoded as the layout stores it, it is hard-linked (copied across filesystems);
+//! otherwise the decoded pixels are encoded. Disparity: what a 16-bit PNG cannot hold (negative,
+//! or at or above 65535.5/scale) is stored as invalid and counted. A sample without a right-view
+//! disparity is written without the right-view disparity file (every layout here has it
+//! optional), and counted. Every file appears atomically, so an interrupted write can be re-run.
+
+use std::fmt;
+use std::io::Read;
+use std::path::{Component, Path, PathBuf};
+use std::str::FromStr;
+
+use super::{DatasetFormat, StereoSample};
+use crate::disparity::DisparityMap;
+use crate::error::{Error, Result};
+use crate::image_io::RgbImage;
+
+/// How a writer stores images.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ImageEncoding {
+    /// Without loss: the source file linked where the layout's readers decode it, else PNG.
+    /// CREStereo's `*.jpg` names then hold PNG bytes: its loaders (OpenCV, Pillow) decode by
+    /// content, not by name.
+    #[default]
+    Lossless,
+    /// Real JPEGs at this quality (1..=100); only CREStereo stores JPEG.
+    Jpeg(u8),
+}
+
+/// What a writer has done so far.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct WriteSummary {
+    pub samples: usize,
+    /// Image files that are hard links to the source's.
+    pub linked: usize,
+    /// Files written (disparities, calibrations, encoded or copied images).
+    pub written: usize,
+    /// Valid pixels the layout cannot hold, stored as invalid.
+    pub dropped_pixels: usize,
+    /// Samples written without a right-view disparity because the source has none.
+    pub without_right_disparity: usize,
+}
+
+/// A layout being written, one sample at a time.
+pub trait DatasetWriter {
+    fn format(&self) -> DatasetFormat;
+    fn root(&self) -> &Path;
+    /// Writes `sample` as the `n`-th sample of the output, named `name` (a relative path of
+    /// `/`-separated components; the layouts that number their samples use `n` instead).
+    fn write(&mut self, n: usize, name: &str, sample: &StereoSample) -> Result<()>;
+    fn summary(&self) -> &WriteSummary;
+}
+
+/// The layouts that have a writer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum WritableFormat {
+    Crestereo,
+    Kitti2015,
+    Middlebury,
+}
+
+impl WritableFormat {
+    pub const ALL: [WritableFormat; 3] = [Self::Crestereo, Self::Kitti2015, Self::Middlebury];
+
+    pub fn dataset_format(self) -> DatasetFormat {
+        match self {
+            Self::Crestereo => DatasetFormat::Crestereo,
+            Self::Kitti2015 => DatasetFormat::Kitti2015,
+            Self::Middlebury => DatasetFormat::Middlebury,
+        }
+    }
+}
+
+impl fmt::Display for WritableFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.dataset_format().name())
+    }
+}
+
+impl FromStr for WritableFormat {
+    type Err = String;
+    /// A layout name as [`DatasetFormat`] parses it; `kitti` means KITTI 2015.
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let names = || Self::ALL.map(|f| f.to_string()).join(", ");
+        let format = if s.eq_ignore_ascii_case("kitti") { DatasetFormat::Kitti2015 } else { s.parse::<DatasetFormat>().map_err(|_| format!("unknown layout {s:?} to write (one of: {})", names()))? };
+        Self::ALL.into_iter().find(|f| f.dataset_format() == format).ok_or_else(|| format!("stereo-io has no writer for the {format} layout (one of: {})", names()))
+    }
+}
+
+/// A writer of `format` creating its files under `root`.
+pub fn create_writer(format: WritableFormat, root: &Path, images: ImageEncoding) -> Result<Box<dyn DatasetWriter>> {
+    if let ImageEncoding::Jpeg(q) = images {
+        if format != WritableFormat::Crestereo {
+            return Err(Error::format(root, format!("the {format} layout stores PNG images; JPEG quality applies to crestereo only")));
+        }
+        if !(1..=100).contains(&q) {
+            return Err(Error::format(root, format!("JPEG quality {q} is outside 1..=100")));
+        }
+    }
+    mkdir(root)?;
+    Ok(match format {
+        WritableFormat::Crestereo => Box::new(super::crestereo::CrestereoWriter::new(root, images)),
+        WritableFormat::Kitti2015 => Box::new(super::kitti::Kitti2015Writer::new(root)),
+        WritableFormat::Middlebury => Box::new(super::middlebury::MiddleburyWriter::new(root)),
+    })
+}
+
+pub(crate) fn mkdir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))
+}
+
+/// `root` joined with a sample name, refusing names that would leave `root`.
+pub(crate) fn under(root: &Path, name: &str) -> Result<PathBuf> {
+    let rel = Path::new(name);
+    if name.is_empty() || !rel.components().all(|c| matches!(c, Component::Normal(_))) {
+        return Err(Error::format(root, format!("sample name {name:?} is not a relative path inside the output")));
+    }
+    Ok(root.join(rel))
+}
+
+/// How an image file is encoded, from its first bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ImageFile {
+    /// 8-bit RGB PNG: what KITTI and Middlebury store.
+    PngRgb8,
+    Jpeg,
+    Other,
+}
+
+pub(crate) fn sniff(path: &Path) -> ImageFile {
+    let mut head = [0u8; 26];
+    let read = std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head));
+    if read.is_err() {
+        return ImageFile::Other;
+    }
+    const PNG: [u8; 8] = [0x89, b'P', b'N', b'G', b'\r', b'\n', 0x1a, b'\n'];
+    // IHDR follows the signature: bit depth at byte 24, colour type at 25 (2 = RGB).
+    if head[..8] == PNG && &head[12..16] == b"IHDR" && head[24] == 8 && head[25] == 2 {
+        ImageFile::PngRgb8
+    } else if head[..3] == [0xFF, 0xD8, 0xFF] {
+        ImageFile::Jpeg
+    } else {
+        ImageFile::Other
+    }
+}
+
+/// Removes what an earlier write left at `path` (a right-view disparity the source now lacks), so
+/// the output says what this write wrote.
+pub(crate) fn remove_stale(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(Error::io(path, e)),
+        _ => Ok(()),
+    }
+}
+
+/// Places `src` at `dst`: a hard link, or a copy where the filesystem refuses links; atomically.
+fn link_or_copy(src: &Path, dst: &Path, summary: &mut WriteSummary) -> Result<()> {
+    let tmp = crate::atomic::temp_sibling(dst);
+    let _ = std::fs::remove_file(&tmp);
+    if std::fs::hard_link(src, &tmp).is_ok() {
+        summary.linked += 1;
+    } else {
+        std::fs::copy(src, &tmp).map_err(|e| Error::io(src, e))?;
+        summary.written += 1;
+    }
+    std::fs::rename(&tmp, dst).map_err(|e| Error::io(dst, e))
+}
+
+/// Stores one view's image at `dst`: the source file linked if it is one of `linkable`, else
+/// the pixels encoded as `encoding` says.
+pub(crate) fn place_image(source: &Path, pixels: &RgbImage, dst: &Path, linkable: &[ImageFile], encoding: ImageEncoding, summary: &mut WriteSummary) -> Result<()> {
+    match encoding {
+        ImageEncoding::Lossless if !source.as_os_str().is_empty() && linkable.contains(&sniff(source)) => link_or_copy(source, dst, summary),
+        ImageEncoding::Lossless => {
+            crate::image_io::write_png_rgb(dst, pixels)?;
+            summary.written += 1;
+            Ok(())
+        }
+        ImageEncoding::Jpeg(q) => {
+            crate::image_io::write_jpeg_rgb(dst, pixels, q)?;
+            summary.written += 1;
+            Ok(())
+        }
+    }
+}
+
+/// `map` with every valid value a 16-bit PNG at `scale` cannot hold made invalid; how many.
+pub(crate) fn representable(map: &DisparityMap, scale: f32) -> (DisparityMap, usize) {
+    let max = 65535.5 / f64::from(scale);
+    let mut out = map.clone();
+    let mut dropped = 0;
+    for (d, v) in out.data.iter_mut().zip(out.valid.iter_mut()) {
+        if *v && !(f64::from(*d) >= 0.0 && f64::from(*d) < max) {
+            *v = false;
+            *d = 0.0;
+            dropped += 1;
+        }
+    }
+    (out, dropped)
+}
+
+/// The right view's disparity where the sample has one; without, a stale file is removed and the
+/// sample counted.
+pub(crate) fn write_right_disparity(path: &Path, sample: &StereoSample, summary: &mut WriteSummary, write: impl FnOnce(&DisparityMap, &mut WriteSummary) -> Result<()>) -> Result<()> {
+    match &sample.disp_right {
+        Some(d) => write(d, summary),
+        None => {
+            remove_stale(path)?;
+            summary.without_right_disparity += 1;
+            Ok(())
+        }
+    }
+}
+
+/// Writes a 16-bit disparity PNG, dropping (and counting) what it cannot hold.
+pub(crate) fn write_png16(path: &Path, map: &DisparityMap, scale: f32, summary: &mut WriteSummary) -> Result<()> {
+    let (map, dropped) = representable(map, scale);
+    crate::png_disp::write_disparity_png16(path, &map, scale)?;
+    summary.dropped_pixels += dropped;
+    summary.written += 1;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn format_names_parse_and_formats_without_writer_are_named() {
+        assert_eq!("kitti".parse::<WritableFormat>(), Ok(WritableFormat::Kitti2015));
+        assert_eq!("KITTI-2015".parse::<WritableFormat>(), Ok(WritableFormat::Kitti2015));
+        assert_eq!("middlebury".parse::<WritableFormat>(), Ok(WritableFormat::Middlebury));
+        let e = "sceneflow".parse::<WritableFormat>().unwrap_err();
+        assert!(e.contains("no writer for the sceneflow layout") && e.contains("crestereo, kitti2015, middlebury"), "{e}");
+        assert!("pngs".parse::<WritableFormat>().unwrap_err().contains("unknown layout"));
+    }
+
+    #[test]
+    fn names_cannot_leave_the_output() {
+        let root = Path::new("/out");
+        assert_eq!(under(root, "tree/0000001").unwrap(), root.join("tree/0000001"));
+        for bad in ["", "../x", "/etc/x", "a/../../b"] {
+            assert!(under(root, bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn unrepresentable_disparities_become_invalid() {
+        let map = DisparityMap { width: 4, height: 1, data: vec![255.99, 256.0, -1.0, 3.0], valid: vec![true, true, true, false] };
+        let (out, dropped) = representable(&map, 256.0);
+        assert_eq!(dropped, 2);
+        assert_eq!(out.valid, vec![true, false, false, false]);
+    }
+
+    #[test]
+    fn jpeg_quality_is_for_crestereo_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = create_writer(WritableFormat::Kitti2015, dir.path(), ImageEncoding::Jpeg(90)).err().unwrap().to_string();
+        assert!(e.contains("crestereo only"), "{e}");
+        assert!(create_writer(WritableFormat::Crestereo, dir.path(), ImageEncoding::Jpeg(0)).is_err());
+    }
+}
