@@ -6,27 +6,9 @@ use std::path::{Path, PathBuf};
 
 use stereo_io::*;
 
-const W: usize = 4;
-const H: usize = 3;
+mod fixtures;
 
-fn rgb(seed: u8) -> RgbImage {
-    RgbImage { width: W, height: H, data: (0..W * H * 3).map(|i| (i as u8).wrapping_mul(7).wrapping_add(seed)).collect() }
-}
-
-/// Disparities that every format below stores exactly (multiples of 1/256, < 256).
-fn disp(seed: f32) -> DisparityMap {
-    let mut m = DisparityMap::new(W, H);
-    for (i, (d, v)) in m.data.iter_mut().zip(m.valid.iter_mut()).enumerate() {
-        *v = i != 5;
-        *d = if *v { seed + i as f32 * 1.25 } else { 0.0 };
-    }
-    m
-}
-
-fn mkdir(p: &Path) -> PathBuf {
-    fs::create_dir_all(p).unwrap();
-    p.to_path_buf()
-}
+use fixtures::*;
 
 fn grey8(path: &Path, f: impl Fn(usize) -> u8) {
     write_png(path, &Image { width: W, height: H, channels: 1, samples: Samples::U8((0..W * H).map(f).collect()) }).unwrap();
@@ -45,11 +27,6 @@ fn open(root: &Path, expect: DatasetFormat) -> Box<dyn StereoDataset> {
     assert_eq!(auto.format(), expect);
     assert_eq!(auto.len(), forced.len());
     auto
-}
-
-fn assert_disp_eq(got: &DisparityMap, want: &DisparityMap) {
-    assert_eq!(got.valid, want.valid);
-    assert_eq!(got.data, want.data);
 }
 
 #[test]
@@ -73,16 +50,7 @@ fn crestereo_release_layout() {
 #[test]
 fn sceneflow_layout_with_right_disparity() {
     let t = tempfile::tempdir().unwrap();
-    let root = t.path().join("FlyingThings3D");
-    for (cam, seed) in [("left", 1.0), ("right", 4.0)] {
-        let img = mkdir(&root.join(format!("frames_cleanpass/TRAIN/A/0000/{cam}")));
-        write_png_rgb(&img.join("0006.png"), &rgb(seed as u8)).unwrap();
-        let d = mkdir(&root.join(format!("disparity/TRAIN/A/0000/{cam}")));
-        write_disparity_pfm(&d.join("0006.pfm"), &disp(seed)).unwrap();
-    }
-    // A final pass beside it is not counted twice.
-    let fin = mkdir(&root.join("frames_finalpass/TRAIN/A/0000/left"));
-    write_png_rgb(&fin.join("0006.png"), &rgb(0)).unwrap();
+    sceneflow(&t.path().join("FlyingThings3D"));
     let ds = open(t.path(), DatasetFormat::SceneFlow);
     assert_eq!(ds.len(), 1);
     let s = ds.sample(0).unwrap();
@@ -92,31 +60,12 @@ fn sceneflow_layout_with_right_disparity() {
     assert_eq!(s.meta.f_px, Some(1050.0));
 }
 
-fn middlebury_calib(dir: &Path) {
-    fs::write(
-        dir.join("calib.txt"),
-        "cam0=[3997.684 0 1176.728; 0 3997.684 1011.728; 0 0 1]\ncam1=[3997.684 0 1307.839; 0 3997.684 1011.728; 0 0 1]\ndoffs=131.111\nbaseline=193.001\nwidth=4\nheight=3\nndisp=280\nisint=0\nvmin=31\nvmax=257\n",
-    )
-    .unwrap();
-}
-
 #[test]
 fn middlebury_2014_layout_inf_is_invalid_and_calib_is_parsed() {
     let t = tempfile::tempdir().unwrap();
-    let dir = mkdir(&t.path().join("trainingF/Adirondack"));
-    write_png_rgb(&dir.join("im0.png"), &rgb(5)).unwrap();
-    write_png_rgb(&dir.join("im1.png"), &rgb(6)).unwrap();
+    let dir = t.path().join("trainingF/Adirondack");
     // Written by hand as Middlebury does: big-endian is allowed too; inf where unknown.
-    let want = disp(7.0);
-    let mut bytes = format!("Pf\n{W} {H}\n1.0\n").into_bytes();
-    for y in (0..H).rev() {
-        for x in 0..W {
-            let v = if want.is_valid(x, y) { want.get(x, y) } else { f32::INFINITY };
-            bytes.extend_from_slice(&v.to_be_bytes());
-        }
-    }
-    fs::write(dir.join("disp0.pfm"), bytes).unwrap();
-    middlebury_calib(&dir);
+    let want = middlebury_scene(&dir);
     let ds = open(t.path(), DatasetFormat::Middlebury);
     let s = ds.sample(0).unwrap();
     assert_eq!((s.left.clone(), s.right.clone()), (rgb(5), rgb(6)));
@@ -281,6 +230,31 @@ fn our_manifest_layout_and_its_errors() {
     fs::remove_file(cat.join("0000001_right.png")).unwrap();
     let e = open_dataset(t.path(), None).unwrap().sample(0).unwrap_err().to_string();
     assert!(e.contains("0000001_right.png"), "{e}");
+}
+
+/// A line exactly as the generator wrote it before `render_timings` existed.
+const LINE_BEFORE_RENDER_TIMINGS: &str = r#"{"id":"0000000","category":"primitives","seed":2026,"index":0,"files":{"left":"primitives/0000000_left.png","right":"primitives/0000000_right.png","disp_left":"primitives/0000000_left.disp.exr","disp_right":"primitives/0000000_right.disp.exr","scene":"primitives/0000000.scene.json"},"width":4,"height":3,"f_px":64.0,"baseline_m":0.1,"cx":2.0,"cy":1.5,"disparity_left":{"min":0.1,"max":13.85,"mean":6.9,"valid_fraction":0.9166666666666666},"disparity_right":null,"render_seconds":4.2,"notes":["object 2: mesh candidate 1"],"sha256":{"disp_left":"00","disp_right":"11","left":"22","right":"33","scene":"44"},"stereogen_version":"0.1.0"}"#;
+
+#[test]
+fn a_manifest_from_before_render_timings_still_reads() {
+    let t = tempfile::tempdir().unwrap();
+    let cat = mkdir(&t.path().join("primitives"));
+    write_png_rgb(&cat.join("0000000_left.png"), &rgb(1)).unwrap();
+    write_png_rgb(&cat.join("0000000_right.png"), &rgb(2)).unwrap();
+    write_disparity_exr(&cat.join("0000000_left.disp.exr"), &disp(0.1), &DisparityMeta::default()).unwrap();
+    write_disparity_exr(&cat.join("0000000_right.disp.exr"), &disp(0.2), &DisparityMeta::default()).unwrap();
+    write_ours(t.path(), &[format!("{LINE_BEFORE_RENDER_TIMINGS}\n")]);
+    let entries = Manifest::read(&t.path().join("manifest.jsonl")).unwrap();
+    assert_eq!(entries.len(), 1);
+    let e = &entries[0];
+    assert!(e.render_timings.is_empty());
+    assert_eq!((e.seed, e.render_seconds, e.notes.len(), e.disparity_right), (2026, 4.2, 1, None));
+    assert_eq!(e.files, SamplePaths::new("primitives", "0000000"));
+    let ds = open(t.path(), DatasetFormat::Stereogen);
+    let s = ds.sample(0).unwrap();
+    assert_disp_eq(&s.disp_left, &disp(0.1));
+    // The manifest's cx = W/2 (continuous) is (W - 1)/2 in SampleMeta's pixel-centre convention.
+    assert_eq!((s.meta.cx, s.meta.cy), (Some(1.5), Some(1.0)));
 }
 
 #[test]

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
 use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under, write_png16, write_right_disparity};
-use super::{DatasetFormat, DispKind, SampleFiles, SampleMeta, StereoSample};
+use super::{DispKind, SampleFiles, SampleMeta, StereoSample};
 use crate::error::Result;
 use crate::png_disp::CRESTEREO_SCALE;
 
@@ -73,12 +73,6 @@ impl CrestereoWriter {
 }
 
 impl DatasetWriter for CrestereoWriter {
-    fn format(&self) -> DatasetFormat {
-        DatasetFormat::Crestereo
-    }
-    fn root(&self) -> &Path {
-        &self.root
-    }
     fn summary(&self) -> &WriteSummary {
         &self.summary
     }

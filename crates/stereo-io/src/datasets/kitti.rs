@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
 use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, write_png16, write_right_disparity};
-use super::{DatasetFormat, DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
+use super::{DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
 use crate::error::{Error, Result};
 use crate::png_disp::KITTI_SCALE;
 
@@ -82,12 +82,6 @@ impl Kitti2015Writer {
 }
 
 impl DatasetWriter for Kitti2015Writer {
-    fn format(&self) -> DatasetFormat {
-        DatasetFormat::Kitti2015
-    }
-    fn root(&self) -> &Path {
-        &self.root
-    }
     fn summary(&self) -> &WriteSummary {
         &self.summary
     }

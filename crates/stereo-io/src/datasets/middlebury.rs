@@ -156,12 +156,6 @@ impl MiddleburyWriter {
 }
 
 impl DatasetWriter for MiddleburyWriter {
-    fn format(&self) -> DatasetFormat {
-        DatasetFormat::Middlebury
-    }
-    fn root(&self) -> &Path {
-        &self.root
-    }
     fn summary(&self) -> &WriteSummary {
         &self.summary
     }

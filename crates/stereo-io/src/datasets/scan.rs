@@ -25,6 +25,7 @@ pub(crate) fn scan(format: DatasetFormat, root: &Path) -> Result<Vec<SampleFiles
     }
     for s in &mut samples {
         s.meta.format = Some(format);
+        s.meta.id = s.id.clone();
         s.meta.left_path = s.left.clone();
         s.meta.right_path = s.right.clone();
         s.meta.disp_left_path = s.disp_left.0.clone();

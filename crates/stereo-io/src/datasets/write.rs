@@ -54,8 +54,6 @@ pub struct WriteSummary {
 
 /// A layout being written, one sample at a time.
 pub trait DatasetWriter {
-    fn format(&self) -> DatasetFormat;
-    fn root(&self) -> &Path;
     /// Writes `sample` as the `n`-th sample of the output, named `name` (a relative path of
     /// `/`-separated components; the layouts that number their samples use `n` instead).
     fn write(&mut self, n: usize, name: &str, sample: &StereoSample) -> Result<()>;
