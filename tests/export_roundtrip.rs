@@ -1,5 +1,6 @@
 //! `stereogen export` on a real rendered dataset, read back with the matching stereo-io reader:
-//! the same pictures and the same disparities within each format's quantisation.
+//! the same pictures and the same disparities within each format's quantisation; and an export
+//! of one of those exports (a dataset that is not ours) to another layout.
 
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
@@ -66,6 +67,9 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
             assert!(same_inode(&got.meta.left_path, &want.meta.left_path), "{format}: {} is not a hard link", got.meta.left_path.display());
             if format == "middlebury" {
                 assert_eq!((got.meta.f_px, got.meta.cx), (want.meta.f_px, want.meta.cx));
+                // Our rig's centred principal point, in calib.txt's 0-based pixel centres.
+                let width: f64 = want.meta.extra["width"].parse().unwrap();
+                assert_eq!(got.meta.cx, Some((width - 1.0) / 2.0));
                 assert!((got.meta.baseline_m.unwrap() - want.meta.baseline_m.unwrap()).abs() < 1e-12);
                 let max = want.disp_left.stats().unwrap().max;
                 assert!(got.meta.ndisp.unwrap() as f32 > max, "ndisp bounds the disparities");
@@ -73,6 +77,22 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
         }
         // Exporting again over a finished export succeeds (every file is replaced atomically).
         assert!(export(&data, format, &out, &[]).status.success());
+    }
+
+    // A dataset that is not ours: the Middlebury export, written as CREStereo's layout.
+    let out = dir.path().join("middlebury_to_crestereo");
+    let o = export(&dir.path().join("middlebury"), "crestereo", &out, &["--from-format", "middlebury"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let back = open_dataset(&out, None).unwrap();
+    assert_eq!((back.format(), back.len()), (DatasetFormat::Crestereo, ours.len()));
+    for want in &ours {
+        let name = format!("{}_{}", want.meta.extra["category"], want.meta.id);
+        let i = (0..back.len()).find(|&i| back.id(i) == Some(name.as_str())).unwrap_or_else(|| panic!("no sample {name}"));
+        let got = back.sample(i).unwrap();
+        assert_eq!((&got.left, &got.right), (&want.left, &want.right), "{name}: images");
+        assert_close(&got.disp_left, &want.disp_left, 0.5 / 32.0, &format!("{name} left"));
+        assert_close(got.disp_right.as_ref().unwrap(), want.disp_right.as_ref().unwrap(), 0.5 / 32.0, &format!("{name} right"));
+        assert!(same_inode(&got.meta.left_path, &want.meta.left_path), "still our PNG, linked twice");
     }
 }
 

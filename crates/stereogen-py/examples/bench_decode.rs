@@ -99,17 +99,20 @@ fn disparity(shift: f32) -> DisparityMap {
 }
 
 fn write_sample(root: &Path) {
-    let cat = root.join("bench");
-    std::fs::create_dir_all(&cat).unwrap();
-    write_png_rgb(&cat.join("0000000_left.png"), &picture(1)).unwrap();
-    write_png_rgb(&cat.join("0000000_right.png"), &picture(2)).unwrap();
+    let layout = DatasetLayout::new(root);
+    let files = layout.sample_paths("bench", "0000000");
+    std::fs::create_dir_all(root.join("bench")).unwrap();
+    write_png_rgb(&layout.abs(&files.left), &picture(1)).unwrap();
+    write_png_rgb(&layout.abs(&files.right), &picture(2)).unwrap();
     let meta = DisparityMeta { f_px: Some(1500.0), baseline_m: Some(0.1), view: None };
-    write_disparity_exr(&cat.join("0000000_left.disp.exr"), &disparity(0.0), &meta).unwrap();
-    write_disparity_exr(&cat.join("0000000_right.disp.exr"), &disparity(0.5), &meta).unwrap();
-    let line = format!(
-        r#"{{"id":"0000000","category":"bench","files":{{"left":"bench/0000000_left.png","right":"bench/0000000_right.png","disp_left":"bench/0000000_left.disp.exr","disp_right":"bench/0000000_right.disp.exr","scene":"bench/0000000.scene.json"}},"width":{W},"height":{H},"f_px":1500.0,"baseline_m":0.1,"cx":960.0,"cy":540.0}}"#
-    );
-    std::fs::write(root.join("manifest.jsonl"), line + "\n").unwrap();
+    write_disparity_exr(&layout.abs(&files.disp_left), &disparity(0.0), &meta).unwrap();
+    write_disparity_exr(&layout.abs(&files.disp_right), &disparity(0.5), &meta).unwrap();
+    let entry = serde_json::json!({
+        "id": "0000000", "category": "bench", "index": 0, "files": files,
+        "width": W, "height": H, "f_px": 1500.0, "baseline_m": 0.1, "cx": W as f64 / 2.0, "cy": H as f64 / 2.0,
+    });
+    let entry: ManifestEntry = serde_json::from_value(entry).unwrap();
+    Manifest::open(&layout.manifest()).unwrap().0.append(&entry).unwrap();
 }
 
 fn main() {
