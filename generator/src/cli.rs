@@ -8,7 +8,6 @@ use anyhow::{Context, bail};
 use clap::{Parser, Subcommand};
 
 use crate::dataset::{DatasetLayout, GenerateOptions, finalize_sample, generate};
-use crate::assets::AssetIndex;
 use crate::plan::{Recipe, SceneSpec, plan_scene};
 use crate::render::protocol::Device;
 use crate::render::runtime::{discover_or_install, stereogen_home};
@@ -257,7 +256,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Plan { recipe, seed, index } => {
             let recipe = recipe.load()?;
-            let assets = AssetIndex::build(&recipe.sources, &stereogen_home())?;
+            let assets = crate::assets::index_sources(&recipe.sources, &stereogen_home())?;
             println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
         Command::Render { spec, out, runtime } => {

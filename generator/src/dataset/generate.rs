@@ -15,7 +15,7 @@ use serde::Serialize;
 use super::layout::DatasetLayout;
 use super::manifest::Manifest;
 use super::sample::finalize_sample;
-use crate::assets::{AssetIndex, SkippedAsset};
+use crate::assets::{SkippedAsset, index_sources};
 use crate::plan::{Recipe, plan_scene};
 use crate::render::protocol::{Device, Fault};
 use crate::render::runtime::{discover_or_install, stereogen_home};
@@ -162,7 +162,7 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
     }
 
     let home = stereogen_home();
-    let assets = AssetIndex::build(&opts.recipe.sources, &home)?;
+    let assets = index_sources(&opts.recipe.sources, &home)?;
     let seen_skipped = Mutex::new(BTreeSet::new());
     record_skipped(&layout, &seen_skipped, &assets.skipped, None);
     let runtime = discover_or_install(opts.blender.as_deref(), &home)?;

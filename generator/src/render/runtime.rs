@@ -8,6 +8,8 @@ use std::process::{Command, Stdio};
 
 use fs4::fs_std::FileExt;
 
+pub use stereogen_assets::stereogen_home;
+
 /// The `bpy` wheel the managed environment pins (Blender 4.5 LTS).
 pub const BPY_VERSION: &str = "4.5.15";
 /// trimesh loads the mesh formats Blender has no importer for (OFF and others).
@@ -67,15 +69,6 @@ impl BlenderRuntime {
             BlenderRuntime::Python(p) => format!("python {}", p.display()),
         }
     }
-}
-
-/// `$STEREOGEN_HOME`, or `$HOME/.cache/stereogen`.
-pub fn stereogen_home() -> PathBuf {
-    if let Some(h) = std::env::var_os("STEREOGEN_HOME").filter(|h| !h.is_empty()) {
-        return PathBuf::from(h);
-    }
-    let home = std::env::var_os("HOME").map(PathBuf::from).unwrap_or_else(std::env::temp_dir);
-    home.join(".cache").join("stereogen")
 }
 
 /// The directory name changes with the pinned versions, so an upgrade installs afresh.

@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use stereogen_plan::assets::SkippedAsset;
 use walkdir::WalkDir;
 
-use super::SkippedAsset;
 use super::cache::{cached, tree_stamp};
 
 /// Extensions Blender loads as textures.

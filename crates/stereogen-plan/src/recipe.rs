@@ -15,11 +15,11 @@ use super::spec::{MaterialClass, PixelFilter};
 
 /// Built-in presets: (name, TOML).
 pub const PRESETS: &[(&str, &str)] = &[
-    ("crestereo", include_str!("../../recipes/crestereo.toml")),
-    ("shapenet", include_str!("../../recipes/shapenet.toml")),
-    ("tree", include_str!("../../recipes/tree.toml")),
-    ("hole", include_str!("../../recipes/hole.toml")),
-    ("reflective", include_str!("../../recipes/reflective.toml")),
+    ("crestereo", include_str!("../recipes/crestereo.toml")),
+    ("shapenet", include_str!("../recipes/shapenet.toml")),
+    ("tree", include_str!("../recipes/tree.toml")),
+    ("hole", include_str!("../recipes/hole.toml")),
+    ("reflective", include_str!("../recipes/reflective.toml")),
 ];
 
 /// The preset used when the user names none.

@@ -20,7 +20,7 @@ use super::spec::{
     BaseColor, LightSpec, MaterialClass, MaterialSpec, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec, SPEC_FORMAT_VERSION,
 };
 use super::tree::{TreeParams, grow};
-use crate::assets::AssetIndex;
+use super::assets::AssetIndex;
 
 /// Mesh candidates per object: the worker falls back along them when one fails to load.
 const MESH_CANDIDATES: usize = 3;
