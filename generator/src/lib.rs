@@ -7,7 +7,6 @@
 //! - [`dataset`]: the on-disk layout, manifest, atomic writes and resumable generation.
 //! - [`validate`]: `stereogen stats`: disparity statistics, the check against the recipe's law, plots.
 
-pub mod cli;
 pub mod dataset;
 pub mod render;
 pub mod validate;

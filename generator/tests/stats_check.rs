@@ -133,6 +133,7 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
             disparity_left: summary(&left),
             disparity_right: summary(&right),
             render_seconds: 0.0,
+            render_timings: BTreeMap::new(),
             notes: Vec::new(),
             sha256: BTreeMap::new(),
             stereogen_version: "test".into(),

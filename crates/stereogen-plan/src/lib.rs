@@ -16,7 +16,7 @@ pub mod tree;
 pub use assets::{AssetIndex, MeshAsset, SkippedAsset};
 pub use dist::Dist;
 pub use recipe::{Recipe, RecipeError};
-pub use rig::StereoRig;
+pub use rig::{StereoCameras, StereoRig};
 pub use rng::SeedTree;
 pub use sampler::{plan_scene, scene_category};
 pub use spec::{BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec};

@@ -36,6 +36,9 @@ pub struct ManifestEntry {
     pub disparity_left: Option<DisparitySummary>,
     pub disparity_right: Option<DisparitySummary>,
     pub render_seconds: f64,
+    /// Where the worker's time went: seconds per step (`build_s`, `colour_left_s`, `depth_left_s`, ...).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub render_timings: BTreeMap<String, f64>,
     /// What the worker did beyond the spec (which mesh candidate it used, objects it dropped).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,

@@ -44,7 +44,14 @@ fn write_canonical_png(from: &Path, to: &Path, spec: &SceneSpec) -> anyhow::Resu
 
 /// Writes all files of a rendered sample into the dataset and returns its manifest entry.
 /// Each file appears atomically; the caller appends the entry to the manifest last.
-pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &RenderedFiles, notes: &[String], render_seconds: f64) -> anyhow::Result<ManifestEntry> {
+pub fn finalize_sample(
+    layout: &DatasetLayout,
+    spec: &SceneSpec,
+    files: &RenderedFiles,
+    notes: &[String],
+    render_seconds: f64,
+    render_timings: &BTreeMap<String, f64>,
+) -> anyhow::Result<ManifestEntry> {
     let paths = layout.sample_paths(&spec.category, &spec.id);
     let dir = layout.abs(&paths.left).parent().expect("category dir").to_path_buf();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -82,6 +89,7 @@ pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &Rendere
         disparity_left: summary(&disp_left),
         disparity_right: summary(&disp_right),
         render_seconds,
+        render_timings: render_timings.clone(),
         notes: notes.to_vec(),
         sha256,
         stereogen_version: env!("CARGO_PKG_VERSION").to_string(),
