@@ -10,8 +10,55 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-pub use super::dist::{CountRange, Dist};
+pub use super::dist::{CountRange, Dist, UniformRange};
 use super::spec::{MaterialClass, PixelFilter};
+
+/// Declares recipe keys that were added after the first recipes were written. An absent key takes
+/// its default (the number the planner used before it was a key), and a value equal to its
+/// default is not serialised: recipes that do not set these keys keep their fingerprint, so
+/// datasets made before still resume.
+macro_rules! added_keys {
+    ($($name:ident: $t:ty = $value:expr;)*) => {
+        mod default {
+            use super::*;
+            $(pub fn $name() -> $t { $value })*
+        }
+        mod is_default {
+            use super::*;
+            $(pub fn $name(v: &$t) -> bool { *v == super::default::$name() })*
+        }
+    };
+}
+
+added_keys! {
+    clip_start_factor: f64 = 0.01;
+    clip_end_factor: f64 = 2.0;
+    background_oversize: f64 = 1.15;
+    mesh_candidates: u32 = 3;
+    light_near_factor: f64 = 0.5;
+    light_far_factor: f64 = 0.9;
+    light_image_position: UniformRange = UniformRange::new(-0.2, 1.2);
+    light_color_channel: UniformRange = UniformRange::new(0.2, 1.0);
+    light_radius_factor: f64 = 0.02;
+    light_area_size_factor: UniformRange = UniformRange::new(0.05, 0.3);
+    light_spot_size_rad: UniformRange = UniformRange::new(0.4, 1.6);
+    light_spot_blend: UniformRange = UniformRange::new(0.05, 0.5);
+    light_tilt_rad: UniformRange = UniformRange::new(-0.6, 0.6);
+    world_grey: UniformRange = UniformRange::new(0.6, 1.0);
+    world_green_ratio: UniformRange = UniformRange::new(0.85, 1.0);
+    world_blue_ratio: UniformRange = UniformRange::new(0.8, 1.0);
+    leaf_rgb: [UniformRange; 3] = [UniformRange::new(0.05, 0.35), UniformRange::new(0.25, 0.7), UniformRange::new(0.02, 0.2)];
+    leaf_roughness: f64 = 0.6;
+    tree_lean_rad: UniformRange = UniformRange::new(-0.15, 0.15);
+    background_texture_scale: [f64; 2] = [0.5, 6.0];
+    procedural_detail: UniformRange = UniformRange::new(0.0, 8.0);
+    glossy_textured_probability: f64 = 0.5;
+    glossy_roughness: UniformRange = UniformRange::new(0.0, 0.12);
+    metallic_roughness: UniformRange = UniformRange::new(0.0, 0.35);
+    metallic_tint: UniformRange = UniformRange::new(0.55, 1.0);
+    glass_roughness: UniformRange = UniformRange::new(0.0, 0.08);
+    glass_tint: UniformRange = UniformRange::new(0.75, 1.0);
+}
 
 /// Built-in presets: (name, TOML).
 pub const PRESETS: &[(&str, &str)] = &[
@@ -78,6 +125,12 @@ pub struct CameraRecipe {
     pub focal_mm: Dist,
     pub sensor_width_mm: f64,
     pub baseline_m: Dist,
+    /// Near clipping plane as a fraction of the nearest depth the disparity law allows.
+    #[serde(default = "default::clip_start_factor", skip_serializing_if = "is_default::clip_start_factor")]
+    pub clip_start_factor: f64,
+    /// Far clipping plane as a multiple of the back wall's depth.
+    #[serde(default = "default::clip_end_factor", skip_serializing_if = "is_default::clip_end_factor")]
+    pub clip_end_factor: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -101,6 +154,9 @@ pub struct PlacementRecipe {
     pub margin: f64,
     /// Disparity of the textured back wall (px); must stay below the law's minimum.
     pub background_disparity_px: Dist,
+    /// Size of the back wall relative to the region both views see at its depth.
+    #[serde(default = "default::background_oversize", skip_serializing_if = "is_default::background_oversize")]
+    pub background_oversize: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -117,6 +173,40 @@ pub struct LightsRecipe {
     pub blackbody_fraction: f64,
     pub temperature_k: Dist,
     pub world_strength: Dist,
+    /// Lights sit at depths from `near_factor` × the nearest depth the law allows ...
+    #[serde(default = "default::light_near_factor", skip_serializing_if = "is_default::light_near_factor")]
+    pub near_factor: f64,
+    /// ... to `far_factor` × the back wall's depth.
+    #[serde(default = "default::light_far_factor", skip_serializing_if = "is_default::light_far_factor")]
+    pub far_factor: f64,
+    /// Where a light sits across the view, as a fraction of the image width and height
+    /// (outside 0..1: beside the view, lighting it from the side).
+    #[serde(default = "default::light_image_position", skip_serializing_if = "is_default::light_image_position")]
+    pub image_position: UniformRange,
+    /// Each channel of a light colour that is not a blackbody.
+    #[serde(default = "default::light_color_channel", skip_serializing_if = "is_default::light_color_channel")]
+    pub color_channel: UniformRange,
+    /// Radius of point and spot lights (soft shadows) per metre of depth.
+    #[serde(default = "default::light_radius_factor", skip_serializing_if = "is_default::light_radius_factor")]
+    pub radius_factor: f64,
+    /// Side of area lights per metre of depth.
+    #[serde(default = "default::light_area_size_factor", skip_serializing_if = "is_default::light_area_size_factor")]
+    pub area_size_factor: UniformRange,
+    /// Full cone angle of spot lights (radians).
+    #[serde(default = "default::light_spot_size_rad", skip_serializing_if = "is_default::light_spot_size_rad")]
+    pub spot_size_rad: UniformRange,
+    #[serde(default = "default::light_spot_blend", skip_serializing_if = "is_default::light_spot_blend")]
+    pub spot_blend: UniformRange,
+    /// Tilt of directed lights away from the view direction, about X and Y (radians).
+    #[serde(default = "default::light_tilt_rad", skip_serializing_if = "is_default::light_tilt_rad")]
+    pub tilt_rad: UniformRange,
+    /// World colour: grey level, then green and blue as fractions of it.
+    #[serde(default = "default::world_grey", skip_serializing_if = "is_default::world_grey")]
+    pub world_grey: UniformRange,
+    #[serde(default = "default::world_green_ratio", skip_serializing_if = "is_default::world_green_ratio")]
+    pub world_green_ratio: UniformRange,
+    #[serde(default = "default::world_blue_ratio", skip_serializing_if = "is_default::world_blue_ratio")]
+    pub world_blue_ratio: UniformRange,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -145,6 +235,9 @@ pub struct SourcesRecipe {
     pub textures: Option<PathBuf>,
     /// Meshes with more triangles are skipped.
     pub max_triangles: u64,
+    /// Mesh files drawn per object: the worker falls back along them when one fails to load.
+    #[serde(default = "default::mesh_candidates", skip_serializing_if = "is_default::mesh_candidates")]
+    pub mesh_candidates: u32,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -178,6 +271,14 @@ pub struct TreeRecipe {
     pub leaves_per_branch: CountRange,
     /// Leaf length relative to tree height.
     pub leaf_size: Dist,
+    /// Leaf colour, per channel (red, green, blue).
+    #[serde(default = "default::leaf_rgb", skip_serializing_if = "is_default::leaf_rgb")]
+    pub leaf_rgb: [UniformRange; 3],
+    #[serde(default = "default::leaf_roughness", skip_serializing_if = "is_default::leaf_roughness")]
+    pub leaf_roughness: f64,
+    /// Lean of a tree from upright, about X and Z (radians).
+    #[serde(default = "default::tree_lean_rad", skip_serializing_if = "is_default::tree_lean_rad")]
+    pub lean_rad: UniformRange,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -201,6 +302,28 @@ pub struct MaterialRecipe {
     pub ior: Dist,
     /// Material weights of the back wall.
     pub background: BTreeMap<MaterialClass, f64>,
+    /// The back wall's `texture_scale` is clamped to [min, max]: it is large, and many repeats
+    /// would turn its texture into noise.
+    #[serde(default = "default::background_texture_scale", skip_serializing_if = "is_default::background_texture_scale")]
+    pub background_texture_scale: [f64; 2],
+    /// Detail of procedural textures (Blender's noise detail).
+    #[serde(default = "default::procedural_detail", skip_serializing_if = "is_default::procedural_detail")]
+    pub procedural_detail: UniformRange,
+    /// Probability that a glossy surface is textured rather than flat.
+    #[serde(default = "default::glossy_textured_probability", skip_serializing_if = "is_default::glossy_textured_probability")]
+    pub glossy_textured_probability: f64,
+    #[serde(default = "default::glossy_roughness", skip_serializing_if = "is_default::glossy_roughness")]
+    pub glossy_roughness: UniformRange,
+    #[serde(default = "default::metallic_roughness", skip_serializing_if = "is_default::metallic_roughness")]
+    pub metallic_roughness: UniformRange,
+    /// Each channel of a metal's tint.
+    #[serde(default = "default::metallic_tint", skip_serializing_if = "is_default::metallic_tint")]
+    pub metallic_tint: UniformRange,
+    #[serde(default = "default::glass_roughness", skip_serializing_if = "is_default::glass_roughness")]
+    pub glass_roughness: UniformRange,
+    /// Each channel of a glass's tint.
+    #[serde(default = "default::glass_tint", skip_serializing_if = "is_default::glass_tint")]
+    pub glass_tint: UniformRange,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -387,7 +510,60 @@ impl Recipe {
         if self.categories.iter().map(|c| c.weight).sum::<f64>() <= 0.0 {
             return Err(bad("categories", "the category weights sum to 0".into()));
         }
-        Ok(())
+        self.validate_added_keys(source_name)
+    }
+
+    /// The keys of [`added_keys!`].
+    fn validate_added_keys(&self, source_name: &str) -> Result<(), RecipeError> {
+        let bad = |key: &str, allowed: String| RecipeError::Invalid { source_name: source_name.to_string(), key: key.to_string(), allowed };
+        let range = |key: &str, r: &UniformRange, lo: f64, hi: f64| r.validate(lo, hi).map_err(|m| bad(key, m));
+        let number = |key: &str, v: f64, lo: f64, hi: f64| {
+            if v.is_finite() && (lo..=hi).contains(&v) { Ok(()) } else { Err(bad(key, format!("need {lo}..={hi}, got {v}"))) }
+        };
+        let (c, p, l) = (&self.camera, &self.placement, &self.lights);
+        number("camera.clip_start_factor", c.clip_start_factor, 1e-6, 1.0)?;
+        // Past the wall, so the far clip never cuts it.
+        number("camera.clip_end_factor", c.clip_end_factor, 1.001, 1e4)?;
+        number("placement.background_oversize", p.background_oversize, 1.0, 100.0)?;
+        if !(1..=64).contains(&self.sources.mesh_candidates) {
+            return Err(bad("sources.mesh_candidates", format!("need 1..=64, got {}", self.sources.mesh_candidates)));
+        }
+        number("lights.near_factor", l.near_factor, 1e-3, 100.0)?;
+        number("lights.far_factor", l.far_factor, 1e-3, 1.0)?;
+        // Depths are f·B/d, so the nearest law depth is below near_factor·f·B/d_max and the
+        // nearest wall depth is far_factor·f·B/wall_max: the range must be open for every rig.
+        let (d_max, wall_max) = (p.disparity_px.support().1, p.background_disparity_px.support().1);
+        if l.near_factor / d_max >= l.far_factor / wall_max {
+            return Err(bad("lights.near_factor", format!("near_factor / {d_max} px must be below far_factor / {wall_max} px (the wall), got {}", l.near_factor)));
+        }
+        range("lights.image_position", &l.image_position, -10.0, 10.0)?;
+        range("lights.color_channel", &l.color_channel, 0.0, 1.0)?;
+        number("lights.radius_factor", l.radius_factor, 0.0, 10.0)?;
+        range("lights.area_size_factor", &l.area_size_factor, 0.0, 10.0)?;
+        range("lights.spot_size_rad", &l.spot_size_rad, 0.0, std::f64::consts::PI)?;
+        range("lights.spot_blend", &l.spot_blend, 0.0, 1.0)?;
+        range("lights.tilt_rad", &l.tilt_rad, -std::f64::consts::PI, std::f64::consts::PI)?;
+        range("lights.world_grey", &l.world_grey, 0.0, 1.0)?;
+        range("lights.world_green_ratio", &l.world_green_ratio, 0.0, 10.0)?;
+        range("lights.world_blue_ratio", &l.world_blue_ratio, 0.0, 10.0)?;
+        let t = &self.trees;
+        for (channel, r) in ["red", "green", "blue"].iter().zip(&t.leaf_rgb) {
+            range(&format!("trees.leaf_rgb ({channel})"), r, 0.0, 1.0)?;
+        }
+        number("trees.leaf_roughness", t.leaf_roughness, 0.0, 1.0)?;
+        range("trees.lean_rad", &t.lean_rad, -std::f64::consts::FRAC_PI_2, std::f64::consts::FRAC_PI_2)?;
+        let m = &self.materials;
+        let [lo, hi] = m.background_texture_scale;
+        if !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= hi) {
+            return Err(bad("materials.background_texture_scale", format!("need 0 < min <= max, got [{lo}, {hi}]")));
+        }
+        range("materials.procedural_detail", &m.procedural_detail, 0.0, 15.0)?;
+        number("materials.glossy_textured_probability", m.glossy_textured_probability, 0.0, 1.0)?;
+        range("materials.glossy_roughness", &m.glossy_roughness, 0.0, 1.0)?;
+        range("materials.metallic_roughness", &m.metallic_roughness, 0.0, 1.0)?;
+        range("materials.metallic_tint", &m.metallic_tint, 0.0, 1.0)?;
+        range("materials.glass_roughness", &m.glass_roughness, 0.0, 1.0)?;
+        range("materials.glass_tint", &m.glass_tint, 0.0, 1.0)
     }
 }
 
@@ -439,5 +615,40 @@ mod tests {
         assert!(err.contains("camera.width") && err.contains("16..=16384"), "{err}");
         let err = Recipe::from_toml_str(&default_text().replace("boolean_probability = 0.25", "boolean_probability = 1.5"), "x.toml").unwrap_err().to_string();
         assert!(err.contains("primitives.boolean_probability"), "{err}");
+    }
+
+    /// A preset with the keys of `added_keys!` removed: what recipes written before them look like.
+    fn without_added_keys(text: &str) -> String {
+        let added = ["clip_start_factor", "clip_end_factor", "background_oversize", "mesh_candidates", "near_factor", "far_factor", "image_position", "color_channel",
+            "radius_factor", "area_size_factor", "spot_size_rad", "spot_blend", "tilt_rad", "world_grey", "world_green_ratio", "world_blue_ratio", "leaf_rgb",
+            "leaf_roughness", "lean_rad", "background_texture_scale", "procedural_detail", "glossy_textured_probability", "glossy_roughness", "metallic_roughness",
+            "metallic_tint", "glass_roughness", "glass_tint"];
+        text.lines().filter(|l| !added.iter().any(|k| l.trim_start().starts_with(&format!("{k} =")))).collect::<Vec<_>>().join("\n")
+    }
+
+    #[test]
+    fn recipes_without_the_added_keys_read_as_the_presets_and_keep_their_fingerprint() {
+        for (name, text) in PRESETS {
+            let old = without_added_keys(text);
+            assert_ne!(old.len(), text.len(), "{name}: the preset states the added keys");
+            let old = Recipe::from_toml_str(&old, name).unwrap();
+            let preset = Recipe::preset(name).unwrap();
+            assert_eq!(old, preset, "{name}");
+            // Defaults are not serialised, so the fingerprint is the one of the recipe before the keys existed.
+            let json = serde_json::to_string(&preset).unwrap();
+            assert!(!json.contains("clip_end_factor") && !json.contains("leaf_rgb"), "{json}");
+        }
+    }
+
+    #[test]
+    fn added_keys_are_checked_and_named() {
+        let err = Recipe::from_toml_str(&default_text().replace("color_channel = [0.2, 1.0]", "color_channel = [0.2, 1.5]"), "x.toml").unwrap_err().to_string();
+        assert!(err.contains("lights.color_channel") && err.contains("1.5"), "{err}");
+        let err = Recipe::from_toml_str(&default_text().replace("clip_end_factor = 2.0", "clip_end_factor = 0.5"), "x.toml").unwrap_err().to_string();
+        assert!(err.contains("camera.clip_end_factor"), "{err}");
+        let err = Recipe::from_toml_str(&default_text().replace("mesh_candidates = 3", "mesh_candidates = 0"), "x.toml").unwrap_err().to_string();
+        assert!(err.contains("sources.mesh_candidates"), "{err}");
+        let set = Recipe::from_toml_str(&default_text().replace("background_oversize = 1.15", "background_oversize = 1.5"), "x.toml").unwrap();
+        assert_ne!(set.fingerprint(), Recipe::builtin_default().fingerprint());
     }
 }
