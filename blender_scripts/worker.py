@@ -5,7 +5,7 @@ per line on stdin and answers one JSON line per request on the protocol stream (
 stdout; everything Blender itself prints is sent to stderr). It decides nothing random: every
 number it uses comes from the SceneSpec in the request.
 
-Requests: {"cmd": "render", "spec": {...}, "out_dir": "...", "fault": "crash"|"hang" (optional)},
+Requests: {"cmd": "render", "spec": {...}, "out_dir": "...", "fault": "crash"|"hang"|"raise" (optional)},
 {"cmd": "quit"}. Replies (field "status"): "ready" once at start-up, with the Blender and Python
 versions and the SceneSpec format version these scripts understand (the orchestrator refuses a
 mismatch there, once); then one "ok" (files, timings, notes, skipped assets) or "error" (message
@@ -98,6 +98,8 @@ def main():
 
         timings = {}
         try:
+            if fault == "raise":
+                raise RuntimeError("injected failure")
             spec = req["spec"]
             t0 = time.perf_counter()
             scene_builder.reset()

@@ -78,8 +78,9 @@ pub struct GenerateSummary {
     pub seconds_per_sample: f64,
 }
 
-/// Test hook: `STEREOGEN_FAULT=crash@3,hang@5,crash-always@7` makes the worker crash or hang on
-/// those samples (`crash`/`hang`: first attempt only; `-always`: every attempt).
+/// Test hook: `STEREOGEN_FAULT=crash@3,hang@5,crash-always@7,raise@9` makes the worker crash,
+/// hang or raise a Python exception on those samples (`crash`/`hang`: first attempt only;
+/// `-always`: every attempt; `raise` fails the scene, which is not retried).
 #[derive(Debug, Clone, Default)]
 struct FaultPlan(Vec<(u64, Fault, bool)>);
 
@@ -95,7 +96,8 @@ impl FaultPlan {
                 "hang" => (Fault::Hang, false),
                 "crash-always" => (Fault::Crash, true),
                 "hang-always" => (Fault::Hang, true),
-                other => bail!("STEREOGEN_FAULT: unknown fault {other:?} (crash, hang, crash-always, hang-always)"),
+                "raise" => (Fault::Raise, false),
+                other => bail!("STEREOGEN_FAULT: unknown fault {other:?} (crash, hang, crash-always, hang-always, raise)"),
             };
             plan.push((index, fault, always));
         }

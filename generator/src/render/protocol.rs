@@ -58,6 +58,8 @@ pub enum Fault {
     Crash,
     /// The worker stops answering.
     Hang,
+    /// The scene raises a Python exception (an error reply with a traceback; the worker lives on).
+    Raise,
 }
 
 /// What the orchestrator asks a worker.
