@@ -361,10 +361,10 @@ impl Recipe {
 
     /// A preset name or a path to a TOML file.
     pub fn load_or_preset(name_or_path: &str) -> Result<Self, RecipeError> {
-        if !name_or_path.contains(['/', '.']) {
-            if let Some(r) = Self::preset(name_or_path) {
-                return Ok(r);
-            }
+        if !name_or_path.contains(['/', '.'])
+            && let Some(r) = Self::preset(name_or_path)
+        {
+            return Ok(r);
         }
         Self::load(Path::new(name_or_path))
     }

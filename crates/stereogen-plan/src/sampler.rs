@@ -256,7 +256,7 @@ fn draw_shape<R: Rng>(recipe: &Recipe, assets: &AssetIndex, source: ShapeSource,
 
 /// A grown tree standing up: object +Z becomes world +Y, with a random yaw and a slight lean.
 fn tree<R: Rng>(t: &TreeRecipe, rng: &mut R) -> DrawnShape {
-    let params = TreeParams::draw(rng, &t.levels, &t.branches, &t.length_ratio, &t.down_angle_deg, &t.curve_deg, &t.trunk_radius, &t.leaves_per_branch, &t.leaf_size);
+    let params = TreeParams::draw(rng, t);
     let tree = grow(&params, rng);
     let rotation = [-PI / 2.0 + t.lean_rad.sample(rng), rng.random_range(0.0..2.0 * PI), t.lean_rad.sample(rng)];
     let leaf_color = t.leaf_rgb.map(|c| c.sample(rng));
