@@ -132,12 +132,15 @@ fn tetrahedron() -> Shape {
     Shape::Mesh { vertices: vec![[0.8, 0.8, 0.8], [-0.8, -0.8, 0.8], [-0.8, 0.8, -0.8], [0.8, -0.8, -0.8]], triangles: vec![[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]] }
 }
 
+const CUBE_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n\
+f 1 2 3 4\nf 5 8 7 6\nf 1 5 6 2\nf 2 6 7 3\nf 3 7 8 4\nf 5 1 4 8\n";
+
 /// The objects, one per grid cell at depth 3 m: (shape, modifiers, material).
 fn contents(dir: &Path) -> Vec<(Shape, Vec<Modifier>, MaterialSpec)> {
     let photo = dir.join("photo.png");
     image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([(x * 8) as u8, (y * 8) as u8, ((x ^ y) * 8) as u8])).save(&photo).unwrap();
     let obj = dir.join("cube.obj");
-    std::fs::write(&obj, "v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\nf 1 2 3 4\nf 5 8 7 6\nf 1 5 6 2\nf 2 6 7 3\nf 3 7 8 4\nf 5 1 4 8\n").unwrap();
+    std::fs::write(&obj, CUBE_OBJ).unwrap();
     let image = BaseColor::Image { path: photo, scale: 2.0, rotation: 0.3, fallback: [1.0, 0.0, 1.0] };
     let cut = |cutter| Modifier::BooleanCut { cutter, location: [0.5, 0.5, 0.5], rotation: [0.2, 0.3, 0.1], scale: [0.5; 3] };
     let displace = Modifier::Displace { strength: 0.1, noise_scale: 0.5, offset: [1.0, 2.0, 3.0] };

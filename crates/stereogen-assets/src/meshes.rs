@@ -71,7 +71,8 @@ pub fn index_shapenet(root: &Path, synsets: &[String], home: &Path) -> anyhow::R
         Ok((found, skipped))
     })?;
     if found.is_empty() {
-        bail!("ShapeNet folder {} holds no <synset>/<model>/model.obj or .../models/model_normalized.obj{}", root.display(), if synsets.is_empty() { String::new() } else { format!(" for synsets {}", synsets.join(", ")) });
+        let filter = if synsets.is_empty() { String::new() } else { format!(" for synsets {}", synsets.join(", ")) };
+        bail!("ShapeNet folder {} holds no <synset>/<model>/model.obj or .../models/model_normalized.obj{filter}", root.display());
     }
     Ok((found, skipped))
 }

@@ -371,7 +371,9 @@ mod tests {
             b: Dist,
             c: Dist,
         }
-        let t: T = toml::from_str("a = 3.0\nb = { dist = \"log_uniform\", min = 1, max = 9 }\nc = { dist = \"histogram\", edges = [0, 1, 2], weights = [1, 1] }").unwrap();
+        let text = "a = 3.0\nb = { dist = \"log_uniform\", min = 1, max = 9 }\n\
+                    c = { dist = \"histogram\", edges = [0, 1, 2], weights = [1, 1] }";
+        let t: T = toml::from_str(text).unwrap();
         assert_eq!(t.a, Dist::Constant(3.0));
         assert_eq!(t.b, Dist::log_uniform(1.0, 9.0));
         assert!(t.c.validate(0.0, 10.0).is_ok());

@@ -16,8 +16,10 @@ use stereogen::plan::recipe::DEFAULT_PRESET;
 use stereogen::plan::{Recipe, SceneSpec, plan_scene};
 use stereogen::render::{Device, RenderService, Worker, WorkerOptions};
 
+/// Synthetic stereo training data: Rust plans each scene, Blender/Cycles renders it with exact
+/// disparity for both views.
 #[derive(Debug, Parser)]
-#[command(name = "stereogen", version, about = "Synthetic stereo training data: Rust plans each scene, Blender/Cycles renders it with exact disparity for both views.")]
+#[command(name = "stereogen", version)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,

@@ -27,9 +27,19 @@ pub enum RuntimeError {
     MissingPython(PathBuf),
     #[error("no Blender runtime installed; run `stereogen setup` (installs bpy {BPY_VERSION} under {0})")]
     NotInstalled(PathBuf),
-    #[error("cannot run {program}: {message}; bpy {BPY_VERSION} needs Python {}.{}: install it or set STEREOGEN_BOOTSTRAP_PYTHON to a python3.11", BPY_PYTHON.0, BPY_PYTHON.1)]
+    #[error(
+        "cannot run {program}: {message}; bpy {BPY_VERSION} needs Python {}.{}: install it or set \
+         STEREOGEN_BOOTSTRAP_PYTHON to a python3.11",
+        BPY_PYTHON.0,
+        BPY_PYTHON.1
+    )]
     NoBootstrapPython { program: String, message: String },
-    #[error("{program} is Python {found}; bpy {BPY_VERSION} wheels exist only for Python {}.{}: set STEREOGEN_BOOTSTRAP_PYTHON to a python3.11, or pass --blender", BPY_PYTHON.0, BPY_PYTHON.1)]
+    #[error(
+        "{program} is Python {found}; bpy {BPY_VERSION} wheels exist only for Python {}.{}: set \
+         STEREOGEN_BOOTSTRAP_PYTHON to a python3.11, or pass --blender",
+        BPY_PYTHON.0,
+        BPY_PYTHON.1
+    )]
     WrongPython { program: String, found: String },
     #[error("setting up the Blender environment failed at `{step}`: {message}; nothing was installed, fix the cause and run `stereogen setup` again")]
     SetupFailed { step: String, message: String },
