@@ -16,10 +16,13 @@ use stereogen::plan::recipe::DEFAULT_PRESET;
 use stereogen::plan::{Recipe, SceneSpec, plan_scene};
 use stereogen::render::{Device, RenderService, Worker, WorkerOptions};
 
-/// Synthetic stereo training data: Rust plans each scene, Blender/Cycles renders it with exact
-/// disparity for both views.
 #[derive(Debug, Parser)]
-#[command(name = "stereogen", version)]
+#[command(
+    name = "stereogen",
+    version,
+    about = "Synthetic stereo training data: Rust plans each scene, Blender/Cycles renders it with exact disparity for both \
+             views."
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -221,7 +224,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Setup { runtime } => {
             let cfg = runtime.worker_options().resolve(1)?;
             let worker = Worker::spawn(&cfg)?;
-            println!("Blender {} (Python {}) ready via {}", worker.hello().blender, worker.hello().python, cfg.runtime.describe());
+            println!("Blender {} (Python {}) ready via {}", worker.hello.blender, worker.hello.python, cfg.runtime.describe());
             worker.shutdown();
         }
         Command::Generate { recipe, out, count, seed, start, shard, workers, no_progress, runtime } => {
@@ -229,7 +232,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             opts.start = start;
             opts.shard = shard;
             opts.workers = workers;
-            opts.worker = runtime.worker_options();
+            opts.worker_options = runtime.worker_options();
             generate::run(&opts, !no_progress)?;
         }
         Command::Sheet { dataset, out, count, cols } => {

@@ -35,12 +35,12 @@ pub struct GenerateOptions {
     /// Blender worker processes rendering in parallel.
     pub workers: usize,
     /// How each worker is found, started and supervised.
-    pub worker: WorkerOptions,
+    pub worker_options: WorkerOptions,
 }
 
 impl GenerateOptions {
     pub fn new(out: impl Into<PathBuf>, recipe: Recipe, seed: u64, count: u64) -> Self {
-        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, workers: 1, worker: WorkerOptions::default() }
+        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, workers: 1, worker_options: WorkerOptions::default() }
     }
 
     /// The indices this run is responsible for (its range, less other shards').
@@ -270,7 +270,7 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
     let assets = index_sources(&opts.recipe.sources, &stereogen_home())?;
     let seen_skipped = Mutex::new(BTreeSet::new());
     record_skipped(&dataset.layout, &seen_skipped, &assets.skipped, None);
-    let cfg = opts.worker.resolve(opts.workers)?;
+    let cfg = opts.worker_options.resolve(opts.workers)?;
     let threads = opts.workers.min(pending.len());
     let run = Run {
         opts,

@@ -125,13 +125,19 @@ impl WorkerError {
     }
 }
 
-/// A running worker. Killed when dropped.
+/// A running worker that has said hello. Killed when dropped.
 pub struct Worker {
+    process: Process,
+    /// What the worker said when it started.
+    pub hello: Hello,
+}
+
+/// The worker process and its pipes.
+struct Process {
     child: Child,
     stdin: ChildStdin,
     replies: Receiver<String>,
     stderr_tail: Arc<Mutex<VecDeque<String>>>,
-    hello: Option<Hello>,
 }
 
 /// Calls `f` with every line of `stream` until it returns false or the stream ends.
@@ -170,39 +176,55 @@ impl Worker {
         let stdin = child.stdin.take().expect("piped");
         let replies = read_lines_in_background(child.stdout.take().expect("piped"));
         let stderr_tail = collect_stderr_tail(child.stderr.take().expect("piped"));
-        let mut worker = Worker { child, stdin, replies, stderr_tail, hello: None };
-        let hello = worker.read_hello(cfg, &runtime)?;
-        tracing::debug!("worker {} ready: Blender {} / Python {}", worker.child.id(), hello.blender, hello.python);
-        worker.hello = Some(hello);
-        Ok(worker)
+        let mut process = Process { child, stdin, replies, stderr_tail };
+        let hello = read_hello(&mut process, cfg, &runtime)?;
+        tracing::debug!("worker {} ready: Blender {} / Python {}", process.child.id(), hello.blender, hello.python);
+        Ok(Worker { process, hello })
     }
 
-    /// What the worker said when it started.
-    pub fn hello(&self) -> &Hello {
-        self.hello.as_ref().expect("set by spawn")
+    /// Renders one spec into `out_dir`.
+    pub fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
+        self.process.render(spec, out_dir, fault, timeout)
     }
 
-    fn read_hello(&mut self, cfg: &WorkerConfig, runtime: &str) -> Result<Hello, WorkerError> {
-        let start_error = |message: String| WorkerError::Start { runtime: runtime.to_string(), message };
-        let line = self.next_line(cfg.startup_timeout).map_err(|e| match e {
-            WorkerError::Crashed { status, tail } => start_error(format!("exited during start-up ({status}){tail}")),
-            WorkerError::Timeout(d) => start_error(format!("no answer within {d:?} of start-up")),
-            other => other,
-        })?;
-        let hello = match serde_json::from_str::<Reply>(&line) {
-            Ok(Reply::Ready(hello)) => hello,
-            Ok(_) => return Err(start_error(format!("worker says {line}"))),
-            Err(e) => return Err(start_error(format!("unexpected first line {line:?}: {e}"))),
-        };
-        if !hello.blender.starts_with(&format!("{BLENDER_SERIES}.")) {
-            return Err(WorkerError::WrongVersion { runtime: runtime.to_string(), found: hello.blender });
+    pub fn kill(&mut self) {
+        self.process.kill();
+    }
+
+    /// Asks the worker to quit, and kills it if it does not within a few seconds.
+    pub fn shutdown(mut self) {
+        let p = &mut self.process;
+        let _ = p.stdin.write_all(Request::Quit.to_line().as_bytes());
+        let _ = p.stdin.flush();
+        if !matches!(wait_timeout::ChildExt::wait_timeout(&mut p.child, Duration::from_secs(5)), Ok(Some(_))) {
+            p.kill();
         }
-        if hello.spec_format_version != Some(SPEC_FORMAT_VERSION) {
-            return Err(WorkerError::SpecVersion { script: cfg.script.clone(), worker: hello.spec_format_version, ours: SPEC_FORMAT_VERSION });
-        }
-        Ok(hello)
     }
+}
 
+/// The worker's first line: its hello, checked for the Blender series and the SceneSpec version.
+fn read_hello(process: &mut Process, cfg: &WorkerConfig, runtime: &str) -> Result<Hello, WorkerError> {
+    let start_error = |message: String| WorkerError::Start { runtime: runtime.to_string(), message };
+    let line = process.next_line(cfg.startup_timeout).map_err(|e| match e {
+        WorkerError::Crashed { status, tail } => start_error(format!("exited during start-up ({status}){tail}")),
+        WorkerError::Timeout(d) => start_error(format!("no answer within {d:?} of start-up")),
+        other => other,
+    })?;
+    let hello = match serde_json::from_str::<Reply>(&line) {
+        Ok(Reply::Ready(hello)) => hello,
+        Ok(_) => return Err(start_error(format!("worker says {line}"))),
+        Err(e) => return Err(start_error(format!("unexpected first line {line:?}: {e}"))),
+    };
+    if !hello.blender.starts_with(&format!("{BLENDER_SERIES}.")) {
+        return Err(WorkerError::WrongVersion { runtime: runtime.to_string(), found: hello.blender });
+    }
+    if hello.spec_format_version != Some(SPEC_FORMAT_VERSION) {
+        return Err(WorkerError::SpecVersion { script: cfg.script.clone(), worker: hello.spec_format_version, ours: SPEC_FORMAT_VERSION });
+    }
+    Ok(hello)
+}
+
+impl Process {
     fn next_line(&mut self, timeout: Duration) -> Result<String, WorkerError> {
         match self.replies.recv_timeout(timeout) {
             Ok(line) => Ok(line),
@@ -219,8 +241,7 @@ impl Worker {
         }
     }
 
-    /// Renders one spec into `out_dir`.
-    pub fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
+    fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
         let line = Request::Render { spec, out_dir, fault }.to_line();
         if self.stdin.write_all(line.as_bytes()).and_then(|()| self.stdin.flush()).is_err() {
             // The pipe is closed: the worker is gone; report how it died.
@@ -235,18 +256,9 @@ impl Worker {
         }
     }
 
-    pub fn kill(&mut self) {
+    fn kill(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
-    }
-
-    /// Asks the worker to quit, and kills it if it does not within a few seconds.
-    pub fn shutdown(mut self) {
-        let _ = self.stdin.write_all(Request::Quit.to_line().as_bytes());
-        let _ = self.stdin.flush();
-        if !matches!(wait_timeout::ChildExt::wait_timeout(&mut self.child, Duration::from_secs(5)), Ok(Some(_))) {
-            self.kill();
-        }
     }
 }
 
@@ -301,7 +313,7 @@ fn collect_stderr_tail(stderr: ChildStderr) -> Arc<Mutex<VecDeque<String>>> {
     stderr_tail
 }
 
-impl Drop for Worker {
+impl Drop for Process {
     fn drop(&mut self) {
         if matches!(self.child.try_wait(), Ok(None)) {
             self.kill();
