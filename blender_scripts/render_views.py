@@ -103,25 +103,30 @@ def _depth_pass(scene):
     scene.view_layers[0].use_pass_z = True
 
 
+def _timed(timings, key, step):
+    t0 = time.perf_counter()
+    step()
+    timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
+
+
 def render_both(scene, spec, out_dir, timings):
+    """Renders colour and depth of both views into out_dir. Adds to `timings` (seconds):
+    colour_<view>_s and depth_<view>_s per render, save_s for writing all four files."""
     os.makedirs(out_dir, exist_ok=True)
     files = {}
+    result = lambda: bpy.data.images["Render Result"]
     for view in ("left", "right"):
         scene.camera = bpy.data.objects["camera_" + view]
         png = os.path.join(out_dir, view + ".png")
         exr = os.path.join(out_dir, view + "_depth.exr")
 
         _colour_pass(scene, spec["render"])
-        t0 = time.perf_counter()
-        bpy.ops.render.render(write_still=False)
-        timings["render_%s_s" % view] = time.perf_counter() - t0
-        _save(bpy.data.images["Render Result"], scene, png, "PNG", color_mode="RGB", color_depth="8", compression=15)
+        _timed(timings, "colour_%s_s" % view, lambda: bpy.ops.render.render(write_still=False))
+        _timed(timings, "save_s", lambda: _save(result(), scene, png, "PNG", color_mode="RGB", color_depth="8", compression=15))
 
         _depth_pass(scene)
-        t0 = time.perf_counter()
-        bpy.ops.render.render(write_still=False)
-        timings["depth_%s_s" % view] = time.perf_counter() - t0
-        _save(bpy.data.images["Render Result"], scene, exr, "OPEN_EXR_MULTILAYER", color_depth="32", exr_codec="ZIP")
+        _timed(timings, "depth_%s_s" % view, lambda: bpy.ops.render.render(write_still=False))
+        _timed(timings, "save_s", lambda: _save(result(), scene, exr, "OPEN_EXR_MULTILAYER", color_depth="32", exr_codec="ZIP"))
         files[view + "_png"] = png
         files[view + "_depth_exr"] = exr
     return files

@@ -6,8 +6,6 @@ import bpy
 import geometry
 import materials
 
-SPEC_FORMAT_VERSION = 2
-
 
 def reset():
     """Back to an empty factory scene, so nothing of the previous spec survives."""
@@ -17,22 +15,25 @@ def reset():
             block.remove(item)
 
 
-def _add_cameras(scene, rig, render):
-    for view, sign in (("left", -1.0), ("right", 1.0)):
+def _add_cameras(scene, cameras, render):
+    """Copies the spec's camera facts (derived from the rig in Rust; nothing is re-derived here)."""
+    lens = cameras["blender"]
+    for view in ("left", "right"):
         cam = bpy.data.cameras.new("camera_" + view)
         cam.type = "PERSP"
         cam.lens_unit = "MILLIMETERS"
-        cam.lens = rig["focal_mm"]
-        cam.sensor_fit = "HORIZONTAL"
-        cam.sensor_width = rig["sensor_width_mm"]
-        cam.shift_x = 0.0
-        cam.shift_y = 0.0
+        cam.lens = lens["lens_mm"]
+        cam.sensor_fit = lens["sensor_fit"]
+        cam.sensor_width = lens["sensor_width_mm"]
+        cam.shift_x = lens["shift_x"]
+        cam.shift_y = lens["shift_y"]
         cam.clip_start = render["clip_start"]
         cam.clip_end = render["clip_end"]
         cam.dof.use_dof = False
         ob = bpy.data.objects.new("camera_" + view, cam)
-        ob.location = (sign * rig["baseline_m"] / 2.0, 0.0, 0.0)
-        ob.rotation_euler = (0.0, 0.0, 0.0)
+        ob.location = tuple(cameras[view]["position"])
+        ob.rotation_mode = "XYZ"
+        ob.rotation_euler = tuple(cameras[view]["rotation"])
         scene.collection.objects.link(ob)
 
 
@@ -123,13 +124,12 @@ def _add_modifiers(scene, ob, modifiers):
 
 
 def build(spec, threads, device):
-    """Builds the scene; returns (scene, skipped_assets, notes)."""
-    if spec.get("format_version") != SPEC_FORMAT_VERSION:
-        raise ValueError("SceneSpec format_version %r is not %d" % (spec.get("format_version"), SPEC_FORMAT_VERSION))
+    """Builds the scene; returns (scene, skipped_assets, notes). The orchestrator checked the spec
+    version once, against the worker's hello."""
     scene = bpy.context.scene
     import render_views
     render_views.configure(scene, spec, threads, device)
-    _add_cameras(scene, spec["rig"], spec["render"])
+    _add_cameras(scene, spec["cameras"], spec["render"])
     _set_world(scene, spec["world"])
     skipped, notes = [], []
     for obj in spec["objects"]:

@@ -5,8 +5,11 @@ per line on stdin and answers one JSON line per request on the protocol stream (
 stdout; everything Blender itself prints is sent to stderr). It decides nothing random: every
 number it uses comes from the SceneSpec in the request.
 
-Requests: {"cmd": "render", "spec": {...}, "out_dir": "...", "fault": null|"crash"|"hang"},
-{"cmd": "ping"}, {"cmd": "quit"}.
+Requests: {"cmd": "render", "spec": {...}, "out_dir": "...", "fault": "crash"|"hang"|"raise" (optional)},
+{"cmd": "quit"}. Replies (field "status"): "ready" once at start-up, with the Blender and Python
+versions and the SceneSpec format version these scripts understand (the orchestrator refuses a
+mismatch there, once); then one "ok" (files, timings, notes, skipped assets) or "error" (message
+and traceback) per render request. The Rust side of this protocol is `render/protocol.rs`.
 """
 
 import json
@@ -16,6 +19,9 @@ import signal
 import sys
 import time
 import traceback
+
+# The SceneSpec format_version these scripts read (Rust: SPEC_FORMAT_VERSION in stereogen-plan).
+SPEC_FORMAT_VERSION = 3
 
 
 def script_args():
@@ -63,6 +69,7 @@ def main():
         "status": "ready",
         "blender": bpy.app.version_string.split()[0],
         "python": platform.python_version(),
+        "spec_format_version": SPEC_FORMAT_VERSION,
         "rss_bytes": rss_bytes(),
     })
 
@@ -78,9 +85,6 @@ def main():
         cmd = req.get("cmd")
         if cmd == "quit":
             break
-        if cmd == "ping":
-            send({"status": "ok", "rss_bytes": rss_bytes()})
-            continue
         if cmd != "render":
             send({"status": "error", "error": "unknown command %r" % cmd})
             continue
@@ -94,6 +98,8 @@ def main():
 
         timings = {}
         try:
+            if fault == "raise":
+                raise RuntimeError("injected failure")
             spec = req["spec"]
             t0 = time.perf_counter()
             scene_builder.reset()

@@ -12,25 +12,20 @@ use stereo_io::DisparityMap;
 use stereogen::dataset::DatasetLayout;
 use stereogen::plan::recipe::CountRange;
 use stereogen::plan::{Dist, Recipe, SceneSpec};
-use stereogen::render::runtime::{discover_or_install, stereogen_home};
-use stereogen::render::scripts::install_scripts;
-use stereogen::render::{RenderService, WorkerConfig};
+use stereogen::render::{RenderService, WorkerConfig, WorkerOptions};
 
 /// The worker configuration every test uses: the real Blender runtime, installed on first use.
 pub fn worker_config() -> WorkerConfig {
     static CFG: OnceLock<WorkerConfig> = OnceLock::new();
     CFG.get_or_init(|| {
-        let home = stereogen_home();
-        let runtime = discover_or_install(None, &home).expect("a Blender runtime (installed by `stereogen setup`)");
-        WorkerConfig {
-            runtime,
-            script: install_scripts(&home).expect("scripts"),
-            threads: 1,
-            device: Default::default(),
+        let options = WorkerOptions {
+            threads: Some(1),
             startup_timeout: Duration::from_secs(300),
             render_timeout: Duration::from_secs(300),
             retries: 1,
-        }
+            ..WorkerOptions::default()
+        };
+        options.resolve(1).expect("a Blender runtime (installed by `stereogen setup`)")
     })
     .clone()
 }
@@ -49,7 +44,8 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
     let rendered = service.render(spec, |_| None).expect("render");
     let dir = tempfile::tempdir().expect("tempdir");
     let layout = DatasetLayout::new(dir.path());
-    let entry = stereogen::dataset::finalize_sample(&layout, spec, rendered.reply.files.as_ref().unwrap(), &rendered.reply.notes, 0.0, &Default::default()).expect("finalize");
+    let reply = &rendered.reply;
+    let entry = stereogen::dataset::finalize_sample(&layout, spec, &reply.files, &reply.notes, 0.0, &reply.timings).expect("finalize");
     let (left, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_left)).expect("left exr");
     let (right, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_right)).expect("right exr");
     RenderedPair { left, right, dir, layout, entry }

@@ -20,7 +20,7 @@ fn run(cmd: &mut Command, what: &str) {
 
 /// A venv with the pinned packages, made once (under a file lock) and reused.
 pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
-    let base = stereogen::render::runtime::stereogen_home().join("python");
+    let base = ::stereogen::render::runtime::stereogen_home().join("python");
     std::fs::create_dir_all(&base).unwrap();
     let lock = std::fs::File::create(base.join(".lock")).unwrap();
     // SAFETY: flock on an open descriptor; released when `lock` is dropped.

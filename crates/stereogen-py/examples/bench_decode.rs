@@ -24,7 +24,7 @@ fn run(cmd: &mut Command, what: &str) -> String {
 }
 
 fn stereogen_home() -> PathBuf {
-    stereogen::render::runtime::stereogen_home()
+    stereogen_assets::stereogen_home()
 }
 
 fn venv() -> PathBuf {

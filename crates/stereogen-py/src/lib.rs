@@ -213,10 +213,10 @@ fn write_disparity(
 fn plan_scene<'py>(py: Python<'py>, recipe: &str, seed: u64, index: u64) -> PyResult<Bound<'py, PyAny>> {
     let json = py
         .detach(|| -> anyhow_free::Result<String> {
-            let recipe = stereogen::plan::Recipe::load_or_preset(recipe).map_err(|e| e.to_string())?;
-            let home = stereogen::render::runtime::stereogen_home();
-            let assets = stereogen::assets::AssetIndex::build(&recipe.sources, &home).map_err(|e| format!("{e:#}"))?;
-            Ok(stereogen::plan::plan_scene(&recipe, &assets, seed, index).to_json())
+            let recipe = stereogen_plan::Recipe::load_or_preset(recipe).map_err(|e| e.to_string())?;
+            let home = stereogen_assets::stereogen_home();
+            let assets = stereogen_assets::index_sources(&recipe.sources, &home).map_err(|e| format!("{e:#}"))?;
+            Ok(stereogen_plan::plan_scene(&recipe, &assets, seed, index).to_json())
         })
         .map_err(PyValueError::new_err)?;
     py.import("json")?.call_method1("loads", (json,))

@@ -1,26 +1,26 @@
 //! `stereogen generate`: plan, render and finish samples with a pool of Blender workers.
 //! Resumable: samples already in the manifest are skipped, half-written files are cleared.
+//! Progress goes to a callback ([`Progress`]); drawing it is the caller's business.
 
 use std::collections::{BTreeSet, VecDeque};
-use std::path::PathBuf;
+use std::fs::File;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::sync::Mutex;
+use std::time::Instant;
 
 use anyhow::{Context, bail};
 use fs4::fs_std::FileExt;
-use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use super::layout::{CreateDataset, DatasetLayout};
 use super::manifest::Manifest;
 use super::sample::finalize_sample;
-use crate::assets::{AssetIndex, SkippedAsset};
-use crate::plan::{Recipe, plan_scene};
-use crate::render::protocol::{Device, Fault};
-use crate::render::runtime::{discover_or_install, stereogen_home};
-use crate::render::scripts::install_scripts;
-use crate::render::worker::{RenderService, WorkerConfig};
+use crate::assets::{AssetIndex, SkippedAsset, index_sources};
+use crate::plan::{Recipe, SceneSpec, plan_scene};
+use crate::render::protocol::Fault;
+use crate::render::runtime::stereogen_home;
+use crate::render::worker::{RenderService, Rendered, WorkerConfig, WorkerError, WorkerOptions};
 
 #[derive(Debug, Clone)]
 pub struct GenerateOptions {
@@ -32,51 +32,55 @@ pub struct GenerateOptions {
     pub count: u64,
     /// Render only indices with `index % n == k` (`Some((k, n))`).
     pub shard: Option<(u64, u64)>,
+    /// Blender worker processes rendering in parallel.
     pub workers: usize,
-    /// Cycles threads per worker; `None` splits the machine's cores between workers.
-    pub threads_per_worker: Option<u32>,
-    pub device: Device,
-    pub blender: Option<PathBuf>,
-    pub render_timeout: Duration,
-    pub startup_timeout: Duration,
-    pub retries: u32,
-    pub progress: bool,
+    /// How each worker is found, started and supervised.
+    pub worker_options: WorkerOptions,
 }
 
 impl GenerateOptions {
     pub fn new(out: impl Into<PathBuf>, recipe: Recipe, seed: u64, count: u64) -> Self {
-        Self {
-            out: out.into(),
-            recipe,
-            seed,
-            start: 0,
-            count,
-            shard: None,
-            workers: 1,
-            threads_per_worker: None,
-            device: Device::Cpu,
-            blender: None,
-            render_timeout: Duration::from_secs(900),
-            startup_timeout: Duration::from_secs(120),
-            retries: 2,
-            progress: false,
-        }
+        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, workers: 1, worker_options: WorkerOptions::default() }
     }
+
+    /// The indices this run is responsible for (its range, less other shards').
+    fn indices(&self) -> Vec<u64> {
+        (self.start..self.start + self.count).filter(|i| self.shard.is_none_or(|(k, n)| i % n == k)).collect()
+    }
+}
+
+/// What [`generate`] reports as it goes; called from the worker threads.
+#[derive(Debug, Clone, Copy)]
+pub enum Progress<'a> {
+    /// Rendering starts: `total` samples in this run's range, `done` of them finished before.
+    Started { total: u64, done: u64 },
+    /// A sample is in the dataset.
+    Rendered { index: u64, seconds: f64 },
+    /// A sample failed (it is listed in `failures.jsonl`); the run goes on.
+    Failed { index: u64, id: &'a str, error: &'a str },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FailedSample {
+    pub index: u64,
+    pub error: String,
 }
 
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct GenerateSummary {
     pub rendered: u64,
+    /// Samples of the range that were already in the manifest.
     pub skipped: u64,
-    pub failed: Vec<(u64, String)>,
+    pub failed: Vec<FailedSample>,
     pub worker_restarts: u32,
     pub seconds: f64,
     /// Mean wall seconds per rendered sample, per worker.
     pub seconds_per_sample: f64,
 }
 
-/// Test hook: `STEREOGEN_FAULT=crash@3,hang@5,crash-always@7` makes the worker crash or hang on
-/// those samples (`crash`/`hang`: first attempt only; `-always`: every attempt).
+/// Test hook: `STEREOGEN_FAULT=crash@3,hang@5,crash-always@7,raise@9` makes the worker crash,
+/// hang or raise a Python exception on those samples (`crash`/`hang`: first attempt only;
+/// `-always`: every attempt; `raise` fails the scene, which is not retried).
 #[derive(Debug, Clone, Default)]
 struct FaultPlan(Vec<(u64, Fault, bool)>);
 
@@ -92,7 +96,8 @@ impl FaultPlan {
                 "hang" => (Fault::Hang, false),
                 "crash-always" => (Fault::Crash, true),
                 "hang-always" => (Fault::Hang, true),
-                other => bail!("STEREOGEN_FAULT: unknown fault {other:?} (crash, hang, crash-always, hang-always)"),
+                "raise" => (Fault::Raise, false),
+                other => bail!("STEREOGEN_FAULT: unknown fault {other:?} (crash, hang, crash-always, hang-always, raise)"),
             };
             plan.push((index, fault, always));
         }
@@ -104,7 +109,7 @@ impl FaultPlan {
     }
 }
 
-fn append_line(path: &std::path::Path, line: &str) {
+fn append_line(path: &Path, line: &str) {
     use std::io::Write;
     let appended = std::fs::OpenOptions::new().create(true).append(true).open(path).and_then(|mut f| writeln!(f, "{line}"));
     if let Err(e) = appended {
@@ -112,12 +117,17 @@ fn append_line(path: &std::path::Path, line: &str) {
     }
 }
 
-fn append_failure(layout: &DatasetLayout, index: u64, error: &str) {
-    append_line(&layout.failures(), &serde_json::json!({ "index": index, "error": error }).to_string());
+/// One line of `failures.jsonl`: the sample, the error, and the worker's traceback if it sent one.
+fn append_failure(layout: &DatasetLayout, index: u64, error: &WorkerError) {
+    let mut line = serde_json::json!({ "index": index, "error": error.to_string() });
+    if let Some(traceback) = error.traceback() {
+        line["traceback"] = traceback.into();
+    }
+    append_line(&layout.failures(), &line.to_string());
 }
 
 /// Assets the index or a worker refused go to `skipped_assets.jsonl`, once per run and file.
-fn record_skipped(layout: &DatasetLayout, seen: &Mutex<BTreeSet<std::path::PathBuf>>, skipped: &[SkippedAsset], index: Option<u64>) {
+fn record_skipped(layout: &DatasetLayout, seen: &Mutex<BTreeSet<PathBuf>>, skipped: &[SkippedAsset], index: Option<u64>) {
     let mut seen = seen.lock().unwrap();
     for s in skipped {
         if seen.insert(s.path.clone()) {
@@ -127,22 +137,33 @@ fn record_skipped(layout: &DatasetLayout, seen: &Mutex<BTreeSet<std::path::PathB
     }
 }
 
-/// Runs a generation and returns what happened. Fatal problems (no Blender, unwritable output,
-/// a dataset made with another recipe) are errors; a sample that fails is recorded and skipped.
-pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
-    let started = Instant::now();
+fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
     if opts.workers == 0 {
         bail!("--workers must be at least 1");
     }
-    if let Some((k, n)) = opts.shard {
-        if n == 0 || k >= n {
-            bail!("--shard {k}/{n}: need 0 <= k < n");
-        }
+    if let Some((k, n)) = opts.shard
+        && (n == 0 || k >= n)
+    {
+        bail!("--shard {k}/{n}: need 0 <= k < n");
     }
-    let faults = FaultPlan::from_env()?;
+    Ok(())
+}
+
+/// A dataset directory opened for writing: locked against other processes, cleared of partial
+/// files, its manifest open for appending.
+struct OpenDataset {
+    layout: DatasetLayout,
+    manifest: Manifest,
+    /// Indices already in the manifest.
+    done: BTreeSet<u64>,
+    /// Held (locked) until the run ends.
+    _lock: File,
+}
+
+fn open_dataset(opts: &GenerateOptions) -> anyhow::Result<OpenDataset> {
     let layout = DatasetLayout::new(&opts.out);
     layout.open_or_create(&opts.recipe, opts.seed)?;
-    let lock = std::fs::File::create(layout.lock()).with_context(|| format!("cannot create {}", layout.lock().display()))?;
+    let lock = File::create(layout.lock()).with_context(|| format!("cannot create {}", layout.lock().display()))?;
     if !lock.try_lock_exclusive().unwrap_or(false) {
         bail!("another stereogen process is writing to {}; wait for it or choose another --out", layout.root.display());
     }
@@ -150,113 +171,139 @@ pub fn generate(opts: &GenerateOptions) -> anyhow::Result<GenerateSummary> {
     if removed > 0 {
         tracing::info!("removed {removed} partial file(s) left by an interrupted run");
     }
-    let (manifest, done) = Manifest::open(&layout.manifest())?;
-    if done.has_unfinished_line() {
+    let (manifest, contents) = Manifest::open(&layout.manifest())?;
+    if contents.has_unfinished_line() {
         tracing::warn!("{}: dropped a torn last line left by an interrupted run", layout.manifest().display());
     }
-    let done: BTreeSet<u64> = done.entries.iter().map(|e| e.index).collect();
+    let done = contents.entries.iter().map(|e| e.index).collect();
+    Ok(OpenDataset { layout, manifest, done, _lock: lock })
+}
 
-    let indices: Vec<u64> = (opts.start..opts.start + opts.count).filter(|i| opts.shard.is_none_or(|(k, n)| i % n == k)).collect();
-    let pending: VecDeque<u64> = indices.iter().copied().filter(|i| !done.contains(i)).collect();
-    let mut summary = GenerateSummary { skipped: (indices.len() - pending.len()) as u64, ..Default::default() };
-    if pending.is_empty() {
-        summary.seconds = started.elapsed().as_secs_f64();
-        return Ok(summary);
+/// What the worker threads add up.
+#[derive(Debug, Default)]
+struct Totals {
+    rendered: u64,
+    failed: Vec<FailedSample>,
+    restarts: u32,
+    /// Wall seconds spent on rendered samples, summed over workers.
+    busy_seconds: f64,
+}
+
+/// State the worker threads share during one run.
+struct Run<'a> {
+    opts: &'a GenerateOptions,
+    layout: &'a DatasetLayout,
+    assets: AssetIndex,
+    faults: FaultPlan,
+    progress: &'a (dyn Fn(Progress<'_>) + Sync),
+    queue: Mutex<VecDeque<u64>>,
+    manifest: Mutex<Manifest>,
+    seen_skipped: Mutex<BTreeSet<PathBuf>>,
+    /// Set on a fatal error: the workers stop taking samples.
+    stop: AtomicBool,
+    fatal: Mutex<Option<anyhow::Error>>,
+    totals: Mutex<Totals>,
+}
+
+impl Run<'_> {
+    /// One worker thread: takes samples from the queue until it is empty or the run stops.
+    fn worker_loop(&self, cfg: WorkerConfig) {
+        let mut service = RenderService::new(cfg);
+        while !self.stop.load(Ordering::SeqCst) {
+            let Some(index) = self.queue.lock().unwrap().pop_front() else { break };
+            let spec = plan_scene(&self.opts.recipe, &self.assets, self.opts.seed, index);
+            let t0 = Instant::now();
+            match service.render(&spec, |attempt| self.faults.fault(index, attempt)) {
+                Ok(rendered) => self.finish_sample(&spec, &rendered, t0),
+                Err(e) if e.is_fatal() => self.fail_run(anyhow::Error::new(e)),
+                Err(e) => self.record_failure(&spec, &e),
+            }
+        }
+        self.totals.lock().unwrap().restarts += service.restarts;
+        service.shutdown();
     }
 
-    let home = stereogen_home();
-    let assets = AssetIndex::build(&opts.recipe.sources, &home)?;
+    /// Writes a rendered sample into the dataset and appends its manifest line.
+    fn finish_sample(&self, spec: &SceneSpec, rendered: &Rendered, t0: Instant) {
+        let reply = &rendered.reply;
+        record_skipped(self.layout, &self.seen_skipped, &reply.skipped_assets, Some(spec.index));
+        let seconds = t0.elapsed().as_secs_f64();
+        let finished = finalize_sample(self.layout, spec, &reply.files, &reply.notes, seconds, &reply.timings)
+            .and_then(|entry| Ok(self.manifest.lock().unwrap().append(&entry)?));
+        match finished {
+            Ok(()) => {
+                let mut totals = self.totals.lock().unwrap();
+                totals.rendered += 1;
+                totals.busy_seconds += seconds;
+                drop(totals);
+                (self.progress)(Progress::Rendered { index: spec.index, seconds });
+            }
+            // A write failure (disk full, permissions) will hit every sample.
+            Err(e) => self.fail_run(e.context(format!("sample {}", spec.id))),
+        }
+    }
+
+    fn record_failure(&self, spec: &SceneSpec, error: &WorkerError) {
+        let message = error.to_string();
+        append_failure(self.layout, spec.index, error);
+        (self.progress)(Progress::Failed { index: spec.index, id: &spec.id, error: &message });
+        self.totals.lock().unwrap().failed.push(FailedSample { index: spec.index, error: message });
+    }
+
+    fn fail_run(&self, error: anyhow::Error) {
+        self.stop.store(true, Ordering::SeqCst);
+        self.fatal.lock().unwrap().get_or_insert(error);
+    }
+}
+
+/// Runs a generation and returns what happened. Fatal problems (no Blender, unwritable output,
+/// a dataset made with another recipe) are errors; a sample that fails is recorded and skipped.
+pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)) -> anyhow::Result<GenerateSummary> {
+    let started = Instant::now();
+    check_options(opts)?;
+    let faults = FaultPlan::from_env()?;
+    let dataset = open_dataset(opts)?;
+    let indices = opts.indices();
+    let pending: VecDeque<u64> = indices.iter().copied().filter(|i| !dataset.done.contains(i)).collect();
+    let skipped = (indices.len() - pending.len()) as u64;
+    if pending.is_empty() {
+        return Ok(GenerateSummary { skipped, seconds: started.elapsed().as_secs_f64(), ..Default::default() });
+    }
+
+    let assets = index_sources(&opts.recipe.sources, &stereogen_home())?;
     let seen_skipped = Mutex::new(BTreeSet::new());
-    record_skipped(&layout, &seen_skipped, &assets.skipped, None);
-    let runtime = discover_or_install(opts.blender.as_deref(), &home)?;
-    let script = install_scripts(&home).with_context(|| format!("cannot write the Blender scripts under {}", home.display()))?;
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u32;
-    let threads = opts.threads_per_worker.unwrap_or_else(|| (cores / opts.workers as u32).max(1));
-    let cfg = WorkerConfig {
-        runtime,
-        script,
-        threads,
-        device: opts.device,
-        startup_timeout: opts.startup_timeout,
-        render_timeout: opts.render_timeout,
-        retries: opts.retries,
+    record_skipped(&dataset.layout, &seen_skipped, &assets.skipped, None);
+    let cfg = opts.worker_options.resolve(opts.workers)?;
+    let threads = opts.workers.min(pending.len());
+    let run = Run {
+        opts,
+        layout: &dataset.layout,
+        assets,
+        faults,
+        progress,
+        queue: Mutex::new(pending),
+        manifest: Mutex::new(dataset.manifest),
+        seen_skipped,
+        stop: AtomicBool::new(false),
+        fatal: Mutex::new(None),
+        totals: Mutex::new(Totals::default()),
     };
-
-    let bar = if opts.progress { ProgressBar::new(indices.len() as u64) } else { ProgressBar::hidden() };
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} samples · {per_sec} · ETA {eta} {msg}")
-            .expect("static template"),
-    );
-    bar.set_position(summary.skipped);
-    bar.enable_steady_tick(Duration::from_millis(250));
-
-    let queue = Mutex::new(pending);
-    let manifest = Mutex::new(manifest);
-    let stop = AtomicBool::new(false);
-    let fatal: Mutex<Option<anyhow::Error>> = Mutex::new(None);
-    let results = Mutex::new((0u64, Vec::new(), 0u32, 0f64));
-    let faults = Arc::new(faults);
-
+    progress(Progress::Started { total: indices.len() as u64, done: skipped });
     std::thread::scope(|s| {
-        for _ in 0..opts.workers.min(indices.len()) {
-            s.spawn(|| {
-                let mut service = RenderService::new(cfg.clone());
-                while !stop.load(Ordering::SeqCst) {
-                    let Some(index) = queue.lock().unwrap().pop_front() else { break };
-                    let spec = plan_scene(&opts.recipe, &assets, opts.seed, index);
-                    let t0 = Instant::now();
-                    let outcome = service.render(&spec, |attempt| faults.fault(index, attempt));
-                    let outcome = outcome.map_err(|e| {
-                        if e.is_fatal() {
-                            stop.store(true, Ordering::SeqCst);
-                        }
-                        e
-                    });
-                    match outcome {
-                        Ok(rendered) => {
-                            record_skipped(&layout, &seen_skipped, &rendered.reply.skipped_assets, Some(index));
-                            let seconds = t0.elapsed().as_secs_f64();
-                            let files = rendered.reply.files.as_ref().expect("ok replies carry files");
-                            let finished = finalize_sample(&layout, &spec, files, &rendered.reply.notes, seconds, &Default::default()).and_then(|entry| Ok(manifest.lock().unwrap().append(&entry)?));
-                            match finished {
-                                Ok(()) => {
-                                    let mut r = results.lock().unwrap();
-                                    r.0 += 1;
-                                    r.3 += seconds;
-                                }
-                                Err(e) => {
-                                    // A write failure (disk full, permissions) will hit every sample.
-                                    stop.store(true, Ordering::SeqCst);
-                                    fatal.lock().unwrap().get_or_insert(e.context(format!("sample {}", spec.id)));
-                                }
-                            }
-                        }
-                        Err(e) if e.is_fatal() => {
-                            fatal.lock().unwrap().get_or_insert(anyhow::Error::new(e));
-                        }
-                        Err(e) => {
-                            let msg = e.to_string();
-                            bar.println(format!("sample {} failed: {msg}", spec.id));
-                            append_failure(&layout, index, &msg);
-                            results.lock().unwrap().1.push((index, msg));
-                        }
-                    }
-                    bar.inc(1);
-                }
-                results.lock().unwrap().2 += service.restarts;
-                service.shutdown();
-            });
+        for _ in 0..threads {
+            s.spawn(|| run.worker_loop(cfg.clone()));
         }
     });
-    bar.finish_and_clear();
-    if let Some(e) = fatal.into_inner().unwrap() {
+    if let Some(e) = run.fatal.into_inner().unwrap() {
         return Err(e);
     }
-    let (rendered, failed, restarts, busy) = results.into_inner().unwrap();
-    summary.rendered = rendered;
-    summary.failed = failed;
-    summary.worker_restarts = restarts;
-    summary.seconds = started.elapsed().as_secs_f64();
-    summary.seconds_per_sample = if rendered > 0 { busy / rendered as f64 } else { 0.0 };
-    Ok(summary)
+    let totals = run.totals.into_inner().unwrap();
+    Ok(GenerateSummary {
+        rendered: totals.rendered,
+        skipped,
+        seconds_per_sample: if totals.rendered > 0 { totals.busy_seconds / totals.rendered as f64 } else { 0.0 },
+        failed: totals.failed,
+        worker_restarts: totals.restarts,
+        seconds: started.elapsed().as_secs_f64(),
+    })
 }

@@ -1,20 +1,53 @@
-//! The line protocol between the orchestrator and `blender_scripts/worker.py`: one JSON request
-//! per line on the worker's stdin, one JSON reply per line on its protocol stream.
+//! The line protocol between the orchestrator and `blender_scripts/worker.py`: one JSON
+//! [`Request`] per line on the worker's stdin, one JSON [`Reply`] per line on its protocol stream.
+//! The worker's first line is [`Reply::Ready`]; every render request then gets exactly one
+//! [`Reply::Ok`] or [`Reply::Error`].
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use crate::assets::SkippedAsset;
 use crate::plan::SceneSpec;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum Device {
     #[default]
     Cpu,
     /// CUDA or OptiX, whichever Cycles finds.
     Gpu,
+}
+
+impl Device {
+    pub const NAMES: [&str; 2] = ["cpu", "gpu"];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Device::Cpu => "cpu",
+            Device::Gpu => "gpu",
+        }
+    }
+}
+
+impl FromStr for Device {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(Device::Cpu),
+            "gpu" => Ok(Device::Gpu),
+            other => Err(format!("unknown device {other:?} (cpu, gpu)")),
+        }
+    }
+}
+
+impl std::fmt::Display for Device {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
 }
 
 /// Failures the worker injects on request, so tests exercise the recovery paths for real.
@@ -25,24 +58,54 @@ pub enum Fault {
     Crash,
     /// The worker stops answering.
     Hang,
+    /// The scene raises a Python exception (an error reply with a traceback; the worker lives on).
+    Raise,
 }
 
+/// What the orchestrator asks a worker.
 #[derive(Debug, Serialize)]
-pub struct RenderRequest<'a> {
-    pub cmd: &'static str,
-    pub spec: &'a SceneSpec,
-    /// Where the worker writes its intermediate files (a fresh temporary directory).
-    pub out_dir: PathBuf,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub fault: Option<Fault>,
+#[serde(tag = "cmd", rename_all = "snake_case")]
+pub enum Request<'a> {
+    /// Build `spec` and render both views into `out_dir` (a fresh temporary directory).
+    Render {
+        spec: &'a SceneSpec,
+        out_dir: &'a Path,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        fault: Option<Fault>,
+    },
+    /// Exit cleanly.
+    Quit,
 }
 
-/// The first line a worker prints once `bpy` is imported.
+impl Request<'_> {
+    /// The request as one protocol line.
+    pub fn to_line(&self) -> String {
+        let mut line = serde_json::to_string(self).expect("requests serialise");
+        line.push('\n');
+        line
+    }
+}
+
+/// What a worker answers.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(tag = "status", rename_all = "snake_case")]
+pub enum Reply {
+    /// The first line, once `bpy` is imported.
+    Ready(Hello),
+    /// A rendered spec.
+    Ok(RenderOutput),
+    /// A spec (or request line) the worker could not handle; the worker carries on.
+    Error(WorkerFailure),
+}
+
+/// What a worker says about itself when it starts.
 #[derive(Debug, Clone, Deserialize)]
 pub struct Hello {
-    pub status: String,
     pub blender: String,
     pub python: String,
+    /// The SceneSpec `format_version` its scripts understand (absent in scripts older than 3).
+    #[serde(default)]
+    pub spec_format_version: Option<u32>,
     pub rss_bytes: Option<u64>,
 }
 
@@ -55,22 +118,57 @@ pub struct RenderedFiles {
     pub right_depth_exr: PathBuf,
 }
 
+/// A rendered spec.
 #[derive(Debug, Clone, Deserialize)]
-pub struct RenderReply {
-    pub status: String,
-    #[serde(default)]
-    pub files: Option<RenderedFiles>,
+pub struct RenderOutput {
+    pub files: RenderedFiles,
+    /// Seconds per step: `build_s`, `colour_left_s`, `depth_left_s`, `colour_right_s`,
+    /// `depth_right_s`, `save_s`.
     #[serde(default)]
     pub timings: BTreeMap<String, f64>,
     #[serde(default)]
     pub rss_bytes: Option<u64>,
-    #[serde(default)]
-    pub error: Option<String>,
     /// Mesh or texture files the worker could not use for this spec (it fell back to the next
     /// candidate or a flat colour).
     #[serde(default)]
-    pub skipped_assets: Vec<crate::assets::SkippedAsset>,
+    pub skipped_assets: Vec<SkippedAsset>,
     /// What the worker did beyond the spec: which mesh candidate it used, objects it dropped.
     #[serde(default)]
     pub notes: Vec<String>,
+}
+
+/// Why the worker could not render a spec.
+#[derive(Debug, Clone, Deserialize)]
+pub struct WorkerFailure {
+    pub error: String,
+    /// The Python traceback, when an exception caused it.
+    #[serde(default)]
+    pub traceback: Option<String>,
+    #[serde(default)]
+    pub rss_bytes: Option<u64>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn replies_parse_by_status() {
+        let hello: Reply = serde_json::from_str(r#"{"status":"ready","blender":"4.5.1","python":"3.11.9","spec_format_version":3,"rss_bytes":5}"#).unwrap();
+        assert!(matches!(hello, Reply::Ready(Hello { spec_format_version: Some(3), .. })));
+        let err: Reply = serde_json::from_str(r#"{"status":"error","error":"ValueError: x","traceback":"Traceback ...","rss_bytes":null}"#).unwrap();
+        assert!(matches!(err, Reply::Error(WorkerFailure { traceback: Some(_), .. })));
+        let files = r#"{"left_png":"a","right_png":"b","left_depth_exr":"c","right_depth_exr":"d"}"#;
+        let ok: Reply = serde_json::from_str(&format!(r#"{{"status":"ok","files":{files},"timings":{{"build_s":0.5}}}}"#)).unwrap();
+        assert!(matches!(ok, Reply::Ok(RenderOutput { ref timings, .. }) if timings["build_s"] == 0.5));
+        assert!(serde_json::from_str::<Reply>(r#"{"status":"ok"}"#).is_err(), "an ok reply without files");
+        assert!(serde_json::from_str::<Reply>(r#"{"status":"pong"}"#).is_err());
+    }
+
+    #[test]
+    fn requests_are_tagged_by_cmd() {
+        assert_eq!(Request::Quit.to_line(), "{\"cmd\":\"quit\"}\n");
+        assert_eq!("gpu".parse::<Device>(), Ok(Device::Gpu));
+        assert!("tpu".parse::<Device>().unwrap_err().contains("tpu"));
+    }
 }

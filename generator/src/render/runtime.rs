@@ -8,6 +8,8 @@ use std::process::{Command, Stdio};
 
 use fs4::fs_std::FileExt;
 
+pub use stereogen_assets::stereogen_home;
+
 /// The `bpy` wheel the managed environment pins (Blender 4.5 LTS).
 pub const BPY_VERSION: &str = "4.5.15";
 /// trimesh loads the mesh formats Blender has no importer for (OFF and others).
@@ -25,9 +27,19 @@ pub enum RuntimeError {
     MissingPython(PathBuf),
     #[error("no Blender runtime installed; run `stereogen setup` (installs bpy {BPY_VERSION} under {0})")]
     NotInstalled(PathBuf),
-    #[error("cannot run {program}: {message}; bpy {BPY_VERSION} needs Python {}.{}: install it or set STEREOGEN_BOOTSTRAP_PYTHON to a python3.11", BPY_PYTHON.0, BPY_PYTHON.1)]
+    #[error(
+        "cannot run {program}: {message}; bpy {BPY_VERSION} needs Python {}.{}: install it or set \
+         STEREOGEN_BOOTSTRAP_PYTHON to a python3.11",
+        BPY_PYTHON.0,
+        BPY_PYTHON.1
+    )]
     NoBootstrapPython { program: String, message: String },
-    #[error("{program} is Python {found}; bpy {BPY_VERSION} wheels exist only for Python {}.{}: set STEREOGEN_BOOTSTRAP_PYTHON to a python3.11, or pass --blender", BPY_PYTHON.0, BPY_PYTHON.1)]
+    #[error(
+        "{program} is Python {found}; bpy {BPY_VERSION} wheels exist only for Python {}.{}: set \
+         STEREOGEN_BOOTSTRAP_PYTHON to a python3.11, or pass --blender",
+        BPY_PYTHON.0,
+        BPY_PYTHON.1
+    )]
     WrongPython { program: String, found: String },
     #[error("setting up the Blender environment failed at `{step}`: {message}; nothing was installed, fix the cause and run `stereogen setup` again")]
     SetupFailed { step: String, message: String },
@@ -67,15 +79,6 @@ impl BlenderRuntime {
             BlenderRuntime::Python(p) => format!("python {}", p.display()),
         }
     }
-}
-
-/// `$STEREOGEN_HOME`, or `$HOME/.cache/stereogen`.
-pub fn stereogen_home() -> PathBuf {
-    if let Some(h) = std::env::var_os("STEREOGEN_HOME").filter(|h| !h.is_empty()) {
-        return PathBuf::from(h);
-    }
-    let home = std::env::var_os("HOME").map(PathBuf::from).unwrap_or_else(std::env::temp_dir);
-    home.join(".cache").join("stereogen")
 }
 
 /// The directory name changes with the pinned versions, so an upgrade installs afresh.

@@ -3,17 +3,76 @@
 use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Stdio};
+use std::process::{Child, ChildStdin, ChildStderr, ChildStdout, Stdio};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use super::protocol::{Device, Fault, Hello, RenderReply, RenderRequest};
-use super::runtime::{BLENDER_SERIES, BlenderRuntime};
+use anyhow::Context;
+
+use super::protocol::{Device, Fault, Hello, RenderOutput, Reply, Request};
+use super::runtime::{BLENDER_SERIES, BlenderRuntime, discover_or_install, stereogen_home};
+use super::scripts::install_scripts;
 use crate::plan::SceneSpec;
+use crate::plan::spec::SPEC_FORMAT_VERSION;
 
 const STDERR_TAIL_LINES: usize = 30;
 
+/// How workers are found, started and supervised: what `--blender`, `--device`, `--threads`,
+/// `--timeout` and `--retries` set. [`WorkerOptions::resolve`] turns it into a [`WorkerConfig`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorkerOptions {
+    /// A Blender executable; `None`: `$STEREOGEN_PYTHON`, then the managed environment.
+    pub blender: Option<PathBuf>,
+    pub device: Device,
+    /// Cycles threads per worker; `None` splits the machine's cores between the workers.
+    pub threads: Option<u32>,
+    /// Time allowed for Blender to start and import `bpy`.
+    pub startup_timeout: Duration,
+    /// Time allowed for one spec, build and both views.
+    pub render_timeout: Duration,
+    /// Attempts after the first when a worker crashes or hangs.
+    pub retries: u32,
+}
+
+impl WorkerOptions {
+    pub const DEFAULT_RENDER_TIMEOUT_S: u64 = 900;
+    pub const DEFAULT_STARTUP_TIMEOUT_S: u64 = 120;
+    pub const DEFAULT_RETRIES: u32 = 2;
+
+    /// Finds (or installs) the Blender runtime, installs the worker scripts, and gives each of
+    /// `workers` workers its share of the cores unless `threads` is set.
+    pub fn resolve(&self, workers: usize) -> anyhow::Result<WorkerConfig> {
+        let home = stereogen_home();
+        let runtime = discover_or_install(self.blender.as_deref(), &home)?;
+        let script = install_scripts(&home).with_context(|| format!("cannot write the Blender scripts under {}", home.display()))?;
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u32;
+        Ok(WorkerConfig {
+            runtime,
+            script,
+            threads: self.threads.unwrap_or_else(|| (cores / workers.max(1) as u32).max(1)),
+            device: self.device,
+            startup_timeout: self.startup_timeout,
+            render_timeout: self.render_timeout,
+            retries: self.retries,
+        })
+    }
+}
+
+impl Default for WorkerOptions {
+    fn default() -> Self {
+        Self {
+            blender: None,
+            device: Device::Cpu,
+            threads: None,
+            startup_timeout: Duration::from_secs(Self::DEFAULT_STARTUP_TIMEOUT_S),
+            render_timeout: Duration::from_secs(Self::DEFAULT_RENDER_TIMEOUT_S),
+            retries: Self::DEFAULT_RETRIES,
+        }
+    }
+}
+
+/// A resolved worker setup: the runtime and scripts to run, and how to supervise them.
 #[derive(Debug, Clone)]
 pub struct WorkerConfig {
     pub runtime: BlenderRuntime,
@@ -36,14 +95,17 @@ pub enum WorkerError {
     Start { runtime: String, message: String },
     #[error("Blender ({runtime}) reports version {found}; stereogen needs Blender {BLENDER_SERIES} LTS")]
     WrongVersion { runtime: String, found: String },
+    #[error("the Blender worker script {script} understands SceneSpec version {}, this stereogen writes version {ours}; \
+             the script and the binary come from different builds", .worker.map_or("(none stated)".to_string(), |v| v.to_string()))]
+    SpecVersion { script: PathBuf, worker: Option<u32>, ours: u32 },
     #[error("Blender worker died ({status}){tail}")]
     Crashed { status: String, tail: String },
     #[error("Blender worker gave no answer within {0:?} and was killed")]
     Timeout(Duration),
     #[error("Blender worker broke the protocol: {0}")]
     Protocol(String),
-    #[error("scene failed in Blender: {0}")]
-    Scene(String),
+    #[error("scene failed in Blender: {message}")]
+    Scene { message: String, traceback: Option<String> },
     #[error("cannot create a scratch directory in {0}")]
     Scratch(String),
 }
@@ -51,17 +113,31 @@ pub enum WorkerError {
 impl WorkerError {
     /// Errors that will happen again for every sample: the whole run should stop.
     pub fn is_fatal(&self) -> bool {
-        matches!(self, WorkerError::Start { .. } | WorkerError::WrongVersion { .. } | WorkerError::Scratch(_))
+        matches!(self, WorkerError::Start { .. } | WorkerError::WrongVersion { .. } | WorkerError::SpecVersion { .. } | WorkerError::Scratch(_))
+    }
+
+    /// The worker's Python traceback, for a scene that raised.
+    pub fn traceback(&self) -> Option<&str> {
+        match self {
+            WorkerError::Scene { traceback, .. } => traceback.as_deref(),
+            _ => None,
+        }
     }
 }
 
-/// A running worker. Killed when dropped.
+/// A running worker that has said hello. Killed when dropped.
 pub struct Worker {
+    process: Process,
+    /// What the worker said when it started.
+    pub hello: Hello,
+}
+
+/// The worker process and its pipes.
+struct Process {
     child: Child,
     stdin: ChildStdin,
     replies: Receiver<String>,
     stderr_tail: Arc<Mutex<VecDeque<String>>>,
-    pub hello: Hello,
 }
 
 /// Calls `f` with every line of `stream` until it returns false or the stream ends.
@@ -93,72 +169,62 @@ fn tail_text(tail: &Mutex<VecDeque<String>>) -> String {
 }
 
 impl Worker {
+    /// Starts a worker and waits for its hello; refuses a wrong Blender or SceneSpec version.
     pub fn spawn(cfg: &WorkerConfig) -> Result<Self, WorkerError> {
         let runtime = cfg.runtime.describe();
-        let args = vec!["--threads".to_string(), cfg.threads.to_string(), "--device".to_string(), serde_json::to_value(cfg.device).unwrap().as_str().unwrap().to_string()];
-        let mut cmd = cfg.runtime.command(&cfg.script, &args);
-        cmd.stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped());
-        #[cfg(target_os = "linux")]
-        {
-            use std::os::unix::process::CommandExt;
-            // A worker must not outlive a killed orchestrator (it would keep rendering into a
-            // dataset nobody finishes). The signal fires when the spawning thread exits, and
-            // every worker is shut down before its thread ends.
-            unsafe {
-                cmd.pre_exec(|| {
-                    if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
-                        return Err(std::io::Error::last_os_error());
-                    }
-                    Ok(())
-                });
-            }
-        }
-        let mut child = cmd.spawn().map_err(|e| WorkerError::Start { runtime: runtime.clone(), message: e.to_string() })?;
+        let mut child = start_process(cfg).map_err(|e| WorkerError::Start { runtime: runtime.clone(), message: e.to_string() })?;
         let stdin = child.stdin.take().expect("piped");
-        let stdout = child.stdout.take().expect("piped");
-        let stderr = child.stderr.take().expect("piped");
-
-        let (tx, replies) = mpsc::channel();
-        std::thread::spawn(move || {
-            for_each_line(stdout, |line| tx.send(line).is_ok());
-        });
-        let stderr_tail = Arc::new(Mutex::new(VecDeque::with_capacity(STDERR_TAIL_LINES)));
-        let tail = Arc::clone(&stderr_tail);
-        std::thread::spawn(move || {
-            for_each_line(stderr, |line| {
-                tracing::trace!(target: "blender", "{line}");
-                if let Ok(mut t) = tail.lock() {
-                    if t.len() == STDERR_TAIL_LINES {
-                        t.pop_front();
-                    }
-                    t.push_back(line);
-                }
-                true
-            });
-        });
-
-        let mut worker = Worker { child, stdin, replies, stderr_tail, hello: Hello { status: String::new(), blender: String::new(), python: String::new(), rss_bytes: None } };
-        let line = worker.next_line(cfg.startup_timeout).map_err(|e| match e {
-            WorkerError::Crashed { status, tail } => WorkerError::Start { runtime: runtime.clone(), message: format!("exited during start-up ({status}){tail}") },
-            WorkerError::Timeout(d) => WorkerError::Start { runtime: runtime.clone(), message: format!("no answer within {d:?} of start-up") },
-            other => other,
-        })?;
-        let hello: Hello = serde_json::from_str(&line).map_err(|e| WorkerError::Start { runtime: runtime.clone(), message: format!("unexpected first line {line:?}: {e}") })?;
-        if hello.status != "ready" {
-            return Err(WorkerError::Start { runtime, message: format!("worker says {line}") });
-        }
-        if !hello.blender.starts_with(&format!("{BLENDER_SERIES}.")) {
-            return Err(WorkerError::WrongVersion { runtime, found: hello.blender });
-        }
-        tracing::debug!("worker {} ready: Blender {} / Python {}", worker.child.id(), hello.blender, hello.python);
-        worker.hello = hello;
-        Ok(worker)
+        let replies = read_lines_in_background(child.stdout.take().expect("piped"));
+        let stderr_tail = collect_stderr_tail(child.stderr.take().expect("piped"));
+        let mut process = Process { child, stdin, replies, stderr_tail };
+        let hello = read_hello(&mut process, cfg, &runtime)?;
+        tracing::debug!("worker {} ready: Blender {} / Python {}", process.child.id(), hello.blender, hello.python);
+        Ok(Worker { process, hello })
     }
 
-    pub fn pid(&self) -> u32 {
-        self.child.id()
+    /// Renders one spec into `out_dir`.
+    pub fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
+        self.process.render(spec, out_dir, fault, timeout)
     }
 
+    pub fn kill(&mut self) {
+        self.process.kill();
+    }
+
+    /// Asks the worker to quit, and kills it if it does not within a few seconds.
+    pub fn shutdown(mut self) {
+        let p = &mut self.process;
+        let _ = p.stdin.write_all(Request::Quit.to_line().as_bytes());
+        let _ = p.stdin.flush();
+        if !matches!(wait_timeout::ChildExt::wait_timeout(&mut p.child, Duration::from_secs(5)), Ok(Some(_))) {
+            p.kill();
+        }
+    }
+}
+
+/// The worker's first line: its hello, checked for the Blender series and the SceneSpec version.
+fn read_hello(process: &mut Process, cfg: &WorkerConfig, runtime: &str) -> Result<Hello, WorkerError> {
+    let start_error = |message: String| WorkerError::Start { runtime: runtime.to_string(), message };
+    let line = process.next_line(cfg.startup_timeout).map_err(|e| match e {
+        WorkerError::Crashed { status, tail } => start_error(format!("exited during start-up ({status}){tail}")),
+        WorkerError::Timeout(d) => start_error(format!("no answer within {d:?} of start-up")),
+        other => other,
+    })?;
+    let hello = match serde_json::from_str::<Reply>(&line) {
+        Ok(Reply::Ready(hello)) => hello,
+        Ok(_) => return Err(start_error(format!("worker says {line}"))),
+        Err(e) => return Err(start_error(format!("unexpected first line {line:?}: {e}"))),
+    };
+    if !hello.blender.starts_with(&format!("{BLENDER_SERIES}.")) {
+        return Err(WorkerError::WrongVersion { runtime: runtime.to_string(), found: hello.blender });
+    }
+    if hello.spec_format_version != Some(SPEC_FORMAT_VERSION) {
+        return Err(WorkerError::SpecVersion { script: cfg.script.clone(), worker: hello.spec_format_version, ours: SPEC_FORMAT_VERSION });
+    }
+    Ok(hello)
+}
+
+impl Process {
     fn next_line(&mut self, timeout: Duration) -> Result<String, WorkerError> {
         match self.replies.recv_timeout(timeout) {
             Ok(line) => Ok(line),
@@ -175,40 +241,79 @@ impl Worker {
         }
     }
 
-    /// Renders one spec into `out_dir`.
-    pub fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderReply, WorkerError> {
-        let request = RenderRequest { cmd: "render", spec, out_dir: out_dir.to_path_buf(), fault };
-        let mut line = serde_json::to_string(&request).expect("requests serialise");
-        line.push('\n');
+    fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
+        let line = Request::Render { spec, out_dir, fault }.to_line();
         if self.stdin.write_all(line.as_bytes()).and_then(|()| self.stdin.flush()).is_err() {
             // The pipe is closed: the worker is gone; report how it died.
             return Err(self.next_line(Duration::from_secs(5)).err().unwrap_or_else(|| WorkerError::Protocol("worker closed its input".into())));
         }
         let reply_line = self.next_line(timeout)?;
-        let reply: RenderReply = serde_json::from_str(&reply_line).map_err(|e| WorkerError::Protocol(format!("{e} in {reply_line:?}")))?;
-        match reply.status.as_str() {
-            "ok" if reply.files.is_some() => Ok(reply),
-            "error" => Err(WorkerError::Scene(reply.error.unwrap_or_else(|| "unknown error".into()))),
-            _ => Err(WorkerError::Protocol(format!("unexpected reply {reply_line:?}"))),
+        match serde_json::from_str::<Reply>(&reply_line) {
+            Ok(Reply::Ok(output)) => Ok(output),
+            Ok(Reply::Error(failure)) => Err(WorkerError::Scene { message: failure.error, traceback: failure.traceback }),
+            Ok(Reply::Ready(_)) => Err(WorkerError::Protocol(format!("unexpected reply {reply_line:?}"))),
+            Err(e) => Err(WorkerError::Protocol(format!("{e} in {reply_line:?}"))),
         }
     }
 
-    pub fn kill(&mut self) {
+    fn kill(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
-
-    /// Asks the worker to quit, and kills it if it does not within a few seconds.
-    pub fn shutdown(mut self) {
-        let _ = self.stdin.write_all(b"{\"cmd\":\"quit\"}\n");
-        let _ = self.stdin.flush();
-        if !matches!(wait_timeout::ChildExt::wait_timeout(&mut self.child, Duration::from_secs(5)), Ok(Some(_))) {
-            self.kill();
-        }
-    }
 }
 
-impl Drop for Worker {
+/// Starts the runtime on `worker.py` with piped stdio.
+fn start_process(cfg: &WorkerConfig) -> std::io::Result<Child> {
+    let args = ["--threads".to_string(), cfg.threads.to_string(), "--device".to_string(), cfg.device.to_string()];
+    let mut cmd = cfg.runtime.command(&cfg.script, &args);
+    cmd.stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // A worker must not outlive a killed orchestrator (it would keep rendering into a
+        // dataset nobody finishes). The signal fires when the spawning thread exits, and
+        // every worker is shut down before its thread ends.
+        unsafe {
+            cmd.pre_exec(|| {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
+    cmd.spawn()
+}
+
+/// The worker's protocol lines, as they arrive.
+fn read_lines_in_background(stdout: ChildStdout) -> Receiver<String> {
+    let (tx, replies) = mpsc::channel();
+    std::thread::spawn(move || {
+        for_each_line(stdout, |line| tx.send(line).is_ok());
+    });
+    replies
+}
+
+/// The last lines Blender printed, for the error message when it dies.
+fn collect_stderr_tail(stderr: ChildStderr) -> Arc<Mutex<VecDeque<String>>> {
+    let stderr_tail = Arc::new(Mutex::new(VecDeque::with_capacity(STDERR_TAIL_LINES)));
+    let tail = Arc::clone(&stderr_tail);
+    std::thread::spawn(move || {
+        for_each_line(stderr, |line| {
+            tracing::trace!(target: "blender", "{line}");
+            if let Ok(mut t) = tail.lock() {
+                if t.len() == STDERR_TAIL_LINES {
+                    t.pop_front();
+                }
+                t.push_back(line);
+            }
+            true
+        });
+    });
+    stderr_tail
+}
+
+impl Drop for Process {
     fn drop(&mut self) {
         if matches!(self.child.try_wait(), Ok(None)) {
             self.kill();
@@ -243,17 +348,13 @@ pub struct RenderService {
 
 /// A finished render: the reply plus the scratch directory that holds its files until dropped.
 pub struct Rendered {
-    pub reply: RenderReply,
+    pub reply: RenderOutput,
     pub scratch: tempfile::TempDir,
 }
 
 impl RenderService {
     pub fn new(cfg: WorkerConfig) -> Self {
         Self { cfg, worker: None, scratch: scratch_base(), restarts: 0 }
-    }
-
-    pub fn worker_pid(&self) -> Option<u32> {
-        self.worker.as_ref().map(Worker::pid)
     }
 
     fn ensure_worker(&mut self) -> Result<&mut Worker, WorkerError> {
@@ -276,7 +377,7 @@ impl RenderService {
             match outcome {
                 Ok(reply) => return Ok(Rendered { reply, scratch }),
                 Err(e) if e.is_fatal() => return Err(e),
-                Err(e @ WorkerError::Scene(_)) => return Err(e),
+                Err(e @ WorkerError::Scene { .. }) => return Err(e),
                 Err(e) => {
                     // Crash, hang or garbage: this worker is no longer trusted.
                     if let Some(mut w) = self.worker.take() {

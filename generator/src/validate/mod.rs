@@ -17,28 +17,5 @@ pub mod plots;
 pub mod report;
 pub mod stats;
 
-use std::path::PathBuf;
-
 pub use report::{CategoryStats, StatsReport, Status};
 pub use stats::{StatsOptions, compute, summary_lines, write_json};
-
-/// What `stereogen stats` does: compute, write `stats.json` (and plots) into `out` (default: the
-/// dataset root), print the summary, and with `check` fail when any category misses its target.
-pub fn run_cli(opts: &StatsOptions, out: Option<PathBuf>, plot: bool, check: bool) -> anyhow::Result<StatsReport> {
-    let report = compute(opts)?;
-    let dir = out.unwrap_or_else(|| opts.dataset.clone());
-    let json = write_json(&report, &dir)?;
-    for line in summary_lines(&report) {
-        println!("{line}");
-    }
-    println!("wrote {}", json.display());
-    if plot {
-        for p in plots::write_plots(&report, &dir)? {
-            println!("wrote {}", p.display());
-        }
-    }
-    if check && !report.pass {
-        anyhow::bail!("stats --check: the dataset does not follow its recipe (see the FAIL and ERROR lines above)");
-    }
-    Ok(report)
-}

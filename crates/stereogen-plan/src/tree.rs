@@ -11,7 +11,7 @@ use std::f64::consts::PI;
 
 use rand::Rng;
 
-use super::dist::{CountRange, Dist};
+use super::recipe::TreeRecipe;
 use super::spec::{Leaf, Strand};
 
 type V3 = [f64; 3];
@@ -62,17 +62,16 @@ pub struct TreeParams {
 }
 
 impl TreeParams {
-    #[allow(clippy::too_many_arguments)]
-    pub fn draw<R: Rng>(rng: &mut R, levels: &CountRange, branches: &CountRange, length_ratio: &Dist, down_angle_deg: &Dist, curve_deg: &Dist, trunk_radius: &Dist, leaves: &CountRange, leaf_size: &Dist) -> Self {
+    pub fn draw<R: Rng>(rng: &mut R, t: &TreeRecipe) -> Self {
         Self {
-            levels: levels.sample(rng),
-            branches: branches.sample(rng),
-            length_ratio: length_ratio.sample(rng),
-            down_angle: down_angle_deg.sample(rng).to_radians(),
-            curve: curve_deg.sample(rng).to_radians(),
-            trunk_radius: trunk_radius.sample(rng),
-            leaves_per_branch: leaves.sample(rng),
-            leaf_size: leaf_size.sample(rng),
+            levels: t.levels.sample(rng),
+            branches: t.branches.sample(rng),
+            length_ratio: t.length_ratio.sample(rng),
+            down_angle: t.down_angle_deg.sample(rng).to_radians(),
+            curve: t.curve_deg.sample(rng).to_radians(),
+            trunk_radius: t.trunk_radius.sample(rng),
+            leaves_per_branch: t.leaves_per_branch.sample(rng),
+            leaf_size: t.leaf_size.sample(rng),
             segments: 6,
         }
     }
@@ -95,7 +94,17 @@ struct Branch {
 /// Upper bound on branches, so no parameter draw can explode the geometry.
 const MAX_BRANCHES: usize = 1500;
 
-fn grow_branch<R: Rng>(rng: &mut R, start: V3, dir: V3, length: f64, r0: f64, curve: f64, segments: u32, level: u32) -> Branch {
+/// Where a branch starts growing: its base, direction, length, base radius and level.
+struct Sprout {
+    start: V3,
+    dir: V3,
+    length: f64,
+    radius: f64,
+    level: u32,
+}
+
+fn grow_branch<R: Rng>(rng: &mut R, sprout: Sprout, curve: f64, segments: u32) -> Branch {
+    let Sprout { start, dir, length, radius: r0, level } = sprout;
     let bend_axis = perpendicular(dir);
     let step = length / f64::from(segments);
     let mut points = vec![start];
@@ -126,7 +135,8 @@ fn along(b: &Branch, t: f64) -> (V3, V3, f64) {
 pub fn grow<R: Rng>(p: &TreeParams, rng: &mut R) -> Tree {
     let trunk_len = 2.0;
     let lean = [rng.random_range(-0.08..0.08), rng.random_range(-0.08..0.08), 1.0];
-    let trunk = grow_branch(rng, [0.0, 0.0, 0.0], lean, trunk_len, p.trunk_radius * trunk_len, p.curve * 0.3, p.segments, 0);
+    let trunk = Sprout { start: [0.0, 0.0, 0.0], dir: lean, length: trunk_len, radius: p.trunk_radius * trunk_len, level: 0 };
+    let trunk = grow_branch(rng, trunk, p.curve * 0.3, p.segments);
     let mut all = vec![trunk];
     let mut frontier = vec![0usize];
     for level in 1..=p.levels {
@@ -149,7 +159,8 @@ pub fn grow<R: Rng>(p: &TreeParams, rng: &mut R) -> Tree {
                 let dir = norm(add(mul(pdir, down.cos()), mul(side, down.sin())));
                 // Weber–Penn's conical shape: children near the top are shorter.
                 let length = parent_len * p.length_ratio * (1.0 - 0.55 * t) * rng.random_range(0.8..1.2);
-                let child = grow_branch(rng, at, dir, length, pr * 0.6, p.curve, p.segments.saturating_sub(level).max(3), level);
+                let sprout = Sprout { start: at, dir, length, radius: pr * 0.6, level };
+                let child = grow_branch(rng, sprout, p.curve, p.segments.saturating_sub(level).max(3));
                 all.push(child);
                 next.push(all.len() - 1);
             }

@@ -1,26 +1,19 @@
 //! ShapeNetCore (v1 and v2 layouts) and plain mesh folders.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, bail};
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
+use stereogen_plan::assets::SkippedAsset;
 use walkdir::WalkDir;
 
-use super::SkippedAsset;
 use super::cache::{cached, tree_stamp};
+
+pub use stereogen_plan::assets::MeshAsset;
 
 /// Mesh formats the worker imports (OFF and other trimesh formats go through trimesh).
 pub const MESH_EXTENSIONS: &[&str] = &["obj", "glb", "gltf", "ply", "stl", "off"];
-
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct MeshAsset {
-    pub path: PathBuf,
-    /// ShapeNet synset id (e.g. "03001627"), when known.
-    pub synset: Option<String>,
-    /// Human name of the synset from `taxonomy.json` (e.g. "chair"), when known.
-    pub label: Option<String>,
-}
 
 fn has_mesh_extension(path: &Path) -> bool {
     path.extension().and_then(|e| e.to_str()).is_some_and(|e| MESH_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
@@ -78,7 +71,8 @@ pub fn index_shapenet(root: &Path, synsets: &[String], home: &Path) -> anyhow::R
         Ok((found, skipped))
     })?;
     if found.is_empty() {
-        bail!("ShapeNet folder {} holds no <synset>/<model>/model.obj or .../models/model_normalized.obj{}", root.display(), if synsets.is_empty() { String::new() } else { format!(" for synsets {}", synsets.join(", ")) });
+        let filter = if synsets.is_empty() { String::new() } else { format!(" for synsets {}", synsets.join(", ")) };
+        bail!("ShapeNet folder {} holds no <synset>/<model>/model.obj or .../models/model_normalized.obj{filter}", root.display());
     }
     Ok((found, skipped))
 }

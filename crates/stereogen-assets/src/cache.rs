@@ -29,12 +29,11 @@ fn cache_path(home: &Path, kind: &str, key: &str) -> PathBuf {
 /// Returns the cached value for (kind, key) if its stamp matches, else builds, stores and returns it.
 pub fn cached<T: Serialize + DeserializeOwned>(home: &Path, kind: &str, key: &str, stamp: &str, build: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
     let path = cache_path(home, kind, key);
-    if let Ok(text) = std::fs::read_to_string(&path) {
-        if let Ok((s, value)) = serde_json::from_str::<(String, T)>(&text) {
-            if s == stamp {
-                return Ok(value);
-            }
-        }
+    if let Ok(text) = std::fs::read_to_string(&path)
+        && let Ok((s, value)) = serde_json::from_str::<(String, T)>(&text)
+        && s == stamp
+    {
+        return Ok(value);
     }
     let value = build()?;
     if let Some(dir) = path.parent() {

@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use stereogen_plan::assets::SkippedAsset;
 use walkdir::WalkDir;
 
-use super::SkippedAsset;
 use super::cache::{cached, tree_stamp};
 
 /// Extensions Blender loads as textures.
@@ -39,11 +39,11 @@ pub fn index_textures(root: &Path, home: &Path) -> anyhow::Result<(Vec<PathBuf>,
                 continue;
             }
             // image cannot probe every format Blender reads (EXR/HDR/TGA need features we do not build).
-            if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp")) {
-                if let Err(reason) = probe(entry.path()) {
-                    skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason });
-                    continue;
-                }
+            if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp"))
+                && let Err(reason) = probe(entry.path())
+            {
+                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason });
+                continue;
             }
             found.push(entry.path().to_path_buf());
         }

@@ -256,10 +256,75 @@ impl CountRange {
     }
 }
 
+/// A value drawn uniformly from [min, max), written `[min, max]` (or a number for a constant).
+/// The planner's secondary knobs (light placement, material class ranges, leaf colours) use it:
+/// it draws exactly as the planner did before they were recipe keys, so plans stay identical.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(from = "RangeRepr", into = "[f64; 2]")]
+pub struct UniformRange {
+    pub min: f64,
+    pub max: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum RangeRepr {
+    Fixed(f64),
+    Pair([f64; 2]),
+}
+
+impl From<RangeRepr> for UniformRange {
+    fn from(r: RangeRepr) -> Self {
+        match r {
+            RangeRepr::Fixed(v) => UniformRange { min: v, max: v },
+            RangeRepr::Pair([min, max]) => UniformRange { min, max },
+        }
+    }
+}
+
+impl From<UniformRange> for [f64; 2] {
+    fn from(r: UniformRange) -> Self {
+        [r.min, r.max]
+    }
+}
+
+impl UniformRange {
+    pub const fn new(min: f64, max: f64) -> Self {
+        Self { min, max }
+    }
+
+    pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> f64 {
+        if self.min < self.max {
+            rng.random_range(self.min..self.max)
+        } else {
+            // A constant still takes its draw, so the draws after it in the stream do not move.
+            let _ = rng.random::<u64>();
+            self.min
+        }
+    }
+
+    pub fn validate(&self, lo: f64, hi: f64) -> Result<(), String> {
+        let ok = self.min.is_finite() && self.max.is_finite() && lo <= self.min && self.min <= self.max && self.max <= hi;
+        if ok { Ok(()) } else { Err(format!("need {lo} <= min <= max <= {hi}, got [{}, {}]", self.min, self.max)) }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    #[test]
+    fn uniform_ranges_draw_like_random_range_and_constants_keep_the_stream_aligned() {
+        let mut a = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut b = a.clone();
+        let r: UniformRange = toml::from_str::<std::collections::BTreeMap<String, UniformRange>>("x = [0.2, 1.0]").unwrap()["x"];
+        assert_eq!(r.sample(&mut a), b.random_range(0.2..1.0));
+        assert_eq!(UniformRange::new(0.5, 0.5).sample(&mut a), 0.5);
+        let _ = b.random_range(0.0..1.0);
+        assert_eq!(a.random::<u64>(), b.random::<u64>());
+        assert!(UniformRange::new(0.3, 0.1).validate(0.0, 1.0).is_err());
+    }
 
     fn check_law(dist: Dist) {
         dist.validate(f64::NEG_INFINITY, f64::INFINITY).unwrap();
@@ -306,7 +371,9 @@ mod tests {
             b: Dist,
             c: Dist,
         }
-        let t: T = toml::from_str("a = 3.0\nb = { dist = \"log_uniform\", min = 1, max = 9 }\nc = { dist = \"histogram\", edges = [0, 1, 2], weights = [1, 1] }").unwrap();
+        let text = "a = 3.0\nb = { dist = \"log_uniform\", min = 1, max = 9 }\n\
+                    c = { dist = \"histogram\", edges = [0, 1, 2], weights = [1, 1] }";
+        let t: T = toml::from_str(text).unwrap();
         assert_eq!(t.a, Dist::Constant(3.0));
         assert_eq!(t.b, Dist::log_uniform(1.0, 9.0));
         assert!(t.c.validate(0.0, 10.0).is_ok());

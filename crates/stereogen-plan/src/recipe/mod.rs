@@ -10,8 +10,57 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-pub use super::dist::{CountRange, Dist};
+pub use super::dist::{CountRange, Dist, UniformRange};
 use super::spec::{MaterialClass, PixelFilter};
+
+mod validate;
+
+/// Declares recipe keys that were added after the first recipes were written. An absent key takes
+/// its default (the number the planner used before it was a key), and a value equal to its
+/// default is not serialised: recipes that do not set these keys keep their fingerprint, so
+/// datasets made before still resume.
+macro_rules! added_keys {
+    ($($name:ident: $t:ty = $value:expr;)*) => {
+        mod default {
+            use super::*;
+            $(pub fn $name() -> $t { $value })*
+        }
+        mod is_default {
+            use super::*;
+            $(pub fn $name(v: &$t) -> bool { *v == super::default::$name() })*
+        }
+    };
+}
+
+added_keys! {
+    clip_start_factor: f64 = 0.01;
+    clip_end_factor: f64 = 2.0;
+    background_oversize: f64 = 1.15;
+    mesh_candidates: u32 = 3;
+    light_near_factor: f64 = 0.5;
+    light_far_factor: f64 = 0.9;
+    light_image_position: UniformRange = UniformRange::new(-0.2, 1.2);
+    light_color_channel: UniformRange = UniformRange::new(0.2, 1.0);
+    light_radius_factor: f64 = 0.02;
+    light_area_size_factor: UniformRange = UniformRange::new(0.05, 0.3);
+    light_spot_size_rad: UniformRange = UniformRange::new(0.4, 1.6);
+    light_spot_blend: UniformRange = UniformRange::new(0.05, 0.5);
+    light_tilt_rad: UniformRange = UniformRange::new(-0.6, 0.6);
+    world_grey: UniformRange = UniformRange::new(0.6, 1.0);
+    world_green_ratio: UniformRange = UniformRange::new(0.85, 1.0);
+    world_blue_ratio: UniformRange = UniformRange::new(0.8, 1.0);
+    leaf_rgb: [UniformRange; 3] = [UniformRange::new(0.05, 0.35), UniformRange::new(0.25, 0.7), UniformRange::new(0.02, 0.2)];
+    leaf_roughness: f64 = 0.6;
+    tree_lean_rad: UniformRange = UniformRange::new(-0.15, 0.15);
+    background_texture_scale: [f64; 2] = [0.5, 6.0];
+    procedural_detail: UniformRange = UniformRange::new(0.0, 8.0);
+    glossy_textured_probability: f64 = 0.5;
+    glossy_roughness: UniformRange = UniformRange::new(0.0, 0.12);
+    metallic_roughness: UniformRange = UniformRange::new(0.0, 0.35);
+    metallic_tint: UniformRange = UniformRange::new(0.55, 1.0);
+    glass_roughness: UniformRange = UniformRange::new(0.0, 0.08);
+    glass_tint: UniformRange = UniformRange::new(0.75, 1.0);
+}
 
 /// Built-in presets: (name, TOML).
 pub const PRESETS: &[(&str, &str)] = &[
@@ -78,6 +127,12 @@ pub struct CameraRecipe {
     pub focal_mm: Dist,
     pub sensor_width_mm: f64,
     pub baseline_m: Dist,
+    /// Near clipping plane as a fraction of the nearest depth the disparity law allows.
+    #[serde(default = "default::clip_start_factor", skip_serializing_if = "is_default::clip_start_factor")]
+    pub clip_start_factor: f64,
+    /// Far clipping plane as a multiple of the back wall's depth.
+    #[serde(default = "default::clip_end_factor", skip_serializing_if = "is_default::clip_end_factor")]
+    pub clip_end_factor: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -101,6 +156,9 @@ pub struct PlacementRecipe {
     pub margin: f64,
     /// Disparity of the textured back wall (px); must stay below the law's minimum.
     pub background_disparity_px: Dist,
+    /// Size of the back wall relative to the region both views see at its depth.
+    #[serde(default = "default::background_oversize", skip_serializing_if = "is_default::background_oversize")]
+    pub background_oversize: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -117,6 +175,40 @@ pub struct LightsRecipe {
     pub blackbody_fraction: f64,
     pub temperature_k: Dist,
     pub world_strength: Dist,
+    /// Lights sit at depths from `near_factor` × the nearest depth the law allows ...
+    #[serde(default = "default::light_near_factor", skip_serializing_if = "is_default::light_near_factor")]
+    pub near_factor: f64,
+    /// ... to `far_factor` × the back wall's depth.
+    #[serde(default = "default::light_far_factor", skip_serializing_if = "is_default::light_far_factor")]
+    pub far_factor: f64,
+    /// Where a light sits across the view, as a fraction of the image width and height
+    /// (outside 0..1: beside the view, lighting it from the side).
+    #[serde(default = "default::light_image_position", skip_serializing_if = "is_default::light_image_position")]
+    pub image_position: UniformRange,
+    /// Each channel of a light colour that is not a blackbody.
+    #[serde(default = "default::light_color_channel", skip_serializing_if = "is_default::light_color_channel")]
+    pub color_channel: UniformRange,
+    /// Radius of point and spot lights (soft shadows) per metre of depth.
+    #[serde(default = "default::light_radius_factor", skip_serializing_if = "is_default::light_radius_factor")]
+    pub radius_factor: f64,
+    /// Side of area lights per metre of depth.
+    #[serde(default = "default::light_area_size_factor", skip_serializing_if = "is_default::light_area_size_factor")]
+    pub area_size_factor: UniformRange,
+    /// Full cone angle of spot lights (radians).
+    #[serde(default = "default::light_spot_size_rad", skip_serializing_if = "is_default::light_spot_size_rad")]
+    pub spot_size_rad: UniformRange,
+    #[serde(default = "default::light_spot_blend", skip_serializing_if = "is_default::light_spot_blend")]
+    pub spot_blend: UniformRange,
+    /// Tilt of directed lights away from the view direction, about X and Y (radians).
+    #[serde(default = "default::light_tilt_rad", skip_serializing_if = "is_default::light_tilt_rad")]
+    pub tilt_rad: UniformRange,
+    /// World colour: grey level, then green and blue as fractions of it.
+    #[serde(default = "default::world_grey", skip_serializing_if = "is_default::world_grey")]
+    pub world_grey: UniformRange,
+    #[serde(default = "default::world_green_ratio", skip_serializing_if = "is_default::world_green_ratio")]
+    pub world_green_ratio: UniformRange,
+    #[serde(default = "default::world_blue_ratio", skip_serializing_if = "is_default::world_blue_ratio")]
+    pub world_blue_ratio: UniformRange,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -145,6 +237,9 @@ pub struct SourcesRecipe {
     pub textures: Option<PathBuf>,
     /// Meshes with more triangles are skipped.
     pub max_triangles: u64,
+    /// Mesh files drawn per object: the worker falls back along them when one fails to load.
+    #[serde(default = "default::mesh_candidates", skip_serializing_if = "is_default::mesh_candidates")]
+    pub mesh_candidates: u32,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -178,6 +273,14 @@ pub struct TreeRecipe {
     pub leaves_per_branch: CountRange,
     /// Leaf length relative to tree height.
     pub leaf_size: Dist,
+    /// Leaf colour, per channel (red, green, blue).
+    #[serde(default = "default::leaf_rgb", skip_serializing_if = "is_default::leaf_rgb")]
+    pub leaf_rgb: [UniformRange; 3],
+    #[serde(default = "default::leaf_roughness", skip_serializing_if = "is_default::leaf_roughness")]
+    pub leaf_roughness: f64,
+    /// Lean of a tree from upright, about X and Z (radians).
+    #[serde(default = "default::tree_lean_rad", skip_serializing_if = "is_default::tree_lean_rad")]
+    pub lean_rad: UniformRange,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -201,6 +304,28 @@ pub struct MaterialRecipe {
     pub ior: Dist,
     /// Material weights of the back wall.
     pub background: BTreeMap<MaterialClass, f64>,
+    /// The back wall's `texture_scale` is clamped to [min, max]: it is large, and many repeats
+    /// would turn its texture into noise.
+    #[serde(default = "default::background_texture_scale", skip_serializing_if = "is_default::background_texture_scale")]
+    pub background_texture_scale: [f64; 2],
+    /// Detail of procedural textures (Blender's noise detail).
+    #[serde(default = "default::procedural_detail", skip_serializing_if = "is_default::procedural_detail")]
+    pub procedural_detail: UniformRange,
+    /// Probability that a glossy surface is textured rather than flat.
+    #[serde(default = "default::glossy_textured_probability", skip_serializing_if = "is_default::glossy_textured_probability")]
+    pub glossy_textured_probability: f64,
+    #[serde(default = "default::glossy_roughness", skip_serializing_if = "is_default::glossy_roughness")]
+    pub glossy_roughness: UniformRange,
+    #[serde(default = "default::metallic_roughness", skip_serializing_if = "is_default::metallic_roughness")]
+    pub metallic_roughness: UniformRange,
+    /// Each channel of a metal's tint.
+    #[serde(default = "default::metallic_tint", skip_serializing_if = "is_default::metallic_tint")]
+    pub metallic_tint: UniformRange,
+    #[serde(default = "default::glass_roughness", skip_serializing_if = "is_default::glass_roughness")]
+    pub glass_roughness: UniformRange,
+    /// Each channel of a glass's tint.
+    #[serde(default = "default::glass_tint", skip_serializing_if = "is_default::glass_tint")]
+    pub glass_tint: UniformRange,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -220,10 +345,6 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
     (line, col)
 }
 
-fn folder_name_ok(name: &str) -> bool {
-    !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
-}
-
 impl Recipe {
     pub fn builtin_default() -> Self {
         Self::preset(DEFAULT_PRESET).expect("the default preset exists")
@@ -238,10 +359,10 @@ impl Recipe {
 
     /// A preset name or a path to a TOML file.
     pub fn load_or_preset(name_or_path: &str) -> Result<Self, RecipeError> {
-        if !name_or_path.contains(['/', '.']) {
-            if let Some(r) = Self::preset(name_or_path) {
-                return Ok(r);
-            }
+        if !name_or_path.contains(['/', '.'])
+            && let Some(r) = Self::preset(name_or_path)
+        {
+            return Ok(r);
         }
         Self::load(Path::new(name_or_path))
     }
@@ -276,118 +397,6 @@ impl Recipe {
 
     pub fn category(&self, name: &str) -> Option<&CategoryRecipe> {
         self.categories.iter().find(|c| c.name == name)
-    }
-
-    fn validate(&self, source_name: &str) -> Result<(), RecipeError> {
-        let bad = |key: &str, allowed: String| RecipeError::Invalid { source_name: source_name.to_string(), key: key.to_string(), allowed };
-        let dist = |key: &str, d: &Dist, lo: f64, hi: f64| d.validate(lo, hi).map_err(|m| bad(key, m));
-        let count = |key: &str, c: &CountRange, lo: u32, hi: u32| c.validate(lo, hi).map_err(|m| bad(key, m));
-        let prob = |key: &str, p: f64| if (0.0..=1.0).contains(&p) { Ok(()) } else { Err(bad(key, format!("need a probability in 0..=1, got {p}"))) };
-        fn weights<K: std::fmt::Debug>(w: &BTreeMap<K, f64>) -> Result<(), String> {
-            if w.values().any(|v| !(v.is_finite() && *v >= 0.0)) || w.values().sum::<f64>() <= 0.0 {
-                return Err(format!("need weights >= 0 with a positive sum, got {w:?}"));
-            }
-            Ok(())
-        }
-
-        if !folder_name_ok(&self.name) {
-            return Err(bad("name", format!("need letters, digits, '_' or '-', got {:?}", self.name)));
-        }
-        let c = &self.camera;
-        if !(16..=16384).contains(&c.width) {
-            return Err(bad("camera.width", format!("need 16..=16384, got {}", c.width)));
-        }
-        if !(16..=16384).contains(&c.height) {
-            return Err(bad("camera.height", format!("need 16..=16384, got {}", c.height)));
-        }
-        dist("camera.focal_mm", &c.focal_mm, 1.0, 1000.0)?;
-        if !(c.sensor_width_mm.is_finite() && (1.0..=100.0).contains(&c.sensor_width_mm)) {
-            return Err(bad("camera.sensor_width_mm", format!("need 1..=100, got {}", c.sensor_width_mm)));
-        }
-        dist("camera.baseline_m", &c.baseline_m, 1e-4, 10.0)?;
-
-        let r = &self.render;
-        if !(1..=65536).contains(&r.samples) {
-            return Err(bad("render.samples", format!("need 1..=65536, got {}", r.samples)));
-        }
-        if r.max_bounces > 128 {
-            return Err(bad("render.max_bounces", format!("need 0..=128, got {}", r.max_bounces)));
-        }
-        if !(0.01..=10.0).contains(&r.filter_width_px) {
-            return Err(bad("render.filter_width_px", format!("need 0.01..=10, got {}", r.filter_width_px)));
-        }
-
-        let p = &self.placement;
-        // An object centre must fit in both views: its disparity must leave room in the width.
-        dist("placement.disparity_px", &p.disparity_px, 0.01, f64::from(c.width) * 0.8)?;
-        dist("placement.angular_size", &p.angular_size, 1e-3, 3.0)?;
-        if !(0.0..0.4).contains(&p.margin) {
-            return Err(bad("placement.margin", format!("need 0 <= margin < 0.4, got {}", p.margin)));
-        }
-        let law_min = p.disparity_px.support().0;
-        dist("placement.background_disparity_px", &p.background_disparity_px, 1e-3, law_min * 0.999)
-            .map_err(|_| bad("placement.background_disparity_px", format!("must lie in (0, {law_min}) — below the disparity law's minimum")))?;
-
-        let l = &self.lights;
-        count("lights.count", &l.count, 0, 64)?;
-        weights(&l.kinds).map_err(|m| bad("lights.kinds", m))?;
-        dist("lights.power_w", &l.power_w, 0.0, 1e8)?;
-        dist("lights.sun_strength", &l.sun_strength, 0.0, 1e3)?;
-        prob("lights.blackbody_fraction", l.blackbody_fraction)?;
-        dist("lights.temperature_k", &l.temperature_k, 800.0, 40000.0)?;
-        dist("lights.world_strength", &l.world_strength, 0.0, 100.0)?;
-
-        if !(1..=100_000_000).contains(&self.sources.max_triangles) {
-            return Err(bad("sources.max_triangles", format!("need 1..=100000000, got {}", self.sources.max_triangles)));
-        }
-        let pr = &self.primitives;
-        dist("primitives.proportions", &pr.proportions, 0.05, 20.0)?;
-        prob("primitives.subdivide_probability", pr.subdivide_probability)?;
-        prob("primitives.displace_probability", pr.displace_probability)?;
-        dist("primitives.displace_strength", &pr.displace_strength, 0.0, 1.0)?;
-        prob("primitives.boolean_probability", pr.boolean_probability)?;
-
-        let t = &self.trees;
-        count("trees.levels", &t.levels, 1, 3)?;
-        count("trees.branches", &t.branches, 1, 40)?;
-        dist("trees.length_ratio", &t.length_ratio, 0.05, 1.5)?;
-        dist("trees.down_angle_deg", &t.down_angle_deg, 0.0, 170.0)?;
-        dist("trees.curve_deg", &t.curve_deg, -180.0, 180.0)?;
-        dist("trees.trunk_radius", &t.trunk_radius, 1e-3, 0.3)?;
-        count("trees.leaves_per_branch", &t.leaves_per_branch, 0, 64)?;
-        dist("trees.leaf_size", &t.leaf_size, 1e-3, 0.5)?;
-
-        let h = &self.holes;
-        dist("holes.wire_thickness", &h.wire_thickness, 1e-3, 0.5)?;
-        count("holes.net_cells", &h.net_cells, 1, 64)?;
-        dist("holes.net_strand", &h.net_strand, 1e-3, 0.45)?;
-
-        let m = &self.materials;
-        dist("materials.texture_scale", &m.texture_scale, 1e-3, 1e4)?;
-        dist("materials.roughness", &m.roughness, 0.0, 1.0)?;
-        dist("materials.ior", &m.ior, 1.0, 3.0)?;
-        weights(&m.background).map_err(|e| bad("materials.background", e))?;
-
-        if self.categories.is_empty() {
-            return Err(bad("categories", "need at least one [[categories]] table".into()));
-        }
-        let mut seen = std::collections::BTreeSet::new();
-        for (i, cat) in self.categories.iter().enumerate() {
-            let key = |k: &str| format!("categories[{i}].{k}");
-            if !folder_name_ok(&cat.name) || !seen.insert(cat.name.clone()) {
-                return Err(bad(&key("name"), format!("need a unique folder name, got {:?}", cat.name)));
-            }
-            if !(cat.weight.is_finite() && cat.weight >= 0.0) {
-                return Err(bad(&key("weight"), format!("need >= 0, got {}", cat.weight)));
-            }
-            count(&key("objects"), &cat.objects, 0, 2000)?;
-            weights(&cat.shapes).map_err(|m| bad(&key("shapes"), m))?;
-            weights(&cat.materials).map_err(|m| bad(&key("materials"), m))?;
-        }
-        if self.categories.iter().map(|c| c.weight).sum::<f64>() <= 0.0 {
-            return Err(bad("categories", "the category weights sum to 0".into()));
-        }
-        Ok(())
     }
 }
 
@@ -439,5 +448,40 @@ mod tests {
         assert!(err.contains("camera.width") && err.contains("16..=16384"), "{err}");
         let err = Recipe::from_toml_str(&default_text().replace("boolean_probability = 0.25", "boolean_probability = 1.5"), "x.toml").unwrap_err().to_string();
         assert!(err.contains("primitives.boolean_probability"), "{err}");
+    }
+
+    /// A preset with the keys of `added_keys!` removed: what recipes written before them look like.
+    fn without_added_keys(text: &str) -> String {
+        let added = ["clip_start_factor", "clip_end_factor", "background_oversize", "mesh_candidates", "near_factor", "far_factor", "image_position", "color_channel",
+            "radius_factor", "area_size_factor", "spot_size_rad", "spot_blend", "tilt_rad", "world_grey", "world_green_ratio", "world_blue_ratio", "leaf_rgb",
+            "leaf_roughness", "lean_rad", "background_texture_scale", "procedural_detail", "glossy_textured_probability", "glossy_roughness", "metallic_roughness",
+            "metallic_tint", "glass_roughness", "glass_tint"];
+        text.lines().filter(|l| !added.iter().any(|k| l.trim_start().starts_with(&format!("{k} =")))).collect::<Vec<_>>().join("\n")
+    }
+
+    #[test]
+    fn recipes_without_the_added_keys_read_as_the_presets_and_keep_their_fingerprint() {
+        for (name, text) in PRESETS {
+            let old = without_added_keys(text);
+            assert_ne!(old.len(), text.len(), "{name}: the preset states the added keys");
+            let old = Recipe::from_toml_str(&old, name).unwrap();
+            let preset = Recipe::preset(name).unwrap();
+            assert_eq!(old, preset, "{name}");
+            // Defaults are not serialised, so the fingerprint is the one of the recipe before the keys existed.
+            let json = serde_json::to_string(&preset).unwrap();
+            assert!(!json.contains("clip_end_factor") && !json.contains("leaf_rgb"), "{json}");
+        }
+    }
+
+    #[test]
+    fn added_keys_are_checked_and_named() {
+        let err = Recipe::from_toml_str(&default_text().replace("color_channel = [0.2, 1.0]", "color_channel = [0.2, 1.5]"), "x.toml").unwrap_err().to_string();
+        assert!(err.contains("lights.color_channel") && err.contains("1.5"), "{err}");
+        let err = Recipe::from_toml_str(&default_text().replace("clip_end_factor = 2.0", "clip_end_factor = 0.5"), "x.toml").unwrap_err().to_string();
+        assert!(err.contains("camera.clip_end_factor"), "{err}");
+        let err = Recipe::from_toml_str(&default_text().replace("mesh_candidates = 3", "mesh_candidates = 0"), "x.toml").unwrap_err().to_string();
+        assert!(err.contains("sources.mesh_candidates"), "{err}");
+        let set = Recipe::from_toml_str(&default_text().replace("background_oversize = 1.15", "background_oversize = 1.5"), "x.toml").unwrap();
+        assert_ne!(set.fingerprint(), Recipe::builtin_default().fingerprint());
     }
 }

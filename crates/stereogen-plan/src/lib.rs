@@ -1,7 +1,9 @@
 //! What to render: recipes, the seed tree, and the pure-data `SceneSpec` that the Blender worker obeys.
 //!
-//! Nothing here touches Blender; a scene is a pure function of (recipe, asset index, seed, index).
+//! Nothing here touches Blender or the file system; a scene is a pure function of (recipe, asset
+//! index, seed, index). The asset index is plain data (`stereogen-assets` fills it from folders).
 
+pub mod assets;
 pub mod dist;
 pub mod recipe;
 pub mod rig;
@@ -11,9 +13,10 @@ pub mod shapes;
 pub mod spec;
 pub mod tree;
 
+pub use assets::{AssetIndex, MeshAsset, SkippedAsset};
 pub use dist::Dist;
 pub use recipe::{Recipe, RecipeError};
-pub use rig::StereoRig;
+pub use rig::{StereoCameras, StereoRig};
 pub use rng::SeedTree;
 pub use sampler::{plan_scene, scene_category};
 pub use spec::{BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec};

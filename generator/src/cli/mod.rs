@@ -1,22 +1,28 @@
-//! The `stereogen` command line.
+//! The `stereogen` command line: clap arguments, and each command as a call into the library.
+
+mod generate;
+mod stats;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand};
-
-use crate::dataset::{DatasetLayout, GenerateOptions, finalize_sample, generate};
-use crate::assets::AssetIndex;
-use crate::plan::{Recipe, SceneSpec, plan_scene};
-use crate::render::protocol::Device;
-use crate::render::runtime::{discover_or_install, stereogen_home};
-use crate::render::scripts::install_scripts;
-use crate::render::worker::{RenderService, Worker, WorkerConfig};
+use stereogen::assets::{index_sources, stereogen_home};
+use stereogen::dataset::{DatasetLayout, finalize_sample};
+use stereogen::plan::recipe::DEFAULT_PRESET;
+use stereogen::plan::{Recipe, SceneSpec, plan_scene};
+use stereogen::render::{Device, RenderService, Worker, WorkerOptions};
 
 #[derive(Debug, Parser)]
-#[command(name = "stereogen", version, about = "Synthetic stereo training data: Rust plans each scene, Blender/Cycles renders it with exact disparity for both views.")]
+#[command(
+    name = "stereogen",
+    version,
+    about = "Synthetic stereo training data: Rust plans each scene, Blender/Cycles renders it with exact disparity for both \
+             views."
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -30,24 +36,37 @@ pub struct RuntimeArgs {
     #[arg(long, value_name = "PATH")]
     pub blender: Option<PathBuf>,
     /// Render on the CPU or on a CUDA/OptiX GPU.
-    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    #[arg(long, default_value_t = Device::Cpu, value_parser = PossibleValuesParser::new(Device::NAMES).map(|s| s.parse::<Device>().expect("listed")))]
     pub device: Device,
     /// Cycles threads per worker [default: the machine's cores divided by --workers].
     #[arg(long, value_name = "N")]
     pub threads: Option<u32>,
     /// Seconds one sample may take before its worker is considered hung, killed and restarted.
-    #[arg(long, value_name = "SECS", default_value_t = 900)]
+    #[arg(long, value_name = "SECS", default_value_t = WorkerOptions::DEFAULT_RENDER_TIMEOUT_S)]
     pub timeout: u64,
     /// How many times a sample is retried after its worker crashed or hung.
-    #[arg(long, value_name = "N", default_value_t = 2)]
+    #[arg(long, value_name = "N", default_value_t = WorkerOptions::DEFAULT_RETRIES)]
     pub retries: u32,
+}
+
+impl RuntimeArgs {
+    pub fn worker_options(&self) -> WorkerOptions {
+        WorkerOptions {
+            blender: self.blender.clone(),
+            device: self.device,
+            threads: self.threads,
+            render_timeout: Duration::from_secs(self.timeout),
+            retries: self.retries,
+            ..WorkerOptions::default()
+        }
+    }
 }
 
 /// Which recipe, and the asset folders that override its `[sources]`.
 #[derive(Debug, clap::Args)]
 pub struct RecipeArgs {
     /// A built-in preset (crestereo, shapenet, tree, hole, reflective) or a recipe TOML file.
-    #[arg(long, value_name = "PRESET|FILE", default_value = crate::plan::recipe::DEFAULT_PRESET)]
+    #[arg(long, value_name = "PRESET|FILE", default_value = DEFAULT_PRESET)]
     pub recipe: String,
     /// ShapeNetCore root (v1 or v2 layout); overrides the recipe's `sources.shapenet`.
     #[arg(long, value_name = "DIR")]
@@ -206,79 +225,45 @@ fn parse_shard(s: &str) -> Result<(u64, u64), String> {
     Ok((k, n))
 }
 
-fn worker_config(rt: &RuntimeArgs, workers: usize) -> anyhow::Result<WorkerConfig> {
-    let home = stereogen_home();
-    let runtime = discover_or_install(rt.blender.as_deref(), &home)?;
-    let script = install_scripts(&home).with_context(|| format!("cannot write the Blender scripts under {}", home.display()))?;
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u32;
-    Ok(WorkerConfig {
-        runtime,
-        script,
-        threads: rt.threads.unwrap_or((cores / workers.max(1) as u32).max(1)),
-        device: rt.device,
-        startup_timeout: Duration::from_secs(120),
-        render_timeout: Duration::from_secs(rt.timeout),
-        retries: rt.retries,
-    })
-}
-
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Setup { runtime } => {
-            let cfg = worker_config(&runtime, 1)?;
+            let cfg = runtime.worker_options().resolve(1)?;
             let worker = Worker::spawn(&cfg)?;
             println!("Blender {} (Python {}) ready via {}", worker.hello.blender, worker.hello.python, cfg.runtime.describe());
             worker.shutdown();
         }
         Command::Generate { recipe, out, count, seed, start, shard, workers, no_progress, runtime } => {
-            let recipe = recipe.load()?;
-            let mut opts = GenerateOptions::new(&out, recipe, seed, count);
+            let mut opts = stereogen::dataset::GenerateOptions::new(&out, recipe.load()?, seed, count);
             opts.start = start;
             opts.shard = shard;
             opts.workers = workers;
-            opts.threads_per_worker = runtime.threads;
-            opts.device = runtime.device;
-            opts.blender = runtime.blender;
-            opts.render_timeout = Duration::from_secs(runtime.timeout);
-            opts.retries = runtime.retries;
-            opts.progress = !no_progress;
-            let s = generate(&opts)?;
-            eprintln!(
-                "stereogen: {} rendered, {} already done, {} failed, {} worker restart(s) in {:.1} s ({:.2} s per sample per worker) -> {}",
-                s.rendered,
-                s.skipped,
-                s.failed.len(),
-                s.worker_restarts,
-                s.seconds,
-                s.seconds_per_sample,
-                out.display()
-            );
-            if !s.failed.is_empty() {
-                bail!("{} sample(s) failed (listed in {}); re-run the same command to retry them", s.failed.len(), DatasetLayout::new(&out).failures().display());
-            }
+            opts.worker_options = runtime.worker_options();
+            generate::run(&opts, !no_progress)?;
         }
         Command::Sheet { dataset, out, count, cols } => {
-            let n = crate::validate::contact_sheet::write_contact_sheet(&dataset, count, cols, &out)?;
+            let n = stereogen::validate::contact_sheet::write_contact_sheet(&dataset, count, cols, &out)?;
             eprintln!("stereogen: contact sheet of {n} samples -> {}", out.display());
         }
         Command::Plan { recipe, seed, index } => {
             let recipe = recipe.load()?;
-            let assets = AssetIndex::build(&recipe.sources, &stereogen_home())?;
+            let assets = index_sources(&recipe.sources, &stereogen_home())?;
             println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
         Command::Render { spec, out, runtime } => {
             let text = std::fs::read_to_string(&spec).with_context(|| format!("cannot read {}", spec.display()))?;
             let spec = SceneSpec::from_json(&text).with_context(|| format!("{} is not a SceneSpec", spec.display()))?;
-            let mut service = RenderService::new(worker_config(&runtime, 1)?);
+            let mut service = RenderService::new(runtime.worker_options().resolve(1)?);
             let t0 = std::time::Instant::now();
             let rendered = service.render(&spec, |_| None)?;
             let layout = DatasetLayout::new(&out);
-            let entry = finalize_sample(&layout, &spec, rendered.reply.files.as_ref().expect("ok replies carry files"), &rendered.reply.notes, t0.elapsed().as_secs_f64(), &Default::default())?;
+            let reply = &rendered.reply;
+            let entry = finalize_sample(&layout, &spec, &reply.files, &reply.notes, t0.elapsed().as_secs_f64(), &reply.timings)?;
             println!("{}", serde_json::to_string(&entry)?);
         }
         Command::Export { dataset, format, from_format, out, jpeg_quality } => {
-            let opts = crate::dataset::export::ExportOptions { dataset, from: from_format, format, out: out.clone(), jpeg_quality };
-            let s = crate::dataset::export::export(&opts)?;
+            let opts = stereogen::dataset::export::ExportOptions { dataset, from: from_format, format, out: out.clone(), jpeg_quality };
+            let s = stereogen::dataset::export::export(&opts)?;
             eprintln!(
                 "stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid, {} without a right-view disparity) -> {}",
                 s.samples,
@@ -290,8 +275,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             );
         }
         Command::Stats { dataset, plot, check, ks_alpha, bins, gap_bins, out } => {
-            let opts = crate::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins };
-            crate::validate::run_cli(&opts, out, plot, check)?;
+            let opts = stereogen::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins };
+            stats::run(&opts, out, plot, check)?;
         }
     }
     Ok(())

@@ -12,18 +12,18 @@ use std::f64::consts::PI;
 use rand::Rng;
 use rand::seq::IndexedRandom;
 
-use super::recipe::{CategoryRecipe, LightKind, Recipe, ShapeSource};
+use super::recipe::{CategoryRecipe, LightKind, Recipe, ShapeSource, TreeRecipe};
 use super::rig::StereoRig;
 use super::rng::SeedTree;
 use super::shapes::{net, primitive, wireframe};
 use super::spec::{
-    BaseColor, LightSpec, MaterialClass, MaterialSpec, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec, SPEC_FORMAT_VERSION,
+    BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec, SPEC_FORMAT_VERSION,
 };
 use super::tree::{TreeParams, grow};
-use crate::assets::AssetIndex;
+use super::assets::AssetIndex;
 
-/// Mesh candidates per object: the worker falls back along them when one fails to load.
-const MESH_CANDIDATES: usize = 3;
+/// The near clip never comes closer than this (metres), whatever the recipe says.
+const MIN_CLIP_START_M: f64 = 1e-4;
 
 /// Picks a key by weight; keys iterate in a fixed order, so the draw is reproducible.
 pub fn pick_weighted<K: Copy + Ord, R: Rng>(rng: &mut R, weights: &BTreeMap<K, f64>) -> K {
@@ -62,29 +62,11 @@ pub fn scene_category(recipe: &Recipe, seed: u64, index: u64) -> &CategoryRecipe
 pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -> SceneSpec {
     let root = SeedTree::for_sample(seed, index);
     let category = scene_category(recipe, seed, index);
-    let mut rig_rng = root.child("rig").rng();
-    let cam = &recipe.camera;
-    let rig = StereoRig {
-        width: cam.width,
-        height: cam.height,
-        focal_mm: cam.focal_mm.sample(&mut rig_rng),
-        sensor_width_mm: cam.sensor_width_mm,
-        baseline_m: cam.baseline_m.sample(&mut rig_rng),
-    };
-
+    let rig = draw_rig(recipe, root);
     let mut bg_rng = root.child("background").rng();
     let background_depth = rig.depth_for_disparity(recipe.placement.background_disparity_px.sample(&mut bg_rng));
     let nearest_depth = rig.depth_for_disparity(recipe.placement.disparity_px.support().1);
-    let render = RenderSettings {
-        samples: recipe.render.samples,
-        denoise: recipe.render.denoise,
-        cycles_seed: root.child("cycles").small_seed(),
-        max_bounces: recipe.render.max_bounces,
-        pixel_filter: recipe.render.pixel_filter,
-        filter_width_px: recipe.render.filter_width_px,
-        clip_start: (nearest_depth * 0.01).max(1e-4),
-        clip_end: background_depth * 2.0,
-    };
+    let render = render_settings(recipe, root, nearest_depth, background_depth);
 
     let mut objects = vec![background_wall(recipe, assets, &rig, background_depth, root.child("background"))];
     let n_objects = category.objects.sample(&mut root.child("object_count").rng());
@@ -95,27 +77,60 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
     let mut light_rng = root.child("lights").rng();
     let n_lights = recipe.lights.count.sample(&mut light_rng);
     let lights = (0..n_lights).map(|i| light(recipe, &rig, nearest_depth, background_depth, root.child("lights").nth(u64::from(i)))).collect();
-    let mut world_rng = root.child("world").rng();
-    let grey = world_rng.random_range(0.6..1.0);
-    let world = WorldSpec {
-        color: [grey, grey * world_rng.random_range(0.85..1.0), grey * world_rng.random_range(0.8..1.0)],
-        strength: recipe.lights.world_strength.sample(&mut world_rng),
-    };
-
+    let world = world(recipe, root);
     SceneSpec { format_version: SPEC_FORMAT_VERSION, id: sample_id(index), category: category.name.clone(), seed, index, rig, render, world, objects, lights }
+}
+
+fn draw_rig(recipe: &Recipe, root: SeedTree) -> StereoRig {
+    let mut rng = root.child("rig").rng();
+    let cam = &recipe.camera;
+    StereoRig {
+        width: cam.width,
+        height: cam.height,
+        focal_mm: cam.focal_mm.sample(&mut rng),
+        sensor_width_mm: cam.sensor_width_mm,
+        baseline_m: cam.baseline_m.sample(&mut rng),
+    }
+}
+
+fn render_settings(recipe: &Recipe, root: SeedTree, nearest_depth: f64, background_depth: f64) -> RenderSettings {
+    let (r, cam) = (&recipe.render, &recipe.camera);
+    RenderSettings {
+        samples: r.samples,
+        denoise: r.denoise,
+        cycles_seed: root.child("cycles").small_seed(),
+        max_bounces: r.max_bounces,
+        pixel_filter: r.pixel_filter,
+        filter_width_px: r.filter_width_px,
+        clip_start: (nearest_depth * cam.clip_start_factor).max(MIN_CLIP_START_M),
+        clip_end: background_depth * cam.clip_end_factor,
+    }
+}
+
+/// The uniform world light: a slightly warm grey.
+fn world(recipe: &Recipe, root: SeedTree) -> WorldSpec {
+    let l = &recipe.lights;
+    let mut rng = root.child("world").rng();
+    let grey = l.world_grey.sample(&mut rng);
+    WorldSpec {
+        color: [grey, grey * l.world_green_ratio.sample(&mut rng), grey * l.world_blue_ratio.sample(&mut rng)],
+        strength: l.world_strength.sample(&mut rng),
+    }
 }
 
 /// A textured wall at the far end, large enough to fill both cameras' views.
 fn background_wall(recipe: &Recipe, assets: &AssetIndex, rig: &StereoRig, depth: f64, node: SeedTree) -> ObjectSpec {
     let f = rig.f_px();
-    let half_w = (f64::from(rig.width) / 2.0 / f * depth + rig.baseline_m / 2.0) * 1.15;
-    let half_h = f64::from(rig.height) / 2.0 / f * depth * 1.15;
+    let oversize = recipe.placement.background_oversize;
+    let half_w = (f64::from(rig.width) / 2.0 / f * depth + rig.baseline_m / 2.0) * oversize;
+    let half_h = f64::from(rig.height) / 2.0 / f * depth * oversize;
     let mut rng = node.child("material").rng();
     let class = pick_weighted(&mut rng, &recipe.materials.background);
     let mut material = material(recipe, assets, class, &mut rng);
     // The wall is large: keep its texture from turning into noise by scaling repeats to its size.
     if let BaseColor::Procedural { scale, .. } | BaseColor::Image { scale, .. } = &mut material.base {
-        *scale = (*scale).clamp(0.5, 6.0);
+        let [lo, hi] = recipe.materials.background_texture_scale;
+        *scale = (*scale).clamp(lo, hi);
     }
     ObjectSpec {
         name: "background".into(),
@@ -143,7 +158,7 @@ pub fn material<R: Rng>(recipe: &Recipe, assets: &AssetIndex, class: MaterialCla
                 scale,
                 color_a: random_color(rng),
                 color_b: random_color(rng),
-                detail: rng.random_range(0.0..8.0),
+                detail: m.procedural_detail.sample(rng),
             },
         }
     };
@@ -151,16 +166,16 @@ pub fn material<R: Rng>(recipe: &Recipe, assets: &AssetIndex, class: MaterialCla
         MaterialClass::Textured => (textured_base(rng), m.roughness.sample(rng), 0.0, 0.0),
         MaterialClass::Textureless => (BaseColor::Flat { color: random_color(rng) }, m.roughness.sample(rng), 0.0, 0.0),
         MaterialClass::Glossy => {
-            let base = if rng.random_bool(0.5) { textured_base(rng) } else { BaseColor::Flat { color: random_color(rng) } };
-            (base, rng.random_range(0.0..0.12), 0.0, 0.0)
+            let base = if rng.random_bool(m.glossy_textured_probability) { textured_base(rng) } else { BaseColor::Flat { color: random_color(rng) } };
+            (base, m.glossy_roughness.sample(rng), 0.0, 0.0)
         }
         MaterialClass::Metallic => {
-            let tint: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.55..1.0));
-            (BaseColor::Flat { color: tint }, rng.random_range(0.0..0.35), 1.0, 0.0)
+            let tint: [f64; 3] = std::array::from_fn(|_| m.metallic_tint.sample(rng));
+            (BaseColor::Flat { color: tint }, m.metallic_roughness.sample(rng), 1.0, 0.0)
         }
         MaterialClass::Glass => {
-            let tint: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.75..1.0));
-            (BaseColor::Flat { color: tint }, rng.random_range(0.0..0.08), 0.0, 1.0)
+            let tint: [f64; 3] = std::array::from_fn(|_| m.glass_tint.sample(rng));
+            (BaseColor::Flat { color: tint }, m.glass_roughness.sample(rng), 0.0, 1.0)
         }
     };
     MaterialSpec { class, base, roughness, metallic, transmission, ior: m.ior.sample(rng) }
@@ -180,7 +195,7 @@ fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetInde
     let location = rig.unproject_left(u, v, z);
     // Diameter `angular_size * W` pixels at depth z: the world radius grows linearly with z.
     let radius = p.angular_size.sample(&mut rng) * w / 2.0 * z / rig.f_px();
-    let mut rotation: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.0..2.0 * PI));
+    let rotation: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.0..2.0 * PI));
 
     let mut shape_rng = node.child("shape").rng();
     let mut source = pick_weighted(&mut shape_rng, &category.shapes);
@@ -191,45 +206,63 @@ fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetInde
     let mut mat_rng = node.child("material").rng();
     let class = pick_weighted(&mut mat_rng, &category.materials);
     let material = material(recipe, assets, class, &mut mat_rng);
-
-    let mut proportions = [1.0; 3];
-    let (shape, modifiers) = match source {
-        ShapeSource::Primitive => {
-            let (shape, modifiers, props) = primitive(&recipe.primitives, &mut shape_rng);
-            proportions = props;
-            (shape, modifiers)
-        }
-        ShapeSource::Wireframe => wireframe(&recipe.holes, &mut shape_rng),
-        ShapeSource::Net => (net(&recipe.holes, &mut shape_rng), Vec::new()),
-        ShapeSource::Shapenet | ShapeSource::Meshes => {
-            let pool = if source == ShapeSource::Shapenet { &assets.shapenet } else { &assets.meshes };
-            let candidates = (0..MESH_CANDIDATES.min(pool.len())).map(|_| pool.choose(&mut shape_rng).expect("non-empty").path.clone()).collect();
-            (Shape::MeshFile { candidates, max_triangles: recipe.sources.max_triangles }, Vec::new())
-        }
-        ShapeSource::Tree => {
-            let t = &recipe.trees;
-            let params = TreeParams::draw(&mut shape_rng, &t.levels, &t.branches, &t.length_ratio, &t.down_angle_deg, &t.curve_deg, &t.trunk_radius, &t.leaves_per_branch, &t.leaf_size);
-            let tree = grow(&params, &mut shape_rng);
-            // Trees stand up: object +Z becomes world +Y, with a random yaw and a slight lean.
-            rotation = [-PI / 2.0 + shape_rng.random_range(-0.15..0.15), shape_rng.random_range(0.0..2.0 * PI), shape_rng.random_range(-0.15..0.15)];
-            let leaf_color = [shape_rng.random_range(0.05..0.35), shape_rng.random_range(0.25..0.7), shape_rng.random_range(0.02..0.2)];
-            let leaf = MaterialSpec { class: MaterialClass::Textureless, base: BaseColor::Flat { color: leaf_color }, roughness: 0.6, metallic: 0.0, transmission: 0.0, ior: 1.45 };
-            (Shape::Skeleton { strands: tree.strands, strand_levels: tree.strand_levels, sides: 8, leaves: tree.leaves, leaf_material: Some(Box::new(leaf)) }, Vec::new())
-        }
-    };
+    let drawn = draw_shape(recipe, assets, source, &mut shape_rng);
 
     ObjectSpec {
         name: format!("object_{i:03}"),
         role: ObjectRole::Content,
         source: serde_json::to_value(source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
-        shape,
-        modifiers,
+        shape: drawn.shape,
+        modifiers: drawn.modifiers,
         location,
-        rotation,
-        scale: proportions.map(|q| q * radius),
+        rotation: drawn.rotation.unwrap_or(rotation),
+        scale: drawn.proportions.map(|q| q * radius),
         material,
         target_disparity: Some(d),
     }
+}
+
+/// A shape drawn from one source, in object space.
+struct DrawnShape {
+    shape: Shape,
+    modifiers: Vec<Modifier>,
+    /// Per-axis proportions (the largest 1).
+    proportions: [f64; 3],
+    /// An orientation the source imposes (trees stand up), instead of a random one.
+    rotation: Option<[f64; 3]>,
+}
+
+fn draw_shape<R: Rng>(recipe: &Recipe, assets: &AssetIndex, source: ShapeSource, rng: &mut R) -> DrawnShape {
+    let plain = |shape, modifiers| DrawnShape { shape, modifiers, proportions: [1.0; 3], rotation: None };
+    match source {
+        ShapeSource::Primitive => {
+            let (shape, modifiers, proportions) = primitive(&recipe.primitives, rng);
+            DrawnShape { shape, modifiers, proportions, rotation: None }
+        }
+        ShapeSource::Wireframe => {
+            let (shape, modifiers) = wireframe(&recipe.holes, rng);
+            plain(shape, modifiers)
+        }
+        ShapeSource::Net => plain(net(&recipe.holes, rng), Vec::new()),
+        ShapeSource::Shapenet | ShapeSource::Meshes => {
+            let pool = if source == ShapeSource::Shapenet { &assets.shapenet } else { &assets.meshes };
+            let n = (recipe.sources.mesh_candidates as usize).min(pool.len());
+            let candidates = (0..n).map(|_| pool.choose(rng).expect("non-empty").path.clone()).collect();
+            plain(Shape::MeshFile { candidates, max_triangles: recipe.sources.max_triangles }, Vec::new())
+        }
+        ShapeSource::Tree => tree(&recipe.trees, rng),
+    }
+}
+
+/// A grown tree standing up: object +Z becomes world +Y, with a random yaw and a slight lean.
+fn tree<R: Rng>(t: &TreeRecipe, rng: &mut R) -> DrawnShape {
+    let params = TreeParams::draw(rng, t);
+    let tree = grow(&params, rng);
+    let rotation = [-PI / 2.0 + t.lean_rad.sample(rng), rng.random_range(0.0..2.0 * PI), t.lean_rad.sample(rng)];
+    let leaf_color = t.leaf_rgb.map(|c| c.sample(rng));
+    let leaf = MaterialSpec { class: MaterialClass::Textureless, base: BaseColor::Flat { color: leaf_color }, roughness: t.leaf_roughness, metallic: 0.0, transmission: 0.0, ior: 1.45 };
+    let shape = Shape::Skeleton { strands: tree.strands, strand_levels: tree.strand_levels, sides: 8, leaves: tree.leaves, leaf_material: Some(Box::new(leaf)) };
+    DrawnShape { shape, modifiers: Vec::new(), proportions: [1.0; 3], rotation: Some(rotation) }
 }
 
 /// Approximate linear-RGB colour of a blackbody at `kelvin` (Tanner Helland's fit of the
@@ -256,21 +289,24 @@ fn light(recipe: &Recipe, rig: &StereoRig, near: f64, far: f64, node: SeedTree) 
     let color = if rng.random_bool(l.blackbody_fraction) {
         blackbody_rgb(l.temperature_k.sample(&mut rng))
     } else {
-        std::array::from_fn(|_| rng.random_range(0.2..1.0))
+        std::array::from_fn(|_| l.color_channel.sample(&mut rng))
     };
-    let z = rng.random_range((near * 0.5)..(far * 0.9));
+    let z = rng.random_range((near * l.near_factor)..(far * l.far_factor));
     // Lights may sit a little outside the view so that they light it from the side.
-    let u = rng.random_range(-0.2..1.2) * f64::from(rig.width);
-    let v = rng.random_range(-0.2..1.2) * f64::from(rig.height);
+    let u = l.image_position.sample(&mut rng) * f64::from(rig.width);
+    let v = l.image_position.sample(&mut rng) * f64::from(rig.height);
     let location = rig.unproject_left(u, v, z);
     // Power scales with depth squared so a light deep in a large scene still reaches it.
     let power_w = l.power_w.sample(&mut rng) * z * z;
     // Aim lights roughly into the scene (−Z), with some spread.
-    let rotation = [rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6), rng.random_range(0.0..2.0 * PI)];
+    let rotation = [l.tilt_rad.sample(&mut rng), l.tilt_rad.sample(&mut rng), rng.random_range(0.0..2.0 * PI)];
+    let radius = l.radius_factor * z;
     match kind {
-        LightKind::Point => LightSpec::Point { location, color, power_w, radius: 0.02 * z },
-        LightKind::Spot => LightSpec::Spot { location, rotation, color, power_w, radius: 0.02 * z, spot_size: rng.random_range(0.4..1.6), blend: rng.random_range(0.05..0.5) },
-        LightKind::Area => LightSpec::Area { location, rotation, color, power_w, size: rng.random_range(0.05..0.3) * z },
+        LightKind::Point => LightSpec::Point { location, color, power_w, radius },
+        LightKind::Spot => {
+            LightSpec::Spot { location, rotation, color, power_w, radius, spot_size: l.spot_size_rad.sample(&mut rng), blend: l.spot_blend.sample(&mut rng) }
+        }
+        LightKind::Area => LightSpec::Area { location, rotation, color, power_w, size: l.area_size_factor.sample(&mut rng) * z },
         LightKind::Sun => LightSpec::Sun { rotation, color, strength: l.sun_strength.sample(&mut rng) },
     }
 }

@@ -47,7 +47,7 @@ impl SeedTree {
 
     /// A 31-bit integer for seeds of external tools (Cycles takes a signed int).
     pub fn small_seed(self) -> u32 {
-        (mix(self.key ^ 0xC1C1_E5) >> 33) as u32
+        (mix(self.key ^ 0x00C1_C1E5) >> 33) as u32
     }
 }
 

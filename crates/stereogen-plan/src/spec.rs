@@ -1,17 +1,23 @@
 //! `SceneSpec`: everything the Blender worker needs to build and render one sample, and nothing
 //! it would have to decide itself. Serialised as JSON next to every sample (`<id>.scene.json`).
+//!
+//! The JSON also carries `cameras`, the camera facts derived from `rig` ([`StereoRig::cameras`]:
+//! camera positions, f_px, principal point and its convention, Blender's lens settings), so the
+//! worker copies them instead of re-deriving them. They are written from the rig every time and
+//! never stored separately: a spec cannot hold facts that disagree with its rig.
 
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use super::rig::StereoRig;
+use super::rig::{StereoCameras, StereoRig};
 
-/// Version of the SceneSpec schema; the worker refuses specs it does not know.
-pub const SPEC_FORMAT_VERSION: u32 = 2;
+/// Version of the SceneSpec schema. The worker states the version it understands when it starts
+/// and is refused there if it differs. Version 3 added `cameras`; version 2 specs (without
+/// them) still read, as version 3.
+pub const SPEC_FORMAT_VERSION: u32 = 3;
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SceneSpec {
     pub format_version: u32,
     /// File stem of the sample, unique inside its category.
@@ -240,7 +246,94 @@ pub enum LightSpec {
     Sun { rotation: [f64; 3], color: [f64; 3], strength: f64 },
 }
 
+/// The JSON form of a [`SceneSpec`] as written: its fields plus the derived `cameras`.
+#[derive(Serialize)]
+struct SceneSpecOut<'a> {
+    format_version: u32,
+    id: &'a str,
+    category: &'a str,
+    seed: u64,
+    index: u64,
+    rig: &'a StereoRig,
+    cameras: StereoCameras,
+    render: &'a RenderSettings,
+    world: &'a WorldSpec,
+    objects: &'a [ObjectSpec],
+    lights: &'a [LightSpec],
+}
+
+/// The JSON form as read: `cameras` may be absent (version 2) and must match the rig if present.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneSpecIn {
+    format_version: u32,
+    id: String,
+    category: String,
+    seed: u64,
+    index: u64,
+    rig: StereoRig,
+    #[serde(default)]
+    cameras: Option<StereoCameras>,
+    render: RenderSettings,
+    world: WorldSpec,
+    objects: Vec<ObjectSpec>,
+    lights: Vec<LightSpec>,
+}
+
+impl Serialize for SceneSpec {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        SceneSpecOut {
+            format_version: self.format_version,
+            id: &self.id,
+            category: &self.category,
+            seed: self.seed,
+            index: self.index,
+            rig: &self.rig,
+            cameras: self.rig.cameras(),
+            render: &self.render,
+            world: &self.world,
+            objects: &self.objects,
+            lights: &self.lights,
+        }
+        .serialize(serializer)
+    }
+}
+
+impl<'de> Deserialize<'de> for SceneSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let s = SceneSpecIn::deserialize(deserializer)?;
+        if s.format_version > SPEC_FORMAT_VERSION {
+            return Err(serde::de::Error::custom(format!(
+                "SceneSpec format_version {} is newer than this stereogen reads ({SPEC_FORMAT_VERSION})",
+                s.format_version
+            )));
+        }
+        if let Some(cameras) = &s.cameras
+            && !cameras.agrees_with(&s.rig.cameras())
+        {
+            return Err(serde::de::Error::custom("SceneSpec `cameras` disagree with its `rig` (they are derived from it: fix the rig, or drop `cameras`)"));
+        }
+        Ok(SceneSpec {
+            format_version: SPEC_FORMAT_VERSION,
+            id: s.id,
+            category: s.category,
+            seed: s.seed,
+            index: s.index,
+            rig: s.rig,
+            render: s.render,
+            world: s.world,
+            objects: s.objects,
+            lights: s.lights,
+        })
+    }
+}
+
 impl SceneSpec {
+    /// The camera facts the JSON carries (derived from the rig).
+    pub fn cameras(&self) -> StereoCameras {
+        self.rig.cameras()
+    }
+
     /// Canonical JSON: the bytes that go to disk and to the worker. Field order is fixed by the
     /// struct definitions and floats print in shortest round-trip form, so equal specs give
     /// equal bytes.
@@ -255,5 +348,54 @@ impl SceneSpec {
     /// Target disparities of the content objects (the object-level sample of the disparity law).
     pub fn target_disparities(&self) -> impl Iterator<Item = f64> + '_ {
         self.objects.iter().filter(|o| o.role == ObjectRole::Content).filter_map(|o| o.target_disparity)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{AssetIndex, Recipe, plan_scene};
+
+    fn json_value(spec: &SceneSpec) -> serde_json::Value {
+        serde_json::from_str(&spec.to_json()).unwrap()
+    }
+
+    #[test]
+    fn json_carries_the_rig_camera_facts_and_reads_back() {
+        let spec = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 2);
+        let v = json_value(&spec);
+        assert_eq!(v["format_version"], SPEC_FORMAT_VERSION);
+        let b = spec.rig.baseline_m;
+        assert_eq!(v["cameras"]["left"]["position"][0].as_f64(), Some(-b / 2.0));
+        assert_eq!(v["cameras"]["right"]["position"][0].as_f64(), Some(b / 2.0));
+        assert_eq!(v["cameras"]["f_px"].as_f64(), Some(spec.rig.f_px()));
+        assert_eq!(v["cameras"]["principal_point"][0].as_f64(), Some(f64::from(spec.rig.width) / 2.0));
+        assert_eq!(v["cameras"]["image_coordinates"], "pixel_corner_origin");
+        assert_eq!(v["cameras"]["blender"]["sensor_fit"], "HORIZONTAL");
+        assert_eq!(SceneSpec::from_json(&spec.to_json()).unwrap(), spec);
+    }
+
+    #[test]
+    fn version_2_specs_without_cameras_still_read() {
+        let spec = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 2);
+        let mut v = json_value(&spec);
+        v.as_object_mut().unwrap().remove("cameras");
+        v["format_version"] = 2.into();
+        let back = SceneSpec::from_json(&v.to_string()).unwrap();
+        assert_eq!(back, spec);
+        assert_eq!(json_value(&back)["cameras"], json_value(&spec)["cameras"]);
+    }
+
+    #[test]
+    fn cameras_that_disagree_with_the_rig_or_a_newer_version_are_refused() {
+        let spec = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 2);
+        let mut v = json_value(&spec);
+        v["rig"]["baseline_m"] = (spec.rig.baseline_m * 2.0).into();
+        let err = SceneSpec::from_json(&v.to_string()).unwrap_err().to_string();
+        assert!(err.contains("`cameras` disagree"), "{err}");
+        let mut v = json_value(&spec);
+        v["format_version"] = (SPEC_FORMAT_VERSION + 1).into();
+        let err = SceneSpec::from_json(&v.to_string()).unwrap_err().to_string();
+        assert!(err.contains("newer"), "{err}");
     }
 }
