@@ -6,7 +6,7 @@
 //! - Images: 8/16-bit, grey/colour, PNG/JPEG ([`image_io`]).
 //! - Datasets: ours and the public stereo sets behind one trait ([`datasets`]), each layout with
 //!   its file names, reader and writer; our manifest and dataset description
-//!   ([`datasets::stereogen`], also at [`stereogen`]).
+//!   ([`datasets::stereogen`]; its types are re-exported here).
 //!
 //! Every reader names the file and the problem in its error; nothing here panics on bad input.
 
@@ -21,8 +21,6 @@ pub mod npy;
 pub mod pfm;
 pub mod pixel_coords;
 pub mod png_disp;
-
-pub use datasets::stereogen;
 
 pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomically};
 pub use datasets::export::{ExportOptions, export_dataset};

@@ -1,14 +1,14 @@
 //! Where each file of a dataset lives: stereo-io's layout of our datasets
-//! ([`stereo_io::stereogen`]), with what only the generator does with a dataset directory.
+//! ([`stereo_io::datasets::stereogen`]), with what only the generator does with a dataset directory.
 
 use anyhow::{Context, bail};
 
-pub use stereo_io::stereogen::{DatasetLayout, SamplePaths};
+pub use stereo_io::{DatasetLayout, SamplePaths};
 
 use crate::plan::Recipe;
 
 /// `dataset.json` with the recipe read as the generator's [`Recipe`].
-pub type DatasetInfo = stereo_io::stereogen::DatasetInfo<Recipe>;
+pub type DatasetInfo = stereo_io::DatasetInfo<Recipe>;
 
 /// Opening a dataset directory to generate into it.
 pub trait CreateDataset {
