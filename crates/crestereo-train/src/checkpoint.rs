@@ -27,6 +27,20 @@ pub struct TrainState {
     pub elapsed_s: f64,
 }
 
+/// A complete checkpoint of a run.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Checkpoint {
+    pub step: u64,
+    pub dir: PathBuf,
+}
+
+/// The network, its optimiser and the training state: what a checkpoint holds.
+pub struct Learner<B: AutodiffBackend, O> {
+    pub model: CREStereo<B>,
+    pub optim: O,
+    pub state: TrainState,
+}
+
 const MODEL: &str = "model";
 const OPTIMIZER: &str = "optimizer";
 const STATE: &str = "state.json";
@@ -40,7 +54,7 @@ pub fn checkpoints_dir(run: &Path) -> PathBuf {
 }
 
 /// Complete checkpoints of a run, oldest first.
-pub fn list_checkpoints(run: &Path) -> Result<Vec<(u64, PathBuf)>> {
+pub fn list_checkpoints(run: &Path) -> Result<Vec<Checkpoint>> {
     let dir = checkpoints_dir(run);
     if !dir.is_dir() {
         return Ok(Vec::new());
@@ -52,7 +66,7 @@ pub fn list_checkpoints(run: &Path) -> Result<Vec<(u64, PathBuf)>> {
         if let Some(step) = name.strip_prefix("step-").and_then(|s| s.parse::<u64>().ok())
             && e.path().join(STATE).is_file()
         {
-            out.push((step, e.path()));
+            out.push(Checkpoint { step, dir: e.path() });
         }
     }
     out.sort();
@@ -96,8 +110,8 @@ where
     std::fs::File::open(&dir)?.sync_all()?;
     let all = list_checkpoints(run)?;
     if all.len() > keep {
-        for (_, old) in &all[..all.len() - keep] {
-            std::fs::remove_dir_all(old).with_context(|| format!("cannot prune {}", old.display()))?;
+        for old in &all[..all.len() - keep] {
+            std::fs::remove_dir_all(&old.dir).with_context(|| format!("cannot prune {}", old.dir.display()))?;
         }
     }
     Ok(target)
@@ -111,7 +125,7 @@ pub fn read_state(checkpoint: &Path) -> Result<TrainState> {
 }
 
 /// Restores model and optimiser from a checkpoint directory.
-pub fn load_checkpoint<B, O>(checkpoint: &Path, model: CREStereo<B>, optim: O, device: &B::Device) -> Result<(CREStereo<B>, O, TrainState)>
+pub fn load_checkpoint<B, O>(checkpoint: &Path, model: CREStereo<B>, optim: O, device: &B::Device) -> Result<Learner<B, O>>
 where
     B: AutodiffBackend,
     O: Optimizer<CREStereo<B>, B>,
@@ -120,7 +134,7 @@ where
     let model = crestereo::weights::load_record(model, checkpoint.join(format!("{MODEL}.mpk")), device)?;
     let record = Recorder::<B>::load(&recorder(), checkpoint.join(OPTIMIZER), device)
         .map_err(|e| anyhow::anyhow!("loading optimiser state from {}: {e}", checkpoint.display()))?;
-    Ok((model, optim.load_record(record), state))
+    Ok(Learner { model, optim: optim.load_record(record), state })
 }
 
 /// The model weights file of a checkpoint directory, or `path` itself when it is a file: what
@@ -132,8 +146,8 @@ pub fn weights_file(path: &Path) -> Result<PathBuf> {
             return Ok(direct);
         }
         // A run directory: its newest checkpoint.
-        if let Some((_, last)) = list_checkpoints(path)?.pop() {
-            return Ok(last.join(format!("{MODEL}.mpk")));
+        if let Some(last) = list_checkpoints(path)?.pop() {
+            return Ok(last.dir.join(format!("{MODEL}.mpk")));
         }
         bail!("{} holds no checkpoint (expected model.mpk or checkpoints/step-*/)", path.display());
     }

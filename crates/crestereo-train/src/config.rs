@@ -273,6 +273,12 @@ impl TrainConfig {
 
     /// Checks every value; the message names the key.
     pub fn validate(&self) -> Result<()> {
+        self.validate_datasets()?;
+        self.validate_recipe()?;
+        self.validate_run_settings()
+    }
+
+    fn validate_datasets(&self) -> Result<()> {
         if self.datasets.is_empty() {
             bail!("no training data: add at least one [[datasets]] entry (or pass --data)");
         }
@@ -282,6 +288,12 @@ impl TrainConfig {
             }
             parse_format(d.format.as_deref(), &format!("datasets[{i}].format"))?;
         }
+        Ok(())
+    }
+
+    /// What defines the loss curve: steps, batch, iterations, loss, optimiser, schedule and
+    /// augmentation.
+    fn validate_recipe(&self) -> Result<()> {
         if self.steps == 0 {
             bail!("steps must be at least 1");
         }
@@ -304,6 +316,11 @@ impl TrainConfig {
         if h % 16 != 0 || w % 16 != 0 {
             bail!("augment.crop {h}x{w}: both sides must be multiples of 16 (the network's 1/16 level)");
         }
+        Ok(())
+    }
+
+    /// Loader, checkpoint, log and validation settings.
+    fn validate_run_settings(&self) -> Result<()> {
         if self.loader.prefetch == 0 {
             bail!("loader.prefetch must be at least 1");
         }

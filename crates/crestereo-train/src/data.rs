@@ -3,8 +3,8 @@
 //!
 //! Determinism: sample number `k` of a run is a pure function of `(seed, k)` — which dataset and
 //! which index come from a sequential [`Planner`] (replayable, so the data position after a
-//! resume is just `k`), and the augmentation draws from an RNG seeded with `(seed, k)`. Worker
-//! count and timing therefore never change what the model sees.
+//! resume is just `k`), and the augmentation draws from the named streams of a seed made of
+//! `(seed, k)`. Worker count and timing therefore never change what the model sees.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -71,8 +71,16 @@ pub struct Planner {
     weights: Vec<f64>,
     lens: Vec<usize>,
     pick: ChaCha8Rng,
-    epochs: Vec<(u64, Vec<usize>, usize)>,
+    epochs: Vec<DatasetEpoch>,
     next: u64,
+}
+
+/// Where one dataset's walk stands: its current epoch's shuffled order and the next position
+/// in it.
+struct DatasetEpoch {
+    number: u64,
+    order: Vec<usize>,
+    next: usize,
 }
 
 /// SplitMix64 finaliser: decorrelates nearby integers into seeds.
@@ -94,15 +102,16 @@ impl Planner {
             epochs: Vec::new(),
             next: 0,
         };
-        p.epochs = (0..lens.len()).map(|d| (0, p.permutation(d, 0), 0)).collect();
+        p.epochs = (0..lens.len()).map(|d| p.epoch(d, 0)).collect();
         p
     }
 
-    fn permutation(&self, dataset: usize, epoch: u64) -> Vec<usize> {
+    /// Epoch `number` of `dataset`: every index once, in an order of its own.
+    fn epoch(&self, dataset: usize, number: u64) -> DatasetEpoch {
         let mut order: Vec<usize> = (0..self.lens[dataset]).collect();
-        let mut rng = ChaCha8Rng::seed_from_u64(mix_seed(mix_seed(self.seed, dataset as u64 + 1), epoch));
+        let mut rng = ChaCha8Rng::seed_from_u64(mix_seed(mix_seed(self.seed, dataset as u64 + 1), number));
         order.shuffle(&mut rng);
-        order
+        DatasetEpoch { number, order, next: 0 }
     }
 
     /// The ordinal of the sample [`Self::next_plan`] returns next.
@@ -110,24 +119,32 @@ impl Planner {
         self.next
     }
 
-    pub fn next_plan(&mut self) -> SamplePlan {
+    /// A dataset drawn by weight.
+    fn pick_dataset(&mut self) -> usize {
         let u: f64 = self.pick.random();
-        let mut dataset = self.weights.len() - 1;
         let mut acc = 0.0;
         for (d, w) in self.weights.iter().enumerate() {
             acc += w;
             if u < acc {
-                dataset = d;
-                break;
+                return d;
             }
         }
-        if self.epochs[dataset].2 == self.lens[dataset] {
-            let epoch = self.epochs[dataset].0 + 1;
-            self.epochs[dataset] = (epoch, self.permutation(dataset, epoch), 0);
+        self.weights.len() - 1
+    }
+
+    /// The next index of `dataset`'s walk, starting its next epoch when this one is used up.
+    fn next_index(&mut self, dataset: usize) -> usize {
+        if self.epochs[dataset].next == self.lens[dataset] {
+            self.epochs[dataset] = self.epoch(dataset, self.epochs[dataset].number + 1);
         }
-        let (_, order, pos) = &mut self.epochs[dataset];
-        let index = order[*pos];
-        *pos += 1;
+        let epoch = &mut self.epochs[dataset];
+        epoch.next += 1;
+        epoch.order[epoch.next - 1]
+    }
+
+    pub fn next_plan(&mut self) -> SamplePlan {
+        let dataset = self.pick_dataset();
+        let index = self.next_index(dataset);
         let ordinal = self.next;
         self.next += 1;
         SamplePlan { ordinal, dataset, index, seed: mix_seed(self.seed ^ 0xA06_u64, ordinal) }
@@ -174,8 +191,7 @@ pub fn load_sample(
         let index = (plan.index + attempt) % ds.len();
         match ds.sample(index) {
             Ok(sample) => {
-                let mut rng = ChaCha8Rng::seed_from_u64(plan.seed);
-                let sample = augment_random(&sample, augment, &mut rng);
+                let sample = augment_random(&sample, augment, plan.seed);
                 return Ok(LoadedSample { plan, index, sample });
             }
             Err(e) => {
@@ -199,11 +215,45 @@ pub fn load_sample(
     )
 }
 
+/// A worker's answer: the plan's ordinal (a failure needs it too) and what came of it.
+struct Decoded {
+    ordinal: u64,
+    result: Result<LoadedSample>,
+}
+
+/// One decoding thread: plans in, decoded and augmented samples out.
+struct Worker {
+    jobs: Arc<Mutex<Receiver<SamplePlan>>>,
+    results: SyncSender<Decoded>,
+    source: Arc<MixedSource>,
+    augment: AugmentConfig,
+    retries: usize,
+    stop: Arc<AtomicBool>,
+    skipped: Arc<Mutex<Vec<SkippedSample>>>,
+}
+
+impl Worker {
+    fn run(self) {
+        loop {
+            let Ok(plan) = self.jobs.lock().unwrap().recv() else {
+                return;
+            };
+            if self.stop.load(Ordering::Relaxed) {
+                return;
+            }
+            let result = load_sample(&self.source, plan, &self.augment, self.retries, &self.skipped);
+            if self.results.send(Decoded { ordinal: plan.ordinal, result }).is_err() {
+                return;
+            }
+        }
+    }
+}
+
 /// Background decoding: a planner thread hands out plans, `workers` threads decode and augment,
 /// and [`Loader::next_sample`] returns results in plan order. At most `prefetch` samples exist
 /// ahead of the consumer (planned, in progress or waiting), so memory stays bounded.
 pub struct Loader {
-    results: Receiver<(u64, Result<LoadedSample>)>,
+    results: Receiver<Decoded>,
     waiting: BTreeMap<u64, Result<LoadedSample>>,
     next: u64,
     credit: Arc<(Mutex<u64>, Condvar)>,
@@ -231,7 +281,7 @@ impl Loader {
         let credit = Arc::new((Mutex::new(start + prefetch), Condvar::new()));
         let skipped = Arc::new(Mutex::new(Vec::new()));
         let (job_tx, job_rx) = sync_channel::<SamplePlan>(workers);
-        let job_rx = Arc::new(Mutex::new(job_rx));
+        let jobs = Arc::new(Mutex::new(job_rx));
         let (res_tx, res_rx) = sync_channel(prefetch as usize + workers);
         let mut threads = Vec::new();
         {
@@ -239,23 +289,16 @@ impl Loader {
             threads.push(std::thread::spawn(move || plan_loop(planner, job_tx, &credit, &stop)));
         }
         for _ in 0..workers {
-            let (job_rx, res_tx, source, augment, stop, skipped): (_, SyncSender<_>, _, _, _, _) =
-                (job_rx.clone(), res_tx.clone(), source.clone(), augment.clone(), stop.clone(), skipped.clone());
-            threads.push(std::thread::spawn(move || {
-                loop {
-                    let plan = match job_rx.lock().unwrap().recv() {
-                        Ok(p) => p,
-                        Err(_) => return,
-                    };
-                    if stop.load(Ordering::Relaxed) {
-                        return;
-                    }
-                    let out = load_sample(&source, plan, &augment, retries, &skipped);
-                    if res_tx.send((plan.ordinal, out)).is_err() {
-                        return;
-                    }
-                }
-            }));
+            let worker = Worker {
+                jobs: jobs.clone(),
+                results: res_tx.clone(),
+                source: source.clone(),
+                augment: augment.clone(),
+                retries,
+                stop: stop.clone(),
+                skipped: skipped.clone(),
+            };
+            threads.push(std::thread::spawn(move || worker.run()));
         }
         Self { results: res_rx, waiting: BTreeMap::new(), next: start, credit, stop, threads, skipped }
     }
@@ -275,8 +318,8 @@ impl Loader {
                 cv.notify_all();
                 return r;
             }
-            let (ordinal, r) = self.results.recv().context("the data loader threads stopped")?;
-            self.waiting.insert(ordinal, r);
+            let decoded = self.results.recv().context("the data loader threads stopped")?;
+            self.waiting.insert(decoded.ordinal, decoded.result);
         }
     }
 

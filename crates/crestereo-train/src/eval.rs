@@ -84,11 +84,18 @@ pub struct EvalReport {
     pub per_image: Vec<ImageResult>,
 }
 
+/// The non-occluded pixels of a sample's left view and where that mask came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NonOccMask {
+    pub mask: Vec<bool>,
+    pub source: NonOccSource,
+}
+
 /// Non-occluded pixels: the dataset's mask, else the left-right check when a right-view map
 /// exists, else `None`.
-pub fn nonocc_mask(sample: &StereoSample, tolerance: f32) -> Option<(Vec<bool>, NonOccSource)> {
+pub fn nonocc_mask(sample: &StereoSample, tolerance: f32) -> Option<NonOccMask> {
     if let Some(m) = &sample.valid_left {
-        return Some((m.clone(), NonOccSource::Dataset));
+        return Some(NonOccMask { mask: m.clone(), source: NonOccSource::Dataset });
     }
     let right = sample.disp_right.as_ref()?;
     let left = &sample.disp_left;
@@ -109,7 +116,7 @@ pub fn nonocc_mask(sample: &StereoSample, tolerance: f32) -> Option<(Vec<bool>, 
             mask[i] = right.valid[j] && (right.data[j] - d).abs() <= tolerance;
         }
     }
-    Some((mask, NonOccSource::LeftRightCheck))
+    Some(NonOccMask { mask, source: NonOccSource::LeftRightCheck })
 }
 
 fn foreground(dir: &Path, id: &str, width: usize, height: usize) -> Result<Vec<bool>> {
@@ -133,13 +140,12 @@ pub fn evaluate_sample<B: Backend>(model: &CREStereo<B>, sample: &StereoSample, 
     let seconds = t0.elapsed().as_secs_f64();
     let truth = &sample.disp_left;
     let all = disparity_metrics(&pred.data, &truth.data, &truth.valid);
-    let (nonocc, nonocc_source) = match nonocc_mask(sample, opts.lr_tolerance_px) {
-        Some((m, src)) => {
-            let m: Vec<bool> = m.iter().zip(&truth.valid).map(|(a, b)| *a && *b).collect();
-            (disparity_metrics(&pred.data, &truth.data, &m), Some(src))
-        }
-        None => (None, None),
-    };
+    let nonocc_mask = nonocc_mask(sample, opts.lr_tolerance_px);
+    let nonocc = nonocc_mask.as_ref().and_then(|n| {
+        let m: Vec<bool> = n.mask.iter().zip(&truth.valid).map(|(a, b)| *a && *b).collect();
+        disparity_metrics(&pred.data, &truth.data, &m)
+    });
+    let nonocc_source = nonocc_mask.map(|n| n.source);
     let (mut mxiou, mut mxiou_bd) = (None, None);
     if let Some(dir) = &opts.fg_masks {
         let fg = foreground(dir, id, truth.width, truth.height)?;
@@ -204,22 +210,7 @@ pub fn evaluate<B: Backend>(
             }
         }
     }
-    let alls: Vec<_> = per_image.iter().filter_map(|r| r.all).collect();
-    let noccs: Vec<_> = per_image.iter().filter_map(|r| r.nonocc).collect();
-    Ok(EvalReport {
-        dataset: dataset.root().display().to_string(),
-        format: dataset.format().to_string(),
-        weights: weights.to_string(),
-        options: opts.clone(),
-        images: per_image.len(),
-        mean_all: mean_metrics(&alls),
-        mean_nonocc: mean_metrics(&noccs),
-        mean_mxiou: mean(per_image.iter().filter_map(|r| r.mxiou)),
-        mean_mxiou_bd: mean(per_image.iter().filter_map(|r| r.mxiou_bd)),
-        seconds_per_image: mean(per_image.iter().map(|r| r.seconds)).unwrap_or(0.0),
-        failed,
-        per_image,
-    })
+    Ok(EvalReport::summarise(dataset, weights, opts, per_image, failed))
 }
 
 const CSV_METRICS: [&str; 11] = ["epe", "rms", "bad_0_5", "bad_1", "bad_2", "bad_3", "d1", "a50", "a90", "a95", "a99"];
@@ -233,6 +224,26 @@ fn opt(v: Option<f64>) -> String {
 }
 
 impl EvalReport {
+    /// The report of `per_image` results: means over images.
+    fn summarise(dataset: &dyn StereoDataset, weights: &str, opts: &EvalOptions, per_image: Vec<ImageResult>, failed: Vec<FailedImage>) -> Self {
+        let alls: Vec<_> = per_image.iter().filter_map(|r| r.all).collect();
+        let noccs: Vec<_> = per_image.iter().filter_map(|r| r.nonocc).collect();
+        Self {
+            dataset: dataset.root().display().to_string(),
+            format: dataset.format().to_string(),
+            weights: weights.to_string(),
+            options: opts.clone(),
+            images: per_image.len(),
+            mean_all: mean_metrics(&alls),
+            mean_nonocc: mean_metrics(&noccs),
+            mean_mxiou: mean(per_image.iter().filter_map(|r| r.mxiou)),
+            mean_mxiou_bd: mean(per_image.iter().filter_map(|r| r.mxiou_bd)),
+            seconds_per_image: mean(per_image.iter().map(|r| r.seconds)).unwrap_or(0.0),
+            failed,
+            per_image,
+        }
+    }
+
     /// One row per image: id, size, seconds, the metrics on all pixels, on non-occluded pixels
     /// (empty where unavailable), mxIoU and mxIoUbd.
     pub fn per_image_csv(&self) -> String {
@@ -270,6 +281,20 @@ impl EvalReport {
         if !self.failed.is_empty() {
             writeln!(s, "{} images could not be evaluated (see the JSON)", self.failed.len()).unwrap();
         }
+        self.write_metric_rows(&mut s);
+        if let Some(v) = self.mean_mxiou {
+            writeln!(s, "{:<14}{v:>12.4}", "mxIoU").unwrap();
+        }
+        if let Some(v) = self.mean_mxiou_bd {
+            writeln!(s, "{:<14}{v:>12.4}", format!("mxIoUbd (p={})", self.options.boundary_px)).unwrap();
+        }
+        writeln!(s, "{:<14}{:>12.3}", "s / image", self.seconds_per_image).unwrap();
+        s
+    }
+
+    /// The disparity metrics as rows, one column for all pixels and one for non-occluded ones
+    /// where available.
+    fn write_metric_rows(&self, s: &mut String) {
         let cols = [("all", &self.mean_all), ("non-occ", &self.mean_nonocc)];
         write!(s, "{:<14}", "metric").unwrap();
         for (name, m) in cols {
@@ -288,14 +313,6 @@ impl EvalReport {
             }
             s.push('\n');
         }
-        if let Some(v) = self.mean_mxiou {
-            writeln!(s, "{:<14}{v:>12.4}", "mxIoU").unwrap();
-        }
-        if let Some(v) = self.mean_mxiou_bd {
-            writeln!(s, "{:<14}{v:>12.4}", format!("mxIoUbd (p={})", self.options.boundary_px)).unwrap();
-        }
-        writeln!(s, "{:<14}{:>12.3}", "s / image", self.seconds_per_image).unwrap();
-        s
     }
 
     /// Writes `<out>.json` style outputs: the full report as JSON and the per-image CSV.
@@ -335,15 +352,15 @@ mod tests {
         // view the strip moves to 2..4 and hides the background seen by left pixels 3 and 4.
         let left = [0.0, 1.0, 1.0, 1.0, 2.0, 2.0, 1.0, 1.0];
         let right = [1.0, 1.0, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0];
-        let (mask, src) = nonocc_mask(&sample(&left, Some(&right), 8), 0.5).unwrap();
-        assert_eq!(src, NonOccSource::LeftRightCheck);
+        let NonOccMask { mask, source } = nonocc_mask(&sample(&left, Some(&right), 8), 0.5).unwrap();
+        assert_eq!(source, NonOccSource::LeftRightCheck);
         // x=0 invalid; x=1 → 0 ok; x=2 → 1 ok; x=3 → 2 (d 2 ≠ 1) occluded; x=4,5 → 2,3 ok;
         // x=6 → 5 ok; x=7 → 6 ok.
         assert_eq!(mask, [false, true, true, false, true, true, true, true]);
         assert!(nonocc_mask(&sample(&left, None, 8), 0.5).is_none());
         let mut s = sample(&left, Some(&right), 8);
         s.valid_left = Some(vec![true; 8]);
-        assert_eq!(nonocc_mask(&s, 0.5).unwrap().1, NonOccSource::Dataset);
+        assert_eq!(nonocc_mask(&s, 0.5).unwrap().source, NonOccSource::Dataset);
     }
 
     #[test]

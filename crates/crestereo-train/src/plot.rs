@@ -61,16 +61,99 @@ pub fn moving_average(points: &[(f64, f64)], window: usize) -> Vec<(f64, f64)> {
     out
 }
 
-pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
-    let cols = read_columns(&run.join("train_log.csv"), &["loss", "epe"])?;
-    let (loss, epe) = (&cols[0], &cols[1]);
-    if loss.is_empty() {
-        bail!("{} has no finite loss rows yet", run.join("train_log.csv").display());
+/// The curves of a run's logs: per-step training loss and EPE, validation EPE.
+struct RunCurves {
+    loss: Vec<(f64, f64)>,
+    epe: Vec<(f64, f64)>,
+    val: Vec<(f64, f64)>,
+}
+
+impl RunCurves {
+    fn read(run: &Path) -> Result<Self> {
+        let train_log = run.join("train_log.csv");
+        let mut cols = read_columns(&train_log, &["loss", "epe"])?.into_iter();
+        let (loss, epe) = (cols.next().unwrap_or_default(), cols.next().unwrap_or_default());
+        if loss.is_empty() {
+            bail!("{} has no finite loss rows yet", train_log.display());
+        }
+        let val = match run.join("val_log.csv") {
+            p if p.is_file() => read_columns(&p, &["epe"])?.remove(0),
+            _ => Vec::new(),
+        };
+        Ok(Self { loss, epe, val })
     }
-    let val = match run.join("val_log.csv") {
-        p if p.is_file() => read_columns(&p, &["epe"])?.remove(0),
-        _ => Vec::new(),
-    };
+
+    /// The last logged step (at least 1): the x range of both charts.
+    fn last_step(&self) -> f64 {
+        self.loss.last().map_or(1.0, |p| p.0).max(1.0)
+    }
+}
+
+type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+/// A line's legend entry: a short stroke in its colour.
+fn legend_mark(colour: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new([(x, y), (x + 18, y)], colour)
+}
+
+/// The training loss per step and its moving average, on a log axis.
+fn draw_loss(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
+    let loss = &curves.loss;
+    let (lo, hi) = loss.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let mut chart = ChartBuilder::on(area)
+        .caption("training loss", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..curves.last_step(), (lo.max(1e-6) * 0.9..hi * 1.1).log_scale())
+        .map_err(err)?;
+    chart.configure_mesh().x_desc("step").y_desc("sequence loss").draw().map_err(err)?;
+    let (raw, averaged) = (RGBColor(170, 190, 230), RGBColor(31, 119, 180));
+    chart
+        .draw_series(LineSeries::new(loss.iter().copied(), raw.stroke_width(1)))
+        .map_err(err)?
+        .label("per step")
+        .legend(legend_mark(raw));
+    chart
+        .draw_series(LineSeries::new(moving_average(loss, smooth), averaged.stroke_width(2)))
+        .map_err(err)?
+        .label(format!("moving average ({smooth})"))
+        .legend(legend_mark(averaged));
+    chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)
+}
+
+/// The training EPE (moving average) and the validation EPE.
+fn draw_epe(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
+    let (epe, val) = (&curves.epe, &curves.val);
+    let e_hi = epe.iter().chain(val).fold(0.0f64, |a, p| a.max(p.1)).max(1e-3);
+    let mut chart = ChartBuilder::on(area)
+        .caption("end-point error (px)", ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..curves.last_step(), 0.0..e_hi * 1.05)
+        .map_err(err)?;
+    chart.configure_mesh().x_desc("step").y_desc("EPE").draw().map_err(err)?;
+    let (training, validation) = (RGBColor(255, 127, 14), RGBColor(44, 160, 44));
+    chart
+        .draw_series(LineSeries::new(moving_average(epe, smooth), training.stroke_width(2)))
+        .map_err(err)?
+        .label("training crops (moving average)")
+        .legend(legend_mark(training));
+    if !val.is_empty() {
+        chart
+            .draw_series(LineSeries::new(val.iter().copied(), validation.stroke_width(2)))
+            .map_err(err)?
+            .label("validation (full images)")
+            .legend(legend_mark(validation));
+        chart.draw_series(val.iter().map(|&p| Circle::new(p, 4, validation.filled()))).map_err(err)?;
+    }
+    chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)
+}
+
+/// Draws a run's loss and EPE curves side by side into a PNG.
+pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
+    let curves = RunCurves::read(run)?;
     register();
     let (w, h) = (1200u32, 480u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
@@ -78,47 +161,8 @@ pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(err)?;
         let (left, right) = root.split_horizontally(w / 2);
-        let x_max = loss.last().map_or(1.0, |p| p.0).max(1.0);
-        let (lo, hi) = loss.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
-        let mut chart = ChartBuilder::on(&left)
-            .caption("training loss", ("sans-serif", 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(0.0..x_max, (lo.max(1e-6) * 0.9..hi * 1.1).log_scale())
-            .map_err(err)?;
-        chart.configure_mesh().x_desc("step").y_desc("sequence loss").draw().map_err(err)?;
-        chart.draw_series(LineSeries::new(loss.iter().copied(), RGBColor(170, 190, 230).stroke_width(1))).map_err(err)?.label("per step").legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(170, 190, 230)));
-        chart
-            .draw_series(LineSeries::new(moving_average(loss, smooth), RGBColor(31, 119, 180).stroke_width(2)))
-            .map_err(err)?
-            .label(format!("moving average ({smooth})"))
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(31, 119, 180)));
-        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)?;
-
-        let e_hi = epe.iter().chain(&val).fold(0.0f64, |a, p| a.max(p.1)).max(1e-3);
-        let mut chart = ChartBuilder::on(&right)
-            .caption("end-point error (px)", ("sans-serif", 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(0.0..x_max, 0.0..e_hi * 1.05)
-            .map_err(err)?;
-        chart.configure_mesh().x_desc("step").y_desc("EPE").draw().map_err(err)?;
-        chart
-            .draw_series(LineSeries::new(moving_average(epe, smooth), RGBColor(255, 127, 14).stroke_width(2)))
-            .map_err(err)?
-            .label("training crops (moving average)")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(255, 127, 14)));
-        if !val.is_empty() {
-            chart
-                .draw_series(LineSeries::new(val.iter().copied(), RGBColor(44, 160, 44).stroke_width(2)))
-                .map_err(err)?
-                .label("validation (full images)")
-                .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RGBColor(44, 160, 44)));
-            chart.draw_series(val.iter().map(|&p| Circle::new(p, 4, RGBColor(44, 160, 44).filled()))).map_err(err)?;
-        }
-        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)?;
+        draw_loss(&left, &curves, smooth)?;
+        draw_epe(&right, &curves, smooth)?;
         root.present().map_err(err)?;
     }
     let img = stereo_io::Image { width: w as usize, height: h as usize, channels: 3, samples: stereo_io::Samples::U8(buf) };

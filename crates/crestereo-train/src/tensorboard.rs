@@ -100,9 +100,17 @@ impl EventWriter {
     }
 }
 
-/// Reads the scalars back: `(step, tag, value)` per summary value. Checks both CRCs of every
-/// record (the tests' independent check of what the writer produced).
-pub fn read_scalars(path: &Path) -> Result<Vec<(i64, String, f32)>> {
+/// One scalar of an event file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scalar {
+    pub step: i64,
+    pub tag: String,
+    pub value: f32,
+}
+
+/// Reads the scalars back, one per summary value. Checks both CRCs of every record (the tests'
+/// independent check of what the writer produced).
+pub fn read_scalars(path: &Path) -> Result<Vec<Scalar>> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     let mut out = Vec::new();
     let mut at = 0;
@@ -147,56 +155,79 @@ impl Cursor<'_> {
         self.i += n;
         Ok(s)
     }
-    /// Next (field, wire type, payload) — payload empty for varints (value returned instead).
-    fn field(&mut self) -> Result<(u64, u64, Vec<u8>, u64), String> {
+    /// The next field.
+    fn field(&mut self) -> Result<Field, String> {
         let key = self.varint()?;
-        let (field, wire) = (key >> 3, key & 7);
-        match wire {
-            0 => Ok((field, wire, Vec::new(), self.varint()?)),
-            1 => Ok((field, wire, self.take(8)?.to_vec(), 0)),
+        let number = key >> 3;
+        let (payload, varint) = match key & 7 {
+            0 => (Vec::new(), self.varint()?),
+            1 => (self.take(8)?.to_vec(), 0),
             2 => {
                 let n = self.varint()? as usize;
-                Ok((field, wire, self.take(n)?.to_vec(), 0))
+                (self.take(n)?.to_vec(), 0)
             }
-            5 => Ok((field, wire, self.take(4)?.to_vec(), 0)),
-            w => Err(format!("unsupported wire type {w}")),
-        }
+            5 => (self.take(4)?.to_vec(), 0),
+            w => return Err(format!("unsupported wire type {w}")),
+        };
+        Ok(Field { number, payload, varint })
+    }
+
+    fn at_end(&self) -> bool {
+        self.i >= self.b.len()
     }
 }
 
-fn decode_event(data: &[u8], out: &mut Vec<(i64, String, f32)>) -> Result<(), String> {
+/// One protobuf field.
+struct Field {
+    number: u64,
+    /// The bytes of a length-delimited or fixed-size field; empty for a varint.
+    payload: Vec<u8>,
+    /// The value of a varint field; 0 for the others.
+    varint: u64,
+}
+
+/// The scalars of one `Event` message.
+fn decode_event(data: &[u8], out: &mut Vec<Scalar>) -> Result<(), String> {
     let mut c = Cursor { b: data, i: 0 };
     let mut step = 0i64;
     let mut values = Vec::new();
-    while c.i < data.len() {
-        let (field, _, payload, v) = c.field()?;
-        match field {
-            2 => step = v as i64,
-            5 => {
-                let mut s = Cursor { b: &payload, i: 0 };
-                while s.i < payload.len() {
-                    let (f, _, value, _) = s.field()?;
-                    if f != 1 {
-                        continue;
-                    }
-                    let (mut tag, mut x) = (String::new(), f32::NAN);
-                    let mut vc = Cursor { b: &value, i: 0 };
-                    while vc.i < value.len() {
-                        let (vf, _, p, _) = vc.field()?;
-                        match vf {
-                            1 => tag = String::from_utf8(p).map_err(|_| "tag is not UTF-8")?,
-                            2 => x = f32::from_le_bytes(p.try_into().map_err(|_| "bad float")?),
-                            _ => {}
-                        }
-                    }
-                    values.push((tag, x));
-                }
-            }
+    while !c.at_end() {
+        let field = c.field()?;
+        match field.number {
+            2 => step = field.varint as i64,
+            5 => decode_summary(&field.payload, &mut values)?,
             _ => {}
         }
     }
-    out.extend(values.into_iter().map(|(t, x)| (step, t, x)));
+    out.extend(values.into_iter().map(|v| Scalar { step, ..v }));
     Ok(())
+}
+
+/// The `value` entries of a `Summary` (their step is the event's, filled in by the caller).
+fn decode_summary(summary: &[u8], values: &mut Vec<Scalar>) -> Result<(), String> {
+    let mut c = Cursor { b: summary, i: 0 };
+    while !c.at_end() {
+        let field = c.field()?;
+        if field.number == 1 {
+            values.push(decode_value(&field.payload)?);
+        }
+    }
+    Ok(())
+}
+
+/// One `Summary.Value{tag, simple_value}`.
+fn decode_value(value: &[u8]) -> Result<Scalar, String> {
+    let mut scalar = Scalar { step: 0, tag: String::new(), value: f32::NAN };
+    let mut c = Cursor { b: value, i: 0 };
+    while !c.at_end() {
+        let field = c.field()?;
+        match field.number {
+            1 => scalar.tag = String::from_utf8(field.payload).map_err(|_| "tag is not UTF-8")?,
+            2 => scalar.value = f32::from_le_bytes(field.payload.try_into().map_err(|_| "bad float")?),
+            _ => {}
+        }
+    }
+    Ok(scalar)
 }
 
 #[cfg(test)]
@@ -232,7 +263,7 @@ mod tests {
         w.flush().unwrap();
         let got = read_scalars(w.path()).unwrap();
         assert_eq!(got.len(), 600);
-        assert_eq!(got[2 * 299], (299, "train/loss".to_string(), (1.0f64 / 300.0) as f32));
+        assert_eq!(got[2 * 299], Scalar { step: 299, tag: "train/loss".to_string(), value: (1.0f64 / 300.0) as f32 });
         // A flipped byte is caught.
         let mut bytes = std::fs::read(w.path()).unwrap();
         let n = bytes.len();

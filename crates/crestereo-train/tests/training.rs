@@ -136,14 +136,14 @@ fn resumed_run_matches_a_straight_run_exactly() {
     assert_eq!(log(straight.path()), log(split.path()));
     assert_eq!(log(straight.path()).len(), 21);
     // Checkpoints every 5 steps, the newest 2 kept, no temp directories left.
-    let kept: Vec<u64> = list_checkpoints(straight.path()).unwrap().into_iter().map(|c| c.0).collect();
+    let kept: Vec<u64> = list_checkpoints(straight.path()).unwrap().into_iter().map(|c| c.step).collect();
     assert_eq!(kept, [15, 20]);
     let names: Vec<String> = std::fs::read_dir(straight.path().join("checkpoints")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
     assert_eq!(names.len(), 2, "{names:?}");
     // TensorBoard events were written for every step.
     let tb = std::fs::read_dir(straight.path().join("tensorboard")).unwrap().next().unwrap().unwrap().path();
     let scalars = crestereo_train::tensorboard::read_scalars(&tb).unwrap();
-    assert_eq!(scalars.iter().filter(|s| s.1 == "train/loss").count(), 20);
+    assert_eq!(scalars.iter().filter(|s| s.tag == "train/loss").count(), 20);
 }
 
 #[test]

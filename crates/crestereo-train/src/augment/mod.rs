@@ -9,9 +9,10 @@
 //! 5. [`crop_image`] / [`crop_disparity`] to the training size, zero-padded when too small,
 //! 6. [`occlude_right`]: a box of the right image's mean colour (probability `occlusion_prob`).
 //!
-//! Every random number is drawn up front by [`AugmentParams::draw`], always the same count in
-//! the same order, so a training sample is a pure function of (sample, config, seed) and the
-//! units can be tested with hand-made parameters.
+//! Every random number is drawn up front by [`AugmentParams::draw`], each augmentation from its
+//! own named stream of the sample's seed ([`SampleStreams`]), so a training sample is a pure
+//! function of (sample, config, seed), adding or retuning one augmentation leaves the others'
+//! draws as they were, and the units can be tested with hand-made parameters.
 //!
 //! Images travel as [`BgrImage`]: f32 planes in B, G, R order, because that is what the
 //! network was trained on (the reference reads with OpenCV) and what [`TrainSample`] carries.
@@ -27,7 +28,7 @@
 //!   real R, G, B weights (the reference hands OpenCV's BGR array to PIL as if it were RGB).
 //! - The rotation centre is drawn uniformly over the image with x from the width and y from the
 //!   height (the reference draws them from swapped axes).
-//! - Every draw comes from the one seeded rng (the reference draws the photometric factors from
+//! - Every draw comes from the sample's seed (the reference draws the photometric factors from
 //!   NumPy's global generator, so they were not reproducible from its seed).
 
 mod config;
@@ -36,22 +37,23 @@ mod occlusion;
 mod params;
 mod photometric;
 mod rescale;
+mod streams;
 mod swap;
 #[cfg(test)]
 mod test_support;
 mod warp;
 
-use rand::Rng;
 pub use crestereo::io::BgrImage;
 use stereo_io::StereoSample;
 
 pub use config::AugmentConfig;
 pub use crop::{crop_disparity, crop_image, crop_offset};
 pub use occlusion::{OcclusionBox, occlude_right};
-pub use params::AugmentParams;
+pub use params::{AugmentParams, stream};
 pub use photometric::{Photometric, photometric};
 pub use rescale::{rescale_disparity, rescale_image, scaled_size};
-pub use swap::{mirror_disparity, mirror_image, swap_and_mirror};
+pub use streams::SampleStreams;
+pub use swap::{Swapped, mirror_disparity, mirror_image, swap_and_mirror};
 pub use warp::{RightWarp, warp_right};
 
 /// A sample ready for the network: planar CHW, **BGR** channel order (the model's input
@@ -144,7 +146,7 @@ pub fn augment(sample: &StereoSample, cfg: &AugmentConfig, params: &AugmentParam
     let disp = match (&sample.disp_right, params.swap) {
         (Some(disp_right), true) => {
             let swapped = swap_and_mirror(&left, &right, disp_right);
-            (left, right, swapped_disp) = swapped;
+            (left, right, swapped_disp) = (swapped.left, swapped.right, swapped.disp);
             &swapped_disp
         }
         _ => &sample.disp_left,
@@ -172,13 +174,9 @@ pub fn augment(sample: &StereoSample, cfg: &AugmentConfig, params: &AugmentParam
     into_train_sample(left, right, &disp.data, &disp.valid)
 }
 
-/// Draws parameters from `rng` and applies them.
-pub fn augment_random(
-    sample: &StereoSample,
-    cfg: &AugmentConfig,
-    rng: &mut impl Rng,
-) -> TrainSample {
-    let params = AugmentParams::draw(cfg, rng);
+/// Draws parameters from the streams of `seed` and applies them.
+pub fn augment_random(sample: &StereoSample, cfg: &AugmentConfig, seed: u64) -> TrainSample {
+    let params = AugmentParams::draw(cfg, &SampleStreams::for_sample(seed));
     augment(sample, cfg, &params)
 }
 
@@ -206,8 +204,6 @@ pub fn to_train_sample(sample: &StereoSample) -> TrainSample {
 
 #[cfg(test)]
 mod tests {
-    use rand::SeedableRng;
-    use rand_chacha::ChaCha8Rng;
     use stereo_io::SampleMeta;
 
     use super::test_support::*;
@@ -296,8 +292,7 @@ mod tests {
         assert_ne!(s.left, plain.left);
         assert_eq!(s.right, plain.right);
 
-        let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let drawn = AugmentParams::draw(&AugmentConfig::default(), &mut rng);
+        let drawn = AugmentParams::draw(&AugmentConfig::default(), &SampleStreams::for_sample(3));
         assert_ne!(drawn.left_photometric, drawn.right_photometric);
     }
 
@@ -363,9 +358,9 @@ mod tests {
             occlusion_half_size: [3.0, 8.0],
             ..AugmentConfig::default()
         };
-        let a = augment_random(&scene, &cfg, &mut ChaCha8Rng::seed_from_u64(5));
-        let b = augment_random(&scene, &cfg, &mut ChaCha8Rng::seed_from_u64(5));
-        let c = augment_random(&scene, &cfg, &mut ChaCha8Rng::seed_from_u64(6));
+        let a = augment_random(&scene, &cfg, 5);
+        let b = augment_random(&scene, &cfg, 5);
+        let c = augment_random(&scene, &cfg, 6);
         assert_eq!(a, b);
         assert_ne!(a, c);
     }
@@ -374,7 +369,7 @@ mod tests {
     fn augment_with_the_default_crop_pads_a_small_image() {
         let scene = two_plane_scene(W, H);
         let cfg = AugmentConfig::default();
-        let s = augment_random(&scene, &cfg, &mut ChaCha8Rng::seed_from_u64(2));
+        let s = augment_random(&scene, &cfg, 2);
         assert_eq!((s.height, s.width), (384, 512));
         assert_eq!(
             (s.left.len(), s.right.len(), s.disp.len(), s.valid.len()),

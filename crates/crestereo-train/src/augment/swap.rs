@@ -25,8 +25,18 @@ pub fn mirror_disparity(disp: &DisparityMap) -> DisparityMap {
     out
 }
 
-/// Makes the right view the left one: returns (mirrored right, mirrored left, mirrored
-/// right-view disparity).
+/// A pair after [`swap_and_mirror`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Swapped {
+    /// The mirrored right image.
+    pub left: BgrImage,
+    /// The mirrored left image.
+    pub right: BgrImage,
+    /// The mirrored right-view disparity: the new left view's.
+    pub disp: DisparityMap,
+}
+
+/// Makes the right view the left one.
 ///
 /// Mirroring is what keeps disparities positive: a right-view pixel at `x_r` sees its match at
 /// `x_r + d` in the left image; after mirroring both, the new left pixel `W−1−x_r` finds it at
@@ -36,12 +46,12 @@ pub fn swap_and_mirror(
     left: &BgrImage,
     right: &BgrImage,
     disp_right: &DisparityMap,
-) -> (BgrImage, BgrImage, DisparityMap) {
-    (
-        mirror_image(right),
-        mirror_image(left),
-        mirror_disparity(disp_right),
-    )
+) -> Swapped {
+    Swapped {
+        left: mirror_image(right),
+        right: mirror_image(left),
+        disp: mirror_disparity(disp_right),
+    }
 }
 
 #[cfg(test)]
@@ -54,7 +64,11 @@ mod tests {
         let scene = two_plane_scene(W, H);
         let (left, right) = (BgrImage::from_rgb(&scene.left), BgrImage::from_rgb(&scene.right));
         let disp_right = scene.disp_right.as_ref().unwrap();
-        let (new_left, new_right, new_disp) = swap_and_mirror(&left, &right, disp_right);
+        let Swapped {
+            left: new_left,
+            right: new_right,
+            disp: new_disp,
+        } = swap_and_mirror(&left, &right, disp_right);
         assert_eq!(at(&new_left, 2, 0, 3), at(&right, 2, W - 1, 3));
         assert_eq!(new_disp.valid, mirror_disparity(disp_right).valid);
         let swapped = train_sample_of(new_left, new_right, new_disp);

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use burn::prelude::*;
-use crestereo::CREStereoConfig;
+use crestereo::{CREStereo, CREStereoConfig};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::checkpoint::weights_file;
@@ -45,35 +45,49 @@ pub struct EvalArgs {
     pub csv: Option<PathBuf>,
 }
 
-pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
-    let dataset = crate::data::open_data(&a.data, a.format.as_deref(), "--data")?;
-    let (model, weights) = match (&a.weights, a.untrained_seed) {
+/// The network to evaluate and how the report names its weights.
+struct Evaluated<B: Backend> {
+    model: CREStereo<B>,
+    weights: String,
+}
+
+fn load_model<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<Evaluated<B>> {
+    Ok(match (&a.weights, a.untrained_seed) {
         (Some(w), _) => {
             let file = weights_file(w)?;
             let model = crestereo::weights::load_weights(CREStereoConfig::new().init::<B>(device), &file, device)?;
-            (model, file.display().to_string())
+            Evaluated { model, weights: file.display().to_string() }
         }
         (None, Some(seed)) => {
-            (crate::train::seeded_model::<B>(seed, device), format!("untrained (seed {seed})"))
+            Evaluated { model: crate::train::seeded_model::<B>(seed, device), weights: format!("untrained (seed {seed})") }
         }
         (None, None) => bail!("no weights: pass --weights FILE|CHECKPOINT|RUN (or --untrained-seed N for a baseline)"),
-    };
+    })
+}
+
+fn options(a: &EvalArgs) -> Result<EvalOptions> {
     if let Some(dir) = &a.fg_masks
         && !dir.is_dir()
     {
         bail!("--fg-masks {}: not a directory", dir.display());
     }
-    let opts = EvalOptions {
+    Ok(EvalOptions {
         iters: a.iters,
         stages: usize::from(a.stages),
         limit: a.limit,
         fg_masks: a.fg_masks.clone(),
         boundary_px: a.boundary,
         ..EvalOptions::default()
-    };
+    })
+}
+
+pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
+    let dataset = crate::data::open_data(&a.data, a.format.as_deref(), "--data")?;
+    let evaluated = load_model::<B>(a, device)?;
+    let opts = options(a)?;
     let bar = ProgressBar::new(0);
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-    let report = evaluate(&model, dataset.as_ref(), &weights, &opts, device, |i, n, r| {
+    let report = evaluate(&evaluated.model, dataset.as_ref(), &evaluated.weights, &opts, device, |i, n, r| {
         bar.set_length(n as u64);
         bar.set_position(i as u64);
         if let Some(m) = r.all {

@@ -160,33 +160,36 @@ fn run(cli: Cli) -> Result<()> {
             eprintln!("wrote {count} pairs of {w}x{h} to {}", out.display());
             Ok(())
         }
-        Command::Bench { what, threads, train_size, infer_size } => {
-            set_threads(threads);
-            let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
-            let is = infer_size.unwrap_or_else(|| vec![480, 640]);
-            if ts.len() != 4 || is.len() != 2 {
-                bail!("--train-size takes batch,height,width,iters and --infer-size height,width");
-            }
-            match what {
-                BenchWhat::Train => bench::bench_train(ts[0], ts[1], ts[2], ts[3]),
-                BenchWhat::Infer => bench::bench_infer(is[0], is[1]),
-                BenchWhat::All => {
-                    // Separate processes, so each peak RSS is its own.
-                    let exe = std::env::current_exe()?;
-                    let ts: Vec<String> = ts.iter().map(|v| v.to_string()).collect();
-                    let is: Vec<String> = is.iter().map(|v| v.to_string()).collect();
-                    for w in ["train", "infer"] {
-                        let status = std::process::Command::new(&exe)
-                            .args(["bench", "--what", w, "--threads", &threads.to_string()])
-                            .args(["--train-size", &ts.join(","), "--infer-size", &is.join(",")])
-                            .status()?;
-                        if !status.success() {
-                            bail!("bench {w} failed");
-                        }
-                    }
-                    Ok(())
+        Command::Bench { what, threads, train_size, infer_size } => run_bench(what, threads, train_size, infer_size),
+    }
+}
+
+/// `crestereo bench`: one part in this process, or both in child processes.
+fn run_bench(what: BenchWhat, threads: usize, train_size: Option<Vec<usize>>, infer_size: Option<Vec<usize>>) -> Result<()> {
+    set_threads(threads);
+    let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
+    let is = infer_size.unwrap_or_else(|| vec![480, 640]);
+    if ts.len() != 4 || is.len() != 2 {
+        bail!("--train-size takes batch,height,width,iters and --infer-size height,width");
+    }
+    match what {
+        BenchWhat::Train => bench::bench_train(ts[0], ts[1], ts[2], ts[3]),
+        BenchWhat::Infer => bench::bench_infer(is[0], is[1]),
+        BenchWhat::All => {
+            // Separate processes, so each peak RSS is its own.
+            let exe = std::env::current_exe()?;
+            let ts: Vec<String> = ts.iter().map(|v| v.to_string()).collect();
+            let is: Vec<String> = is.iter().map(|v| v.to_string()).collect();
+            for w in ["train", "infer"] {
+                let status = std::process::Command::new(&exe)
+                    .args(["bench", "--what", w, "--threads", &threads.to_string()])
+                    .args(["--train-size", &ts.join(","), "--infer-size", &is.join(",")])
+                    .status()?;
+                if !status.success() {
+                    bail!("bench {w} failed");
                 }
             }
+            Ok(())
         }
     }
 }

@@ -101,6 +101,17 @@ pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
     if !a.data.is_empty() {
         cfg.datasets = a.data.iter().map(|s| parse_data(s)).collect::<Result<_>>()?;
     }
+    apply_validation_flags(&mut cfg, a)?;
+    apply_recipe_flags(&mut cfg, a)?;
+    if a.steps.is_some() && a.config.is_none() && a.decay_start.is_none() && cfg.schedule.decay_start > cfg.steps {
+        scale_schedule(&mut cfg, a.warmup_steps);
+    }
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// `--val`, `--val-every`, `--val-limit`.
+fn apply_validation_flags(cfg: &mut TrainConfig, a: &TrainArgs) -> Result<()> {
     if let Some(v) = &a.val {
         let path = std::path::absolute(v)?;
         cfg.validation = Some(match cfg.validation.take() {
@@ -118,6 +129,11 @@ pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
     } else if a.val_every.is_some() || a.val_limit.is_some() {
         bail!("--val-every / --val-limit need validation data (--val DIR or [validation] in the config)");
     }
+    Ok(())
+}
+
+/// The flags that override single config values.
+fn apply_recipe_flags(cfg: &mut TrainConfig, a: &TrainArgs) -> Result<()> {
     macro_rules! set {
         ($field:expr, $flag:expr) => {
             if let Some(v) = $flag {
@@ -143,20 +159,20 @@ pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
     if let Some(w) = &a.init_weights {
         cfg.init_weights = Some(std::path::absolute(w)?);
     }
-    // A shortened run keeps the paper's phases in proportion rather than failing validation.
-    if a.steps.is_some() && a.config.is_none() && a.decay_start.is_none() && cfg.schedule.decay_start > cfg.steps {
-        let s = cfg.steps as f64;
-        cfg.schedule.warmup_steps = a.warmup_steps.unwrap_or((s * 0.02).round() as u64);
-        cfg.schedule.decay_start = (s * 0.6).round() as u64;
-        tracing::info!(
-            "schedule scaled to {} steps: warm-up {}, decay from {} (the paper's 6k/180k of 300k)",
-            cfg.steps,
-            cfg.schedule.warmup_steps,
-            cfg.schedule.decay_start
-        );
-    }
-    cfg.validate()?;
-    Ok(cfg)
+    Ok(())
+}
+
+/// A shortened run keeps the paper's phases in proportion rather than failing validation.
+fn scale_schedule(cfg: &mut TrainConfig, warmup_flag: Option<u64>) {
+    let s = cfg.steps as f64;
+    cfg.schedule.warmup_steps = warmup_flag.unwrap_or((s * 0.02).round() as u64);
+    cfg.schedule.decay_start = (s * 0.6).round() as u64;
+    tracing::info!(
+        "schedule scaled to {} steps: warm-up {}, decay from {} (the paper's 6k/180k of 300k)",
+        cfg.steps,
+        cfg.schedule.warmup_steps,
+        cfg.schedule.decay_start
+    );
 }
 
 pub fn run<B: AutodiffBackend>(a: &TrainArgs, device: &B::Device) -> Result<()> {
