@@ -83,7 +83,7 @@ fn scenes(out: &Path) -> Vec<SceneSpec> {
     Manifest::read(&out.join("manifest.jsonl"))
         .unwrap()
         .iter()
-        .map(|e| SceneSpec::from_json(&std::fs::read_to_string(out.join(&e.files.scene)).unwrap()).unwrap())
+        .map(|e| stereogen::dataset::read_scene_spec(&out.join(&e.files.scene)).unwrap())
         .collect()
 }
 

@@ -8,7 +8,7 @@ use std::process::{Command, Output, Stdio};
 
 use serde_json::Value;
 use stereogen::dataset::{DatasetInfo, Manifest};
-use stereogen::plan::{Dist, SceneSpec};
+use stereogen::plan::Dist;
 use stereogen_e2e::stereogen_bin;
 
 const SCENES: u64 = 24;
@@ -44,7 +44,7 @@ fn stats_check_passes_on_a_generated_mixed_dataset_and_fails_when_the_law_is_mis
     let mut valid_values: Vec<f64> = Vec::new();
     let mut pixels = 0u64;
     for e in &entries {
-        let spec = SceneSpec::from_json(&std::fs::read_to_string(data.join(&e.files.scene)).unwrap()).unwrap();
+        let spec = stereogen::dataset::read_scene_spec(&data.join(&e.files.scene)).unwrap();
         targets.extend(spec.target_disparities());
         for rel in [&e.files.disp_left, &e.files.disp_right] {
             let (m, _) = stereo_io::read_disparity_exr(&data.join(rel)).unwrap();

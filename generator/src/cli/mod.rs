@@ -7,13 +7,13 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::Context;
+
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand};
 use stereogen::assets::{index_sources, stereogen_home};
 use stereogen::dataset::{DatasetLayout, finalize_sample};
 use stereogen::plan::recipe::DEFAULT_PRESET;
-use stereogen::plan::{Recipe, SceneSpec, plan_scene};
+use stereogen::plan::{Recipe, plan_scene};
 use stereogen::render::{Device, RenderService, Worker, WorkerOptions};
 
 #[derive(Debug, Parser)]
@@ -251,8 +251,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
         Command::Render { spec, out, runtime } => {
-            let text = std::fs::read_to_string(&spec).with_context(|| format!("cannot read {}", spec.display()))?;
-            let spec = SceneSpec::from_json(&text).with_context(|| format!("{} is not a SceneSpec", spec.display()))?;
+            let spec = stereogen::dataset::read_scene_spec(&spec)?;
             let mut service = RenderService::new(runtime.worker_options().resolve(1)?);
             let t0 = std::time::Instant::now();
             let rendered = service.render(&spec, |_| None)?;

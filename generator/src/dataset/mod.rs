@@ -5,8 +5,10 @@ pub mod generate;
 pub mod layout;
 pub mod manifest;
 pub mod sample;
+pub mod scene_file;
 
 pub use generate::{GenerateOptions, GenerateSummary, generate};
 pub use layout::{CreateDataset, DatasetInfo, DatasetLayout, SamplePaths};
 pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
 pub use sample::finalize_sample;
+pub use scene_file::{read_scene_spec, write_scene_spec};

@@ -61,7 +61,7 @@ pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &Rendere
     write_canonical_png(&files.left_png, &layout.abs(&paths.left), spec)?;
     write_canonical_png(&files.right_png, &layout.abs(&paths.right), spec)?;
     let scene_path = layout.abs(&paths.scene);
-    stereo_io::write_bytes_atomically(&scene_path, spec.to_json().as_bytes()).with_context(|| format!("cannot write {}", scene_path.display()))?;
+    super::scene_file::write_scene_spec(&scene_path, spec)?;
 
     let mut sha256 = BTreeMap::new();
     for (key, rel) in paths.all() {

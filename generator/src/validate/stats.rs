@@ -12,7 +12,7 @@ use super::accumulate::{Binning, PixelAcc};
 use super::hist::{MAX_GAP_BINS, equal_mass_edges, gap_bins_for};
 use super::report::{CategoryStats, ObjectStats, PixelStats, StatsReport, Status};
 use crate::dataset::{DatasetInfo, DatasetLayout, ManifestEntry, read_manifest};
-use crate::plan::{Dist, SceneSpec};
+use crate::plan::Dist;
 
 /// Default number of bins of the pixel-level histogram over the law's support (stats.json, plots).
 pub const DEFAULT_BINS: usize = 64;
@@ -114,8 +114,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         .par_iter()
         .map(|e| {
             let path = root.join(&e.files.scene);
-            let text = std::fs::read_to_string(&path).map_err(|err| format!("{}: cannot read: {err}", path.display()))?;
-            let spec = SceneSpec::from_json(&text).map_err(|err| format!("{}: not a SceneSpec: {err}", path.display()))?;
+            let spec = crate::dataset::read_scene_spec(&path).map_err(|err| format!("{err:#}"))?;
             Ok((cat_of(&e.category), spec.target_disparities().collect()))
         })
         .collect();
