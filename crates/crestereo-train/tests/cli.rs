@@ -7,7 +7,6 @@ mod common;
 use std::process::Command;
 
 use common::*;
-use crestereo::io::read_exr;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_crestereo"))

@@ -112,48 +112,10 @@ pub fn bilinear_sample_points<B: Backend>(
         ],
         0,
     );
-    let zero_row = (n * h * w) as i64;
-    let xs: Vec<f32> = x
-        .clone()
-        .detach()
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .expect("x coords");
-    let ys: Vec<f32> = y
-        .clone()
-        .detach()
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .expect("y coords");
     let np = n * p;
-    let mut x0f = vec![0f32; np];
-    let mut y0f = vec![0f32; np];
-    let mut idx = vec![0i64; 4 * np];
-    for b in 0..n {
-        for q in 0..p {
-            let i = b * p + q;
-            let fx = xs[i].floor();
-            let fy = ys[i].floor();
-            x0f[i] = fx;
-            y0f[i] = fy;
-            let base = (b * h * w) as i64;
-            let at = |xx: f32, yy: f32| -> i64 {
-                if xx >= 0.0 && yy >= 0.0 && xx <= (w - 1) as f32 && yy <= (h - 1) as f32 {
-                    base + yy as i64 * w as i64 + xx as i64
-                } else {
-                    zero_row
-                }
-            };
-            idx[i] = at(fx, fy);
-            idx[np + i] = at(fx + 1.0, fy);
-            idx[2 * np + i] = at(fx, fy + 1.0);
-            idx[3 * np + i] = at(fx + 1.0, fy + 1.0);
-        }
-    }
-    let x0 = Tensor::<B, 2>::from_data(TensorData::new(x0f, [n, p]), &device);
-    let y0 = Tensor::<B, 2>::from_data(TensorData::new(y0f, [n, p]), &device);
+    let corners = Corners::locate(&host_values(&x), &host_values(&y), [n, p], [h, w]);
+    let x0 = Tensor::<B, 2>::from_data(TensorData::new(corners.x0, [n, p]), &device);
+    let y0 = Tensor::<B, 2>::from_data(TensorData::new(corners.y0, [n, p]), &device);
     let wx1 = x - x0; // fractional parts (carry the coordinate gradient)
     let wy1 = y - y0;
     let wx0 = wx1.clone().neg().add_scalar(1.0);
@@ -168,9 +130,58 @@ pub fn bilinear_sample_points<B: Backend>(
         0,
     ) // 4 n p
     .reshape([4, np, 1]);
-    let idx = Tensor::<B, 1, Int>::from_data(TensorData::new(idx, [4 * np]), &device);
-    let corners = table.select(0, idx).reshape([4, np, c]);
-    (corners * weights).sum_dim(0).reshape([n, p, c])
+    let idx = Tensor::<B, 1, Int>::from_data(TensorData::new(corners.rows, [4 * np]), &device);
+    let selected = table.select(0, idx).reshape([4, np, c]);
+    (selected * weights).sum_dim(0).reshape([n, p, c])
+}
+
+/// A coordinate tensor's values on the host. Only the fractional weights carry the gradient,
+/// so the integer corners are computed from detached values.
+fn host_values<B: Backend>(t: &Tensor<B, 2>) -> Vec<f32> {
+    t.clone()
+        .detach()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .expect("coordinates")
+}
+
+/// The four corners of every sampling point.
+struct Corners {
+    /// floor(x), floor(y) per point (N·P).
+    x0: Vec<f32>,
+    y0: Vec<f32>,
+    /// Table rows of the (x0, y0), (x0+1, y0), (x0, y0+1), (x0+1, y0+1) corners, corner-major
+    /// (4·N·P); a corner outside the image points at the zero row `N·H·W`.
+    rows: Vec<i64>,
+}
+
+impl Corners {
+    fn locate(xs: &[f32], ys: &[f32], [n, p]: [usize; 2], [h, w]: [usize; 2]) -> Self {
+        let np = n * p;
+        let zero_row = (n * h * w) as i64;
+        let mut out = Corners { x0: vec![0f32; np], y0: vec![0f32; np], rows: vec![0i64; 4 * np] };
+        for b in 0..n {
+            let base = (b * h * w) as i64;
+            let row = |xx: f32, yy: f32| -> i64 {
+                if xx >= 0.0 && yy >= 0.0 && xx <= (w - 1) as f32 && yy <= (h - 1) as f32 {
+                    base + yy as i64 * w as i64 + xx as i64
+                } else {
+                    zero_row
+                }
+            };
+            for i in b * p..(b + 1) * p {
+                let (fx, fy) = (xs[i].floor(), ys[i].floor());
+                out.x0[i] = fx;
+                out.y0[i] = fy;
+                out.rows[i] = row(fx, fy);
+                out.rows[np + i] = row(fx + 1.0, fy);
+                out.rows[2 * np + i] = row(fx, fy + 1.0);
+                out.rows[3 * np + i] = row(fx + 1.0, fy + 1.0);
+            }
+        }
+        out
+    }
 }
 
 /// Pixel grid (x, y) of size (H, W) as two (1, 1, H, W) tensors.

@@ -3,8 +3,9 @@
 use anyhow::{Result, bail};
 use burn::prelude::*;
 use burn::tensor::ops::PadMode;
+use stereo_io::DisparityMap;
 
-use crate::io::BgrImage;
+use crate::input::BgrImage;
 use crate::model::CREStereo;
 use crate::upsample::resize_bilinear_align_corners;
 
@@ -25,22 +26,6 @@ impl Default for InferenceOptions {
             stages: 2,
         }
     }
-}
-
-/// A float32 disparity map (positive values, row-major).
-#[derive(Debug, Clone)]
-pub struct Disparity {
-    pub width: usize,
-    pub height: usize,
-    pub data: Vec<f32>,
-}
-
-/// Image tensor (1, 3, H, W) from a BGR image.
-pub fn image_tensor<B: Backend>(img: &BgrImage, device: &B::Device) -> Tensor<B, 4> {
-    Tensor::from_data(
-        TensorData::new(img.data.clone(), [1, 3, img.height, img.width]),
-        device,
-    )
 }
 
 /// The stacked-cascade procedure on (N, 3, H, W) BGR tensors whose size is a multiple of
@@ -75,14 +60,14 @@ pub fn cascade<B: Backend>(
 
 /// Runs the network on an image pair of any size: pads (edge replicate, bottom/right) to a
 /// multiple of `16 · 2^(stages−1)` (32 for the reference two-stage procedure), runs
-/// [`cascade`] and crops back.
+/// [`cascade`] and crops back. Channel 0 of the prediction is the left view's disparity.
 pub fn infer_disparity<B: Backend>(
     model: &CREStereo<B>,
     left: &BgrImage,
     right: &BgrImage,
     opts: InferenceOptions,
     device: &B::Device,
-) -> Result<Disparity> {
+) -> Result<DisparityMap> {
     if (left.width, left.height) != (right.width, right.height) {
         bail!(
             "left and right images differ in size: {}x{} vs {}x{}",
@@ -108,8 +93,8 @@ pub fn infer_disparity<B: Backend>(
             t.pad((0, pw - w, 0, ph - h), PadMode::Edge)
         }
     };
-    let l = pad(image_tensor::<B>(left, device));
-    let r = pad(image_tensor::<B>(right, device));
+    let l = pad(left.to_tensor::<B>(device));
+    let r = pad(right.to_tensor::<B>(device));
     let pred = cascade(model, l, r, opts);
     let disp = pred.slice([0..1, 0..1, 0..h, 0..w]).reshape([h * w]);
     let data: Vec<f32> = disp
@@ -117,9 +102,11 @@ pub fn infer_disparity<B: Backend>(
         .convert::<f32>()
         .into_vec()
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    Ok(Disparity {
-        width: w,
-        height: h,
-        data,
-    })
+    Ok(prediction_map(w, h, data))
+}
+
+/// A prediction as a disparity map: the network gives every pixel a value, so every pixel is
+/// valid. Values are kept as they are (a diverged network's NaN stays visible in metrics).
+fn prediction_map(width: usize, height: usize, data: Vec<f32>) -> DisparityMap {
+    DisparityMap { width, height, valid: vec![true; data.len()], data }
 }

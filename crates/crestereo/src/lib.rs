@@ -7,35 +7,40 @@
 //! interpolation weights, zero padding in the bilinear sampler, LayerNorm eps 1e-5, bias-free
 //! attention projections, LoFTR's positional-encoding quirk).
 //!
-//! Tensors are NCHW float32. Images enter as **BGR** values in 0..255.
+//! Tensors are NCHW float32. Images enter as [`BgrImage`]: **BGR** values in 0..255, made from
+//! 8-bit RGB decoded by `stereo-io` (the one image path, see [`input`]). This crate holds the
+//! network only; files are read and written by `stereo-io`.
 //!
 //! ```no_run
-//! use crestereo::{CREStereoConfig, CpuBackend, InferenceOptions, infer_disparity};
-//! use crestereo::io::read_bgr;
+//! use std::path::Path;
+//! use crestereo::{BgrImage, CREStereoConfig, CpuBackend, InferenceOptions, infer_disparity};
 //! # fn main() -> anyhow::Result<()> {
 //! let device = Default::default();
 //! let mut model = CREStereoConfig::new().init::<CpuBackend>(&device);
 //! let report = crestereo::weights::load_pytorch(&mut model, "weights.pt", false)?; // applied/missing/unused
-//! let (left, right) = (read_bgr("left.png")?, read_bgr("right.png")?);
+//! let read = |p: &str| stereo_io::read_rgb(Path::new(p)).map(|rgb| BgrImage::from_rgb(&rgb));
+//! let (left, right) = (read("left.png")?, read("right.png")?);
 //! let disp = infer_disparity(&model, &left, &right, InferenceOptions { iters: 20, stages: 2 }, &device)?;
-//! crestereo::io::write_exr("disp.exr", disp.width, disp.height, &disp.data)?;
+//! stereo_io::write_disparity(Path::new("disp.exr"), &disp, &Default::default(), None)?;
 //! # Ok(()) }
 //! ```
 //!
 //! Training: `model.forward(left, right, iters, None)` returns the `2·iters` full-resolution
 //! predictions (N, 2, H, W), channel 0 = disparity; [`sequence_loss`] is the reference loss.
+//! [`CREStereo::forward_observed`] shows the intermediates to a [`ForwardObserver`].
 
 pub mod attention;
 pub mod corr;
 pub mod encoder;
 pub mod gru;
 pub mod infer;
-pub mod io;
+pub mod input;
 pub mod loss;
 pub mod model;
 pub mod motion_encoder;
-pub mod npy;
+pub mod observer;
 pub mod position_encoding;
+pub mod refine;
 pub mod update;
 pub mod upsample;
 pub mod weights;
@@ -47,10 +52,13 @@ pub use corr::{AdaptiveGroupCorrelation, AdaptiveGroupCorrelationConfig, SearchW
 pub use encoder::{BasicEncoder, BasicEncoderConfig, ResidualBlock, ResidualBlockConfig};
 pub use gru::{SepConvGru, SepConvGruConfig};
 pub use infer::{InferenceOptions, infer_disparity};
+pub use input::BgrImage;
 pub use loss::sequence_loss;
-pub use model::{CREStereo, CREStereoConfig, Trace};
+pub use model::{CREStereo, CREStereoConfig};
 pub use motion_encoder::{BasicMotionEncoder, BasicMotionEncoderConfig};
+pub use observer::{ForwardObserver, IterationOutputs, NoObserver};
 pub use position_encoding::{PositionEncodingSine, PositionEncodingSineConfig};
+pub use refine::Level;
 pub use update::{UpdateBlock, UpdateBlockConfig};
 pub use upsample::{convex_upsample, resize_bilinear_align_corners};
 
@@ -58,3 +66,10 @@ pub use upsample::{convex_upsample, resize_bilinear_align_corners};
 pub type CpuBackend = burn::backend::Flex;
 /// The CPU backend with autodiff (training).
 pub type CpuAutodiffBackend = burn::backend::Autodiff<burn::backend::Flex>;
+
+/// Transitional, not part of the API: the old path of [`BgrImage`] that `crestereo-train`'s
+/// `eval.rs` and `augment/mod.rs` still import; delete once they import `crestereo::BgrImage`.
+#[doc(hidden)]
+pub mod io {
+    pub use crate::input::BgrImage;
+}

@@ -1,5 +1,6 @@
 //! The CREStereo network: encoder, 1/16 attention, AGCL, shared update block and the
-//! three-level cascade (1/16 → 1/8 → 1/4) with the reference's exact hand-over.
+//! three-level cascade (1/16 → 1/8 → 1/4) with the reference's exact hand-over
+//! (the levels themselves are in [`crate::refine`]).
 
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
@@ -7,11 +8,12 @@ use burn::tensor::activation::{relu, sigmoid, tanh};
 use burn::tensor::module::avg_pool2d;
 
 use crate::attention::{LoFTREncoderLayer, LoFTREncoderLayerConfig, from_tokens, to_tokens};
-use crate::corr::{AdaptiveGroupCorrelationConfig, SearchWindow};
+use crate::corr::AdaptiveGroupCorrelationConfig;
 use crate::encoder::{BasicEncoder, BasicEncoderConfig, conv_cfg};
+use crate::observer::{ForwardObserver, NoObserver};
 use crate::position_encoding::{PositionEncodingSine, PositionEncodingSineConfig};
+use crate::refine::{Level, LevelInputs, Lookup, hand_over};
 use crate::update::{UpdateBlock, UpdateBlockConfig};
-use crate::upsample::{convex_upsample, resize_bilinear_align_corners};
 
 #[derive(Config, Debug)]
 pub struct CREStereoConfig {
@@ -95,65 +97,18 @@ impl CREStereoConfig {
     }
 }
 
-/// Optional record of every intermediate of one forward pass (for parity tests and debugging).
-#[derive(Debug)]
-pub struct Trace<B: Backend> {
-    pub fmap1: Option<Tensor<B, 4>>,
-    pub fmap2: Option<Tensor<B, 4>>,
-    /// Positional encoding table (d_model, H/16, W/16).
-    pub pos_encoding: Option<Tensor<B, 3>>,
-    pub selfatt_left_tokens: Option<Tensor<B, 3>>,
-    pub selfatt_right_tokens: Option<Tensor<B, 3>>,
-    /// Output tokens of the first cross-attention call (1/16, iteration 0).
-    pub crossatt_left_tokens_call0: Option<Tensor<B, 3>>,
-    pub crossatt_right_tokens_call0: Option<Tensor<B, 3>>,
-    pub conv_offset_16_raw: Option<Tensor<B, 4>>,
-    pub conv_offset_8_raw: Option<Tensor<B, 4>>,
-    /// Every correlation call, in order.
-    pub corr: Vec<Tensor<B, 4>>,
-    /// Every update-block call: Δflow, up-mask and new hidden state.
-    pub delta_flow: Vec<Tensor<B, 4>>,
-    pub up_mask: Vec<Tensor<B, 4>>,
-    pub net: Vec<Tensor<B, 4>>,
-}
-
-impl<B: Backend> Default for Trace<B> {
-    fn default() -> Self {
-        Self {
-            fmap1: None,
-            fmap2: None,
-            pos_encoding: None,
-            selfatt_left_tokens: None,
-            selfatt_right_tokens: None,
-            crossatt_left_tokens_call0: None,
-            crossatt_right_tokens_call0: None,
-            conv_offset_16_raw: None,
-            conv_offset_8_raw: None,
-            corr: Vec::new(),
-            delta_flow: Vec::new(),
-            up_mask: Vec::new(),
-            net: Vec::new(),
-        }
-    }
+/// The inputs of the three levels of one forward pass.
+struct Levels<B: Backend> {
+    quarter: LevelInputs<B>,
+    eighth: LevelInputs<B>,
+    sixteenth: LevelInputs<B>,
 }
 
 fn pool<B: Backend>(x: Tensor<B, 4>, k: usize) -> Tensor<B, 4> {
     avg_pool2d(x, [k, k], [k, k], [0, 0], true, false)
 }
 
-/// `-scale · resize(flow, size)` with `scale = size_h / flow_h` (the reference hand-over).
-fn hand_over<B: Backend>(flow: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
-    let scale = size[0] as f64 / flow.dims()[2] as f64;
-    resize_bilinear_align_corners(flow, size).mul_scalar(-scale)
-}
-
 impl<B: Backend> CREStereo<B> {
-    fn offsets(&self, raw: Tensor<B, 4>) -> Tensor<B, 4> {
-        sigmoid(raw)
-            .sub_scalar(0.5)
-            .mul_scalar(2.0 * self.offset_range)
-    }
-
     /// Runs the network. `left`, `right`: (N, 3, H, W) BGR in 0..255, H and W multiples of 16.
     ///
     /// Without `flow_init`: `iters / 2` iterations at 1/16, `iters / 2` at 1/8 and `iters` at 1/4,
@@ -167,186 +122,106 @@ impl<B: Backend> CREStereo<B> {
         iters: usize,
         flow_init: Option<Tensor<B, 4>>,
     ) -> Vec<Tensor<B, 4>> {
-        self.forward_traced(left, right, iters, flow_init, None)
+        self.forward_observed(left, right, iters, flow_init, &mut NoObserver)
     }
 
-    /// [`Self::forward`] that also records intermediates into `trace`.
-    pub fn forward_traced(
+    /// [`Self::forward`] that shows its intermediates to `observer`.
+    pub fn forward_observed(
         &self,
         left: Tensor<B, 4>,
         right: Tensor<B, 4>,
         iters: usize,
         flow_init: Option<Tensor<B, 4>>,
-        mut trace: Option<&mut Trace<B>>,
+        observer: &mut dyn ForwardObserver<B>,
     ) -> Vec<Tensor<B, 4>> {
-        let [n, ch, h, w] = left.dims();
-        assert_eq!(
-            left.dims(),
-            right.dims(),
-            "CREStereo: left and right images differ in shape"
-        );
-        assert_eq!(ch, 3, "CREStereo: expected 3-channel images");
-        assert!(
-            h % 16 == 0 && w % 16 == 0,
-            "CREStereo: image size {h}x{w} is not a multiple of 16"
-        );
-        let hd = self.hidden_dim;
-        let rate = self.upsample_rate;
+        check_pair(&left, &right);
+        let (fmap1, fmap2) = self.encode(left, right, observer);
+        let Levels { quarter, eighth, sixteenth } = self.levels(fmap1, fmap2, observer);
+        let mut predictions = Vec::with_capacity(2 * iters);
+        let flow = match flow_init {
+            Some(init) => hand_over(init, quarter.size()),
+            None => {
+                let start = sixteenth.zero_flow();
+                let flow = self.refine_level(sixteenth, start, iters / 2, &mut predictions, observer);
+                let flow = hand_over(flow, eighth.size());
+                let flow = self.refine_level(eighth, flow, iters / 2, &mut predictions, observer);
+                hand_over(flow, quarter.size())
+            }
+        };
+        self.refine_level(quarter, flow, iters, &mut predictions, observer);
+        predictions
+    }
+
+    /// The encoder's 1/4 maps of both images, normalised to −1..1 first as the reference does.
+    fn encode(&self, left: Tensor<B, 4>, right: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> (Tensor<B, 4>, Tensor<B, 4>) {
         let norm = |x: Tensor<B, 4>| x.div_scalar(255.0).mul_scalar(2.0).sub_scalar(1.0);
         let (fmap1, fmap2) = self.fnet.forward_pair(norm(left), norm(right));
-        let [_, c, h4, w4] = fmap1.dims();
-        if let Some(t) = trace.as_deref_mut() {
-            t.fmap1 = Some(fmap1.clone());
-            t.fmap2 = Some(fmap2.clone());
-        }
+        observer.features(&fmap1, &fmap2);
+        (fmap1, fmap2)
+    }
 
-        // 1/8 features and offsets
+    /// The three levels' inputs, in the reference's order of operations. 1/8 and 1/16 are
+    /// average pools of the 1/4 maps; the left 1/4 map splits into hidden state (tanh) and
+    /// context (relu); the 1/16 maps are self-attended before their correlation is set up.
+    fn levels(&self, fmap1: Tensor<B, 4>, fmap2: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> Levels<B> {
+        let [n, c, h4, w4] = fmap1.dims();
+        let hd = self.hidden_dim;
         let fmap1_dw8 = pool(fmap1.clone(), 2);
         let fmap2_dw8 = pool(fmap2.clone(), 2);
-        let offset_dw8_raw = self.conv_offset_8.forward(fmap1_dw8.clone());
-        let offset_dw8 = self.offsets(offset_dw8_raw.clone());
+        let offset_dw8 = self.learned_offsets(&self.conv_offset_8, Level::Eighth, fmap1_dw8.clone(), observer);
 
-        // context: hidden state and input
         let net = tanh(fmap1.clone().slice([0..n, 0..hd, 0..h4, 0..w4]));
         let inp = relu(fmap1.clone().slice([0..n, hd..c, 0..h4, 0..w4]));
         let net_dw8 = pool(net.clone(), 2);
         let inp_dw8 = pool(inp.clone(), 2);
 
-        // 1/16 features, offsets, positional encoding and self-attention
         let fmap1_dw16 = pool(fmap1.clone(), 4);
         let fmap2_dw16 = pool(fmap2.clone(), 4);
-        let offset_dw16_raw = self.conv_offset_16.forward(fmap1_dw16.clone());
-        let offset_dw16 = self.offsets(offset_dw16_raw.clone());
+        let offset_dw16 = self.learned_offsets(&self.conv_offset_16, Level::Sixteenth, fmap1_dw16.clone(), observer);
         let net_dw16 = pool(net.clone(), 4);
         let inp_dw16 = pool(inp.clone(), 4);
-        let [_, _, h16, w16] = fmap1_dw16.dims();
-        let (sa_left, sa_right) = self.self_att_fn.forward_self(
-            to_tokens(self.pos_encoding.forward(fmap1_dw16)),
-            to_tokens(self.pos_encoding.forward(fmap2_dw16)),
-        );
-        if let Some(t) = trace.as_deref_mut() {
-            t.pos_encoding = Some(Tensor::from_data(
-                TensorData::new(self.pos_encoding.table(h16, w16), [c, h16, w16]),
-                &fmap1.device(),
-            ));
-            t.selfatt_left_tokens = Some(sa_left.clone());
-            t.selfatt_right_tokens = Some(sa_right.clone());
-            t.conv_offset_16_raw = Some(offset_dw16_raw.clone());
-            t.conv_offset_8_raw = Some(offset_dw8_raw.clone());
-        }
-        let fmap1_dw16 = from_tokens(sa_left, h16, w16);
-        let fmap2_dw16 = from_tokens(sa_right, h16, w16);
+        let (fmap1_dw16, fmap2_dw16) = self.self_attend(fmap1_dw16, fmap2_dw16, observer);
 
         let agcl = AdaptiveGroupCorrelationConfig::new().with_groups(self.groups);
-        let corr_fn = agcl.init(fmap1.clone(), fmap2.clone());
-        let corr_fn_dw8 = agcl.init(fmap1_dw8, fmap2_dw8);
-        let corr_fn_att_dw16 = agcl.init(fmap1_dw16, fmap2_dw16);
-
-        let mut predictions = Vec::new();
-        let mut net = net;
-        let mut flow: Tensor<B, 4>;
-        match flow_init {
-            Some(init) => {
-                flow = hand_over(init, [h4, w4]);
-            }
-            None => {
-                // RUM 1/16
-                let mut flow_dw16 = Tensor::<B, 4>::zeros([n, 2, h16, w16], &fmap1.device());
-                let mut net_dw16 = net_dw16;
-                flow = Tensor::zeros([n, 2, h16 * rate, w16 * rate], &fmap1.device());
-                for itr in 0..iters / 2 {
-                    let window = SearchWindow::for_iteration(itr);
-                    flow_dw16 = flow_dw16.detach();
-                    let (l, r) = corr_fn_att_dw16.cross_attend(&self.cross_att_fn);
-                    if let Some(t) = trace.as_deref_mut()
-                        && t.crossatt_left_tokens_call0.is_none()
-                    {
-                        t.crossatt_left_tokens_call0 = Some(l.clone());
-                        t.crossatt_right_tokens_call0 = Some(r.clone());
-                    }
-                    let corr = corr_fn_att_dw16.corr_offset_maps(
-                        from_tokens(l, h16, w16),
-                        from_tokens(r, h16, w16),
-                        flow_dw16.clone(),
-                        offset_dw16.clone(),
-                        window,
-                    );
-                    let (net_new, up_mask, delta_flow) = self.update_block.forward(
-                        net_dw16,
-                        inp_dw16.clone(),
-                        corr.clone(),
-                        flow_dw16.clone(),
-                    );
-                    net_dw16 = net_new;
-                    record(&mut trace, corr, &delta_flow, &up_mask, &net_dw16);
-                    flow_dw16 = flow_dw16 + delta_flow;
-                    flow = convex_upsample(flow_dw16.clone(), up_mask, rate);
-                    let [_, _, fh, fw] = flow.dims();
-                    predictions.push(
-                        resize_bilinear_align_corners(flow.clone(), [4 * fh, 4 * fw])
-                            .mul_scalar(-4.0),
-                    );
-                }
-                // RUM 1/8
-                let [_, _, h8, w8] = corr_fn_dw8.fmap1.dims();
-                let mut flow_dw8 = hand_over(flow.clone(), [h8, w8]);
-                let mut net_dw8 = net_dw8;
-                for itr in 0..iters / 2 {
-                    let window = SearchWindow::for_iteration(itr);
-                    flow_dw8 = flow_dw8.detach();
-                    let corr =
-                        corr_fn_dw8.corr_offset(flow_dw8.clone(), offset_dw8.clone(), window, None);
-                    let (net_new, up_mask, delta_flow) = self.update_block.forward(
-                        net_dw8,
-                        inp_dw8.clone(),
-                        corr.clone(),
-                        flow_dw8.clone(),
-                    );
-                    net_dw8 = net_new;
-                    record(&mut trace, corr, &delta_flow, &up_mask, &net_dw8);
-                    flow_dw8 = flow_dw8 + delta_flow;
-                    flow = convex_upsample(flow_dw8.clone(), up_mask, rate);
-                    let [_, _, fh, fw] = flow.dims();
-                    predictions.push(
-                        resize_bilinear_align_corners(flow.clone(), [2 * fh, 2 * fw])
-                            .mul_scalar(-2.0),
-                    );
-                }
-                if iters / 2 == 0 {
-                    flow = Tensor::zeros([n, 2, h8 * rate, w8 * rate], &fmap1.device());
-                }
-                flow = hand_over(flow, [h4, w4]);
-            }
+        Levels {
+            quarter: LevelInputs { lookup: Lookup::Warp { corr: agcl.init(fmap1, fmap2) }, net, inp },
+            eighth: LevelInputs {
+                lookup: Lookup::Offsets { corr: agcl.init(fmap1_dw8, fmap2_dw8), offsets: offset_dw8 },
+                net: net_dw8,
+                inp: inp_dw8,
+            },
+            sixteenth: LevelInputs {
+                lookup: Lookup::AttendedOffsets { corr: agcl.init(fmap1_dw16, fmap2_dw16), offsets: offset_dw16 },
+                net: net_dw16,
+                inp: inp_dw16,
+            },
         }
+    }
 
-        // RUM 1/4
-        for itr in 0..iters {
-            let window = SearchWindow::for_iteration(itr);
-            flow = flow.detach();
-            let corr = corr_fn.corr_warp(flow.clone(), window);
-            let (net_new, up_mask, delta_flow) =
-                self.update_block
-                    .forward(net, inp.clone(), corr.clone(), flow.clone());
-            net = net_new;
-            record(&mut trace, corr, &delta_flow, &up_mask, &net);
-            flow = flow + delta_flow;
-            predictions.push(convex_upsample(flow.clone(), up_mask, rate).neg());
-        }
-        predictions
+    /// A level's learned offsets `(sigmoid(conv(x)) − 0.5) · 2 · range`, in (−range, range).
+    fn learned_offsets(&self, conv: &Conv2d<B>, level: Level, x: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> Tensor<B, 4> {
+        let logits = conv.forward(x);
+        observer.offset_logits(level, &logits);
+        sigmoid(logits).sub_scalar(0.5).mul_scalar(2.0 * self.offset_range)
+    }
+
+    /// Positional encoding, then self-attention, on the 1/16 maps.
+    fn self_attend(&self, left: Tensor<B, 4>, right: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> (Tensor<B, 4>, Tensor<B, 4>) {
+        let [_, _, h, w] = left.dims();
+        let table = self.pos_encoding.table_tensor::<B>(h, w, &left.device());
+        observer.positional_encoding(&table);
+        let (left, right) = self.self_att_fn.forward_self(
+            to_tokens(self.pos_encoding.add(left, &table)),
+            to_tokens(self.pos_encoding.add(right, &table)),
+        );
+        observer.self_attention(&left, &right);
+        (from_tokens(left, h, w), from_tokens(right, h, w))
     }
 }
 
-fn record<B: Backend>(
-    trace: &mut Option<&mut Trace<B>>,
-    corr: Tensor<B, 4>,
-    delta_flow: &Tensor<B, 4>,
-    up_mask: &Tensor<B, 4>,
-    net: &Tensor<B, 4>,
-) {
-    if let Some(t) = trace.as_deref_mut() {
-        t.corr.push(corr);
-        t.delta_flow.push(delta_flow.clone());
-        t.up_mask.push(up_mask.clone());
-        t.net.push(net.clone());
-    }
+fn check_pair<B: Backend>(left: &Tensor<B, 4>, right: &Tensor<B, 4>) {
+    let [_, ch, h, w] = left.dims();
+    assert_eq!(left.dims(), right.dims(), "CREStereo: left and right images differ in shape");
+    assert_eq!(ch, 3, "CREStereo: expected 3-channel images");
+    assert!(h % 16 == 0 && w % 16 == 0, "CREStereo: image size {h}x{w} is not a multiple of 16");
 }

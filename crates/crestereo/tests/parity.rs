@@ -5,7 +5,7 @@ mod common;
 use burn::prelude::*;
 use common::*;
 use crestereo::weights::{REFERENCE_PARAM_COUNT, load_pytorch, named_parameters};
-use crestereo::{CREStereoConfig, CpuBackend, Trace, sequence_loss};
+use crestereo::{CREStereoConfig, CpuBackend, sequence_loss};
 
 type B = CpuBackend;
 
@@ -48,8 +48,8 @@ fn train_forward_intermediates_predictions_and_loss() {
     let m = model::<B>(&device);
     let left = tensor::<B, 4>(&npy("train_b2_64x128/left.npy"), &device);
     let right = tensor::<B, 4>(&npy("train_b2_64x128/right.npy"), &device);
-    let mut trace = Trace::default();
-    let preds = m.forward_traced(left, right, 10, None, Some(&mut trace));
+    let mut trace = Recorder::default();
+    let preds = m.forward_observed(left, right, 10, None, &mut trace);
     assert_eq!(preds.len(), 20);
 
     let tol = 1e-4;
@@ -131,7 +131,7 @@ fn train_forward_intermediates_predictions_and_loss() {
         ));
         let net = fixtures().join(format!("{t}/update/{i:02}_net.npy"));
         if net.exists() {
-            let r = crestereo::npy::read_npy(net).unwrap();
+            let r = stereo_io::read_npy(&net).unwrap();
             worst = worst.max(check(
                 &format!("update/{i:02}_net"),
                 &values(trace.net[i].clone()),

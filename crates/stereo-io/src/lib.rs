@@ -11,6 +11,7 @@
 //! Every reader names the file and the problem in its error; nothing here panics on bad input.
 
 pub mod atomic;
+pub mod colormap;
 pub mod datasets;
 pub mod disparity;
 pub mod error;

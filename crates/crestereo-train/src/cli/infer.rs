@@ -5,19 +5,21 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use crestereo::io::{read_bgr, write_exr, write_pfm, write_visualisation};
 use crestereo::weights::load_weights;
-use crestereo::{CREStereoConfig, InferenceOptions, infer_disparity};
+use crestereo::{BgrImage, CREStereoConfig, InferenceOptions, infer_disparity};
+use stereo_io::colormap::{DisparityRange, colourise_with_bar};
+use stereo_io::{DisparityFormat, DisparityMap, DisparityMeta};
 
 use crate::checkpoint::weights_file;
 
 #[derive(Debug, clap::Args)]
 pub struct InferArgs {
-    /// Left image (PNG/JPEG).
+    /// Left image (PNG/JPEG; 16-bit files are read as 8-bit, like training and evaluation).
     pub left: PathBuf,
     /// Right image (PNG/JPEG).
     pub right: PathBuf,
-    /// Output disparity: float32 EXR (channel "Y"), or PFM if the name ends in .pfm.
+    /// Output disparity, format by extension: .exr (float32, channel "Y"), .pfm, .npy, .png
+    /// (16-bit ×256, KITTI) or .disp.png (16-bit ×32, CREStereo).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Also write a PFM copy here.
@@ -39,16 +41,19 @@ pub struct InferArgs {
 }
 
 pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
-    let (left, right): (&Path, &Path) = (&a.left, &a.right);
-    let l = read_bgr(left)?;
-    let r = read_bgr(right)?;
+    // Refuse an unknown output format before the slow part.
+    let output: &Path = &a.output;
+    if DisparityFormat::from_path(output).is_none() {
+        bail!("cannot tell the disparity format of {} from its extension (.exr, .pfm, .npy, .png, .disp.png)", output.display());
+    }
+    let (l, r) = (read_image(&a.left)?, read_image(&a.right)?);
     if (l.width, l.height) != (r.width, r.height) {
         bail!(
             "left image {} is {}x{} but right image {} is {}x{}",
-            left.display(),
+            a.left.display(),
             l.width,
             l.height,
-            right.display(),
+            a.right.display(),
             r.width,
             r.height
         );
@@ -60,40 +65,78 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
     let model = CREStereoConfig::new().init::<B>(device);
     let model = load_weights(model, weights_file(weights)?, device)?;
     let t0 = Instant::now();
-    let disp = infer_disparity(
-        &model,
-        &l,
-        &r,
-        InferenceOptions {
-            iters: a.iters,
-            stages: usize::from(a.stages),
-        },
-        device,
-    )?;
+    let opts = InferenceOptions { iters: a.iters, stages: usize::from(a.stages) };
+    let disp = infer_disparity(&model, &l, &r, opts, device)?;
     eprintln!(
         "inference {}x{} ({} stages, {} iters): {:.2}s",
         l.width,
         l.height,
-        usize::from(a.stages),
-        a.iters,
+        opts.stages,
+        opts.iters,
         t0.elapsed().as_secs_f64()
     );
-    let output: &Path = &a.output;
-    if output
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
-    {
-        write_pfm(output, disp.width, disp.height, &disp.data)?;
-    } else {
-        write_exr(output, disp.width, disp.height, &disp.data)?;
-    }
+    write_outputs(a, &disp)
+}
+
+/// The one image path into the network: `stereo-io` decodes to 8-bit RGB, then planar BGR.
+fn read_image(path: &Path) -> Result<BgrImage> {
+    let rgb = stereo_io::read_rgb(path).context("cannot read image")?;
+    Ok(BgrImage::from_rgb(&rgb))
+}
+
+fn write_outputs(a: &InferArgs, disp: &DisparityMap) -> Result<()> {
+    let meta = DisparityMeta::default();
+    stereo_io::write_disparity(&a.output, disp, &meta, None)?;
     if let Some(p) = &a.pfm {
-        write_pfm(p, disp.width, disp.height, &disp.data)?;
+        stereo_io::write_disparity(p, disp, &meta, Some(DisparityFormat::Pfm))?;
     }
     if let Some(v) = &a.viz {
-        write_visualisation(v, disp.width, disp.height, &disp.data)?;
+        let image = colourise_with_bar(disp, DisparityRange::of(disp));
+        stereo_io::write_atomically(v, |tmp| stereo_io::write_png_rgb(tmp, &image))?;
     }
     Ok(())
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(dir: &Path, output: &str) -> InferArgs {
+        InferArgs {
+            left: dir.join("missing_left.png"),
+            right: dir.join("missing_right.png"),
+            output: dir.join(output),
+            pfm: Some(dir.join("copy.pfm")),
+            viz: Some(dir.join("viz.png")),
+            weights: None,
+            iters: 1,
+            stages: 1,
+        }
+    }
+
+    #[test]
+    fn an_unknown_output_format_is_refused_before_anything_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = infer::<crestereo::CpuBackend>(&args(dir.path(), "disp.tiff"), &Default::default()).unwrap_err();
+        let msg = format!("{err:#}");
+        assert!(msg.contains("disp.tiff") && msg.contains("extension"), "{msg}");
+    }
+
+    #[test]
+    fn outputs_follow_their_extensions() {
+        let dir = tempfile::tempdir().unwrap();
+        let disp = DisparityMap { width: 3, height: 2, data: vec![0.5, 1.0, 2.0, 4.0, 8.0, 16.0], valid: vec![true; 6] };
+        for name in ["disp.exr", "disp.pfm", "disp.npy", "disp.disp.png"] {
+            write_outputs(&args(dir.path(), name), &disp).unwrap();
+            let (back, _) = stereo_io::read_disparity(&dir.path().join(name), None).unwrap();
+            assert_eq!(back.data, disp.data, "{name}");
+        }
+        let (copy, _) = stereo_io::read_disparity(&dir.path().join("copy.pfm"), None).unwrap();
+        assert_eq!(copy.data, disp.data);
+        let viz = stereo_io::read_rgb(&dir.path().join("viz.png")).unwrap();
+        assert_eq!((viz.width, viz.height), (3 + 72, 64));
+        let at = |x: usize, y: usize| &viz.data[(y * viz.width + x) * 3..][..3];
+        assert_eq!(at(2, 1), &[255, 0, 0]); // the largest disparity
+        assert_eq!(at(0, 0), &stereo_io::colormap::ramp(0.5 / 16.0)); // the range starts at 0
+    }
+}
