@@ -25,7 +25,9 @@
 //! Training: `model.forward(left, right, iters, None)` returns the `2·iters` full-resolution
 //! predictions (N, 2, H, W), channel 0 = disparity; [`sequence_loss`] is the reference loss.
 
+pub mod agcl;
 pub mod attention;
+pub mod conv2d;
 pub mod corr;
 pub mod encoder;
 pub mod gru;
