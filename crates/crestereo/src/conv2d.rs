@@ -9,8 +9,9 @@
 //! * `dW = dY · colsᵀ` (C_out × N·P times N·P × C_in·kh·kw),
 //! * `dX = col2im(Wᵀ · dY)`, scattered back per input channel (no two tasks write one plane).
 //!
-//! The forward is Flex's own convolution; every other backend, float64 tensors and grouped
-//! convolutions use `Conv2d::forward` unchanged.
+//! The forward (on `Flex` too) is one matrix product per image, `Y_b = W · cols_b`, written
+//! in NCHW directly. Every other backend, float64 tensors and grouped convolutions use
+//! `Conv2d::forward` unchanged.
 
 use std::any::TypeId;
 
@@ -23,7 +24,7 @@ use burn::backend::{Autodiff, Flex};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
-use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps, ModuleOps};
+use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
 use burn::tensor::{DType, TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
 
@@ -37,7 +38,8 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
         PaddingConfig2d::Valid => Some([0, 0]),
         _ => None,
     };
-    let fast = TypeId::of::<B>() == TypeId::of::<Autodiff<Flex>>()
+    let autodiff = TypeId::of::<B>() == TypeId::of::<Autodiff<Flex>>();
+    let fast = (autodiff || TypeId::of::<B>() == TypeId::of::<Flex>())
         && conv.groups == 1
         && x.dtype() == DType::F32
         && conv.weight.val().dtype() == DType::F32;
@@ -45,11 +47,14 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
         return conv.forward(x);
     };
     let options = ConvOptions::new(conv.stride, padding, conv.dilation, 1);
-    let x = same::<_, FloatTensor<Autodiff<Flex>>>(x.into_primitive().tensor());
-    let w = same::<_, FloatTensor<Autodiff<Flex>>>(conv.weight.val().into_primitive().tensor());
-    let y: Tensor<B, 4> = Tensor::from_primitive(TensorPrimitive::Float(same(conv2d_autodiff(
-        x, w, options,
-    ))));
+    let (x, w) = (x.into_primitive().tensor(), conv.weight.val().into_primitive().tensor());
+    let y = if autodiff {
+        same(conv2d_autodiff(same(x), same(w), options))
+    } else {
+        let (x, w): (FlexTensor, FlexTensor) = (same(x), same(w));
+        same(gemm_forward(&x, &w, &Geometry::new(&x, &w, &options)))
+    };
+    let y: Tensor<B, 4> = Tensor::from_primitive(TensorPrimitive::Float(y));
     match &conv.bias {
         Some(bias) => {
             let c = bias.dims()[0];
@@ -98,10 +103,12 @@ fn conv2d_autodiff(
         .stateful()
     {
         OpsKind::Tracked(prep) => {
-            let y = Flex::conv2d(x.clone(), w.clone(), None, options.clone());
+            let y = gemm_forward(&x, &w, &Geometry::new(&x, &w, &options));
             prep.finish((x, w, options), y)
         }
-        OpsKind::UnTracked(prep) => prep.finish(Flex::conv2d(x, w, None, options)),
+        OpsKind::UnTracked(prep) => {
+            prep.finish(gemm_forward(&x, &w, &Geometry::new(&x, &w, &options)))
+        }
     }
 }
 
@@ -216,6 +223,31 @@ fn col2im(cols: &[f32], dx: &mut [f32], g: &Geometry, b: usize) {
 
 fn flex(data: Vec<f32>, shape: [usize; 3]) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(data, shape))
+}
+
+/// `Y_b = W · cols_b` for every image b, (N, C_out, H_out, W_out), NCHW without a layout
+/// change (1×1 stride-1 convolutions multiply the input planes directly).
+fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry) -> FlexTensor {
+    let x = x.to_contiguous();
+    let (p, k) = (g.p(), g.k());
+    let wm = w.to_contiguous().reshape([1, g.cout, k].into());
+    let pointwise = g.kh == 1 && g.kw == 1 && g.stride == [1, 1] && g.pad == [0, 0];
+    let outs: Vec<FlexTensor> = (0..g.n)
+        .map(|b| {
+            let cols = if pointwise {
+                x.narrow(0, b, 1).reshape([1, k, p].into())
+            } else {
+                flex(im2col(x.storage(), g, b), [1, k, p])
+            };
+            Flex::float_matmul(wm.clone(), cols)
+        })
+        .collect();
+    let y = if outs.len() == 1 {
+        outs.into_iter().next().expect("one image")
+    } else {
+        Flex::float_cat(outs, 0)
+    };
+    y.reshape([g.n, g.cout, g.ho, g.wo].into())
 }
 
 /// `dW = Σ_b dY_b · cols_bᵀ`, (C_out, C_in, kh, kw).

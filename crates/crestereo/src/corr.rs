@@ -11,7 +11,6 @@
 //!   replicate-padded and shifted by the integer window offsets.
 
 use burn::prelude::*;
-use burn::tensor::ops::PadMode;
 
 use crate::agcl::CorrSpec;
 use crate::attention::{LoFTREncoderLayer, from_tokens, to_tokens};
@@ -154,19 +153,7 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
 
     /// Warp-and-shift correlation used at 1/4 (no learned offsets).
     pub fn corr_warp(&self, flow: Tensor<B, 4>, window: SearchWindow) -> Tensor<B, 4> {
-        let [n, c, h, w] = self.fmap1.dims();
         let warped = crate::agcl::warp(self.fmap2.clone(), flow);
-        let (ry, rx) = window.radius();
-        let padded = warped.pad((rx, rx, ry, ry), PadMode::Edge);
-        let g = self.groups;
-        let mut corrs = Vec::new();
-        for (dx, dy) in window.offsets() {
-            let oy = (dy + ry as i64) as usize;
-            let ox = (dx + rx as i64) as usize;
-            let crop = padded.clone().slice([0..n, 0..c, oy..oy + h, ox..ox + w]);
-            let prod = (self.fmap1.clone() * crop).reshape([n, g, c / g, h, w]);
-            corrs.push(prod.mean_dim(2)); // n g 1 h w
-        }
-        Tensor::cat(corrs, 2).reshape([n, g * window.offsets().len(), h, w])
+        crate::agcl::shift_corr(self.fmap1.clone(), warped, CorrSpec::new(window, self.groups))
     }
 }

@@ -132,6 +132,27 @@ fn reference_warp<B: Backend>(right: Tensor<B, 4>, flow: Tensor<B, 4>) -> Tensor
         .permute([0, 3, 1, 2])
 }
 
+/// The former shift part of `corr_warp`: edge pad, nine crops, products, group means.
+fn reference_shift_corr<B: Backend>(
+    left: Tensor<B, 4>,
+    warped: Tensor<B, 4>,
+    window: SearchWindow,
+    g: usize,
+) -> Tensor<B, 4> {
+    let [n, c, h, w] = left.dims();
+    let (ry, rx) = window.radius();
+    let padded = warped.pad((rx, rx, ry, ry), burn::tensor::ops::PadMode::Edge);
+    let mut corrs = Vec::new();
+    for (dx, dy) in window.offsets() {
+        let oy = (dy + ry as i64) as usize;
+        let ox = (dx + rx as i64) as usize;
+        let crop = padded.clone().slice([0..n, 0..c, oy..oy + h, ox..ox + w]);
+        let prod = (left.clone() * crop).reshape([n, g, c / g, h, w]);
+        corrs.push(prod.mean_dim(2));
+    }
+    Tensor::cat(corrs, 2).reshape([n, g * window.offsets().len(), h, w])
+}
+
 fn values<B: Backend, const D: usize>(t: Tensor<B, D>) -> Vec<f32> {
     t.into_data().convert::<f32>().into_vec().unwrap()
 }
@@ -238,6 +259,49 @@ fn warp_matches_composed_reference() {
     );
     println!("warp: max |fused - composed| = {err:.3e}");
     assert!(err <= 1e-6, "{err}");
+}
+
+/// The shifted correlation kernel (forward and backward) against the composition it replaced.
+#[test]
+fn shift_corr_matches_composed_reference() {
+    let groups = 4;
+    for (window, dims) in [
+        (SearchWindow::Row1x9, [2, 8, 5, 7]),
+        (SearchWindow::Square3x3, [1, 12, 6, 4]),
+    ] {
+        let x = inputs(dims, window, 41, false);
+        let spec = CorrSpec::new(window, groups);
+        let fused = agcl::shift_corr(t4::<B>(&x.left, dims), t4::<B>(&x.right, dims), spec);
+        let reference =
+            reference_shift_corr(t4::<B>(&x.left, dims), t4::<B>(&x.right, dims), window, groups);
+        let err = max_abs_diff(&values(fused), &values(reference));
+        println!("shift {window:?}: max |fused - composed| = {err:.3e}");
+        assert!(err <= 1e-6, "{window:?}: {err}");
+        let [n, _, h, w] = dims;
+        let weights = t4::<A>(&inputs([n, groups * x.k, h, w], window, 43, false).left, [
+            n,
+            groups * x.k,
+            h,
+            w,
+        ]);
+        let grads_of = |fused: bool| -> Vec<Vec<f32>> {
+            let l = t4::<A>(&x.left, dims).require_grad();
+            let r = t4::<A>(&x.right, dims).require_grad();
+            let out = if fused {
+                agcl::shift_corr(l.clone(), r.clone(), spec)
+            } else {
+                reference_shift_corr(l.clone(), r.clone(), window, groups)
+            };
+            let g = (out * weights.clone()).sum().backward();
+            [l, r].iter().map(|t| values(t.grad(&g).unwrap())).collect()
+        };
+        let (a, b) = (grads_of(true), grads_of(false));
+        for (name, (ga, gb)) in ["left", "warped"].iter().zip(a.iter().zip(&b)) {
+            let err = max_abs_diff(ga, gb) / gb.iter().fold(1f32, |m, v| m.max(v.abs()));
+            println!("shift {window:?} d/d{name}: scaled max diff {err:.3e}");
+            assert!(err <= 1e-5, "shift {window:?} d/d{name}: {err}");
+        }
+    }
 }
 
 /// Gradients of the fused op (custom backward) against Burn's autodiff of the composition.

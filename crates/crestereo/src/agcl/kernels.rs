@@ -368,3 +368,92 @@ pub fn warp_backward(
     }
     (dright, dflow)
 }
+
+/// Clamped (replicate-border) source pixel of candidate `k` at (x, y): the 1/4 level's shifted
+/// correlation reads the warped map at `clamp(y + dy)`, `clamp(x + dx)`.
+#[inline]
+fn shifted_pixel(spec: &CorrSpec, k: usize, x: usize, y: usize, h: usize, w: usize) -> usize {
+    let (dx, dy) = spec.window_offset(k);
+    let cx = (x as i64 + dx).clamp(0, w as i64 - 1) as usize;
+    let cy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
+    cy * w + cx
+}
+
+/// Shifted group correlation (replicate border). `left`, `right`: (N, H, W, C).
+/// Returns (N, H, W, G·K).
+pub fn shift_corr_forward(left: &[f32], right: &[f32], d: Dims, spec: CorrSpec) -> Vec<f32> {
+    let Dims { n: nb, c, h, w } = d;
+    let (k_num, g_num) = (spec.candidates(), spec.groups);
+    let (cg, gk, hw) = (c / g_num, g_num * k_num, h * w);
+    let mut out = vec![0f32; nb * hw * gk];
+    out.par_chunks_mut(w * gk)
+        .enumerate()
+        .for_each(|(row, out_row)| {
+            let (n, y) = (row / h, row % h);
+            for x in 0..w {
+                let l = &left[(n * hw + y * w + x) * c..][..c];
+                for k in 0..k_num {
+                    let q = shifted_pixel(&spec, k, x, y, h, w);
+                    let r = &right[(n * hw + q) * c..][..c];
+                    for g in 0..g_num {
+                        let range = g * cg..(g + 1) * cg;
+                        let dot: f32 =
+                            l[range.clone()].iter().zip(&r[range]).map(|(a, b)| a * b).sum();
+                        out_row[x * gk + g * k_num + k] = dot / cg as f32;
+                    }
+                }
+            }
+        });
+    out
+}
+
+/// Gradients of [`shift_corr_forward`] w.r.t. (left, right), both (N, H, W, C); `grad`:
+/// (N, G·K, H, W). The right map's gradient is a scatter (one buffer per row chunk).
+pub fn shift_corr_backward(
+    left: &[f32],
+    right: &[f32],
+    grad: &[f32],
+    d: Dims,
+    spec: CorrSpec,
+) -> (Vec<f32>, Vec<f32>) {
+    let Dims { n: nb, c, h, w } = d;
+    let (k_num, g_num) = (spec.candidates(), spec.groups);
+    let (cg, hw) = (c / g_num, h * w);
+    let mut dleft = vec![0f32; nb * hw * c];
+    let size = nb * hw * c;
+    let dright = dleft
+        .par_chunks_mut(w * c)
+        .enumerate()
+        .with_min_len(rows_per_chunk(nb * h))
+        .fold(
+            || vec![0f32; size],
+            |mut dright, (row, dl_row)| {
+                let (n, y) = (row / h, row % h);
+                for x in 0..w {
+                    let p = y * w + x;
+                    let l = &left[(n * hw + p) * c..][..c];
+                    let dl = &mut dl_row[x * c..(x + 1) * c];
+                    for k in 0..k_num {
+                        let q = n * hw + shifted_pixel(&spec, k, x, y, h, w);
+                        let r = &right[q * c..][..c];
+                        for g in 0..g_num {
+                            let ga = grad[((n * g_num + g) * k_num + k) * hw + p] / cg as f32;
+                            for i in g * cg..(g + 1) * cg {
+                                dl[i] += ga * r[i];
+                                dright[q * c + i] += ga * l[i];
+                            }
+                        }
+                    }
+                }
+                dright
+            },
+        )
+        .reduce(
+            || vec![0f32; size],
+            |mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            },
+        );
+    (dleft, dright)
+}

@@ -4,6 +4,8 @@
 //!   align-corners pixel coordinates) at `x + flow + window offset + learned offset`, for every
 //!   candidate of a 1×9 or 3×3 search window (the 1/16 and 1/8 levels).
 //! * [`warp`]: `right` bilinearly sampled at `x + flow` (the 1/4 level's warp).
+//! * [`shift_corr`]: the 1/4 level's group correlation with the warped map at integer window
+//!   offsets, replicate border (a Flex kernel; composed from device-side ops elsewhere).
 //!
 //! Both run without any host round trip. They are implemented per backend through the
 //! [`AgclOps`] extension trait: Flex (CPU kernels in `kernels`), CubeCL/CUDA (`#[cube]`
@@ -17,6 +19,9 @@ mod autodiff;
 mod cube;
 mod flex;
 pub mod kernels;
+mod shift;
+
+pub use shift::shift_corr;
 
 use std::any::{Any, TypeId};
 
