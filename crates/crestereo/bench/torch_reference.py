@@ -5,7 +5,9 @@ names as the reference, so weights_seed0.pt loads). Checked against the fixtures
 `python torch_reference.py check FIXTURES_DIR`; timed with `python torch_reference.py bench`.
 """
 import math
+import os
 import resource
+import statistics
 import sys
 import time
 
@@ -246,36 +248,90 @@ def check(fixtures):
     print("loss", seq_loss(preds, ld(f"{t}/gt_disp.npy"), ld(f"{t}/valid.npy"), 0.8).item())
 
 
-def bench(threads):
-    torch.set_num_threads(threads)
-    torch.manual_seed(0)
-    what = sys.argv[3] if len(sys.argv) > 3 else "train"
-    m = CREStereo()
-    if what == "train":
-        opt = torch.optim.Adam(m.parameters(), lr=4e-4, betas=(0.9, 0.999), eps=1e-8)
-        l, r = torch.rand(2, 3, 384, 512) * 255, torch.rand(2, 3, 384, 512) * 255
-        disp, valid = torch.rand(2, 384, 512) * 64, torch.ones(2, 384, 512)
+DEVICE = os.environ.get("CRESTEREO_TORCH_DEVICE", "cpu")
+# on CUDA: one warm-up run, then the median of this many (CPU: one run, like `crestereo bench`)
+REPEATS = int(os.environ.get("CRESTEREO_TORCH_REPEATS", "3")) if DEVICE != "cpu" else 1
+
+
+def peak_rss_mib():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def sync():
+    if DEVICE != "cpu":
+        torch.cuda.synchronize()
+
+
+def memory_note():
+    if DEVICE == "cpu":
+        return f"peak RSS {peak_rss_mib():.0f} MiB"
+    return (f"peak RSS {peak_rss_mib():.0f} MiB, device {torch.cuda.get_device_name()}, "
+            f"max_memory_allocated {torch.cuda.max_memory_allocated() / 2**20:.0f} MiB")
+
+
+def bench_train(threads, n, h, w, iters):
+    m = CREStereo().to(DEVICE)
+    opt = torch.optim.Adam(m.parameters(), lr=4e-4, betas=(0.9, 0.999), eps=1e-8)
+    l, r = torch.rand(n, 3, h, w, device=DEVICE) * 255, torch.rand(n, 3, h, w, device=DEVICE) * 255
+    disp, valid = torch.rand(n, h, w, device=DEVICE) * 64, torch.ones(n, h, w, device=DEVICE)
+    runs = []
+    for rep in range(REPEATS + (DEVICE != "cpu")):
+        opt.zero_grad(set_to_none=True)
+        sync()
         s = time.time()
-        loss = seq_loss(m(l, r, 10), disp, valid, 0.9)
+        loss = seq_loss(m(l, r, iters), disp, valid, 0.9)
+        sync()
         fwd = time.time() - s
         loss.backward()
+        sync()
         bwd = time.time() - s - fwd
         opt.step()
-        print(f"torch train step (batch 2, 384x512, iters 10, threads {threads}): forward {fwd:.2f}s, "
-              f"backward {bwd:.2f}s, total incl. Adam {time.time() - s:.2f}s, "
-              f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
-    else:
-        l, r = torch.rand(1, 3, 480, 640) * 255, torch.rand(1, 3, 480, 640) * 255
-        with torch.inference_mode():
+        sync()
+        runs.append((fwd, bwd, time.time() - s))
+    fwd, bwd, total = (statistics.median(v) for v in zip(*runs[-REPEATS:]))
+    print(f"torch train step (batch {n}, {h}x{w}, iters {iters}, threads {threads}): forward {fwd:.3f}s, "
+          f"backward {bwd:.3f}s, total incl. Adam {total:.3f}s, {memory_note()}")
+
+
+def bench_infer(threads, h, w, iters=20):
+    """The reference two-pass procedure; pads (replicate, bottom/right) to a multiple of 32 like
+    `crestereo infer`."""
+    m = CREStereo().to(DEVICE)
+    l0, r0 = torch.rand(1, 3, h, w, device=DEVICE) * 255, torch.rand(1, 3, h, w, device=DEVICE) * 255
+    ph, pw = -(-h // 32) * 32, -(-w // 32) * 32
+    runs = []
+    with torch.inference_mode():
+        for rep in range(REPEATS + (DEVICE != "cpu")):
+            sync()
             s = time.time()
-            p = m(resize(l, (240, 320)), resize(r, (240, 320)), 20)[-1]
-            m(l, r, 20, flow_init=p)
-        print(f"torch inference (1x480x640, two-pass, 20 iters, threads {threads}): {time.time() - s:.2f}s, "
-              f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+            l, r = l0, r0
+            if (ph, pw) != (h, w):
+                l = F.pad(l, (0, pw - w, 0, ph - h), mode="replicate")
+                r = F.pad(r, (0, pw - w, 0, ph - h), mode="replicate")
+            p = m(resize(l, (ph // 2, pw // 2)), resize(r, (ph // 2, pw // 2)), iters)[-1]
+            out = m(l, r, iters, flow_init=p)[-1][:, :, :h, :w].cpu()
+            assert out.shape[-2:] == (h, w)
+            runs.append(time.time() - s)
+    print(f"torch inference (1x{h}x{w}, two-pass, {iters} iters, threads {threads}): "
+          f"{statistics.median(runs[-REPEATS:]):.3f}s, {memory_note()}")
+
+
+def bench(argv):
+    """`bench THREADS train [N H W ITERS]` or `bench THREADS infer [H W]` (defaults: the paper's
+    training crop 2x384x512 with 10 iterations; inference 480x640)."""
+    threads = int(argv[0]) if argv else 2
+    what = argv[1] if len(argv) > 1 else "train"
+    sizes = [int(v) for v in argv[2:]]
+    torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    if what == "train":
+        bench_train(threads, *(sizes or [2, 384, 512, 10]))
+    else:
+        bench_infer(threads, *(sizes or [480, 640]))
 
 
 if __name__ == "__main__":
     if sys.argv[1] == "check":
         check(sys.argv[2])
     else:
-        bench(int(sys.argv[2]) if len(sys.argv) > 2 else 2)
+        bench(sys.argv[2:])

@@ -21,7 +21,7 @@ pub fn instance_norm<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
 pub(crate) fn conv_forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
     let dtype = x.dtype();
     if dtype == conv.weight.val().dtype() {
-        return conv.forward(x);
+        return crate::conv2d::forward(conv, x);
     }
     let f = match dtype {
         burn::tensor::DType::F64 => burn::tensor::FloatDType::F64,

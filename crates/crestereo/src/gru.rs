@@ -50,9 +50,10 @@ fn gru_step<B: Backend>(
     cq: &Conv2d<B>,
 ) -> Tensor<B, 4> {
     let hx = Tensor::cat(vec![h.clone(), x.clone()], 1);
-    let z = sigmoid(cz.forward(hx.clone()));
-    let r = sigmoid(cr.forward(hx));
-    let q = tanh(cq.forward(Tensor::cat(vec![r * h.clone(), x], 1)));
+    let conv = crate::conv2d::forward;
+    let z = sigmoid(conv(cz, hx.clone()));
+    let r = sigmoid(conv(cr, hx));
+    let q = tanh(conv(cq, Tensor::cat(vec![r * h.clone(), x], 1)));
     // (1 - z) * h + z * q
     (z.clone().neg().add_scalar(1.0)) * h + z * q
 }

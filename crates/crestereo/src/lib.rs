@@ -29,7 +29,9 @@
 //! predictions (N, 2, H, W), channel 0 = disparity; [`sequence_loss`] is the reference loss.
 //! [`CREStereo::forward_observed`] shows the intermediates to a [`ForwardObserver`].
 
+pub mod agcl;
 pub mod attention;
+pub mod conv2d;
 pub mod corr;
 pub mod encoder;
 pub mod gru;

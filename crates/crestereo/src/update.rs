@@ -34,7 +34,8 @@ impl FlowHeadConfig {
 
 impl<B: Backend> FlowHead<B> {
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        self.conv2.forward(relu(self.conv1.forward(x)))
+        let conv = crate::conv2d::forward;
+        conv(&self.conv2, relu(conv(&self.conv1, x)))
     }
 }
 
@@ -91,10 +92,8 @@ impl<B: Backend> UpdateBlock<B> {
         let inp = Tensor::cat(vec![inp, motion], 1);
         let net = self.gru.forward(net, inp);
         let delta_flow = self.flow_head.forward(net.clone());
-        let mask = self
-            .mask2
-            .forward(relu(self.mask1.forward(net.clone())))
-            .mul_scalar(0.25);
+        let conv = crate::conv2d::forward;
+        let mask = conv(&self.mask2, relu(conv(&self.mask1, net.clone()))).mul_scalar(0.25);
         (net, mask, delta_flow)
     }
 }

@@ -72,6 +72,10 @@ pub fn bench_infer(h: usize, w: usize) -> Result<()> {
     let model = CREStereoConfig::new().init::<B>(&device);
     let (l, r) = random_images::<B>(1, h, w, &device);
     let t0 = Instant::now();
+    // pad (edge, bottom/right) to a multiple of 32 for the two-pass cascade, as `infer` does
+    let (ph, pw) = (h.div_ceil(32) * 32, w.div_ceil(32) * 32);
+    let pad = |t: Tensor<B, 4>| t.pad((0, pw - w, 0, ph - h), burn::tensor::ops::PadMode::Edge);
+    let (l, r) = (pad(l), pad(r));
     let pred = crestereo::infer::cascade(
         &model,
         l,
@@ -81,7 +85,7 @@ pub fn bench_infer(h: usize, w: usize) -> Result<()> {
             stages: 2,
         },
     );
-    let _ = pred.into_data();
+    let _ = pred.slice([0..1, 0..2, 0..h, 0..w]).into_data();
     println!(
         "inference (1x{h}x{w}, two-pass, 20 iters, threads {}): {:.2}s, peak RSS {:.0} MiB",
         std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "all".into()),

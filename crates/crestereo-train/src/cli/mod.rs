@@ -1,6 +1,7 @@
 //! The `crestereo` command line: `infer`, `train`, `eval`, `plot` and `bench`.
 
 mod bench;
+mod bench_device;
 mod eval;
 mod infer;
 mod train;
@@ -77,6 +78,13 @@ enum Command {
         /// Inference size override: height,width (default 480,640).
         #[arg(long, value_delimiter = ',')]
         infer_size: Option<Vec<usize>>,
+        /// Backend: `cuda` times GPU 0 in this process (a warm-up run, then the median of
+        /// --repeats; needs a build with `--features cuda`).
+        #[arg(long, value_enum, default_value_t = DeviceKind::Cpu)]
+        device: DeviceKind,
+        /// Timed runs after the warm-up (`--device cuda` only).
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
     },
 }
 
@@ -160,17 +168,30 @@ fn run(cli: Cli) -> Result<()> {
             eprintln!("wrote {count} pairs of {w}x{h} to {}", out.display());
             Ok(())
         }
-        Command::Bench { what, threads, train_size, infer_size } => run_bench(what, threads, train_size, infer_size),
+        Command::Bench { what, threads, train_size, infer_size, device, repeats } => {
+            run_bench(what, threads, train_size, infer_size, device, repeats)
+        }
     }
 }
 
 /// `crestereo bench`: one part in this process, or both in child processes.
-fn run_bench(what: BenchWhat, threads: usize, train_size: Option<Vec<usize>>, infer_size: Option<Vec<usize>>) -> Result<()> {
+fn run_bench(
+    what: BenchWhat,
+    threads: usize,
+    train_size: Option<Vec<usize>>,
+    infer_size: Option<Vec<usize>>,
+    device: DeviceKind,
+    repeats: usize,
+) -> Result<()> {
     set_threads(threads);
     let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
     let is = infer_size.unwrap_or_else(|| vec![480, 640]);
     if ts.len() != 4 || is.len() != 2 {
         bail!("--train-size takes batch,height,width,iters and --infer-size height,width");
+    }
+    if device == DeviceKind::Cuda {
+        let (t, i) = (what != BenchWhat::Infer, what != BenchWhat::Train);
+        return bench_device::run_cuda(t, i, &ts, &is, repeats);
     }
     match what {
         BenchWhat::Train => bench::bench_train(ts[0], ts[1], ts[2], ts[3]),

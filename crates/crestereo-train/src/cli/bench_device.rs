@@ -1,0 +1,119 @@
+//! `crestereo bench --device cuda`: the training step and the two-pass inference on any backend,
+//! with a device sync before every clock reading, a warm-up run first (kernel compilation and
+//! autotuning) and the median of `repeats` timed runs. Printed in the same format as the CPU
+//! bench so `bench/compare.py` and `bench/gpu_run.sh` parse both. Peak device memory is not
+//! visible through Burn's backend API: `gpu_run.sh` polls `nvidia-smi` around the process.
+
+// Only `run_cuda` calls these; without the `cuda` feature they are unused.
+#![cfg_attr(not(feature = "cuda"), allow(dead_code))]
+
+use std::time::Instant;
+
+use anyhow::Result;
+use burn::optim::{AdamConfig, GradientsParams, Optimizer};
+use burn::prelude::*;
+use burn::tensor::backend::AutodiffBackend;
+use burn::tensor::ops::PadMode;
+use crestereo::{CREStereoConfig, InferenceOptions, sequence_loss};
+
+fn sync<B: Backend>(device: &B::Device) {
+    B::sync(device).expect("device sync");
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn random_images<B: Backend>(n: usize, h: usize, w: usize, device: &B::Device) -> [Tensor<B, 4>; 2] {
+    use burn::tensor::Distribution::Uniform;
+    [0, 1].map(|_| Tensor::random([n, 3, h, w], Uniform(0.0, 255.0), device))
+}
+
+pub fn bench_train<B: AutodiffBackend>(
+    n: usize,
+    h: usize,
+    w: usize,
+    iters: usize,
+    repeats: usize,
+    device: &B::Device,
+) -> Result<()> {
+    let mut model = CREStereoConfig::new().init::<B>(device);
+    let mut optim = AdamConfig::new().init();
+    let [l, r] = random_images::<B>(n, h, w, device);
+    let disp = Tensor::<B, 3>::random([n, h, w], burn::tensor::Distribution::Uniform(0.0, 64.0), device);
+    let valid = Tensor::<B, 3>::ones([n, h, w], device);
+    let (mut fwd, mut bwd, mut total) = (Vec::new(), Vec::new(), Vec::new());
+    for rep in 0..=repeats {
+        sync::<B>(device);
+        let t0 = Instant::now();
+        let preds = model.forward(l.clone(), r.clone(), iters, None);
+        let loss = sequence_loss(&preds, disp.clone(), valid.clone(), 0.9);
+        sync::<B>(device);
+        let t_fwd = t0.elapsed().as_secs_f64();
+        let grads = loss.backward();
+        sync::<B>(device);
+        let t_bwd = t0.elapsed().as_secs_f64() - t_fwd;
+        let grads = GradientsParams::from_grads(grads, &model);
+        model = optim.step(4e-4, model, grads);
+        sync::<B>(device);
+        if rep > 0 {
+            fwd.push(t_fwd);
+            bwd.push(t_bwd);
+            total.push(t0.elapsed().as_secs_f64());
+        }
+    }
+    println!(
+        "train step (batch {n}, {h}x{w}, iters {iters}, device {}, median of {repeats} after a warm-up): forward {:.3}s, backward {:.3}s, total incl. Adam {:.3}s, peak RSS {:.0} MiB",
+        B::name(device),
+        median(fwd),
+        median(bwd),
+        median(total),
+        super::bench::peak_rss_mib()
+    );
+    Ok(())
+}
+
+pub fn bench_infer<B: Backend>(h: usize, w: usize, repeats: usize, device: &B::Device) -> Result<()> {
+    let model = CREStereoConfig::new().init::<B>(device);
+    let [l, r] = random_images::<B>(1, h, w, device);
+    let (ph, pw) = (h.div_ceil(32) * 32, w.div_ceil(32) * 32);
+    let mut times = Vec::new();
+    for rep in 0..=repeats {
+        sync::<B>(device);
+        let t0 = Instant::now();
+        let pad = |t: Tensor<B, 4>| t.pad((0, pw - w, 0, ph - h), PadMode::Edge);
+        let opts = InferenceOptions { iters: 20, stages: 2 };
+        let pred = crestereo::infer::cascade(&model, pad(l.clone()), pad(r.clone()), opts);
+        let _ = pred.slice([0..1, 0..1, 0..h, 0..w]).into_data();
+        if rep > 0 {
+            times.push(t0.elapsed().as_secs_f64());
+        }
+    }
+    println!(
+        "inference (1x{h}x{w}, two-pass, 20 iters, device {}, median of {repeats} after a warm-up): {:.3}s, peak RSS {:.0} MiB",
+        B::name(device),
+        median(times),
+        super::bench::peak_rss_mib()
+    );
+    Ok(())
+}
+
+/// `bench --device cuda`: the chosen parts on CUDA device 0, each in this process.
+#[cfg(feature = "cuda")]
+pub fn run_cuda(train: bool, infer: bool, ts: &[usize], is: &[usize], repeats: usize) -> Result<()> {
+    type C = burn::backend::Cuda;
+    let device = Default::default();
+    if train {
+        bench_train::<burn::backend::Autodiff<C>>(ts[0], ts[1], ts[2], ts[3], repeats, &device)?;
+    }
+    if infer {
+        bench_infer::<C>(is[0], is[1], repeats, &device)?;
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "cuda"))]
+pub fn run_cuda(_: bool, _: bool, _: &[usize], _: &[usize], _: usize) -> Result<()> {
+    anyhow::bail!("this build has no CUDA backend: rebuild with `--features cuda`")
+}

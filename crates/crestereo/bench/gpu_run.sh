@@ -1,0 +1,115 @@
+#!/usr/bin/env bash
+# CREStereo on a CUDA machine without Rust or network: parity against the fixtures, then Burn
+# (CUDA) and PyTorch (CUDA) timed on the same GPU, with peak GPU memory.
+#
+#   gpu_run.sh BIN FIXTURES_DIR TORCH_REFERENCE_PY [OUT_DIR]
+#
+# BIN: the stripped `crestereo` binary built with `--features cuda` (x86-64).
+# FIXTURES_DIR: needs weights_seed0.pt and eval_cascade_1x128x192/{left.png,right.png,pred_full.npy}.
+# TORCH_REFERENCE_PY: crates/crestereo/bench/torch_reference.py (needs python3 with torch, numpy).
+# OUT_DIR (default $OUT): summary.txt, results.json, the logs and the predictions.
+# SIZES (env, default "small paper"): which sizes to time. REPEATS (env, default 3).
+set -uo pipefail
+BIN=$1
+FIX=$2
+REF=$3
+OUT=${4:-${OUT:?give OUT_DIR or set OUT}}
+SIZES=${SIZES:-small paper}
+REPEATS=${REPEATS:-3}
+mkdir -p "$OUT"
+SUMMARY=$OUT/summary.txt
+: >"$SUMMARY"
+say() { echo "$*" | tee -a "$SUMMARY"; }
+chmod +x "$BIN" 2>/dev/null || true
+
+say "== machine"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$SUMMARY"
+python3 -c 'import torch; print("torch", torch.__version__, "cuda", torch.version.cuda)' | tee -a "$SUMMARY"
+
+# --- 1. parity: the CLI's two-pass inference on the fixture PNGs, CUDA and CPU, vs pred_full.npy
+say "== parity (eval_cascade_1x128x192, two-pass, 20 iters) vs pred_full.npy"
+E=$FIX/eval_cascade_1x128x192
+for dev in cuda cpu; do
+    "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$dev.exr" --pfm "$OUT/pred_$dev.pfm" \
+        --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device "$dev" \
+        >"$OUT/infer_$dev.log" 2>&1 || say "infer --device $dev FAILED (see infer_$dev.log)"
+done
+python3 - "$OUT" "$E/pred_full.npy" <<'EOF' | tee -a "$SUMMARY"
+import sys, numpy as np
+out, ref = sys.argv[1], np.load(sys.argv[2])[0, 0]  # (1, 2, H, W) -> disparity channel
+def pfm(path):
+    with open(path, "rb") as f:
+        assert f.readline().strip() == b"Pf"
+        w, h = map(int, f.readline().split())
+        scale = float(f.readline())
+        data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
+    return data.reshape(h, w)[::-1]  # PFM rows run bottom to top
+for dev in ("cuda", "cpu"):
+    try:
+        d = pfm(f"{out}/pred_{dev}.pfm")
+    except Exception as e:
+        print(f"{dev}: no prediction ({e})"); continue
+    err = np.abs(d - ref).max()
+    print(f"{dev}: max |pred - pred_full| = {err:.3e} ({'PASS' if err <= 1e-3 else 'FAIL'} at 1e-3)")
+EOF
+
+# --- 2. timing and peak GPU memory, each run in its own process while nvidia-smi polls
+poll_start() { nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 50 >"$1" & POLL=$!; }
+poll_stop() { kill "$POLL" 2>/dev/null; wait "$POLL" 2>/dev/null; }
+peak() { sort -n "$1" | tail -1; }
+BASE=$(nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits | head -1)
+say "== timing (device sync around every clock reading; warm-up then median of $REPEATS)"
+say "   GPU memory in use before the runs: $BASE MiB (subtracted from the nvidia-smi peaks)"
+echo "[" >"$OUT/results.json"
+first=1
+for size in $SIZES; do
+    case $size in
+        small) TS="1 192 256 4"; IS="256 320" ;;
+        paper) TS="2 384 512 10"; IS="480 640" ;;
+        *) say "unknown size $size"; continue ;;
+    esac
+    for what in train infer; do
+        if [ $what = train ]; then S=$TS; else S=$IS; fi
+        csv=$(echo $S | tr ' ' ',')
+        poll_start "$OUT/mem_burn_${what}_$size.txt"
+        "$BIN" bench --device cuda --what $what --repeats "$REPEATS" \
+            $([ $what = train ] && echo --train-size || echo --infer-size) "$csv" \
+            >"$OUT/burn_${what}_$size.log" 2>&1 || say "burn $what $size FAILED"
+        poll_stop
+        poll_start "$OUT/mem_torch_${what}_$size.txt"
+        CRESTEREO_TORCH_DEVICE=cuda CRESTEREO_TORCH_REPEATS=$REPEATS \
+            python3 "$REF" bench 8 $what $S >"$OUT/torch_${what}_$size.log" 2>&1 || say "torch $what $size FAILED"
+        poll_stop
+        b=$(grep -E "^(train step|inference)" "$OUT/burn_${what}_$size.log" | tail -1)
+        t=$(grep -E "^torch" "$OUT/torch_${what}_$size.log" | tail -1)
+        bm=$(( $(peak "$OUT/mem_burn_${what}_$size.txt") - BASE ))
+        tm=$(( $(peak "$OUT/mem_torch_${what}_$size.txt") - BASE ))
+        say "-- $what $size ($S)"
+        say "   burn : $b | nvidia-smi peak $bm MiB"
+        say "   torch: $t | nvidia-smi peak $tm MiB"
+        python3 - "$what" "$size" "$b" "$t" "$bm" "$tm" "$first" >>"$OUT/results.json" <<'EOF'
+import json, re, sys
+what, size, b, t, bm, tm, first = sys.argv[1:]
+def total(line):
+    m = re.search(r"total incl\. Adam ([\d.]+)s", line) or re.search(r"\): ([\d.]+)s", line)
+    return float(m.group(1)) if m else None
+def part(line, name):
+    m = re.search(name + r" ([\d.]+)s", line)
+    return float(m.group(1)) if m else None
+r = {"what": what, "size": size, "burn_s": total(b), "torch_s": total(t),
+     "burn_gpu_peak_mib": int(bm), "torch_gpu_peak_mib": int(tm)}
+m = re.search(r"max_memory_allocated (\d+) MiB", t)
+r["torch_max_memory_allocated_mib"] = int(m.group(1)) if m else None
+if what == "train":
+    for k in ("forward", "backward"):
+        r[f"burn_{k}_s"], r[f"torch_{k}_s"] = part(b, k), part(t, k)
+if r["burn_s"] and r["torch_s"]:
+    r["ratio_time"] = r["burn_s"] / r["torch_s"]
+r["ratio_gpu_peak"] = int(bm) / max(int(tm), 1)
+print(("" if first == "1" else ",") + json.dumps(r))
+EOF
+        first=0
+    done
+done
+echo "]" >>"$OUT/results.json"
+say "== done; results.json and logs in $OUT"

@@ -1,0 +1,118 @@
+//! The 1/4 level's shifted correlation: `left` against the warped right map read at the
+//! integer window offsets, replicate border. One kernel with its own backward on Flex and
+//! `Autodiff<Flex>`; other backends (CUDA) compose it from device-side tensor ops (edge pad,
+//! nine crops, products and group means), which is what it replaced on the CPU.
+
+use std::any::TypeId;
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::flex::FlexTensor;
+use burn::backend::{Autodiff, Flex};
+use burn::prelude::*;
+use burn::tensor::TensorMetadata;
+use burn::tensor::ops::{FloatTensor, PadMode};
+
+use super::kernels::{self, Dims};
+use super::{CorrSpec, prim, same, tensor};
+
+/// Shifted group correlation (N, G·K, H, W) of `left` and `warped` (N, C, H, W).
+pub fn shift_corr<B: Backend>(
+    left: Tensor<B, 4>,
+    warped: Tensor<B, 4>,
+    spec: CorrSpec,
+) -> Tensor<B, 4> {
+    assert_eq!(left.dims(), warped.dims(), "AGCL: left/warped shapes differ");
+    let id = TypeId::of::<B>();
+    if id == TypeId::of::<Flex>() {
+        let (l, r): (FlexTensor, FlexTensor) = (same(prim(left)), same(prim(warped)));
+        return tensor(same(flex_forward(&l, &r, spec)));
+    }
+    if id == TypeId::of::<Autodiff<Flex>>() {
+        let l: FloatTensor<Autodiff<Flex>> = same(prim(left));
+        let r: FloatTensor<Autodiff<Flex>> = same(prim(warped));
+        return tensor(same(autodiff_forward(l, r, spec)));
+    }
+    composed(left, warped, spec)
+}
+
+/// The device-side composition (any backend).
+fn composed<B: Backend>(left: Tensor<B, 4>, warped: Tensor<B, 4>, spec: CorrSpec) -> Tensor<B, 4> {
+    let [n, c, h, w] = left.dims();
+    let (rx, ry, g) = (spec.rx, spec.ry, spec.groups);
+    let padded = warped.pad((rx, rx, ry, ry), PadMode::Edge);
+    let corrs: Vec<Tensor<B, 5>> = (0..spec.candidates())
+        .map(|k| {
+            let (dx, dy) = spec.window_offset(k);
+            let oy = (dy + ry as i64) as usize;
+            let ox = (dx + rx as i64) as usize;
+            let crop = padded.clone().slice([0..n, 0..c, oy..oy + h, ox..ox + w]);
+            (left.clone() * crop).reshape([n, g, c / g, h, w]).mean_dim(2)
+        })
+        .collect();
+    Tensor::cat(corrs, 2).reshape([n, g * spec.candidates(), h, w])
+}
+
+fn dims(t: &FlexTensor) -> Dims {
+    let [n, c, h, w] = t.shape().dims();
+    Dims { n, c, h, w }
+}
+
+fn channel_last(t: &FlexTensor) -> FlexTensor {
+    t.permute(&[0, 2, 3, 1]).to_contiguous()
+}
+
+fn from_channel_last(data: Vec<f32>, d: Dims, c: usize) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(data, [d.n, d.h, d.w, c])).permute(&[0, 3, 1, 2])
+}
+
+fn flex_forward(left: &FlexTensor, warped: &FlexTensor, spec: CorrSpec) -> FlexTensor {
+    let d = dims(left);
+    let (l, r) = (channel_last(left), channel_last(warped));
+    let out = kernels::shift_corr_forward(l.storage(), r.storage(), d, spec);
+    from_channel_last(out, d, spec.groups * spec.candidates())
+}
+
+#[derive(Debug)]
+struct ShiftCorrBackward;
+
+impl Backward<Flex, 2> for ShiftCorrBackward {
+    type State = (FlexTensor, FlexTensor, CorrSpec);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let grad = grads.consume::<Flex>(&ops.node).to_contiguous();
+        let (left, warped, spec) = ops.state;
+        let d = dims(&left);
+        let (l, r) = (channel_last(&left), channel_last(&warped));
+        let (dl, dr) = kernels::shift_corr_backward(l.storage(), r.storage(), grad.storage(), d, spec);
+        let [node_l, node_r] = ops.parents;
+        if let Some(node) = node_l {
+            grads.register::<Flex>(node.id, from_channel_last(dl, d, d.c));
+        }
+        if let Some(node) = node_r {
+            grads.register::<Flex>(node.id, from_channel_last(dr, d, d.c));
+        }
+    }
+}
+
+fn autodiff_forward(
+    left: FloatTensor<Autodiff<Flex>>,
+    warped: FloatTensor<Autodiff<Flex>>,
+    spec: CorrSpec,
+) -> FloatTensor<Autodiff<Flex>> {
+    let nodes = [left.node.clone(), warped.node.clone()];
+    let (l, r) = (left.primitive, warped.primitive);
+    match ShiftCorrBackward
+        .prepare::<NoCheckpointing>(nodes)
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => {
+            let out = flex_forward(&l, &r, spec);
+            prep.finish((l, r, spec), out)
+        }
+        OpsKind::UnTracked(prep) => prep.finish(flex_forward(&l, &r, spec)),
+    }
+}

@@ -1,0 +1,353 @@
+//! 2-D convolution with a GEMM backward on the CPU training backend.
+//!
+//! Burn's Flex backend differentiates a convolution through its generic fallbacks: the weight
+//! gradient as a convolution whose kernel is the whole output-gradient map (one skinny matrix
+//! product per input channel) and the input gradient as a scatter-based transposed
+//! convolution. Here, on `Autodiff<Flex>`, the backward is the textbook pair of matrix products
+//! over the unfolded input (`im2col`, built per row of the unfolded matrix, in parallel):
+//!
+//! * `dW = dY · colsᵀ` (C_out × N·P times N·P × C_in·kh·kw),
+//! * `dX = col2im(Wᵀ · dY)`, scattered back per input channel (no two tasks write one plane).
+//!
+//! The forward (on `Flex` too) is one matrix product per image, `Y_b = W · cols_b`, written
+//! in NCHW directly. Every other backend, float64 tensors and grouped convolutions use
+//! `Conv2d::forward` unchanged.
+
+use std::any::TypeId;
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::flex::FlexTensor;
+use burn::backend::{Autodiff, Flex};
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::Conv2d;
+use burn::prelude::*;
+use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
+use burn::tensor::{DType, TensorData, TensorMetadata, TensorPrimitive};
+use rayon::prelude::*;
+
+/// `conv.forward(x)`; on `Autodiff<Flex>` (float32, groups 1, symmetric padding) with the GEMM
+/// backward described in the module docs.
+pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
+    let padding = match conv.padding {
+        PaddingConfig2d::Explicit(top, left, bottom, right) if top == bottom && left == right => {
+            Some([top, left])
+        }
+        PaddingConfig2d::Valid => Some([0, 0]),
+        _ => None,
+    };
+    let autodiff = TypeId::of::<B>() == TypeId::of::<Autodiff<Flex>>();
+    let fast = (autodiff || TypeId::of::<B>() == TypeId::of::<Flex>())
+        && conv.groups == 1
+        && x.dtype() == DType::F32
+        && conv.weight.val().dtype() == DType::F32;
+    let Some(padding) = padding.filter(|_| fast) else {
+        return conv.forward(x);
+    };
+    let options = ConvOptions::new(conv.stride, padding, conv.dilation, 1);
+    let (x, w) = (x.into_primitive().tensor(), conv.weight.val().into_primitive().tensor());
+    let y = if autodiff {
+        same(conv2d_autodiff(same(x), same(w), options))
+    } else {
+        let (x, w): (FlexTensor, FlexTensor) = (same(x), same(w));
+        same(gemm_forward(&x, &w, &Geometry::new(&x, &w, &options)))
+    };
+    let y: Tensor<B, 4> = Tensor::from_primitive(TensorPrimitive::Float(y));
+    match &conv.bias {
+        Some(bias) => {
+            let c = bias.dims()[0];
+            y + bias.val().reshape([1, c, 1, 1])
+        }
+        None => y,
+    }
+}
+
+fn same<S: 'static, T: 'static>(value: S) -> T {
+    *(Box::new(value) as Box<dyn std::any::Any>)
+        .downcast::<T>()
+        .unwrap_or_else(|_| unreachable!("conv2d dispatch: backend types differ"))
+}
+
+#[derive(Debug)]
+struct Conv2dBackward;
+
+impl Backward<Flex, 2> for Conv2dBackward {
+    type State = (FlexTensor, FlexTensor, ConvOptions<2>);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node_x, node_w] = ops.parents;
+        let dy = grads.consume::<Flex>(&ops.node).to_contiguous();
+        let (x, w, options) = ops.state;
+        let geometry = Geometry::new(&x, &w, &options);
+        if let Some(node) = node_w {
+            grads.register::<Flex>(node.id, weight_grad(&x, &dy, &geometry));
+        }
+        if let Some(node) = node_x {
+            grads.register::<Flex>(node.id, input_grad(&w, &dy, &geometry));
+        }
+    }
+}
+
+fn conv2d_autodiff(
+    x: FloatTensor<Autodiff<Flex>>,
+    w: FloatTensor<Autodiff<Flex>>,
+    options: ConvOptions<2>,
+) -> FloatTensor<Autodiff<Flex>> {
+    let nodes = [x.node.clone(), w.node.clone()];
+    let (x, w) = (x.primitive, w.primitive);
+    match Conv2dBackward
+        .prepare::<NoCheckpointing>(nodes)
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => {
+            let y = gemm_forward(&x, &w, &Geometry::new(&x, &w, &options));
+            prep.finish((x, w, options), y)
+        }
+        OpsKind::UnTracked(prep) => {
+            prep.finish(gemm_forward(&x, &w, &Geometry::new(&x, &w, &options)))
+        }
+    }
+}
+
+/// Sizes of one convolution.
+#[derive(Clone, Copy, Debug)]
+struct Geometry {
+    n: usize,
+    cin: usize,
+    h: usize,
+    w: usize,
+    cout: usize,
+    kh: usize,
+    kw: usize,
+    ho: usize,
+    wo: usize,
+    stride: [usize; 2],
+    pad: [usize; 2],
+    dil: [usize; 2],
+}
+
+impl Geometry {
+    fn new(x: &FlexTensor, w: &FlexTensor, o: &ConvOptions<2>) -> Self {
+        let [n, cin, h, wd] = x.shape().dims();
+        let [cout, _, kh, kw] = w.shape().dims();
+        let out = |i: usize, k: usize, d: usize| (i + 2 * o.padding[d] - o.dilation[d] * (k - 1) - 1) / o.stride[d] + 1;
+        Geometry {
+            n,
+            cin,
+            h,
+            w: wd,
+            cout,
+            kh,
+            kw,
+            ho: out(h, kh, 0),
+            wo: out(wd, kw, 1),
+            stride: o.stride,
+            pad: o.padding,
+            dil: o.dilation,
+        }
+    }
+
+    fn k(&self) -> usize {
+        self.cin * self.kh * self.kw
+    }
+
+    fn p(&self) -> usize {
+        self.ho * self.wo
+    }
+
+    /// Input coordinate of output coordinate `o` for kernel tap `t` along axis `d`.
+    #[inline]
+    fn src(&self, o: usize, t: usize, d: usize) -> isize {
+        (o * self.stride[d] + t * self.dil[d]) as isize - self.pad[d] as isize
+    }
+
+    /// Output range along axis `d` whose input coordinate for tap `t` lies in `0..len`.
+    fn valid(&self, t: usize, d: usize, len: usize, out_len: usize) -> std::ops::Range<usize> {
+        let lo = (0..out_len).find(|&o| self.src(o, t, d) >= 0).unwrap_or(out_len);
+        let hi = (lo..out_len)
+            .find(|&o| self.src(o, t, d) >= len as isize)
+            .unwrap_or(out_len);
+        lo..hi
+    }
+}
+
+/// Unfolded input of image `b`: (C_in·kh·kw, P), row `(ci, a, c)` = the input plane `ci`
+/// sampled at tap (a, c) for every output pixel (zero in the padding).
+fn im2col(x: &[f32], g: &Geometry, b: usize) -> Vec<f32> {
+    let p = g.p();
+    let mut cols = vec![0f32; g.k() * p];
+    cols.par_chunks_mut(p).enumerate().for_each(|(row, dst)| {
+        let (ci, a, c) = (row / (g.kh * g.kw), (row / g.kw) % g.kh, row % g.kw);
+        let plane = &x[(b * g.cin + ci) * g.h * g.w..(b * g.cin + ci + 1) * g.h * g.w];
+        let xs = g.valid(c, 1, g.w, g.wo);
+        if xs.is_empty() {
+            // This tap reads only padding along x (small maps): the row stays zero, and the
+            // source offset of an empty range may be negative.
+            return;
+        }
+        for oy in g.valid(a, 0, g.h, g.ho) {
+            let iy = g.src(oy, a, 0) as usize;
+            let out_row = &mut dst[oy * g.wo..(oy + 1) * g.wo];
+            if g.stride[1] == 1 && g.dil[1] == 1 {
+                let ix0 = g.src(xs.start, c, 1) as usize;
+                out_row[xs.clone()].copy_from_slice(&plane[iy * g.w + ix0..iy * g.w + ix0 + xs.len()]);
+            } else {
+                for ox in xs.clone() {
+                    out_row[ox] = plane[iy * g.w + g.src(ox, c, 1) as usize];
+                }
+            }
+        }
+    });
+    cols
+}
+
+/// Adds the unfolded gradient `cols` (C_in·kh·kw, P) of image `b` back onto its input planes.
+fn col2im(cols: &[f32], dx: &mut [f32], g: &Geometry, b: usize) {
+    let p = g.p();
+    let taps = g.kh * g.kw;
+    dx[b * g.cin * g.h * g.w..(b + 1) * g.cin * g.h * g.w]
+        .par_chunks_mut(g.h * g.w)
+        .enumerate()
+        .for_each(|(ci, plane)| {
+            for t in 0..taps {
+                let (a, c) = (t / g.kw, t % g.kw);
+                let src = &cols[(ci * taps + t) * p..(ci * taps + t + 1) * p];
+                let xs = g.valid(c, 1, g.w, g.wo);
+                for oy in g.valid(a, 0, g.h, g.ho) {
+                    let iy = g.src(oy, a, 0) as usize;
+                    for ox in xs.clone() {
+                        plane[iy * g.w + g.src(ox, c, 1) as usize] += src[oy * g.wo + ox];
+                    }
+                }
+            }
+        });
+}
+
+fn flex(data: Vec<f32>, shape: [usize; 3]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(data, shape))
+}
+
+/// `Y_b = W · cols_b` for every image b, (N, C_out, H_out, W_out), NCHW without a layout
+/// change (1×1 stride-1 convolutions multiply the input planes directly).
+fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry) -> FlexTensor {
+    let x = x.to_contiguous();
+    let (p, k) = (g.p(), g.k());
+    let wm = w.to_contiguous().reshape([1, g.cout, k].into());
+    let pointwise = g.kh == 1 && g.kw == 1 && g.stride == [1, 1] && g.pad == [0, 0];
+    let outs: Vec<FlexTensor> = (0..g.n)
+        .map(|b| {
+            let cols = if pointwise {
+                x.narrow(0, b, 1).reshape([1, k, p].into())
+            } else {
+                flex(im2col(x.storage(), g, b), [1, k, p])
+            };
+            Flex::float_matmul(wm.clone(), cols)
+        })
+        .collect();
+    let y = if outs.len() == 1 {
+        outs.into_iter().next().expect("one image")
+    } else {
+        Flex::float_cat(outs, 0)
+    };
+    y.reshape([g.n, g.cout, g.ho, g.wo].into())
+}
+
+/// `dW = Σ_b dY_b · cols_bᵀ`, (C_out, C_in, kh, kw).
+fn weight_grad(x: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
+    let x = x.to_contiguous();
+    let (p, k) = (g.p(), g.k());
+    let mut acc: Option<FlexTensor> = None;
+    for b in 0..g.n {
+        let cols = flex(im2col(x.storage(), g, b), [1, k, p]);
+        let dy_b = dy.narrow(0, b, 1).reshape([1, g.cout, p].into());
+        let prod = Flex::float_matmul(dy_b, Flex::float_swap_dims(cols, 1, 2)); // 1, cout, k
+        acc = Some(match acc {
+            Some(a) => Flex::float_add(a, prod),
+            None => prod,
+        });
+    }
+    acc.expect("batch of at least one")
+        .reshape([g.cout, g.cin, g.kh, g.kw].into())
+}
+
+/// `dX = col2im(Wᵀ · dY_b)` for every image b, (N, C_in, H, W).
+fn input_grad(w: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
+    let (p, k) = (g.p(), g.k());
+    let wt = Flex::float_swap_dims(w.to_contiguous().reshape([1, g.cout, k].into()), 1, 2); // 1, k, cout
+    let mut dx = vec![0f32; g.n * g.cin * g.h * g.w];
+    for b in 0..g.n {
+        let dy_b = dy.narrow(0, b, 1).reshape([1, g.cout, p].into());
+        let cols = Flex::float_matmul(wt.clone(), dy_b).to_contiguous(); // 1, k, p
+        col2im(cols.storage(), &mut dx, g, b);
+    }
+    FlexTensor::from_data(TensorData::new(dx, [g.n, g.cin, g.h, g.w]))
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::AutodiffModule;
+    use burn::nn::conv::Conv2dConfig;
+    use burn::tensor::Distribution;
+
+    use super::*;
+
+    type Ad = Autodiff<Flex>;
+
+    fn values<B: Backend>(t: Tensor<B, 4>) -> Vec<f32> {
+        t.into_data().convert::<f32>().into_vec().unwrap()
+    }
+
+    fn max_diff(a: &[f32], b: &[f32]) -> f32 {
+        assert_eq!(a.len(), b.len());
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    }
+
+    /// The GEMM path against Burn's own convolution, forward and both gradients, including maps
+    /// smaller than the kernel's reach (a tap that only ever reads padding) and strides.
+    #[test]
+    fn gemm_convolution_matches_burn_forward_and_gradients() {
+        let device = Default::default();
+        // (cin, cout, kernel, stride, padding, dilation, h, w)
+        let cases = [
+            (3, 4, 3, 1, 1, 1, 5, 7),
+            (2, 3, 7, 2, 3, 1, 2, 2),
+            (4, 2, 3, 1, 1, 1, 1, 3),
+            (2, 2, 1, 1, 0, 1, 3, 4),
+            (3, 2, 3, 2, 1, 1, 6, 5),
+            (2, 3, 3, 1, 2, 2, 4, 4),
+        ];
+        for (cin, cout, k, s, p, d, h, w) in cases {
+            let conv = Conv2dConfig::new([cin, cout], [k, k])
+                .with_stride([s, s])
+                .with_dilation([d, d])
+                .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
+                .init::<Ad>(&device);
+            let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device).require_grad();
+            let ours = forward(&conv, x.clone());
+            let theirs = conv.forward(x.clone());
+            let case = format!("cin {cin} cout {cout} k {k} s {s} p {p} d {d} {h}x{w}");
+            assert_eq!(ours.dims(), theirs.dims(), "{case}");
+            let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
+            assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");
+            let up = Tensor::<Ad, 4>::random(ours.dims(), Distribution::Normal(0.0, 1.0), &device);
+            let g_ours = (ours * up.clone()).sum().backward();
+            let g_theirs = (theirs * up).sum().backward();
+            let pairs = [
+                (x.grad(&g_ours).unwrap(), x.grad(&g_theirs).unwrap(), "dx"),
+                (conv.weight.val().grad(&g_ours).unwrap(), conv.weight.val().grad(&g_theirs).unwrap(), "dw"),
+            ];
+            for (a, b, name) in pairs {
+                let diff = max_diff(&values(a), &values(b));
+                assert!(diff <= 1e-4, "{case}: {name} differs by {diff}");
+            }
+            // the plain Flex forward takes the GEMM path too
+            let xf = x.inner();
+            let conv_f = conv.valid();
+            let diff = max_diff(&values(forward(&conv_f, xf.clone())), &values(conv_f.forward(xf)));
+            assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
+        }
+    }
+}
