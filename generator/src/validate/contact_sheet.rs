@@ -5,36 +5,13 @@
 use std::path::Path;
 
 use anyhow::{Context, bail};
-use stereo_io::{DisparityMap, RgbImage};
+use stereo_io::RgbImage;
+use stereo_io::colormap::{DisparityRange, colourise};
 
 use crate::dataset::{DatasetLayout, Manifest};
 
 /// Gap between tiles, in pixels.
 const GAP: usize = 6;
-
-/// Disparity to colour: far (small) is blue, near (large) is red, through cyan, green and yellow.
-/// Invalid pixels are black.
-pub fn colourise(map: &DisparityMap, max: f32) -> RgbImage {
-    let mut data = Vec::with_capacity(map.data.len() * 3);
-    for (&d, &v) in map.data.iter().zip(&map.valid) {
-        if !v {
-            data.extend([0, 0, 0]);
-            continue;
-        }
-        let t = f64::from((d / max.max(1e-6)).clamp(0.0, 1.0));
-        // Hue from 240° (blue) down to 0° (red), full saturation and value.
-        let h = (1.0 - t) * 4.0;
-        let x = 1.0 - (h % 2.0 - 1.0).abs();
-        let (r, g, b) = match h as u32 {
-            0 => (1.0, x, 0.0),
-            1 => (x, 1.0, 0.0),
-            2 => (0.0, 1.0, x),
-            _ => (0.0, x, 1.0),
-        };
-        data.extend([r, g, b].map(|c: f64| (c * 255.0).round() as u8));
-    }
-    RgbImage { width: map.width, height: map.height, data }
-}
 
 fn blit(dst: &mut RgbImage, src: &RgbImage, x0: usize, y0: usize) {
     for y in 0..src.height {
@@ -70,23 +47,9 @@ pub fn write_contact_sheet(dataset: &Path, count: usize, cols: usize, out: &Path
         let x0 = GAP * 2 + c * (tile_w + GAP * 2);
         let y0 = GAP + r * (h + GAP);
         blit(&mut sheet, &image, x0, y0);
-        blit(&mut sheet, &colourise(&disp, max), x0 + w + GAP, y0);
+        // Zero to the sample's largest disparity, the shared colour map (`stereo_io::colormap`).
+        blit(&mut sheet, &colourise(&disp, DisparityRange::new(0.0, max)), x0 + w + GAP, y0);
     }
     stereo_io::write_atomically(out, |tmp| stereo_io::write_png_rgb(tmp, &sheet)).with_context(|| format!("cannot write {}", out.display()))?;
     Ok(entries.len())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn colours_run_from_blue_to_red_and_invalid_is_black() {
-        let map = DisparityMap { width: 4, height: 1, data: vec![0.0, 5.0, 10.0, 3.0], valid: vec![true, true, true, false] };
-        let img = colourise(&map, 10.0);
-        assert_eq!(&img.data[0..3], &[0, 0, 255]);
-        assert_eq!(&img.data[6..9], &[255, 0, 0]);
-        assert_eq!(&img.data[3..6], &[0, 255, 0]);
-        assert_eq!(&img.data[9..12], &[0, 0, 0]);
-    }
 }
