@@ -153,7 +153,7 @@ pub enum Command {
         #[arg(long, default_value_t = 0)]
         index: u64,
     },
-    /// Render one SceneSpec JSON file (e.g. a sample's `<id>.scene.json`) into DIR, reproducing it exactly.
+    /// Render one SceneSpec JSON file (e.g. a sample's `<id>.scene.json.gz`, or an older plain `<id>.scene.json`) into DIR, reproducing it exactly.
     Render {
         /// The SceneSpec JSON file.
         #[arg(long, value_name = "FILE")]

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use serde::Serialize;
-use stereo_io::ShardInfo;
+use stereo_io::datasets::stereogen::ShardInfo;
 
 use super::layout::{CreateDataset, DatasetLayout};
 use super::lock::DatasetLock;

@@ -238,7 +238,8 @@ fn start_heartbeat(path: PathBuf) -> (Arc<(Mutex<bool>, Condvar)>, JoinHandle<()
         let (flag, cvar) = &*signal;
         let mut stopped = flag.lock().unwrap();
         loop {
-            stopped = cvar.wait_timeout(stopped, HEARTBEAT).unwrap().0;
+            // `_while` checks the flag first: a stop set before this thread waits is not missed.
+            stopped = cvar.wait_timeout_while(stopped, HEARTBEAT, |stop| !*stop).unwrap().0;
             if *stopped {
                 break;
             }
@@ -329,7 +330,7 @@ mod tests {
     fn timestamps_are_utc_calendar_dates() {
         assert_eq!(utc_timestamp(0), "1970-01-01T00:00:00Z");
         assert_eq!(utc_timestamp(951_782_400), "2000-02-29T00:00:00Z");
-        assert_eq!(utc_timestamp(1_795_400_000), "2026-11-22T23:33:20Z");
+        assert_eq!(utc_timestamp(1_795_400_000), "2026-11-23T02:13:20Z");
     }
 
     #[test]

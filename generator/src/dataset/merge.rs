@@ -12,7 +12,8 @@ use std::path::{Path, PathBuf};
 use anyhow::bail;
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
-use stereo_io::{ChecksumCheck, DatasetInfo, MergeInfo, ShardId, ShardInfo};
+use stereo_io::DatasetInfo;
+use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardId, ShardInfo};
 
 use super::layout::DatasetLayout;
 use super::lock::{LockState, inspect, unix_now};
@@ -295,10 +296,8 @@ fn check_sample(s: &Shard, e: &ManifestEntry, hash: bool) -> (Vec<String>, u64, 
 }
 
 fn sha256_file(path: &Path) -> std::io::Result<String> {
-    let mut file = std::fs::File::open(path)?;
-    let mut hasher = Sha256::new();
-    std::io::copy(&mut file, &mut hasher)?;
-    Ok(hasher.finalize().iter().map(|b| format!("{b:02x}")).collect())
+    let bytes = std::fs::read(path)?;
+    Ok(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// The top-level files: `dataset.json` (the shards' own), `merge.json`, then `manifest.jsonl`
@@ -310,7 +309,7 @@ fn write_merge(out: &DatasetLayout, shards: &[Shard], info: &DatasetInfo, start:
     out.write_merge_info(&MergeInfo { shards: shards.len() as u64, start, count, checksums, files_hashed, merged_unix_s: unix_now() })?;
     let mut entries: Vec<ManifestEntry> = Vec::with_capacity(shards.iter().map(|s| s.entries.len()).sum());
     for s in shards {
-        let prefix = Path::new(stereo_io::SHARDS_DIR).join(s.id.dir_name());
+        let prefix = Path::new(stereo_io::datasets::stereogen::SHARDS_DIR).join(s.id.dir_name());
         entries.extend(s.entries.iter().cloned().map(|mut e| {
             for p in [&mut e.files.left, &mut e.files.right, &mut e.files.disp_left, &mut e.files.disp_right, &mut e.files.scene] {
                 *p = prefix.join(&*p);

@@ -18,7 +18,7 @@ use std::str::FromStr;
 
 use anyhow::{Context, bail};
 
-pub use stereo_io::ShardId;
+pub use stereo_io::datasets::stereogen::ShardId;
 
 /// `STEREOGEN_SHARD=K/N`: the shard, set by hand or by a job file.
 pub const SHARD_ENV: &str = "STEREOGEN_SHARD";

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
 
 use anyhow::bail;
-use stereo_io::{MergeInfo, ShardId, ShardInfo};
+use stereo_io::datasets::stereogen::{MergeInfo, ShardId, ShardInfo};
 
 use super::layout::DatasetLayout;
 use super::lock::{LockState, inspect};
@@ -52,7 +52,8 @@ impl ShardStatus {
 
     fn eta(&self) -> Option<Duration> {
         let rate = self.samples_per_hour.filter(|r| *r > 0.0)?;
-        matches!(self.state, RunState::Running { .. }).then(|| Duration::from_secs_f64(self.remaining()? as f64 / rate * 3600.0))
+        let remaining = self.remaining()?;
+        matches!(self.state, RunState::Running { .. }).then(|| Duration::from_secs_f64(remaining as f64 / rate * 3600.0))
     }
 }
 
@@ -173,7 +174,7 @@ pub fn status_lines(status: &FarmStatus) -> Vec<String> {
     );
     lines.push(format!("{:<16} {:>8} {:>7} {:>10} {:>10} {:>9}  {summary}", "all", done, failed, num(remaining), rate(farm_rate), eta));
     lines.push(match &status.merged {
-        Some(m) => format!("merged: {} samples of {} shards ({} checksums) — `stereogen merge` again after new samples", m.count, m.shards, if m.checksums == stereo_io::ChecksumCheck::All { "all" } else { "sampled" }),
+        Some(m) => format!("merged: {} samples of {} shards ({} checksums) — `stereogen merge` again after new samples", m.count, m.shards, if m.checksums == stereo_io::datasets::stereogen::ChecksumCheck::All { "all" } else { "sampled" }),
         None if status.shards.iter().any(|s| s.shard.is_some()) => format!("not merged yet: `stereogen merge {}` when every shard is finished", status.root.display()),
         None => String::new(),
     });
