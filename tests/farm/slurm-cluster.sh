@@ -18,7 +18,17 @@ action=$1
 dir=$(mkdir -p "$2" && cd "$2" && pwd)
 
 stop() {
-  # slurmd first (it ends its job steps), then the controller, then munge.
+  # Jobs first (their steps are slurmd's children only in name: slurmstepd outlives slurmd), then
+  # slurmd, the controller and munge.
+  if [ -s "$dir/slurmctld.pid" ] && kill -0 "$(cat "$dir/slurmctld.pid")" 2>/dev/null; then
+    export SLURM_CONF="$dir/slurm.conf"
+    jobs=$(squeue -h -o %A 2>/dev/null | sort -u | tr '\n' ' ')
+    if [ -n "${jobs// }" ]; then
+      # shellcheck disable=SC2086
+      scancel --full $jobs 2>/dev/null || true
+      for _ in $(seq 150); do [ -z "$(squeue -h -o %A 2>/dev/null)" ] && break; sleep 0.2; done
+    fi
+  fi
   for name in slurmd slurmctld munged; do
     pidfile="$dir/$name.pid"
     [ -s "$pidfile" ] || continue
@@ -89,7 +99,7 @@ AccountingStorageType=accounting_storage/none
 MpiDefault=none
 ReturnToService=2
 # A cancelled step gets SIGTERM, then SIGKILL this many seconds later.
-KillWait=30
+KillWait=10
 # Finished jobs stay visible to squeue/scontrol for a while; dependencies resolve quickly.
 MinJobAge=300
 SchedulerParameters=sched_min_interval=100000

@@ -248,8 +248,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Generate { recipe, out, count, seed, start, shard, shards, break_lock, workers, no_progress, runtime } => {
             let mut opts = stereogen::dataset::GenerateOptions::new(&out, recipe.load()?, seed, count);
             opts.start = start;
+            // Where an automatic shard came from goes to the log (a task's first line).
+            let auto = shard == Some(ShardArg::Auto);
             opts.shard = shard.map(|s| resolve_shard(s, shards)).transpose()?.map(|d| {
-                tracing::info!("shard {} ({})", d.shard, d.source);
+                if auto {
+                    tracing::info!("shard {} ({})", d.shard, d.source);
+                }
                 d.shard
             });
             opts.break_lock = break_lock;
