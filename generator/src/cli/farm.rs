@@ -145,7 +145,7 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
     match scheduler {
         Scheduler::Slurm => println!("submit: bash {first}"),
         Scheduler::Kubernetes => println!("submit: kubectl apply -f {first}; when it is complete: kubectl apply -f {}", files[1].display()),
-        Scheduler::OpenJd => println!("check: openjd check {first}; run locally: openjd run {first} --step Render --run-dependencies? (see README)"),
+        Scheduler::OpenJd => println!("check: openjd check {first}; run locally: openjd run {first} --step Check --run-dependencies"),
     }
     println!("watch: stereogen status {}", opts.out.display());
     Ok(())

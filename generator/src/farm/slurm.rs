@@ -41,7 +41,7 @@ pub struct SbatchOptions {
 }
 
 impl SbatchOptions {
-    /// `#SBATCH --name=value` lines, in field order.
+    /// `#SBATCH --name=value` lines, sorted by option name (sbatch does not care about order).
     fn directives(&self) -> Vec<String> {
         let value = serde_json::to_value(self).expect("sbatch options serialise");
         let mut lines = Vec::new();
