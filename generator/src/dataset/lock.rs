@@ -113,7 +113,7 @@ fn staleness(holder: &LockHolder, heartbeat_age: Duration) -> Option<String> {
 pub struct DatasetLock {
     path: PathBuf,
     holder: LockHolder,
-    heartbeat: Option<(Arc<(Mutex<bool>, Condvar)>, JoinHandle<()>)>,
+    heartbeat: Option<Heartbeat>,
 }
 
 impl DatasetLock {
@@ -156,7 +156,7 @@ impl DatasetLock {
 
 impl Drop for DatasetLock {
     fn drop(&mut self) {
-        if let Some((stop, thread)) = self.heartbeat.take() {
+        if let Some(Heartbeat { stop, thread }) = self.heartbeat.take() {
             *stop.0.lock().unwrap() = true;
             stop.1.notify_all();
             let _ = thread.join();
@@ -230,8 +230,14 @@ fn break_stale(path: &Path, judged: &LockState) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The thread touching a held lock, and how to stop it.
+struct Heartbeat {
+    stop: Arc<(Mutex<bool>, Condvar)>,
+    thread: JoinHandle<()>,
+}
+
 /// Touches the lock every [`HEARTBEAT`] until told to stop.
-fn start_heartbeat(path: PathBuf) -> (Arc<(Mutex<bool>, Condvar)>, JoinHandle<()>) {
+fn start_heartbeat(path: PathBuf) -> Heartbeat {
     let stop = Arc::new((Mutex::new(false), Condvar::new()));
     let signal = Arc::clone(&stop);
     let thread = std::thread::spawn(move || {
@@ -248,7 +254,7 @@ fn start_heartbeat(path: PathBuf) -> (Arc<(Mutex<bool>, Condvar)>, JoinHandle<()
             }
         }
     });
-    (stop, thread)
+    Heartbeat { stop, thread }
 }
 
 /// Sets the file's times to "now" as its filesystem sees it (NFS: the server's clock).

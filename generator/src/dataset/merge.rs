@@ -13,7 +13,7 @@ use anyhow::bail;
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 use stereo_io::DatasetInfo;
-use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardId, ShardInfo};
+use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardDirs, ShardId, ShardInfo};
 
 use super::layout::DatasetLayout;
 use super::lock::{LockState, inspect, unix_now};
@@ -57,7 +57,7 @@ struct Shard {
 /// Reads every shard, checks everything, and writes the merge if nothing is wrong.
 pub fn merge(opts: &MergeOptions) -> anyhow::Result<MergeReport> {
     let out = DatasetLayout::new(&opts.out);
-    let (found, others) = out.shard_dirs()?;
+    let ShardDirs { shards: found, others } = out.shard_dirs()?;
     if found.is_empty() {
         bail!("{}: no shard directories (KKKK-of-NNNN) under {}", opts.out.display(), out.shards_dir().display());
     }

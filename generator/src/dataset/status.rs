@@ -67,7 +67,7 @@ pub struct FarmStatus {
 /// Reads the status of `root`: a farm's output (its `shards/`) or one dataset directory.
 pub fn farm_status(root: &Path) -> anyhow::Result<FarmStatus> {
     let out = DatasetLayout::new(root);
-    let (found, _) = out.shard_dirs()?;
+    let found = out.shard_dirs()?.shards;
     let merged = out.read_merge_info().ok();
     if found.is_empty() {
         if !out.info().is_file() {

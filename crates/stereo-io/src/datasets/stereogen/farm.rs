@@ -101,6 +101,15 @@ pub struct MergeInfo {
     pub merged_unix_s: u64,
 }
 
+/// What [`DatasetLayout::shard_dirs`] finds under `<root>/shards`.
+#[derive(Debug, Clone, Default)]
+pub struct ShardDirs {
+    /// Shard directories (`KKKK-of-NNNN`), in shard order.
+    pub shards: Vec<(ShardId, DatasetLayout)>,
+    /// Folders with other names.
+    pub others: Vec<PathBuf>,
+}
+
 impl DatasetLayout {
     /// `<root>/shards`.
     pub fn shards_dir(&self) -> PathBuf {
@@ -124,13 +133,13 @@ impl DatasetLayout {
 
     /// The shard directories under `<root>/shards`, in shard order; folders with other names
     /// are returned apart (merge reports them). Empty when there is no `shards` folder.
-    pub fn shard_dirs(&self) -> Result<(Vec<(ShardId, DatasetLayout)>, Vec<PathBuf>)> {
+    pub fn shard_dirs(&self) -> Result<ShardDirs> {
         let dir = self.shards_dir();
         let mut shards = Vec::new();
         let mut others = Vec::new();
         let entries = match std::fs::read_dir(&dir) {
             Ok(entries) => entries,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((shards, others)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(ShardDirs { shards, others }),
             Err(e) => return Err(Error::io(&dir, e)),
         };
         for entry in entries {
@@ -146,7 +155,7 @@ impl DatasetLayout {
         }
         shards.sort_by_key(|(id, _)| (id.count, id.index));
         others.sort();
-        Ok((shards, others))
+        Ok(ShardDirs { shards, others })
     }
 
     /// Whether this is a farm's output whose shards have not been merged yet: a `shards` folder
@@ -155,7 +164,7 @@ impl DatasetLayout {
         if self.manifest().exists() {
             return None;
         }
-        let n = self.shard_dirs().ok()?.0.len();
+        let n = self.shard_dirs().ok()?.shards.len();
         (n > 0).then_some(n)
     }
 
@@ -224,7 +233,7 @@ mod tests {
         std::fs::create_dir_all(layout.shard(ShardId::new(1, 2).unwrap()).root).unwrap();
         std::fs::create_dir_all(layout.shards_dir().join("notes")).unwrap();
         assert_eq!(layout.unmerged_shards(), Some(1));
-        let (shards, others) = layout.shard_dirs().unwrap();
+        let ShardDirs { shards, others } = layout.shard_dirs().unwrap();
         assert_eq!((shards.len(), others.len()), (1, 1));
         let e = layout.unmerged_error(&layout.manifest()).unwrap().to_string();
         assert!(e.contains("stereogen merge") && e.contains("1 shard directory"), "{e}");

@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-pub use farm::{ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardId, ShardInfo};
+pub use farm::{ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo};
 pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
 
 use super::{DispKind, SampleFiles, SampleMeta};
