@@ -5,9 +5,11 @@
 //! - [`assets`]: indexes of the asset folders a recipe names: the `stereogen-assets` crate.
 //! - [`render`]: finding or installing Blender's Python, and the worker processes that render specs.
 //! - [`dataset`]: the on-disk layout, manifest, atomic writes and resumable generation.
+//! - [`farm`]: job files for Slurm, Kubernetes and Open Job Description (`stereogen farm`).
 //! - [`validate`]: `stereogen stats`: disparity statistics, the check against the recipe's law, plots.
 
 pub mod dataset;
+pub mod farm;
 pub mod render;
 pub mod validate;
 

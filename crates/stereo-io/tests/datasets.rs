@@ -249,7 +249,10 @@ fn a_manifest_from_before_render_timings_still_reads() {
     let e = &entries[0];
     assert!(e.render_timings.is_empty());
     assert_eq!((e.seed, e.render_seconds, e.notes.len(), e.disparity_right), (2026, 4.2, 1, None));
-    assert_eq!(e.files, SamplePaths::new("primitives", "0000000"));
+    // Its scene file has the plain `.scene.json` name of datasets made before `.scene.json.gz`.
+    let mut then = SamplePaths::new("primitives", "0000000");
+    then.scene = "primitives/0000000.scene.json".into();
+    assert_eq!(e.files, then);
     let ds = open(t.path(), DatasetFormat::Stereogen);
     let s = ds.sample(0).unwrap();
     assert_disp_eq(&s.disp_left, &disp(0.1));

@@ -46,10 +46,10 @@ pub fn run(opts: &GenerateOptions, show_progress: bool) -> anyhow::Result<()> {
         s.worker_restarts,
         s.seconds,
         s.seconds_per_sample,
-        opts.out.display()
+        opts.dataset_dir().display()
     );
     if !s.failed.is_empty() {
-        let failures = DatasetLayout::new(&opts.out).failures();
+        let failures = DatasetLayout::new(opts.dataset_dir()).failures();
         bail!("{} sample(s) failed (listed in {}); re-run the same command to retry them", s.failed.len(), failures.display());
     }
     Ok(())

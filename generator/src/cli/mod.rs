@@ -1,7 +1,10 @@
 //! The `stereogen` command line: clap arguments, and each command as a call into the library.
 
+mod farm;
 mod generate;
+mod merge;
 mod stats;
+mod status;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -11,6 +14,7 @@ use std::time::Duration;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand};
 use stereogen::assets::{index_sources, stereogen_home};
+use stereogen::dataset::shard::{ShardArg, resolve_shard};
 use stereogen::dataset::{DatasetLayout, finalize_sample};
 use stereogen::plan::recipe::DEFAULT_PRESET;
 use stereogen::plan::{Recipe, plan_scene};
@@ -119,9 +123,18 @@ pub enum Command {
         /// First sample index.
         #[arg(long, value_name = "INDEX", default_value_t = 0)]
         start: u64,
-        /// Render only indices i with i % N == K, written K/N (one farm task per shard).
-        #[arg(long, value_name = "K/N", value_parser = parse_shard)]
-        shard: Option<(u64, u64)>,
+        /// Render only indices i with i % N == K, into OUT/shards/KKKK-of-NNNN/ (one farm task per
+        /// shard). `auto`: K and N from the scheduler (STEREOGEN_SHARD=K/N, Slurm array, Kubernetes
+        /// Indexed Job, AWS Batch array).
+        #[arg(long, value_name = "K/N|auto", value_parser = clap::value_parser!(ShardArg))]
+        shard: Option<ShardArg>,
+        /// With --shard auto: the number of shards where the scheduler does not say it
+        /// (Kubernetes; also STEREOGEN_SHARD_COUNT).
+        #[arg(long, value_name = "N", requires = "shard")]
+        shards: Option<u64>,
+        /// Take the output directory's lock even if another process seems to hold it.
+        #[arg(long)]
+        break_lock: bool,
         /// Blender worker processes rendering in parallel.
         #[arg(long, value_name = "K", default_value_t = 1)]
         workers: usize,
@@ -140,7 +153,7 @@ pub enum Command {
         #[arg(long, default_value_t = 0)]
         index: u64,
     },
-    /// Render one SceneSpec JSON file (e.g. a sample's `<id>.scene.json`) into DIR, reproducing it exactly.
+    /// Render one SceneSpec JSON file (e.g. a sample's `<id>.scene.json.gz`, or an older plain `<id>.scene.json`) into DIR, reproducing it exactly.
     Render {
         /// The SceneSpec JSON file.
         #[arg(long, value_name = "FILE")]
@@ -199,6 +212,15 @@ pub enum Command {
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
     },
+    /// Job files that render one dataset with many tasks: a Slurm array, a Kubernetes Indexed
+    /// Job or an Open Job Description template, each followed by a merge-and-check step.
+    Farm(farm::FarmArgs),
+    /// Merge a farm's shards (OUT/shards/*) into one dataset: checks recipe, seed, version,
+    /// coverage of every index exactly once, locks and files; writes OUT/manifest.jsonl.
+    Merge(merge::MergeArgs),
+    /// Progress of a farm (or one dataset) from its files: per shard done, failed, remaining,
+    /// samples per hour, ETA.
+    Status(status::StatusArgs),
     /// A contact sheet PNG: each sample's left image beside its colourised disparity.
     Sheet {
         /// The dataset directory.
@@ -215,16 +237,6 @@ pub enum Command {
     },
 }
 
-fn parse_shard(s: &str) -> Result<(u64, u64), String> {
-    let (k, n) = s.split_once('/').ok_or_else(|| format!("{s:?} is not K/N"))?;
-    let k: u64 = k.trim().parse().map_err(|_| format!("{s:?}: K is not a number"))?;
-    let n: u64 = n.trim().parse().map_err(|_| format!("{s:?}: N is not a number"))?;
-    if n == 0 || k >= n {
-        return Err(format!("{s:?}: need 0 <= K < N"));
-    }
-    Ok((k, n))
-}
-
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Setup { runtime } => {
@@ -233,14 +245,25 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             println!("Blender {} (Python {}) ready via {}", worker.hello.blender, worker.hello.python, cfg.runtime.describe());
             worker.shutdown();
         }
-        Command::Generate { recipe, out, count, seed, start, shard, workers, no_progress, runtime } => {
+        Command::Generate { recipe, out, count, seed, start, shard, shards, break_lock, workers, no_progress, runtime } => {
             let mut opts = stereogen::dataset::GenerateOptions::new(&out, recipe.load()?, seed, count);
             opts.start = start;
-            opts.shard = shard;
+            // Where an automatic shard came from goes to the log (a task's first line).
+            let auto = shard == Some(ShardArg::Auto);
+            opts.shard = shard.map(|s| resolve_shard(s, shards)).transpose()?.map(|d| {
+                if auto {
+                    tracing::info!("shard {} ({})", d.shard, d.source);
+                }
+                d.shard
+            });
+            opts.break_lock = break_lock;
             opts.workers = workers;
             opts.worker_options = runtime.worker_options();
             generate::run(&opts, !no_progress)?;
         }
+        Command::Farm(args) => farm::run(args)?,
+        Command::Merge(args) => merge::run(args)?,
+        Command::Status(args) => status::run(args)?,
         Command::Sheet { dataset, out, count, cols } => {
             let n = stereogen::validate::contact_sheet::write_contact_sheet(&dataset, count, cols, &out)?;
             eprintln!("stereogen: contact sheet of {n} samples -> {}", out.display());

@@ -3,17 +3,18 @@
 //! Progress goes to a callback ([`Progress`]); drawing it is the caller's business.
 
 use std::collections::{BTreeSet, VecDeque};
-use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use fs4::fs_std::FileExt;
 use serde::Serialize;
+use stereo_io::datasets::stereogen::ShardInfo;
 
 use super::layout::{CreateDataset, DatasetLayout};
+use super::lock::DatasetLock;
+use super::shard::ShardId;
 use super::manifest::Manifest;
 use super::sample::finalize_sample;
 use crate::assets::{AssetIndex, SkippedAsset, index_sources};
@@ -30,8 +31,10 @@ pub struct GenerateOptions {
     /// Samples `start .. start + count`.
     pub start: u64,
     pub count: u64,
-    /// Render only indices with `index % n == k` (`Some((k, n))`).
-    pub shard: Option<(u64, u64)>,
+    /// Render only the shard's indices (`index % n == k`), into `out/shards/KKKK-of-NNNN/`.
+    pub shard: Option<ShardId>,
+    /// Take the directory's lock even when another process seems to hold it.
+    pub break_lock: bool,
     /// Blender worker processes rendering in parallel.
     pub workers: usize,
     /// How each worker is found, started and supervised.
@@ -40,12 +43,20 @@ pub struct GenerateOptions {
 
 impl GenerateOptions {
     pub fn new(out: impl Into<PathBuf>, recipe: Recipe, seed: u64, count: u64) -> Self {
-        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, workers: 1, worker_options: WorkerOptions::default() }
+        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, break_lock: false, workers: 1, worker_options: WorkerOptions::default() }
+    }
+
+    /// The directory this run writes: `out`, or its shard's directory under `out/shards/`.
+    pub fn dataset_dir(&self) -> PathBuf {
+        match self.shard {
+            Some(id) => DatasetLayout::new(&self.out).shard(id).root,
+            None => self.out.clone(),
+        }
     }
 
     /// The indices this run is responsible for (its range, less other shards').
     fn indices(&self) -> Vec<u64> {
-        (self.start..self.start + self.count).filter(|i| self.shard.is_none_or(|(k, n)| i % n == k)).collect()
+        (self.start..self.start + self.count).filter(|&i| self.shard.is_none_or(|s| s.owns(i))).collect()
     }
 }
 
@@ -141,11 +152,6 @@ fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
     if opts.workers == 0 {
         bail!("--workers must be at least 1");
     }
-    if let Some((k, n)) = opts.shard
-        && (n == 0 || k >= n)
-    {
-        bail!("--shard {k}/{n}: need 0 <= k < n");
-    }
     Ok(())
 }
 
@@ -156,16 +162,49 @@ struct OpenDataset {
     manifest: Manifest,
     /// Indices already in the manifest.
     done: BTreeSet<u64>,
-    /// Held (locked) until the run ends.
-    _lock: File,
+    /// Held until the run ends.
+    _lock: DatasetLock,
+}
+
+/// A farm's output and a plain dataset do not mix: shards go under `out/shards/`, which an
+/// unsharded run (or a merged manifest) must not share.
+fn check_output_kind(opts: &GenerateOptions) -> anyhow::Result<()> {
+    let out = DatasetLayout::new(&opts.out);
+    match opts.shard {
+        None if out.shards_dir().is_dir() => bail!(
+            "{} holds a farm's shards ({}); render into it with --shard K/N or --shard auto, or choose another --out",
+            out.root.display(),
+            out.shards_dir().display()
+        ),
+        Some(_) if out.manifest().is_file() && !out.merge_info().is_file() => {
+            bail!("{} is a dataset rendered without --shard; a farm's shards need an --out of their own", out.root.display())
+        }
+        _ => Ok(()),
+    }
+}
+
+/// `shard.json`: the shard's place in the whole range; a re-run with another range rewrites it
+/// (merge then reports shards that have not caught up).
+fn record_shard(layout: &DatasetLayout, opts: &GenerateOptions, shard: ShardId) -> anyhow::Result<()> {
+    let info = ShardInfo { shard, start: opts.start, count: opts.count };
+    let old = layout.read_shard_info().ok();
+    if old != Some(info) {
+        if let Some(old) = old {
+            tracing::info!("{}: the farm's range changes from {}..{} to {}..{}", layout.root.display(), old.start, old.start + old.count, info.start, info.start + info.count);
+        }
+        layout.write_shard_info(&info)?;
+    }
+    Ok(())
 }
 
 fn open_dataset(opts: &GenerateOptions) -> anyhow::Result<OpenDataset> {
-    let layout = DatasetLayout::new(&opts.out);
+    check_output_kind(opts)?;
+    let layout = DatasetLayout::new(opts.dataset_dir());
+    std::fs::create_dir_all(&layout.root).with_context(|| format!("cannot create output directory {}", layout.root.display()))?;
+    let lock = DatasetLock::acquire(&layout.lock(), opts.break_lock)?;
     layout.open_or_create(&opts.recipe, opts.seed)?;
-    let lock = File::create(layout.lock()).with_context(|| format!("cannot create {}", layout.lock().display()))?;
-    if !lock.try_lock_exclusive().unwrap_or(false) {
-        bail!("another stereogen process is writing to {}; wait for it or choose another --out", layout.root.display());
+    if let Some(shard) = opts.shard {
+        record_shard(&layout, opts, shard)?;
     }
     let removed = layout.remove_partial_files();
     if removed > 0 {

@@ -3,9 +3,13 @@
 pub mod export;
 pub mod generate;
 pub mod layout;
+pub mod lock;
 pub mod manifest;
+pub mod merge;
 pub mod sample;
 pub mod scene_file;
+pub mod shard;
+pub mod status;
 
 pub use generate::{GenerateOptions, GenerateSummary, generate};
 pub use layout::{CreateDataset, DatasetInfo, DatasetLayout, SamplePaths};

@@ -14,6 +14,9 @@ pub fn detect_format(root: &Path) -> Result<DatasetFormat> {
     if root.join(stereogen::MANIFEST_FILE).is_file() {
         return Ok(DatasetFormat::Stereogen);
     }
+    if let Some(e) = stereogen::DatasetLayout::new(root).unmerged_error(root) {
+        return Err(e);
+    }
     if sintel::sintel_base(root).is_some() {
         return Ok(DatasetFormat::Sintel);
     }

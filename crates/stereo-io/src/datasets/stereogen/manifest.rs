@@ -95,8 +95,13 @@ impl ManifestContents {
 
 /// Reads the finished entries of the manifest at `path` (see the module docs for the rule).
 pub fn read_manifest(path: &Path) -> Result<ManifestContents> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let file = File::open(path).map_err(|e| unmerged_farm_error(path).unwrap_or(Error::io(path, e)))?;
     read_from(BufReader::new(file), path)
+}
+
+/// A missing manifest in a farm's output directory means its shards are not merged yet.
+fn unmerged_farm_error(path: &Path) -> Option<Error> {
+    super::DatasetLayout::new(path.parent()?).unmerged_error(path)
 }
 
 fn read_from(mut reader: impl BufRead, path: &Path) -> Result<ManifestContents> {

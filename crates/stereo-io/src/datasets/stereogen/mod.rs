@@ -8,12 +8,17 @@
 //! <root>/.stereogen.lock                held by the one process writing the directory
 //! <root>/<category>/<id>_left.png       and _right.png (8-bit sRGB)
 //! <root>/<category>/<id>_left.disp.exr  and _right.disp.exr (float32 disparity + validity)
-//! <root>/<category>/<id>.scene.json     the SceneSpec that reproduces the sample
+//! <root>/<category>/<id>.scene.json.gz  the SceneSpec that reproduces the sample (gzip'd JSON;
+//!                                       datasets made before hold a plain `<id>.scene.json`)
 //! ```
+//!
+//! A farm's output holds one such dataset per task under `<root>/shards/` and, once merged, a
+//! manifest whose paths point into them ([`farm`]).
 //!
 //! The writer is the generator: it names files with [`DatasetLayout::sample_paths`], writes each
 //! atomically, then appends the [`ManifestEntry`] through [`Manifest`].
 
+pub mod farm;
 mod manifest;
 
 use std::path::{Path, PathBuf};
@@ -21,6 +26,7 @@ use std::path::{Path, PathBuf};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+pub use farm::{ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo};
 pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
 
 use super::{DispKind, SampleFiles, SampleMeta};
@@ -37,6 +43,8 @@ pub const FAILURES_FILE: &str = "failures.jsonl";
 pub const SKIPPED_ASSETS_FILE: &str = "skipped_assets.jsonl";
 /// The lock file of the process writing the directory.
 pub const LOCK_FILE: &str = ".stereogen.lock";
+/// How a sample's SceneSpec file ends: gzip'd JSON (see the generator's `dataset::scene_file`).
+pub const SCENE_SUFFIX: &str = ".scene.json.gz";
 
 /// Paths of one sample's files, relative to the dataset root.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -50,7 +58,7 @@ pub struct SamplePaths {
 
 impl SamplePaths {
     /// The files of sample `id` of `category`: `<category>/<id>_left.png`, `_right.png`,
-    /// `_left.disp.exr`, `_right.disp.exr`, `<id>.scene.json`.
+    /// `_left.disp.exr`, `_right.disp.exr`, `<id>.scene.json.gz` ([`SCENE_SUFFIX`]).
     pub fn new(category: &str, id: &str) -> Self {
         let c = PathBuf::from(category);
         Self {
@@ -58,7 +66,7 @@ impl SamplePaths {
             right: c.join(format!("{id}_right.png")),
             disp_left: c.join(format!("{id}_left.disp.exr")),
             disp_right: c.join(format!("{id}_right.disp.exr")),
-            scene: c.join(format!("{id}.scene.json")),
+            scene: c.join(format!("{id}{SCENE_SUFFIX}")),
         }
     }
 
@@ -121,7 +129,7 @@ impl DatasetLayout {
     /// Reads `dataset.json`, with the recipe as `R`.
     pub fn read_info<R: DeserializeOwned>(&self) -> Result<DatasetInfo<R>> {
         let path = self.info();
-        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+        let text = std::fs::read_to_string(&path).map_err(|e| self.unmerged_error(&path).unwrap_or(Error::io(&path, e)))?;
         serde_json::from_str(&text).map_err(|e| Error::format(&path, format!("not a stereogen dataset description: {e}")))
     }
 

@@ -1,0 +1,152 @@
+//! `stereogen farm slurm|k8s|openjd`: write the job files of a farm run.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::builder::{PossibleValuesParser, TypedValueParser};
+use stereogen::farm::{FarmOptions, Scheduler, write_job_files};
+use stereogen::render::Device;
+
+use super::RecipeArgs;
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum SchedulerArg {
+    /// An sbatch job array, a dependent merge-and-check job, and submit.sh.
+    Slurm,
+    /// A batch/v1 Indexed Job, and a merge-and-check Job to apply after it.
+    K8s,
+    /// An Open Job Description template (jobtemplate-2023-09): Render, Merge, Check steps.
+    Openjd,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct FarmArgs {
+    /// The scheduler to write for.
+    #[arg(value_enum)]
+    scheduler: SchedulerArg,
+    #[command(flatten)]
+    recipe: RecipeArgs,
+    /// Number of samples of the whole dataset.
+    #[arg(long, value_name = "N")]
+    count: u64,
+    /// First sample index.
+    #[arg(long, value_name = "INDEX", default_value_t = 0)]
+    start: u64,
+    /// Render tasks (one shard each).
+    #[arg(long, value_name = "T")]
+    tasks: u64,
+    /// The shared output directory, as the tasks see it (absolute; Kubernetes: where the
+    /// volume is mounted).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Dataset seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Blender workers per task.
+    #[arg(long, value_name = "K", default_value_t = 1)]
+    workers: usize,
+    /// Cycles threads per worker [default: the task's cores divided by --workers].
+    #[arg(long, value_name = "N")]
+    threads: Option<u32>,
+    /// Render on the CPU or on a CUDA/OptiX GPU.
+    #[arg(long, default_value_t = Device::Cpu, value_parser = PossibleValuesParser::new(Device::NAMES).map(|s| s.parse::<Device>().expect("listed")))]
+    device: Device,
+    /// GPUs each task asks for (Slurm --gpus-per-task, Kubernetes nvidia.com/gpu).
+    #[arg(long, value_name = "G")]
+    gpus_per_task: Option<u32>,
+    /// CPU cores each task asks for [default: workers × threads].
+    #[arg(long, value_name = "N")]
+    cpus_per_task: Option<u32>,
+    /// Memory each task asks for (Slurm: 16G; Kubernetes: 16Gi).
+    #[arg(long, value_name = "SIZE")]
+    memory: Option<String>,
+    /// Wall-time limit of a task (Slurm --time, e.g. 12:00:00).
+    #[arg(long, value_name = "TIME")]
+    time_limit: Option<String>,
+    /// Slurm partition.
+    #[arg(long, value_name = "P")]
+    partition: Option<String>,
+    /// Container image with stereogen and its Blender environment (Kubernetes).
+    #[arg(long, value_name = "IMG", default_value = "stereogen:latest")]
+    image: String,
+    /// PersistentVolumeClaim holding the shared output (Kubernetes).
+    #[arg(long, value_name = "NAME", default_value = "stereogen-data")]
+    volume_claim: String,
+    /// Tasks running at once [default: all].
+    #[arg(long, value_name = "M")]
+    max_parallel: Option<u64>,
+    /// The stereogen executable the tasks run [default: this one (Slurm, OpenJD); `stereogen`
+    /// (Kubernetes, from the image's PATH)].
+    #[arg(long, value_name = "PATH")]
+    stereogen: Option<PathBuf>,
+    /// Job name (prefix of the scheduler's job names).
+    #[arg(long, value_name = "NAME", default_value = "stereogen")]
+    name: String,
+    /// Seconds a task has between SIGTERM and SIGKILL (Kubernetes grace period, OpenJD notify period).
+    #[arg(long, value_name = "SECS", default_value_t = 120)]
+    grace: u64,
+    /// The merge step recomputes every checksum (merge --verify).
+    #[arg(long)]
+    verify: bool,
+    /// Environment of every task, KEY=VALUE (repeatable), e.g. STEREOGEN_HOME=/shared/stereogen.
+    #[arg(long = "env", value_name = "KEY=VALUE", value_parser = parse_env)]
+    env: Vec<(String, String)>,
+    /// Where the job files go [default: OUT/jobs].
+    #[arg(long, value_name = "DIR")]
+    job_dir: Option<PathBuf>,
+}
+
+fn parse_env(s: &str) -> Result<(String, String), String> {
+    let (k, v) = s.split_once('=').ok_or_else(|| format!("{s:?} is not KEY=VALUE"))?;
+    Ok((k.to_string(), v.to_string()))
+}
+
+pub fn run(a: FarmArgs) -> anyhow::Result<()> {
+    let scheduler = match a.scheduler {
+        SchedulerArg::Slurm => Scheduler::Slurm,
+        SchedulerArg::K8s => Scheduler::Kubernetes,
+        SchedulerArg::Openjd => Scheduler::OpenJd,
+    };
+    let stereogen = match (a.stereogen, scheduler) {
+        (Some(p), _) => p,
+        (None, Scheduler::Kubernetes) => PathBuf::from("stereogen"),
+        (None, _) => std::env::current_exe().context("cannot find this stereogen executable; pass --stereogen PATH")?,
+    };
+    let opts = FarmOptions {
+        recipe: a.recipe.load()?,
+        start: a.start,
+        count: a.count,
+        tasks: a.tasks,
+        job_dir: a.job_dir.unwrap_or_else(|| a.out.join("jobs")),
+        out: a.out,
+        seed: a.seed,
+        workers: a.workers,
+        threads: a.threads,
+        device: a.device,
+        gpus_per_task: a.gpus_per_task,
+        cpus_per_task: a.cpus_per_task,
+        memory: a.memory,
+        time_limit: a.time_limit,
+        partition: a.partition,
+        image: a.image,
+        volume_claim: a.volume_claim,
+        max_parallel: a.max_parallel,
+        stereogen,
+        name: a.name,
+        grace_s: a.grace,
+        verify: a.verify,
+        env: a.env,
+    };
+    let files = write_job_files(&opts, scheduler)?;
+    for f in &files {
+        println!("wrote {}", f.display());
+    }
+    let first = files[0].display();
+    match scheduler {
+        Scheduler::Slurm => println!("submit: bash {first}"),
+        Scheduler::Kubernetes => println!("submit: kubectl apply -f {first}; when it is complete: kubectl apply -f {}", files[1].display()),
+        Scheduler::OpenJd => println!("check: openjd check {first}; run locally: openjd run {first} --step Check --run-dependencies"),
+    }
+    println!("watch: stereogen status {}", opts.out.display());
+    Ok(())
+}

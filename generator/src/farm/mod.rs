@@ -1,0 +1,183 @@
+//! `stereogen farm slurm|k8s|openjd`: job files that render one dataset with many tasks.
+//!
+//! Each scheduler's file is built from typed structures ([`slurm`], [`k8s`], [`openjd`]) and
+//! serialised; what every task runs is the same `stereogen generate` a user would type
+//! ([`FarmOptions::generate_args`]), with the shard taken from the scheduler (`--shard auto`) or
+//! the task parameter, so re-submitting the same file resumes. After the render tasks, a merge
+//! step runs `stereogen merge` and `stereogen stats --check` on the shared output.
+//!
+//! The recipe is written once into the job directory (`recipe.toml`, the loaded recipe with the
+//! command line's asset folders applied), so every task reads the same recipe from shared storage.
+
+pub mod k8s;
+pub mod openjd;
+pub mod slurm;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+
+use crate::plan::Recipe;
+use crate::render::Device;
+
+/// The exit code of a `generate` that stopped on SIGTERM/SIGINT before finishing its range
+/// (EX_TEMPFAIL: nothing is wrong, run the same command again to resume). The job files treat
+/// it as "requeue this task": Slurm's script requeues itself, the Kubernetes Job's pod failure
+/// policy does not count it against the retry limit.
+pub const INTERRUPTED_EXIT_CODE: i32 = 75;
+
+/// What a farm run renders and how its tasks are shaped.
+#[derive(Debug, Clone)]
+pub struct FarmOptions {
+    /// The recipe, loaded (with `--shapenet/--meshes/--textures` applied).
+    pub recipe: Recipe,
+    /// Samples `start .. start + count`.
+    pub start: u64,
+    pub count: u64,
+    /// Render tasks (= shards).
+    pub tasks: u64,
+    /// The shared output directory, as the tasks see it.
+    pub out: PathBuf,
+    pub seed: u64,
+    /// Blender workers per task.
+    pub workers: usize,
+    /// Cycles threads per worker.
+    pub threads: Option<u32>,
+    pub device: Device,
+    pub gpus_per_task: Option<u32>,
+    /// CPU cores a task asks for [default: workers × threads, at least 1].
+    pub cpus_per_task: Option<u32>,
+    /// Memory a task asks for (`16G`; Kubernetes: `16Gi`).
+    pub memory: Option<String>,
+    /// Wall-time limit of a task (Slurm `--time`, e.g. `12:00:00`).
+    pub time_limit: Option<String>,
+    pub partition: Option<String>,
+    /// Container image (Kubernetes).
+    pub image: String,
+    /// PersistentVolumeClaim of the shared output (Kubernetes).
+    pub volume_claim: String,
+    /// Tasks running at once.
+    pub max_parallel: Option<u64>,
+    /// The `stereogen` executable the tasks run.
+    pub stereogen: PathBuf,
+    /// Job name prefix.
+    pub name: String,
+    /// Seconds between SIGTERM and SIGKILL that the job files ask for.
+    pub grace_s: u64,
+    /// `merge --verify`: recompute every checksum in the merge step.
+    pub verify: bool,
+    /// Extra environment of every task (`KEY=VALUE`), e.g. `STEREOGEN_HOME`.
+    pub env: Vec<(String, String)>,
+    /// Where the job files (and the recipe) are written [default: `OUT/jobs`].
+    pub job_dir: PathBuf,
+}
+
+impl FarmOptions {
+    pub fn check(&self) -> anyhow::Result<()> {
+        if self.tasks == 0 {
+            bail!("--tasks must be at least 1");
+        }
+        if self.count == 0 {
+            bail!("--count must be at least 1");
+        }
+        if self.tasks > self.count {
+            bail!("--tasks {} is more than --count {}: some tasks would have nothing to render", self.tasks, self.count);
+        }
+        if self.max_parallel == Some(0) {
+            bail!("--max-parallel must be at least 1");
+        }
+        if !self.out.is_absolute() {
+            bail!("--out {} must be an absolute path: every task and the merge step must find the same directory", self.out.display());
+        }
+        for (k, _) in &self.env {
+            if k.is_empty() || !k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') || k.starts_with(|c: char| c.is_ascii_digit()) {
+                bail!("--env {k:?}: not an environment variable name");
+            }
+        }
+        Ok(())
+    }
+
+    /// The recipe file every task reads: `JOB_DIR/recipe.toml`.
+    pub fn recipe_path(&self) -> PathBuf {
+        self.job_dir.join("recipe.toml")
+    }
+
+    /// Cores a task asks for.
+    pub fn cpus(&self) -> u32 {
+        self.cpus_per_task.unwrap_or_else(|| (self.workers as u32 * self.threads.unwrap_or(1)).max(1))
+    }
+
+    /// `generate` and its arguments, without the shard (each scheduler adds its own).
+    pub fn generate_args(&self) -> Vec<String> {
+        let mut a: Vec<String> = vec!["generate".into(), "--recipe".into(), path(&self.recipe_path()), "--out".into(), path(&self.out)];
+        a.extend(["--start".into(), self.start.to_string(), "--count".into(), self.count.to_string(), "--seed".into(), self.seed.to_string()]);
+        a.extend(["--workers".into(), self.workers.to_string()]);
+        if let Some(t) = self.threads {
+            a.extend(["--threads".into(), t.to_string()]);
+        }
+        if self.device != Device::Cpu {
+            a.extend(["--device".into(), self.device.as_str().into()]);
+        }
+        a.push("--no-progress".into());
+        a
+    }
+
+    /// `merge OUT [--verify]`.
+    pub fn merge_args(&self) -> Vec<String> {
+        let mut a = vec!["merge".to_string(), path(&self.out)];
+        if self.verify {
+            a.push("--verify".into());
+        }
+        a
+    }
+
+    /// `stats OUT --check`.
+    pub fn check_args(&self) -> Vec<String> {
+        vec!["stats".into(), path(&self.out), "--check".into()]
+    }
+}
+
+fn path(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+/// Which scheduler's files to write.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scheduler {
+    Slurm,
+    Kubernetes,
+    OpenJd,
+}
+
+/// Writes the recipe and the scheduler's job files into the job directory; returns the files
+/// written, the one to submit first.
+pub fn write_job_files(opts: &FarmOptions, scheduler: Scheduler) -> anyhow::Result<Vec<PathBuf>> {
+    opts.check()?;
+    std::fs::create_dir_all(&opts.job_dir).with_context(|| format!("cannot create {}", opts.job_dir.display()))?;
+    let recipe = toml::to_string(&opts.recipe).context("cannot write the recipe as TOML")?;
+    write(&opts.recipe_path(), recipe.as_bytes(), false)?;
+    let files = match scheduler {
+        Scheduler::Slurm => slurm::files(opts)?,
+        Scheduler::Kubernetes => k8s::files(opts)?,
+        Scheduler::OpenJd => openjd::files(opts)?,
+    };
+    let mut written = Vec::new();
+    for (name, text, executable) in files {
+        let p = opts.job_dir.join(name);
+        write(&p, text.as_bytes(), executable)?;
+        written.push(p);
+    }
+    Ok(written)
+}
+
+fn write(path: &Path, bytes: &[u8], executable: bool) -> anyhow::Result<()> {
+    stereo_io::write_bytes_atomically(path, bytes).with_context(|| format!("cannot write {}", path.display()))?;
+    if executable {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o755)).with_context(|| format!("cannot make {} executable", path.display()))?;
+    }
+    Ok(())
+}
+
+/// A file of a job: its name in the job directory, its text, whether it is executable.
+pub type JobFile = (String, String, bool);

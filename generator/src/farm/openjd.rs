@@ -1,0 +1,139 @@
+//! Open Job Description (`jobtemplate-2023-09`): a `Render` step whose task parameter `Shard`
+//! ranges over the shards, then `Merge` and `Check` steps that depend on it. Cancelling a task
+//! sends SIGTERM and waits `--grace` seconds (`NOTIFY_THEN_TERMINATE`) before killing it, the
+//! time `generate` has to stop cleanly. How many tasks run at once is the scheduler's setting
+//! (e.g. a Deadline Cloud queue's max workers), not the template's.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use super::{FarmOptions, JobFile, path};
+
+pub const SPECIFICATION_VERSION: &str = "jobtemplate-2023-09";
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct JobTemplate {
+    pub specification_version: String,
+    pub name: String,
+    pub description: String,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub job_environments: Vec<Environment>,
+    pub steps: Vec<Step>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Environment {
+    pub name: String,
+    pub variables: BTreeMap<String, String>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Step {
+    pub name: String,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub dependencies: Vec<Dependency>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parameter_space: Option<ParameterSpace>,
+    pub script: StepScript,
+}
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Dependency {
+    pub depends_on: String,
+}
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct ParameterSpace {
+    pub task_parameter_definitions: Vec<TaskParameter>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TaskParameter {
+    pub name: String,
+    #[serde(rename = "type")]
+    pub kind: String,
+    /// A range expression: `0-63`.
+    pub range: String,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct StepScript {
+    pub actions: Actions,
+}
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Actions {
+    pub on_run: Action,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Action {
+    pub command: String,
+    pub args: Vec<String>,
+    pub cancelation: Cancelation,
+}
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Cancelation {
+    pub mode: String,
+    pub notify_period_in_seconds: u64,
+}
+
+/// The task parameter naming the shard.
+const SHARD_PARAM: &str = "Shard";
+
+fn action(opts: &FarmOptions, args: Vec<String>) -> Action {
+    Action {
+        command: path(&opts.stereogen),
+        args,
+        cancelation: Cancelation { mode: "NOTIFY_THEN_TERMINATE".into(), notify_period_in_seconds: opts.grace_s },
+    }
+}
+
+fn step(name: &str, depends_on: Option<&str>, parameter_space: Option<ParameterSpace>, on_run: Action) -> Step {
+    Step {
+        name: name.into(),
+        dependencies: depends_on.map(|d| vec![Dependency { depends_on: d.into() }]).unwrap_or_default(),
+        parameter_space,
+        script: StepScript { actions: Actions { on_run } },
+    }
+}
+
+pub fn template(opts: &FarmOptions) -> JobTemplate {
+    let mut render = opts.generate_args();
+    render.extend(["--shard".into(), format!("{{{{Task.Param.{SHARD_PARAM}}}}}/{}", opts.tasks)]);
+    let shards = ParameterSpace { task_parameter_definitions: vec![TaskParameter { name: SHARD_PARAM.into(), kind: "INT".into(), range: format!("0-{}", opts.tasks - 1) }] };
+    JobTemplate {
+        specification_version: SPECIFICATION_VERSION.into(),
+        name: opts.name.clone(),
+        description: format!(
+            "Written by `stereogen farm openjd` (stereogen {}): samples {}..{} in {} shards into {}, then merge and check.",
+            env!("CARGO_PKG_VERSION"),
+            opts.start,
+            opts.start + opts.count,
+            opts.tasks,
+            opts.out.display()
+        ),
+        job_environments: if opts.env.is_empty() {
+            vec![]
+        } else {
+            vec![Environment { name: "StereogenEnvironment".into(), variables: opts.env.iter().cloned().collect() }]
+        },
+        steps: vec![
+            step("Render", None, Some(shards), action(opts, render)),
+            step("Merge", Some("Render"), None, action(opts, opts.merge_args())),
+            step("Check", Some("Merge"), None, action(opts, opts.check_args())),
+        ],
+    }
+}
+
+pub fn files(opts: &FarmOptions) -> anyhow::Result<Vec<JobFile>> {
+    Ok(vec![("openjd-template.yaml".into(), serde_norway::to_string(&template(opts))?, false)])
+}

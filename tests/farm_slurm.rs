@@ -1,0 +1,242 @@
+//! `stereogen farm slurm` on a real single-node Slurm cluster (Debian's `slurm-wlm` and `munge`,
+//! started by `tests/farm/slurm-cluster.sh` under a temporary directory): the emitted
+//! `submit.sh` renders a tiny dataset with a job array and a dependent merge-and-check job; then
+//! a task is preempted with SIGTERM, the file re-submitted, and the dataset is still complete.
+//!
+//! Without Slurm (not root, no packages and no `apt-get`) the test prints why and passes, unless
+//! `CI` or `STEREOGEN_REQUIRE_SLURM` is set: then it fails, so CI cannot skip it silently.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use stereogen::dataset::{DatasetLayout, Manifest};
+use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+
+const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/farm/slurm-cluster.sh");
+/// No farm round of this test takes near this long (one is about 20 s on 2 cores).
+const ROUND_TIMEOUT: Duration = Duration::from_secs(600);
+
+/// The cluster's daemons, stopped (by their pid files) when this is dropped, pass or fail.
+struct Cluster {
+    dir: PathBuf,
+    conf: PathBuf,
+}
+
+impl Cluster {
+    /// Starts the cluster, or says why it cannot.
+    fn start(dir: &Path) -> Result<Self, String> {
+        // A port of our own, so a cluster left by another run does not answer.
+        let port = 20_000 + std::process::id() % 20_000;
+        let o = Command::new("bash")
+            .args([SCRIPT, "start"])
+            .arg(dir)
+            .env("STEREOGEN_INSTALL_SLURM", "1")
+            .env("STEREOGEN_SLURM_PORT", port.to_string())
+            .stdin(Stdio::null())
+            .output()
+            .map_err(|e| format!("cannot run {SCRIPT}: {e}"))?;
+        let cluster = Self { dir: dir.to_path_buf(), conf: dir.join("slurm.conf") };
+        if !o.status.success() {
+            return Err(format!("{SCRIPT} start failed ({}): {}", o.status, String::from_utf8_lossy(&o.stderr).trim()));
+        }
+        Ok(cluster)
+    }
+
+    fn cmd(&self, program: &str) -> Command {
+        let mut c = Command::new(program);
+        c.env("SLURM_CONF", &self.conf).stdin(Stdio::null());
+        c
+    }
+
+    fn run(&self, program: &str, args: &[&str]) -> Output {
+        self.cmd(program).args(args).output().unwrap_or_else(|e| panic!("{program}: {e}"))
+    }
+
+    /// Fields of `scontrol show job ID` (for an array: its first task), e.g. `JobState`.
+    fn job(&self, id: &str) -> BTreeMap<String, String> {
+        let o = self.run("scontrol", &["show", "job", "--oneliner", id]);
+        let text = String::from_utf8_lossy(&o.stdout);
+        text.lines().next().unwrap_or("").split_whitespace().filter_map(|kv| kv.split_once('=')).map(|(k, v)| (k.to_string(), v.to_string())).collect()
+    }
+
+    /// Every job's `id state` as squeue sees them (pending, running, ...).
+    fn queue(&self) -> String {
+        String::from_utf8_lossy(&self.run("squeue", &["-h", "-o", "%i %T"]).stdout).into_owned()
+    }
+
+    fn wait_for_empty_queue(&self, what: &str) {
+        let t0 = Instant::now();
+        while !self.queue().trim().is_empty() {
+            assert!(t0.elapsed() < ROUND_TIMEOUT, "{what}: jobs still queued after {ROUND_TIMEOUT:?}:\n{}\n{}", self.queue(), self.logs());
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    }
+
+    fn logs(&self) -> String {
+        let tail = |name: &str| std::fs::read_to_string(self.dir.join("log").join(name)).unwrap_or_default().lines().rev().take(15).collect::<Vec<_>>().join("\n");
+        format!("slurmctld.log (last lines, reversed):\n{}\nslurmd.log:\n{}", tail("slurmctld.log"), tail("slurmd.log"))
+    }
+}
+
+impl Drop for Cluster {
+    fn drop(&mut self) {
+        let _ = Command::new("bash").args([SCRIPT, "stop"]).arg(&self.dir).stdin(Stdio::null()).output();
+    }
+}
+
+/// The cluster, or `None` after printing why not (a failure where Slurm is required).
+fn cluster_or_skip(dir: &Path) -> Option<Cluster> {
+    let required = std::env::var_os("CI").is_some() || std::env::var_os("STEREOGEN_REQUIRE_SLURM").is_some();
+    match Cluster::start(dir) {
+        Ok(c) => Some(c),
+        Err(why) if required => panic!("a Slurm cluster is required here (CI or STEREOGEN_REQUIRE_SLURM is set) but: {why}"),
+        Err(why) => {
+            eprintln!("SKIPPED farm_slurm: no local Slurm cluster: {why}");
+            None
+        }
+    }
+}
+
+/// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once.
+fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64) {
+    let o = Command::new(stereogen_bin())
+        .args(["farm", "slurm", "--threads", "1", "--max-parallel", "2", "--seed", "3"])
+        .args(["--count", &count.to_string(), "--tasks", &tasks.to_string(), "--recipe"])
+        .arg(recipe)
+        .arg("--out")
+        .arg(out)
+        .arg("--stereogen")
+        .arg(stereogen_bin())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "farm slurm: {}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Runs `submit.sh`; returns the render array's and the merge job's ids.
+fn submit(cluster: &Cluster, out: &Path) -> (String, String) {
+    let o = cluster.cmd("bash").arg(out.join("jobs/submit.sh")).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(o.status.success(), "submit.sh: {text}{}", String::from_utf8_lossy(&o.stderr));
+    // "render array: 12  merge and check: 13"
+    let words: Vec<&str> = text.split_whitespace().collect();
+    let after = |w: &str| words.iter().position(|x| *x == w).map(|i| words[i + 1].to_string()).unwrap_or_else(|| panic!("no {w} in {text}"));
+    (after("array:"), after("check:"))
+}
+
+fn merge_log(out: &Path, merge_job: &str) -> String {
+    std::fs::read_to_string(out.join(format!("jobs/logs/merge-{merge_job}.out"))).unwrap_or_default()
+}
+
+/// One dataset over the shards: every index once, each in its own shard, every file there with
+/// its checksum, nothing else in the shard directories (no partial file, no lock).
+fn assert_complete_farm(out: &Path, count: u64, tasks: u64) {
+    let entries = Manifest::read(&out.join("manifest.jsonl")).expect("the merged manifest reads");
+    let indices: Vec<u64> = entries.iter().map(|e| e.index).collect();
+    assert_eq!(indices, (0..count).collect::<Vec<_>>(), "every index exactly once, in order");
+    let layout = DatasetLayout::new(out);
+    for e in &entries {
+        let shard = format!("shards/{:04}-of-{:04}/", e.index % tasks, tasks);
+        for (key, rel) in e.files.all() {
+            assert!(rel.to_string_lossy().starts_with(&shard), "sample {} file {} is in its shard {shard}", e.index, rel.display());
+            let path = layout.abs(rel);
+            let sum = Command::new("sha256sum").arg(&path).output().unwrap();
+            let sum = String::from_utf8_lossy(&sum.stdout).split_whitespace().next().unwrap_or("").to_string();
+            assert_eq!(sum, e.sha256[key], "{} matches its checksum", path.display());
+        }
+    }
+    for k in 0..tasks {
+        let shard = out.join(format!("shards/{k:04}-of-{tasks:04}"));
+        let own = Manifest::read(&shard.join("manifest.jsonl")).unwrap();
+        assert_eq!(own.len() as u64, (0..count).filter(|i| i % tasks == k).count() as u64, "{}", shard.display());
+        let mut files = 0;
+        for entry in walk(&shard) {
+            let name = entry.file_name().unwrap().to_string_lossy().into_owned();
+            assert!(!stereo_io::is_temp_name(&name) && !name.starts_with(".stereogen.lock"), "partial or lock file left: {}", entry.display());
+            if entry.parent() != Some(shard.as_path()) {
+                files += 1;
+            }
+        }
+        assert_eq!(files, 5 * own.len(), "{}: five files per sample, nothing else", shard.display());
+    }
+}
+
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
+
+fn stats_check(out: &Path) -> Output {
+    Command::new(stereogen_bin()).args(["stats", "--check"]).arg(out).arg("--out").arg(out.join("stats-test")).output().unwrap()
+}
+
+#[test]
+fn a_slurm_array_renders_merges_and_survives_preemption() {
+    let t0 = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let Some(cluster) = cluster_or_skip(&dir.path().join("slurm")) else { return };
+    let recipe = write_tiny_recipe(dir.path(), "crestereo");
+    let (count, tasks) = (8, 4);
+
+    // One submission: 4 array tasks (2 at once), then merge and check.
+    let out = dir.path().join("farm");
+    write_job_files(&recipe, &out, count, tasks);
+    let (render, merge) = submit(&cluster, &out);
+    cluster.wait_for_empty_queue("first farm");
+    let merge_job = cluster.job(&merge);
+    assert_eq!(merge_job.get("JobState").map(String::as_str), Some("COMPLETED"), "merge job: {merge_job:?}\n{}", merge_log(&out, &merge));
+    assert!(merge_log(&out, &merge).contains("stereogen farm: merge and check passed"), "{}", merge_log(&out, &merge));
+    for k in 0..tasks {
+        let task = cluster.job(&format!("{render}_{k}"));
+        assert_eq!(task.get("JobState").map(String::as_str), Some("COMPLETED"), "render task {k}: {task:?}");
+    }
+    assert_complete_farm(&out, count, tasks);
+    let stats = stats_check(&out);
+    assert!(stats.status.success(), "stats --check on the merged dataset: {}", String::from_utf8_lossy(&stats.stdout));
+    let first_round = t0.elapsed();
+
+    // Preemption: SIGTERM to a task while it renders, then the same file again.
+    let out = dir.path().join("preempted");
+    write_job_files(&recipe, &out, count, tasks);
+    let (render, _) = submit(&cluster, &out);
+    let lock = out.join(format!("shards/0001-of-{tasks:04}/.stereogen.lock"));
+    let t_wait = Instant::now();
+    while !lock.exists() {
+        assert!(t_wait.elapsed() < ROUND_TIMEOUT, "task 1 never started: {}", cluster.queue());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let task = format!("{render}_1");
+    let t_term = Instant::now();
+    // scancel's exit status is not checked: it is non-zero when the task ends while scancel
+    // retries ("already completing"). What counts is that the task stops, checked below.
+    let o = cluster.run("scancel", &["--verbose", "--signal=TERM", &task]);
+    let said = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(said.contains("Signal 15 to job"), "scancel did not signal {task}: {said}");
+    while cluster.job(&task).get("JobState").is_some_and(|s| s == "RUNNING") && lock.exists() {
+        assert!(t_term.elapsed() < Duration::from_secs(120), "task 1 ignored SIGTERM");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let stop_time = t_term.elapsed();
+    cluster.wait_for_empty_queue("preempted farm");
+    let (_, merge) = submit(&cluster, &out);
+    cluster.wait_for_empty_queue("re-submitted farm");
+    let merge_job = cluster.job(&merge);
+    assert_eq!(merge_job.get("JobState").map(String::as_str), Some("COMPLETED"), "merge after re-submission: {merge_job:?}\n{}", merge_log(&out, &merge));
+    assert_complete_farm(&out, count, tasks);
+    assert!(stats_check(&out).status.success());
+    eprintln!(
+        "farm_slurm: first farm ({count} samples, {tasks} tasks, 2 at once) {:.1} s; SIGTERM stopped a task in {:.2} s; whole test {:.1} s",
+        first_round.as_secs_f64(),
+        stop_time.as_secs_f64(),
+        t0.elapsed().as_secs_f64()
+    );
+}
