@@ -14,7 +14,6 @@ pub mod textures;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::bail;
 use sha2::{Digest, Sha256};
 pub use stereogen_plan::assets::{AssetIndex, MeshAsset, SkippedAsset, TextureAsset};
 use stereogen_plan::recipe::SourcesRecipe;
@@ -40,7 +39,7 @@ fn hash_files<'a>(h: &mut Sha256, what: &str, root: &Path, files: impl Iterator<
 /// Indexes the folders a recipe names and, when `sources.builtin_pack` is set, the built-in pack
 /// (its photos stand in for an unset `textures`, its meshes for unset `shapenet` and `meshes`).
 /// An empty index means the planner's procedural shapes and textures. Folder indexes are cached
-/// under `home`; the pack must be installed there (`stereogen setup`).
+/// under `home`; the pack is installed there on first use if `stereogen setup` has not done it.
 pub fn index_sources(sources: &SourcesRecipe, home: &Path) -> anyhow::Result<AssetIndex> {
     let mut index = AssetIndex::default();
     let mut h = Sha256::new();
@@ -65,13 +64,7 @@ pub fn index_sources(sources: &SourcesRecipe, home: &Path) -> anyhow::Result<Ass
     let wants_pack_photos = sources.textures.is_none();
     let wants_pack_meshes = sources.shapenet.is_none() && sources.meshes.is_none();
     if sources.builtin_pack && (wants_pack_photos || wants_pack_meshes) {
-        let dir = pack::pack_dir(home);
-        if !pack::is_installed(home) {
-            bail!(
-                "the built-in content pack is not installed in {}; run `stereogen setup` (or set sources.builtin_pack = false for procedural content only)",
-                dir.display()
-            );
-        }
+        let dir = pack::ensure_installed(home)?;
         let pack = pack::index_pack(&dir, &sources.exclude_licences);
         h.update(format!("[pack {}]\n", pack.fingerprint));
         if wants_pack_photos {

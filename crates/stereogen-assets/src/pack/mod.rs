@@ -4,6 +4,7 @@
 //! bytes are not the pinned ones is skipped and reported, never fatal.
 
 pub mod contents;
+pub mod install;
 
 use std::path::{Path, PathBuf};
 
@@ -12,6 +13,7 @@ use sha2::{Digest, Sha256};
 use stereogen_plan::assets::{MeshAsset, SkippedAsset, TextureAsset};
 
 pub use contents::{FILES, PACKAGES, PackFile, PackKind, PackPackage, requirements};
+pub use install::{default_pip_python, ensure_installed, install_pack, installed_index};
 
 /// The folder name of the installed pack: it changes with the pins, so an upgrade installs afresh.
 pub fn pack_name() -> String {
