@@ -12,6 +12,8 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use stereogen_plan::assets::{MeshAsset, SkippedAsset, TextureAsset};
 
+use crate::objaverse::download::sha256_file;
+
 pub use contents::{FILES, PACKAGES, PackFile, PackKind, PackPackage, requirements};
 pub use install::{default_pip_python, ensure_installed, install_pack, installed_index};
 
@@ -78,23 +80,6 @@ pub struct PackIndex {
     pub excluded: Vec<String>,
     /// A digest of the usable files' paths, licences and contents.
     pub fingerprint: String,
-}
-
-fn sha256_file(path: &Path) -> std::io::Result<(String, u64)> {
-    use std::io::Read;
-    let mut f = std::fs::File::open(path)?;
-    let mut h = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    let mut n = 0u64;
-    loop {
-        let k = f.read(&mut buf)?;
-        if k == 0 {
-            break;
-        }
-        h.update(&buf[..k]);
-        n += k as u64;
-    }
-    Ok((h.finalize().iter().map(|b| format!("{b:02x}")).collect(), n))
 }
 
 fn photo_size(path: &Path) -> Result<[u32; 2], String> {
