@@ -28,13 +28,32 @@ def _input(node, *names):
     raise KeyError("%s has none of the inputs %s" % (node.bl_idname, names))
 
 
-def _object_coords(nodes, links, scale, rotation=0.0):
+def _object_coords(nodes, links, scale, rotation=0.0, stretch=None):
     coords = nodes.new("ShaderNodeTexCoord")
     mapping = nodes.new("ShaderNodeMapping")
-    mapping.inputs["Scale"].default_value = (scale, scale, scale)
+    stretch = stretch or (1.0, 1.0, 1.0)
+    mapping.inputs["Scale"].default_value = tuple(scale * s for s in stretch)
     mapping.inputs["Rotation"].default_value = (0.0, 0.0, rotation)
     links.new(coords.outputs["Object"], mapping.inputs["Vector"])
     return mapping.outputs["Vector"]
+
+
+def _downsampled(image, longer_side):
+    """The planner's mip level of a strongly minified photo: Cycles samples image textures
+    without mipmaps, so the copy is what keeps fine detail from aliasing into moire."""
+    if not longer_side:
+        return image
+    w, h = image.size
+    if max(w, h) <= longer_side:
+        return image
+    name = "%s@%d" % (image.name, longer_side)
+    if name in bpy.data.images:
+        return bpy.data.images[name]
+    f = longer_side / max(w, h)
+    small = image.copy()
+    small.name = name
+    small.scale(max(1, round(w * f)), max(1, round(h * f)))
+    return small
 
 
 def _base_color(nodes, links, bsdf, base, skipped):
@@ -63,6 +82,9 @@ def _base_color(nodes, links, bsdf, base, skipped):
             image = bpy.data.images.load(path, check_existing=True)
             if image.size[0] == 0 or image.size[1] == 0:
                 raise RuntimeError("image has no pixels")
+            # A photo is colour data: decode it as sRGB whatever the file or the defaults say.
+            image.colorspace_settings.name = "sRGB"
+            image = _downsampled(image, base.get("texture_px"))
         except RuntimeError as e:
             skipped.append({"path": path, "reason": "texture cannot be loaded: %s" % e})
             target.default_value = _rgba(base["fallback"])
@@ -73,7 +95,8 @@ def _base_color(nodes, links, bsdf, base, skipped):
         tex.projection = "BOX"
         tex.projection_blend = 0.2
         tex.extension = "REPEAT"
-        links.new(_object_coords(nodes, links, base["scale"], base["rotation"]), tex.inputs["Vector"])
+        coords = _object_coords(nodes, links, base["scale"], base["rotation"], base.get("stretch"))
+        links.new(coords, tex.inputs["Vector"])
         links.new(tex.outputs["Color"], target)
     else:
         raise ValueError("unknown base colour kind %r" % kind)

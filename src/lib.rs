@@ -70,6 +70,8 @@ pub fn tiny_recipe(preset: &str) -> Recipe {
     r.camera.height = 48;
     r.render.samples = 2;
     r.render.denoise = false;
+    // Procedural content only: fast, and independent of the content pack.
+    r.sources.builtin_pack = false;
     r.placement.disparity_px = Dist::uniform(3.0, 20.0);
     r.placement.background_disparity_px = Dist::uniform(0.5, 1.5);
     r.trees.branches = CountRange { min: 3, max: 4 };

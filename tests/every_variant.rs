@@ -141,7 +141,7 @@ fn contents(dir: &Path) -> Vec<(Shape, Vec<Modifier>, MaterialSpec)> {
     image::RgbImage::from_fn(32, 32, |x, y| image::Rgb([(x * 8) as u8, (y * 8) as u8, ((x ^ y) * 8) as u8])).save(&photo).unwrap();
     let obj = dir.join("cube.obj");
     std::fs::write(&obj, CUBE_OBJ).unwrap();
-    let image = BaseColor::Image { path: photo, scale: 2.0, rotation: 0.3, fallback: [1.0, 0.0, 1.0] };
+    let image = BaseColor::Image { path: photo, scale: 2.0, rotation: 0.3, fallback: [1.0, 0.0, 1.0], texture_px: None, stretch: None };
     let cut = |cutter| Modifier::BooleanCut { cutter, location: [0.5, 0.5, 0.5], rotation: [0.2, 0.3, 0.1], scale: [0.5; 3] };
     let displace = Modifier::Displace { strength: 0.1, noise_scale: 0.5, offset: [1.0, 2.0, 3.0] };
     use MaterialClass::*;

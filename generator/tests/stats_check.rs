@@ -85,7 +85,7 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
     let recipe = Recipe::preset("crestereo").unwrap();
     assert_eq!(recipe.placement.disparity_px, stereogen::plan::Dist::uniform(2.0, 240.0));
     let layout = DatasetLayout::new(root);
-    let info = DatasetInfo { stereogen_version: "test".into(), seed: 7, recipe_fingerprint: recipe.fingerprint(), recipe: recipe.clone() };
+    let info = DatasetInfo { stereogen_version: "test".into(), seed: 7, recipe_fingerprint: recipe.fingerprint(), recipe: recipe.clone(), assets_fingerprint: None };
     std::fs::create_dir_all(root).unwrap();
     std::fs::write(layout.info(), serde_json::to_string_pretty(&info).unwrap()).unwrap();
     let assets = AssetIndex::default();

@@ -77,6 +77,22 @@ pub fn index_shapenet(root: &Path, synsets: &[String], home: &Path) -> anyhow::R
     Ok((found, skipped))
 }
 
+/// A GLB must have a sound header, and a file that `assets fetch` recorded (`<stem>.json` with a
+/// `sha256`) must still have the recorded bytes.
+fn check_fetched(path: &Path) -> Result<(), String> {
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) {
+        return Ok(());
+    }
+    crate::objaverse::check_glb(path)?;
+    let Ok(text) = std::fs::read_to_string(path.with_extension("json")) else { return Ok(()) };
+    let Ok(record) = serde_json::from_str::<crate::objaverse::ObjectRecord>(&text) else { return Ok(()) };
+    let (sha, _) = crate::objaverse::download::sha256_file(path).map_err(|e| format!("cannot read it: {e}"))?;
+    if sha != record.sha256 {
+        return Err(format!("corrupt: SHA-256 {sha} is not the {} its record states", record.sha256));
+    }
+    Ok(())
+}
+
 /// Indexes every mesh file under `root`.
 pub fn index_mesh_folder(root: &Path, home: &Path) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
     check_root(root, "mesh")?;
@@ -91,6 +107,10 @@ pub fn index_mesh_folder(root: &Path, home: &Path) -> anyhow::Result<(Vec<MeshAs
             }
             if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
                 skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason: "empty file".into() });
+                continue;
+            }
+            if let Err(reason) = check_fetched(entry.path()) {
+                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason });
                 continue;
             }
             found.push(MeshAsset { path: entry.path().to_path_buf(), synset: None, label: None });

@@ -1,10 +1,10 @@
 //! Photo folders used as textures. Each file's header is decoded once at index time, so files
 //! that are not images are skipped and listed rather than failing a render.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context, bail};
-use stereogen_plan::assets::SkippedAsset;
+use stereogen_plan::assets::{SkippedAsset, TextureAsset};
 use walkdir::WalkDir;
 
 use super::cache::{cached, tree_stamp};
@@ -24,12 +24,13 @@ fn probe(path: &Path) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-pub fn index_textures(root: &Path, home: &Path) -> anyhow::Result<(Vec<PathBuf>, Vec<SkippedAsset>)> {
+/// Indexes every image under `root`, with its pixel size where the header can be read.
+pub fn index_textures(root: &Path, home: &Path) -> anyhow::Result<(Vec<TextureAsset>, Vec<SkippedAsset>)> {
     if !root.is_dir() {
         bail!("texture folder {} does not exist or is not a directory", root.display());
     }
     let key = root.canonicalize().unwrap_or_else(|_| root.to_path_buf()).display().to_string();
-    let (found, skipped): (Vec<PathBuf>, Vec<SkippedAsset>) = cached(home, "textures", &key, &tree_stamp(root), || {
+    let (found, skipped): (Vec<TextureAsset>, Vec<SkippedAsset>) = cached(home, "photos", &key, &tree_stamp(root), || {
         let mut found = Vec::new();
         let mut skipped = Vec::new();
         for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
@@ -39,13 +40,17 @@ pub fn index_textures(root: &Path, home: &Path) -> anyhow::Result<(Vec<PathBuf>,
                 continue;
             }
             // image cannot probe every format Blender reads (EXR/HDR/TGA need features we do not build).
-            if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp"))
-                && let Err(reason) = probe(entry.path())
-            {
-                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason });
-                continue;
+            let mut size = None;
+            if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp")) {
+                match probe(entry.path()) {
+                    Ok((w, h)) => size = Some([w, h]),
+                    Err(reason) => {
+                        skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason });
+                        continue;
+                    }
+                }
             }
-            found.push(entry.path().to_path_buf());
+            found.push(TextureAsset { path: entry.path().to_path_buf(), size });
         }
         Ok((found, skipped))
     })?;
@@ -68,7 +73,7 @@ mod tests {
         std::fs::write(root.path().join("bad.jpg"), b"this is not a jpeg").unwrap();
         std::fs::write(root.path().join("notes.txt"), b"ignored").unwrap();
         let (found, skipped) = index_textures(root.path(), home.path()).unwrap();
-        assert_eq!(found, vec![good]);
+        assert_eq!(found, vec![TextureAsset { path: good, size: Some([4, 4]) }]);
         assert_eq!(skipped.len(), 1);
         assert!(skipped[0].path.ends_with("bad.jpg"));
     }

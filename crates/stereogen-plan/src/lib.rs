@@ -5,6 +5,7 @@
 
 pub mod assets;
 pub mod dist;
+pub mod photo_sizing;
 pub mod recipe;
 pub mod rig;
 pub mod rng;
@@ -13,7 +14,7 @@ pub mod shapes;
 pub mod spec;
 pub mod tree;
 
-pub use assets::{AssetIndex, MeshAsset, SkippedAsset};
+pub use assets::{AssetIndex, MeshAsset, SkippedAsset, TextureAsset};
 pub use dist::Dist;
 pub use recipe::{Recipe, RecipeError};
 pub use rig::{StereoCameras, StereoRig};

@@ -20,7 +20,8 @@ use super::spec::{
     BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec, SPEC_FORMAT_VERSION,
 };
 use super::tree::{TreeParams, grow};
-use super::assets::AssetIndex;
+use super::assets::{AssetIndex, MeshAsset};
+use super::photo_sizing::size_photo;
 
 /// The near clip never comes closer than this (metres), whatever the recipe says.
 const MIN_CLIP_START_M: f64 = 1e-4;
@@ -132,6 +133,8 @@ fn background_wall(recipe: &Recipe, assets: &AssetIndex, rig: &StereoRig, depth:
         let [lo, hi] = recipe.materials.background_texture_scale;
         *scale = (*scale).clamp(lo, hi);
     }
+    let screen_px = 2.0 * half_w.max(half_h) * f / depth;
+    fit_photo(recipe, assets, &mut material, screen_px, [half_w, half_h, half_w.min(half_h)]);
     ObjectSpec {
         name: "background".into(),
         role: ObjectRole::Background,
@@ -151,8 +154,19 @@ pub fn material<R: Rng>(recipe: &Recipe, assets: &AssetIndex, class: MaterialCla
     let m = &recipe.materials;
     let textured_base = |rng: &mut R| {
         let scale = m.texture_scale.sample(rng);
-        match assets.textures.choose(rng) {
-            Some(path) => BaseColor::Image { path: path.clone(), scale, rotation: rng.random_range(0.0..2.0 * PI), fallback: random_color(rng) },
+        // Procedural textures stay one class among the photos (no draw when the share is 0, so
+        // recipes without the key plan as before).
+        let procedural = !assets.textures.is_empty() && m.procedural_share > 0.0 && rng.random_bool(m.procedural_share);
+        let photo = if procedural { None } else { assets.textures.choose(rng) };
+        match photo {
+            Some(photo) => BaseColor::Image {
+                path: photo.path.clone(),
+                scale,
+                rotation: rng.random_range(0.0..2.0 * PI),
+                fallback: random_color(rng),
+                texture_px: None,
+                stretch: None,
+            },
             None => BaseColor::Procedural {
                 pattern: *Pattern::ALL.choose(rng).expect("non-empty"),
                 scale,
@@ -198,20 +212,18 @@ fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetInde
     let rotation: [f64; 3] = std::array::from_fn(|_| rng.random_range(0.0..2.0 * PI));
 
     let mut shape_rng = node.child("shape").rng();
-    let mut source = pick_weighted(&mut shape_rng, &category.shapes);
-    // Without the folders, the built-in procedural shapes stand in (the demo needs no downloads).
-    if (source == ShapeSource::Shapenet && assets.shapenet.is_empty()) || (source == ShapeSource::Meshes && assets.meshes.is_empty()) {
-        source = ShapeSource::Primitive;
-    }
+    let source = pick_weighted(&mut shape_rng, &category.shapes);
+    let drawn_from = shape_pool(recipe, assets, source, &mut shape_rng);
     let mut mat_rng = node.child("material").rng();
     let class = pick_weighted(&mut mat_rng, &category.materials);
-    let material = material(recipe, assets, class, &mut mat_rng);
-    let drawn = draw_shape(recipe, assets, source, &mut shape_rng);
+    let mut material = material(recipe, assets, class, &mut mat_rng);
+    let drawn = draw_shape(recipe, drawn_from, &mut shape_rng);
+    fit_photo(recipe, assets, &mut material, 2.0 * radius * rig.f_px() / z, drawn.proportions);
 
     ObjectSpec {
         name: format!("object_{i:03}"),
         role: ObjectRole::Content,
-        source: serde_json::to_value(source).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+        source: drawn_from.name(),
         shape: drawn.shape,
         modifiers: drawn.modifiers,
         location,
@@ -220,6 +232,53 @@ fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetInde
         material,
         target_disparity: Some(d),
     }
+}
+
+/// Applies the recipe's photo sizing (`materials.photo_texel_px`) to a photo of known size.
+fn fit_photo(recipe: &Recipe, assets: &AssetIndex, material: &mut MaterialSpec, screen_px: f64, axes: [f64; 3]) {
+    let (Some(texel_px), BaseColor::Image { path, .. }) = (recipe.materials.photo_texel_px, &material.base) else { return };
+    if let Some(size) = assets.texture_size(path) {
+        size_photo(&mut material.base, size, screen_px, axes, texel_px);
+    }
+}
+
+/// Where an object's shape comes from once the folders are known.
+#[derive(Clone, Copy)]
+enum DrawnFrom<'a> {
+    /// A procedural source (or primitives standing in for a mesh source without files).
+    Procedural(ShapeSource),
+    /// A mesh source with its pool of files.
+    Files(ShapeSource, &'a [MeshAsset]),
+    /// The built-in pack's meshes, standing in for a mesh source without files.
+    Pack(&'a [MeshAsset]),
+}
+
+impl DrawnFrom<'_> {
+    /// The `source` an object records.
+    fn name(self) -> String {
+        match self {
+            DrawnFrom::Procedural(s) | DrawnFrom::Files(s, _) => serde_json::to_value(s).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+            DrawnFrom::Pack(_) => "pack".into(),
+        }
+    }
+}
+
+/// A mesh source without files falls back to the pack's meshes (a `pack_mesh_share` of the
+/// time, when the index has them) and to the built-in procedural primitives otherwise.
+fn shape_pool<'a, R: Rng>(recipe: &Recipe, assets: &'a AssetIndex, source: ShapeSource, rng: &mut R) -> DrawnFrom<'a> {
+    let files = match source {
+        ShapeSource::Shapenet => &assets.shapenet,
+        ShapeSource::Meshes => &assets.meshes,
+        other => return DrawnFrom::Procedural(other),
+    };
+    if !files.is_empty() {
+        return DrawnFrom::Files(source, files);
+    }
+    // The draw is taken only when the pack is there, so plans without it do not move.
+    if !assets.pack_meshes.is_empty() && rng.random_bool(recipe.sources.pack_mesh_share) {
+        return DrawnFrom::Pack(&assets.pack_meshes);
+    }
+    DrawnFrom::Procedural(ShapeSource::Primitive)
 }
 
 /// A shape drawn from one source, in object space.
@@ -232,8 +291,16 @@ struct DrawnShape {
     rotation: Option<[f64; 3]>,
 }
 
-fn draw_shape<R: Rng>(recipe: &Recipe, assets: &AssetIndex, source: ShapeSource, rng: &mut R) -> DrawnShape {
+fn draw_shape<R: Rng>(recipe: &Recipe, from: DrawnFrom<'_>, rng: &mut R) -> DrawnShape {
     let plain = |shape, modifiers| DrawnShape { shape, modifiers, proportions: [1.0; 3], rotation: None };
+    let source = match from {
+        DrawnFrom::Files(_, pool) | DrawnFrom::Pack(pool) => {
+            let n = (recipe.sources.mesh_candidates as usize).min(pool.len());
+            let candidates = (0..n).map(|_| pool.choose(rng).expect("non-empty").path.clone()).collect();
+            return plain(Shape::MeshFile { candidates, max_triangles: recipe.sources.max_triangles }, Vec::new());
+        }
+        DrawnFrom::Procedural(source) => source,
+    };
     match source {
         ShapeSource::Primitive => {
             let (shape, modifiers, proportions) = primitive(&recipe.primitives, rng);
@@ -244,12 +311,8 @@ fn draw_shape<R: Rng>(recipe: &Recipe, assets: &AssetIndex, source: ShapeSource,
             plain(shape, modifiers)
         }
         ShapeSource::Net => plain(net(&recipe.holes, rng), Vec::new()),
-        ShapeSource::Shapenet | ShapeSource::Meshes => {
-            let pool = if source == ShapeSource::Shapenet { &assets.shapenet } else { &assets.meshes };
-            let n = (recipe.sources.mesh_candidates as usize).min(pool.len());
-            let candidates = (0..n).map(|_| pool.choose(rng).expect("non-empty").path.clone()).collect();
-            plain(Shape::MeshFile { candidates, max_triangles: recipe.sources.max_triangles }, Vec::new())
-        }
+        // Mesh sources arrive as `Files`, `Pack` or primitives (see `shape_pool`).
+        ShapeSource::Shapenet | ShapeSource::Meshes => unreachable!("mesh sources are resolved by shape_pool"),
         ShapeSource::Tree => tree(&recipe.trees, rng),
     }
 }

