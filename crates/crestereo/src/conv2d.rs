@@ -297,7 +297,7 @@ mod tests {
     type Ad = Autodiff<Flex>;
 
     fn values<B: Backend>(t: Tensor<B, 4>) -> Vec<f32> {
-        t.into_data().convert::<f32>().into_vec().unwrap()
+        t.into_data().convert::<f32>().into_vec().unwrap() // host read: unit test only
     }
 
     fn max_diff(a: &[f32], b: &[f32]) -> f32 {
