@@ -1,6 +1,8 @@
 //! The `stereogen` command line: clap arguments, and each command as a call into the library.
 
+mod audit;
 mod generate;
+mod report;
 mod stats;
 
 use std::path::PathBuf;
@@ -199,6 +201,10 @@ pub enum Command {
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
     },
+    /// Check the ground truth against the scene geometry by ray casting (see `audit --help`).
+    Audit(audit::AuditArgs),
+    /// One self-contained HTML page about a dataset (see `report --help`).
+    Report(report::ReportArgs),
     /// A contact sheet PNG: each sample's left image beside its colourised disparity.
     Sheet {
         /// The dataset directory.
@@ -273,6 +279,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 out.display()
             );
         }
+        Command::Audit(args) => audit::run(args)?,
+        Command::Report(args) => report::run(args)?,
         Command::Stats { dataset, plot, check, ks_alpha, bins, gap_bins, out } => {
             let opts = stereogen::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins };
             stats::run(&opts, out, plot, check)?;

@@ -1,0 +1,1 @@
+//! `stereogen report DATASET`: one self-contained HTML page about a dataset.
