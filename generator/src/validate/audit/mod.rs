@@ -71,7 +71,7 @@ struct Rebuilt {
 }
 
 /// SHA-256 of a file, read in pieces.
-fn sha256_file(path: &Path) -> std::io::Result<String> {
+pub fn sha256_file(path: &Path) -> std::io::Result<String> {
     let mut file = std::fs::File::open(path)?;
     let mut hasher = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];

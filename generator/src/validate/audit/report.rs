@@ -170,13 +170,16 @@ impl SampleAudit {
 pub fn summary_lines(report: &AuditReport) -> Vec<String> {
     let w = report.categories.iter().map(|c| c.name.len()).max().unwrap_or(3).max(3);
     let mut lines = vec![format!(
-        "audit of {} ({} of {} samples, {} pixels per sample, seed {})",
+        "audit of {} ({} of {} samples, {} per sample, seed {})",
         report.dataset,
         report.samples.len(),
         report.manifest_samples,
-        report.pixels_requested,
+        if report.pixels_requested == "every" { "every pixel".to_string() } else { format!("{} pixels", report.pixels_requested) },
         report.seed
     )];
+    if report.unfinished_manifest_line {
+        lines.push("note: the manifest's unfinished last line was left out (generation still running?)".to_string());
+    }
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
     for p in &report.problems {
