@@ -200,7 +200,12 @@ fn empty_audit(entry: &ManifestEntry) -> SampleAudit {
 
 /// Reads the manifest; an audit needs at least one finished sample.
 fn finished_samples(layout: &DatasetLayout) -> anyhow::Result<(Vec<ManifestEntry>, bool)> {
-    let contents = read_manifest(&layout.manifest()).with_context(|| format!("{} is not a stereogen dataset", layout.root.display()))?;
+    // A dataset whose samples all failed (or none finished yet) may have no manifest at all.
+    let contents = if !layout.manifest().exists() && layout.info().exists() {
+        Default::default()
+    } else {
+        read_manifest(&layout.manifest()).with_context(|| format!("{} is not a stereogen dataset", layout.root.display()))?
+    };
     if contents.entries.is_empty() {
         let failures = std::fs::read_to_string(layout.failures()).map(|t| t.lines().filter(|l| !l.trim().is_empty()).count()).unwrap_or(0);
         let why = if failures > 0 { format!("; {failures} sample(s) failed, see {}", layout.failures().display()) } else { String::new() };

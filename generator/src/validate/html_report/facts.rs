@@ -67,6 +67,7 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
         }
     };
     let entries = match read_manifest(&layout.manifest()) {
+        Err(_) if !layout.manifest().exists() => Vec::new(),
         Ok(m) => {
             if m.has_unfinished_line() {
                 problems.push(format!("{}: the unfinished last line was left out (generation still running?)", layout.manifest().display()));
@@ -81,7 +82,8 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
         }
     };
     if entries.is_empty() && problems.is_empty() {
-        problems.push(format!("{}: no finished samples", layout.manifest().display()));
+        let none = if layout.manifest().exists() { "holds no finished samples" } else { "does not exist: no finished samples" };
+        problems.push(format!("{} {none}", layout.manifest().display()));
     }
     let failures = listed(&layout.failures(), "index", "error", &mut problems);
     let skipped = listed(&layout.skipped_assets(), "path", "reason", &mut problems);

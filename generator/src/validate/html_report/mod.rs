@@ -104,8 +104,9 @@ fn stats(dataset: &Path, facts: &Facts, problems: &mut Vec<String>) -> Option<St
     }
     match compute(&StatsOptions::new(dataset)) {
         Ok(s) => {
-            if !s.errors.is_empty() {
-                problems.push(format!("{} sample(s) could not be read for the statistics (listed under Distribution)", s.errors.len()));
+            problems.extend(s.errors.iter().take(facts::MAX_LISTED).map(|e| format!("statistics: {e}")));
+            if s.errors.len() > facts::MAX_LISTED {
+                problems.push(format!("statistics: ... and {} more samples that could not be read", s.errors.len() - facts::MAX_LISTED));
             }
             Some(sections::stats_section(&s))
         }

@@ -27,7 +27,6 @@ pub struct StatsSection {
     /// Per category (then overall): the object-level and the pixel-level chart.
     pub charts: Vec<(String, String, String)>,
     pub coverage: Vec<String>,
-    pub errors: Vec<String>,
 }
 
 fn status(s: Status) -> &'static str {
@@ -100,7 +99,6 @@ pub fn stats_section(s: &StatsReport) -> StatsSection {
         rows: groups.iter().map(|c| row(c)).collect(),
         charts,
         coverage,
-        errors: s.errors.iter().take(super::facts::MAX_LISTED).cloned().collect(),
     }
 }
 
