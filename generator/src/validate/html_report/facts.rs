@@ -191,3 +191,49 @@ pub fn outliers(entries: &[ManifestEntry], limit: usize) -> Vec<(usize, String)>
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A manifest entry with the figures the outlier search reads.
+    pub fn entry(index: u64, category: &str, valid: f64, max: f32, seconds: f64) -> ManifestEntry {
+        let summary = serde_json::json!({"min": 0.5, "max": max, "mean": 3.0, "valid_fraction": valid});
+        let id = format!("{index:07}");
+        serde_json::from_value(serde_json::json!({
+            "id": id, "category": category, "seed": 0, "index": index,
+            "files": {"left": "l.png", "right": "r.png", "disp_left": "l.exr", "disp_right": "r.exr", "scene": "s.json"},
+            "width": 8, "height": 6, "f_px": 10.0, "baseline_m": 0.1, "cx": 4.0, "cy": 3.0,
+            "disparity_left": summary, "disparity_right": summary, "render_seconds": seconds,
+            "render_timings": {"build_s": 0.5}, "sha256": {}, "stereogen_version": "0"
+        }))
+        .unwrap()
+    }
+
+    #[test]
+    fn samples_far_from_the_rest_stand_out_and_close_ones_do_not() {
+        let mut entries: Vec<ManifestEntry> = (0..40).map(|i| entry(i, "tree", 0.99 + 0.0002 * i as f64, 20.0 + 0.1 * i as f32, 2.0 + 0.01 * i as f64)).collect();
+        assert!(outliers(&entries, 5).is_empty(), "{:?}", outliers(&entries, 5));
+        entries[7].disparity_left.as_mut().unwrap().valid_fraction = 0.4;
+        entries[12].render_seconds = 60.0;
+        entries[12].disparity_right.as_mut().unwrap().max = 400.0;
+        let found = outliers(&entries, 5);
+        assert_eq!(found.iter().map(|f| f.0).collect::<Vec<_>>(), [12, 7], "{found:?}");
+        assert!(found[0].1.contains("render seconds") && found[0].1.contains("largest disparity"), "{found:?}");
+        assert_eq!(outliers(&entries, 1).len(), 1);
+        let rows = render_times(&entries);
+        assert_eq!(rows[0], ("samples timed".to_string(), "40".to_string()));
+        assert!(rows.iter().any(|(k, v)| k == "step build_s: mean" && v == "0.500 s"));
+    }
+
+    #[test]
+    fn the_gallery_takes_every_category_in_turn() {
+        let cats = ["tree", "tree", "tree", "tree", "tree", "tree", "hole", "hole", "shapenet"];
+        let entries: Vec<ManifestEntry> = cats.iter().enumerate().map(|(i, c)| entry(i as u64, c, 1.0, 10.0, 1.0)).collect();
+        let chosen = super::super::gallery::choose(&entries, 5);
+        // Turns: each category one, then hole and tree another (shapenet has no more); tree's two spread over its range.
+        assert_eq!(chosen, [0, 3, 6, 7, 8]);
+        assert_eq!(super::super::gallery::choose(&entries, 99).len(), 9);
+        assert_eq!(chosen, super::super::gallery::choose(&entries, 5), "deterministic");
+    }
+}
