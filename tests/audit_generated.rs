@@ -181,10 +181,13 @@ fn audit_check_fails_on_corrupted_ground_truth_and_names_the_samples() {
     std::fs::write(&exr, b"not an exr").unwrap();
     resign(&data, &unreadable.id, "disp_right");
     std::fs::remove_file(layout.abs(&no_scene.files.scene)).unwrap();
+    // A run still appending: its unfinished last line is left out, with a note.
+    std::fs::OpenOptions::new().append(true).open(layout.manifest()).and_then(|mut f| std::io::Write::write_all(&mut f, b"{\"id\":\"000")).unwrap();
 
     let (o, text) = audit(&data, &[]);
     assert!(!o.status.success(), "audit --check passed a corrupted dataset:\n{text}");
     assert!(text.contains("verdict: FAIL"), "{text}");
+    assert!(text.contains("unfinished last line was left out"), "{text}");
     let fail_line = |id: &str| text.lines().find(|l| l.starts_with(&format!("FAIL sample {id} "))).unwrap_or_else(|| panic!("no FAIL line for {id}:\n{text}")).to_string();
     assert!(fail_line(&shifted.id).contains("off by more than 0.01 px"), "{}", fail_line(&shifted.id));
     assert!(fail_line(&blurred.id).contains("flying pixel"), "{}", fail_line(&blurred.id));
@@ -203,6 +206,8 @@ fn audit_check_fails_on_corrupted_ground_truth_and_names_the_samples() {
     assert!((worst["error"].as_f64().unwrap() - 0.05).abs() < 1e-3, "{worst}");
     assert_eq!(worst["view"], "left");
     assert_eq!(report["overall"]["checksum_mismatches"], 1);
+    assert_eq!(report["unfinished_manifest_line"], true);
+    assert_eq!(report["manifest_samples"], MIX_SCENES);
     assert!(samples[&blurred.id]["tally"]["flying"].as_u64().unwrap() > 0);
 }
 

@@ -195,7 +195,9 @@ impl SampleCheck<'_> {
                 (None, Some(e)) => (e, true),
             };
             out.tally.add_interior(error, validity);
-            if validity || error > TIGHT_PX {
+            // Every non-zero error is a candidate for the worst list, so it names the largest
+            // errors of a sound dataset too, not only those beyond the tolerance.
+            if validity || error > 0.0 {
                 out.issue = Some(issue(if validity { IssueKind::Validity } else { IssueKind::Value }, error));
             }
             if view == View::Left

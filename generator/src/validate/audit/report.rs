@@ -185,6 +185,9 @@ pub fn summary_lines(report: &AuditReport) -> Vec<String> {
     for p in &report.problems {
         lines.push(format!("ERROR {p}"));
     }
+    for w in report.worst.iter().take(3) {
+        lines.push(format!("worst: {:.3e} px ({:?}) in sample {} ({}), {} view, pixel ({}, {})", w.error, w.kind, w.sample, w.category, w.view, w.x, w.y));
+    }
     let failing: Vec<&SampleAudit> = report.samples.iter().filter(|s| !s.pass).collect();
     for s in failing.iter().take(20) {
         lines.push(format!("FAIL sample {} ({}, index {}): {}", s.id, s.category, s.index, s.reasons(&report.bars).join("; ")));

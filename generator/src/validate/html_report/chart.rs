@@ -20,14 +20,14 @@ pub fn short(v: f64) -> String {
     let a = v.abs();
     if a == 0.0 {
         "0".into()
-    } else if a >= 1000.0 || a < 0.01 {
+    } else if a >= 1e5 || a < 1e-4 {
         format!("{v:.1e}")
     } else if a >= 10.0 {
         format!("{v:.0}")
-    } else if a >= 1.0 {
-        format!("{v:.1}")
     } else {
-        format!("{v:.2}")
+        // Two significant digits.
+        let decimals = (1.0 - a.log10().floor()).max(0.0) as usize;
+        format!("{v:.decimals$}")
     }
 }
 
@@ -123,5 +123,27 @@ impl BarChart {
     /// The SVG element.
     pub fn svg(&self) -> String {
         self.render().unwrap_or_else(|e| format!("<p class=\"problem\">chart {:?} could not be drawn: {e}</p>", self.title))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axis_labels_are_short_and_distinct() {
+        assert_eq!([short(0.0), short(0.0124), short(0.0093), short(0.5), short(2.5), short(120.0), short(2e6)], ["0", "0.012", "0.0093", "0.50", "2.5", "120", "2.0e6"]);
+    }
+
+    #[test]
+    fn bars_and_curve_land_inside_the_plot() {
+        let mut c = BarChart::new("t", "x", (0.0, 10.0), 2.0);
+        c.bar(0.0, 5.0, 2.0, "#000", "a".into());
+        c.bar(5.0, 10.0, 99.0, "#000", "clipped".into());
+        c.curve(&[(0.0, 1.0), (10.0, 1.0)], "law");
+        let svg = c.svg();
+        assert_eq!(svg.matches("<rect").count(), 3, "{svg}");
+        assert!(svg.contains("<polyline") && svg.contains("law") && svg.starts_with("<svg"), "{svg}");
+        assert!(c.bars.iter().all(|b| b.y >= TOP && b.y + b.h <= TOP + c.plot_h + 1e-9));
     }
 }
