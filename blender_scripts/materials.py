@@ -1,9 +1,15 @@
 """Principled BSDF materials from a MaterialSpec: flat, procedural or photo base colour, with the
 roughness / metallic / transmission / IOR the spec gives; and the alpha-cut leaf material."""
 
+import json
 import os
 
 import bpy
+
+# The leaf mask as data: opaque where (u - cu)^2 + (v - cv)^2 < radius^2 in the quad's UV square.
+# Stored on the leaf material (CUTOUT_PROPERTY) so `stereogen audit` decides hits by the same rule.
+LEAF_CUTOUT = {"kind": "uv_disc", "centre": [0.5, 0.5], "radius": 0.5}
+CUTOUT_PROPERTY = "stereogen_cutout"
 
 # Which output of each texture node carries its pattern as a scalar.
 _PATTERNS = {
@@ -120,6 +126,8 @@ def make_leaf_material(name, spec, skipped):
     outside. The mask is exactly 0 or 1 (a comparison, no blur), so the depth pass stays
     deterministic: cut-out pixels show whatever is behind the leaf."""
     mat = make_material(name, spec, skipped)
+    mat[CUTOUT_PROPERTY] = json.dumps(LEAF_CUTOUT)
+    centre, radius = LEAF_CUTOUT["centre"], LEAF_CUTOUT["radius"]
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = nodes["Principled BSDF"]
     out = nodes["Material Output"]
@@ -127,10 +135,10 @@ def make_leaf_material(name, spec, skipped):
     sep = nodes.new("ShaderNodeSeparateXYZ")
     links.new(uv.outputs["UV"], sep.inputs["Vector"])
 
-    def centred_square(axis):
+    def centred_square(axis, c):
         sub = nodes.new("ShaderNodeMath")
         sub.operation = "SUBTRACT"
-        sub.inputs[1].default_value = 0.5
+        sub.inputs[1].default_value = c
         links.new(sep.outputs[axis], sub.inputs[0])
         sq = nodes.new("ShaderNodeMath")
         sq.operation = "MULTIPLY"
@@ -140,11 +148,11 @@ def make_leaf_material(name, spec, skipped):
 
     add = nodes.new("ShaderNodeMath")
     add.operation = "ADD"
-    links.new(centred_square("X"), add.inputs[0])
-    links.new(centred_square("Y"), add.inputs[1])
+    links.new(centred_square("X", centre[0]), add.inputs[0])
+    links.new(centred_square("Y", centre[1]), add.inputs[1])
     inside = nodes.new("ShaderNodeMath")
     inside.operation = "LESS_THAN"
-    inside.inputs[1].default_value = 0.25
+    inside.inputs[1].default_value = radius * radius
     links.new(add.outputs[0], inside.inputs[0])
     transparent = nodes.new("ShaderNodeBsdfTransparent")
     mix = nodes.new("ShaderNodeMixShader")

@@ -6,10 +6,12 @@ stdout; everything Blender itself prints is sent to stderr). It decides nothing 
 number it uses comes from the SceneSpec in the request.
 
 Requests: {"cmd": "render", "spec": {...}, "out_dir": "...", "fault": "crash"|"hang"|"raise" (optional)},
-{"cmd": "quit"}. Replies (field "status"): "ready" once at start-up, with the Blender and Python
-versions and the SceneSpec format version these scripts understand (the orchestrator refuses a
-mismatch there, once); then one "ok" (files, timings, notes, skipped assets) or "error" (message
-and traceback) per render request. The Rust side of this protocol is `render/protocol.rs`.
+{"cmd": "export_geometry", "spec": {...}, "out_dir": "..."}, {"cmd": "quit"}. Replies (field
+"status"): "ready" once at start-up, with the Blender and Python versions and the SceneSpec format
+version these scripts understand (the orchestrator refuses a mismatch there, once); then one "ok"
+(files, timings, notes, skipped assets) or "error" (message and traceback) per render request, and
+one "geometry" (the file export_geometry.py wrote, and how many renders ran meanwhile: none)
+or "error" per export_geometry request. The Rust side of this protocol is `render/protocol.rs`.
 """
 
 import json
@@ -62,8 +64,13 @@ def main():
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     opts = script_args()
     import bpy  # noqa: F401  (import cost paid once per worker)
+    import export_geometry
     import render_views
     import scene_builder
+
+    # Every Cycles render this process runs, so a geometry export can prove it rendered nothing.
+    renders = [0]
+    bpy.app.handlers.render_pre.append(lambda *args: renders.__setitem__(0, renders[0] + 1))
 
     send({
         "status": "ready",
@@ -85,6 +92,9 @@ def main():
         cmd = req.get("cmd")
         if cmd == "quit":
             break
+        if cmd == "export_geometry":
+            send(_export_geometry(req, opts, scene_builder, export_geometry, renders))
+            continue
         if cmd != "render":
             send({"status": "error", "error": "unknown command %r" % cmd})
             continue
@@ -114,6 +124,34 @@ def main():
                 "traceback": traceback.format_exc(),
                 "rss_bytes": rss_bytes(),
             })
+
+
+def _export_geometry(req, opts, scene_builder, export_geometry, renders):
+    """Builds the spec as a render would, then writes its evaluated geometry instead of rendering.
+    The reply counts the Cycles renders run meanwhile (`renders`): none, as the audit relies on."""
+    timings = {}
+    renders_before = renders[0]
+    try:
+        t0 = time.perf_counter()
+        scene_builder.reset()
+        scene, skipped, notes = scene_builder.build(req["spec"], opts["threads"], opts["device"])
+        timings["build_s"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        path, objects, triangles = export_geometry.write(scene, req["out_dir"])
+        timings["export_s"] = time.perf_counter() - t1
+        return {
+            "status": "geometry",
+            "file": path,
+            "objects": objects,
+            "triangles": triangles,
+            "renders": renders[0] - renders_before,
+            "timings": timings,
+            "rss_bytes": rss_bytes(),
+            "skipped_assets": skipped,
+            "notes": notes,
+        }
+    except Exception as e:
+        return {"status": "error", "error": "%s: %s" % (type(e).__name__, e), "traceback": traceback.format_exc(), "rss_bytes": rss_bytes()}
 
 
 if __name__ == "__main__":

@@ -1,9 +1,11 @@
 //! The `stereogen` command line: clap arguments, and each command as a call into the library.
 
 mod assets;
+mod audit;
 mod farm;
 mod generate;
 mod merge;
+mod report;
 mod setup;
 mod stats;
 mod status;
@@ -232,6 +234,10 @@ pub enum Command {
     /// Progress of a farm (or one dataset) from its files: per shard done, failed, remaining,
     /// samples per hour, ETA.
     Status(status::StatusArgs),
+    /// Check the ground truth against the scene geometry by ray casting (see `audit --help`).
+    Audit(audit::AuditArgs),
+    /// One self-contained HTML page about a dataset (see `report --help`).
+    Report(report::ReportArgs),
     /// A contact sheet PNG: each sample's left image beside its colourised disparity.
     Sheet {
         /// The dataset directory.
@@ -303,6 +309,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 out.display()
             );
         }
+        Command::Audit(args) => audit::run(args)?,
+        Command::Report(args) => report::run(args)?,
         Command::Stats { dataset, plot, check, ks_alpha, bins, gap_bins, out } => {
             let opts = stereogen::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins };
             stats::run(&opts, out, plot, check)?;

@@ -6,6 +6,6 @@ pub mod runtime;
 pub mod scripts;
 pub mod worker;
 
-pub use protocol::{Device, Fault, Hello, RenderOutput, Reply, Request};
+pub use protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request};
 pub use runtime::{BlenderRuntime, RuntimeError};
-pub use worker::{RenderService, Rendered, Worker, WorkerConfig, WorkerError, WorkerOptions};
+pub use worker::{ExportedGeometry, RenderService, Rendered, Worker, WorkerConfig, WorkerError, WorkerOptions};

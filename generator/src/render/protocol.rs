@@ -1,7 +1,8 @@
 //! The line protocol between the orchestrator and `blender_scripts/worker.py`: one JSON
 //! [`Request`] per line on the worker's stdin, one JSON [`Reply`] per line on its protocol stream.
 //! The worker's first line is [`Reply::Ready`]; every render request then gets exactly one
-//! [`Reply::Ok`] or [`Reply::Error`].
+//! [`Reply::Ok`] or [`Reply::Error`], every geometry export one [`Reply::Geometry`] or
+//! [`Reply::Error`].
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -73,6 +74,10 @@ pub enum Request<'a> {
         #[serde(skip_serializing_if = "Option::is_none")]
         fault: Option<Fault>,
     },
+    /// Build `spec` as for a render, but instead of rendering write its evaluated geometry
+    /// (world-space triangles of every rendered object, with what decides a hit) into `out_dir`,
+    /// for `stereogen audit`.
+    ExportGeometry { spec: &'a SceneSpec, out_dir: &'a Path },
     /// Exit cleanly.
     Quit,
 }
@@ -94,6 +99,8 @@ pub enum Reply {
     Ready(Hello),
     /// A rendered spec.
     Ok(RenderOutput),
+    /// An exported scene geometry.
+    Geometry(GeometryOutput),
     /// A spec (or request line) the worker could not handle; the worker carries on.
     Error(WorkerFailure),
 }
@@ -137,6 +144,25 @@ pub struct RenderOutput {
     pub notes: Vec<String>,
 }
 
+/// The geometry file of one spec (format: `blender_scripts/export_geometry.py`).
+#[derive(Debug, Clone, Deserialize)]
+pub struct GeometryOutput {
+    pub file: PathBuf,
+    pub objects: usize,
+    pub triangles: usize,
+    /// Cycles renders the worker ran while handling the request: 0, as nothing is rendered.
+    pub renders: u64,
+    /// Seconds per step: `build_s`, `export_s`.
+    #[serde(default)]
+    pub timings: BTreeMap<String, f64>,
+    #[serde(default)]
+    pub rss_bytes: Option<u64>,
+    #[serde(default)]
+    pub skipped_assets: Vec<SkippedAsset>,
+    #[serde(default)]
+    pub notes: Vec<String>,
+}
+
 /// Why the worker could not render a spec.
 #[derive(Debug, Clone, Deserialize)]
 pub struct WorkerFailure {
@@ -163,11 +189,16 @@ mod tests {
         assert!(matches!(ok, Reply::Ok(RenderOutput { ref timings, .. }) if timings["build_s"] == 0.5));
         assert!(serde_json::from_str::<Reply>(r#"{"status":"ok"}"#).is_err(), "an ok reply without files");
         assert!(serde_json::from_str::<Reply>(r#"{"status":"pong"}"#).is_err());
+        let geometry: Reply = serde_json::from_str(r#"{"status":"geometry","file":"g.bin","objects":3,"triangles":40,"renders":0,"timings":{"export_s":0.1}}"#).unwrap();
+        assert!(matches!(geometry, Reply::Geometry(GeometryOutput { objects: 3, renders: 0, .. })));
     }
 
     #[test]
     fn requests_are_tagged_by_cmd() {
         assert_eq!(Request::Quit.to_line(), "{\"cmd\":\"quit\"}\n");
+        let spec = crate::plan::plan_scene(&crate::plan::Recipe::preset("tree").unwrap(), &Default::default(), 0, 0);
+        let line = Request::ExportGeometry { spec: &spec, out_dir: Path::new("/tmp/x") }.to_line();
+        assert!(line.starts_with("{\"cmd\":\"export_geometry\",\"spec\":{") && line.ends_with("\"out_dir\":\"/tmp/x\"}\n"), "{line}");
         assert_eq!("gpu".parse::<Device>(), Ok(Device::Gpu));
         assert!("tpu".parse::<Device>().unwrap_err().contains("tpu"));
     }

@@ -11,6 +11,7 @@ const SCRIPTS: &[(&str, &str)] = &[
     ("materials.py", include_str!("../../../blender_scripts/materials.py")),
     ("geometry.py", include_str!("../../../blender_scripts/geometry.py")),
     ("render_views.py", include_str!("../../../blender_scripts/render_views.py")),
+    ("export_geometry.py", include_str!("../../../blender_scripts/export_geometry.py")),
 ];
 
 fn content_hash() -> String {

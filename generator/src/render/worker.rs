@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 
-use super::protocol::{Device, Fault, Hello, RenderOutput, Reply, Request};
+use super::protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request};
 use super::runtime::{BLENDER_SERIES, BlenderRuntime, discover_or_install, stereogen_home};
 use super::scripts::install_scripts;
 use crate::plan::SceneSpec;
@@ -187,6 +187,11 @@ impl Worker {
         self.process.render(spec, out_dir, fault, timeout)
     }
 
+    /// Builds one spec and writes its evaluated geometry into `out_dir` (no render).
+    pub fn export_geometry(&mut self, spec: &SceneSpec, out_dir: &Path, timeout: Duration) -> Result<GeometryOutput, WorkerError> {
+        self.process.export_geometry(spec, out_dir, timeout)
+    }
+
     pub fn kill(&mut self) {
         self.process.kill();
     }
@@ -241,18 +246,32 @@ impl Process {
         }
     }
 
-    fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
-        let line = Request::Render { spec, out_dir, fault }.to_line();
+    /// Sends one request and reads its reply; an error reply becomes [`WorkerError::Scene`].
+    fn exchange(&mut self, request: &Request<'_>, timeout: Duration) -> Result<(Reply, String), WorkerError> {
+        let line = request.to_line();
         if self.stdin.write_all(line.as_bytes()).and_then(|()| self.stdin.flush()).is_err() {
             // The pipe is closed: the worker is gone; report how it died.
             return Err(self.next_line(Duration::from_secs(5)).err().unwrap_or_else(|| WorkerError::Protocol("worker closed its input".into())));
         }
         let reply_line = self.next_line(timeout)?;
         match serde_json::from_str::<Reply>(&reply_line) {
-            Ok(Reply::Ok(output)) => Ok(output),
             Ok(Reply::Error(failure)) => Err(WorkerError::Scene { message: failure.error, traceback: failure.traceback }),
-            Ok(Reply::Ready(_)) => Err(WorkerError::Protocol(format!("unexpected reply {reply_line:?}"))),
+            Ok(reply) => Ok((reply, reply_line)),
             Err(e) => Err(WorkerError::Protocol(format!("{e} in {reply_line:?}"))),
+        }
+    }
+
+    fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
+        match self.exchange(&Request::Render { spec, out_dir, fault }, timeout)? {
+            (Reply::Ok(output), _) => Ok(output),
+            (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
+        }
+    }
+
+    fn export_geometry(&mut self, spec: &SceneSpec, out_dir: &Path, timeout: Duration) -> Result<GeometryOutput, WorkerError> {
+        match self.exchange(&Request::ExportGeometry { spec, out_dir }, timeout)? {
+            (Reply::Geometry(output), _) => Ok(output),
+            (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
         }
     }
 
@@ -352,6 +371,12 @@ pub struct Rendered {
     pub scratch: tempfile::TempDir,
 }
 
+/// An exported geometry: the reply plus the scratch directory that holds its file until dropped.
+pub struct ExportedGeometry {
+    pub reply: GeometryOutput,
+    pub scratch: tempfile::TempDir,
+}
+
 impl RenderService {
     pub fn new(cfg: WorkerConfig) -> Self {
         Self { cfg, worker: None, scratch: scratch_base(), restarts: 0 }
@@ -366,6 +391,19 @@ impl RenderService {
 
     /// Renders `spec`, retrying on crashes and hangs. `fault` picks an injected failure per attempt.
     pub fn render(&mut self, spec: &SceneSpec, fault: impl Fn(u32) -> Option<Fault>) -> Result<Rendered, WorkerError> {
+        let (reply, scratch) = self.with_retries(spec, |worker, dir, attempt, timeout| worker.render(spec, dir, fault(attempt), timeout))?;
+        Ok(Rendered { reply, scratch })
+    }
+
+    /// Writes the evaluated geometry of `spec` (no render), retrying on crashes and hangs.
+    pub fn export_geometry(&mut self, spec: &SceneSpec) -> Result<ExportedGeometry, WorkerError> {
+        let (reply, scratch) = self.with_retries(spec, |worker, dir, _, timeout| worker.export_geometry(spec, dir, timeout))?;
+        Ok(ExportedGeometry { reply, scratch })
+    }
+
+    /// Runs `request` on the worker with a fresh scratch directory, restarting the worker and
+    /// retrying after a crash, hang or garbled reply.
+    fn with_retries<T>(&mut self, spec: &SceneSpec, request: impl Fn(&mut Worker, &Path, u32, Duration) -> Result<T, WorkerError>) -> Result<(T, tempfile::TempDir), WorkerError> {
         let mut attempt = 0;
         loop {
             let scratch = tempfile::Builder::new()
@@ -373,9 +411,9 @@ impl RenderService {
                 .tempdir_in(&self.scratch)
                 .map_err(|e| WorkerError::Scratch(format!("{}: {e}", self.scratch.display())))?;
             let timeout = self.cfg.render_timeout;
-            let outcome = self.ensure_worker().and_then(|w| w.render(spec, scratch.path(), fault(attempt), timeout));
+            let outcome = self.ensure_worker().and_then(|w| request(w, scratch.path(), attempt, timeout));
             match outcome {
-                Ok(reply) => return Ok(Rendered { reply, scratch }),
+                Ok(reply) => return Ok((reply, scratch)),
                 Err(e) if e.is_fatal() => return Err(e),
                 Err(e @ WorkerError::Scene { .. }) => return Err(e),
                 Err(e) => {

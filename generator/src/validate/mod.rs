@@ -9,10 +9,14 @@
 //!   no valid pixel (a gap); see [`hist::gap_bins_for`] for how many bins the sample size allows.
 //! - [`hist`], [`accumulate`]: histograms, percentiles and the streaming accumulators.
 //! - [`plots`]: PNG plots (`--plot`).
+//! - [`audit`]: `stereogen audit`: the ground truth re-derived from the scene geometry by ray casting.
+//! - [`html_report`]: `stereogen report`: one self-contained HTML page about a dataset.
 
 pub mod contact_sheet;
 pub mod accumulate;
+pub mod audit;
 pub mod hist;
+pub mod html_report;
 pub mod plots;
 pub mod report;
 pub mod stats;

@@ -1,0 +1,210 @@
+//! What `audit.json` holds, the bars of `--check`, and the terminal summary.
+
+use serde::{Deserialize, Serialize};
+
+use super::tally::{PixelIssue, Tally};
+
+/// The bars `stereogen audit --check` applies (to every category and to the whole audit).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Bars {
+    /// Least share of non-silhouette pixels within 0.01 px of ray casting.
+    pub min_share_within_0_01: f64,
+    /// Most flying pixels.
+    pub max_flying: u64,
+    /// Most files whose checksum differs from the manifest.
+    pub max_checksum_mismatches: u64,
+}
+
+impl Default for Bars {
+    fn default() -> Self {
+        Self { min_share_within_0_01: 0.9999, max_flying: 0, max_checksum_mismatches: 0 }
+    }
+}
+
+/// One audited sample.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SampleAudit {
+    pub id: String,
+    pub category: String,
+    pub index: u64,
+    pub tally: Tally,
+    /// Its worst pixels.
+    pub worst: Vec<PixelIssue>,
+    /// Files (manifest keys) whose SHA-256 is not the manifest's.
+    pub checksum_mismatches: Vec<String>,
+    /// What kept (part of) the sample from being audited: unreadable files, a missing scene.json,
+    /// a scene Blender could not build.
+    pub problems: Vec<String>,
+    pub objects: usize,
+    pub triangles: usize,
+    /// Seconds of ray casting and comparison (Blender's time not included).
+    pub seconds: f64,
+    pub pass: bool,
+}
+
+/// One category, or everything.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct GroupAudit {
+    pub name: String,
+    pub samples: usize,
+    pub tally: Tally,
+    pub share_within_0_01: Option<f64>,
+    pub share_within_0_5: Option<f64>,
+    pub silhouette_share: Option<f64>,
+    pub lr_share_within_0_1: Option<f64>,
+    pub checksum_mismatches: u64,
+    /// Samples that could not be audited.
+    pub problems: u64,
+    pub pass: bool,
+}
+
+/// `audit.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AuditReport {
+    pub dataset: String,
+    pub stereogen_version: String,
+    pub seed: u64,
+    /// "all" or the requested count.
+    pub samples_requested: String,
+    /// "every" or the count per sample.
+    pub pixels_requested: String,
+    /// Finished samples in the manifest when the audit started.
+    pub manifest_samples: usize,
+    /// An unfinished last manifest line was left out (a run still writing).
+    pub unfinished_manifest_line: bool,
+    pub bars: Bars,
+    pub categories: Vec<GroupAudit>,
+    pub overall: GroupAudit,
+    /// The worst pixels over all samples.
+    pub worst: Vec<PixelIssue>,
+    pub samples: Vec<SampleAudit>,
+    /// Wall seconds of the whole audit, and of ray casting and comparison alone.
+    pub seconds: f64,
+    pub cast_seconds: f64,
+    /// Ray casting and comparison per million audited pixels (both views).
+    pub cast_seconds_per_megapixel: Option<f64>,
+    /// Problems that are not one sample's.
+    pub problems: Vec<String>,
+    pub pass: bool,
+}
+
+fn pct(x: Option<f64>) -> String {
+    x.map_or("-".to_string(), |v| format!("{:.4}%", 100.0 * v))
+}
+
+impl GroupAudit {
+    pub fn new(name: &str, samples: &[&SampleAudit], bars: &Bars) -> Self {
+        let mut tally = Tally::default();
+        samples.iter().for_each(|s| tally.merge(&s.tally));
+        let checksum_mismatches = samples.iter().map(|s| s.checksum_mismatches.len() as u64).sum();
+        let problems = samples.iter().filter(|s| !s.problems.is_empty()).count() as u64;
+        let share = tally.share_within_0_01();
+        let pass = !samples.is_empty()
+            && share.is_none_or(|s| s >= bars.min_share_within_0_01)
+            && tally.flying <= bars.max_flying
+            && checksum_mismatches <= bars.max_checksum_mismatches
+            && problems == 0;
+        Self {
+            name: name.to_string(),
+            samples: samples.len(),
+            share_within_0_01: share,
+            share_within_0_5: tally.share_within_0_5(),
+            silhouette_share: tally.silhouette_share(),
+            lr_share_within_0_1: tally.lr_share_within_0_1(),
+            tally,
+            checksum_mismatches,
+            problems,
+            pass,
+        }
+    }
+
+    /// One line for the terminal.
+    pub fn line(&self, name_width: usize) -> String {
+        let t = &self.tally;
+        format!(
+            "{} {:<name_width$} {:>5} samples {:>10} px  within 0.01 px {:>9}  within 0.5 px {:>9}  max {:.2e} px  silhouette {:>8} ({} disagree)  flying {}  L-R within 0.1 px {}  checksum mismatches {}{}",
+            if self.pass { "OK  " } else { "FAIL" },
+            self.name,
+            self.samples,
+            t.pixels,
+            pct(self.share_within_0_01),
+            pct(self.share_within_0_5),
+            t.max_error,
+            pct(self.silhouette_share),
+            t.silhouette_disagree,
+            t.flying,
+            pct(self.lr_share_within_0_1),
+            self.checksum_mismatches,
+            if self.problems > 0 { format!("  {} sample(s) not audited", self.problems) } else { String::new() }
+        )
+    }
+}
+
+impl SampleAudit {
+    /// Why the sample fails the bars (empty when it passes).
+    pub fn reasons(&self, bars: &Bars) -> Vec<String> {
+        let t = &self.tally;
+        let mut r = Vec::new();
+        if let Some(s) = t.share_within_0_01()
+            && s < bars.min_share_within_0_01
+        {
+            let off = t.interior - t.interior_within_0_01;
+            let at = self.worst.iter().find(|w| w.kind != super::tally::IssueKind::Flying);
+            let at = at.map_or(String::new(), |w| format!(", worst {:.4} px at {} ({}, {})", w.error, w.view, w.x, w.y));
+            r.push(format!("{off} of {} non-silhouette pixels off by more than 0.01 px{at}", t.interior));
+        }
+        if t.flying > bars.max_flying {
+            let at = self.worst.iter().find(|w| w.kind == super::tally::IssueKind::Flying);
+            let at = at.map_or(String::new(), |w| format!(", e.g. {} ({}, {}) = {:.3} px", w.view, w.x, w.y, w.rendered.unwrap_or(0.0)));
+            r.push(format!("{} flying pixel(s){at}", t.flying));
+        }
+        for f in &self.checksum_mismatches {
+            r.push(format!("{f} changed since the manifest was written (SHA-256 differs)"));
+        }
+        r.extend(self.problems.iter().cloned());
+        r
+    }
+}
+
+/// The terminal summary: the categories, the overall line, failing samples by name, the verdict.
+pub fn summary_lines(report: &AuditReport) -> Vec<String> {
+    let w = report.categories.iter().map(|c| c.name.len()).max().unwrap_or(3).max(3);
+    let mut lines = vec![format!(
+        "audit of {} ({} of {} samples, {} per sample, seed {})",
+        report.dataset,
+        report.samples.len(),
+        report.manifest_samples,
+        if report.pixels_requested == "every" { "every pixel".to_string() } else { format!("{} pixels", report.pixels_requested) },
+        report.seed
+    )];
+    if report.unfinished_manifest_line {
+        lines.push("note: the manifest's unfinished last line was left out (generation still running?)".to_string());
+    }
+    lines.extend(report.categories.iter().map(|c| c.line(w)));
+    lines.push(report.overall.line(w));
+    for p in &report.problems {
+        lines.push(format!("ERROR {p}"));
+    }
+    for w in report.worst.iter().take(3) {
+        lines.push(format!("worst: {:.3e} px ({:?}) in sample {} ({}), {} view, pixel ({}, {})", w.error, w.kind, w.sample, w.category, w.view, w.x, w.y));
+    }
+    let failing: Vec<&SampleAudit> = report.samples.iter().filter(|s| !s.pass).collect();
+    for s in failing.iter().take(20) {
+        lines.push(format!("FAIL sample {} ({}, index {}): {}", s.id, s.category, s.index, s.reasons(&report.bars).join("; ")));
+    }
+    if failing.len() > 20 {
+        lines.push(format!("FAIL ... and {} more samples (see audit.json)", failing.len() - 20));
+    }
+    if let Some(s) = report.cast_seconds_per_megapixel {
+        lines.push(format!("ray casting: {:.1} s for {:.2} Mpx ({s:.2} s per Mpx); whole audit {:.1} s", report.cast_seconds, report.overall.tally.pixels as f64 / 1e6, report.seconds));
+    }
+    let b = &report.bars;
+    lines.push(format!(
+        "verdict: {} (bars: >= {}% of non-silhouette pixels within 0.01 px, <= {} flying pixels, <= {} checksum mismatches, every sample audited)",
+        if report.pass { "PASS" } else { "FAIL" },
+        100.0 * b.min_share_within_0_01,
+        b.max_flying,
+        b.max_checksum_mismatches
+    ));
+    lines
+}
