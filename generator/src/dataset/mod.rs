@@ -2,6 +2,7 @@
 
 pub mod export;
 pub mod generate;
+pub mod interrupt;
 pub mod layout;
 pub mod manifest;
 pub mod sample;

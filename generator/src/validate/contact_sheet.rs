@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use stereo_io::{DisparityMap, RgbImage};
 
 use crate::dataset::{DatasetLayout, Manifest};
@@ -72,7 +72,7 @@ pub fn write_contact_sheet(dataset: &Path, count: usize, cols: usize, out: &Path
         blit(&mut sheet, &image, x0, y0);
         blit(&mut sheet, &colourise(&disp, max), x0 + w + GAP, y0);
     }
-    stereo_io::write_atomically(out, |tmp| stereo_io::write_png_rgb(tmp, &sheet)).with_context(|| format!("cannot write {}", out.display()))?;
+    stereo_io::write_png_rgb(out, &sheet)?;
     Ok(entries.len())
 }
 
