@@ -10,7 +10,7 @@ use image::DynamicImage;
 
 use crate::disparity::DisparityMap;
 use crate::error::{Error, Result};
-use crate::image_io::{Image, Samples, decode, decode_bytes, encode_png, image_err};
+use crate::image_io::{Image, Samples, decode, decode_bytes, encode_png};
 
 /// CREStereo's release: value = round(d · 32).
 pub const CRESTEREO_SCALE: f32 = 32.0;
