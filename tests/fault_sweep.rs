@@ -6,7 +6,7 @@
 //! worker process of any run left.
 //!
 //! `fault_sweep` is the CI variant (tiny images, about a minute or two). `fault_sweep_long` is
-//! `#[ignore]`d: run it with `cargo test --release --test fault_sweep -- --ignored` (see README,
+//! `#[ignore]`d: `cargo test --release -p stereogen-e2e --test fault_sweep -- --ignored` (README,
 //! "Fault sweep"); `STEREOGEN_SWEEP_SEED` picks other kill moments in both.
 
 use std::collections::BTreeSet;
@@ -377,7 +377,7 @@ fn fault_sweep() {
 }
 
 #[test]
-#[ignore = "the long sweep: `cargo test --release --test fault_sweep -- --ignored`"]
+#[ignore = "the long sweep (minutes): see README, Fault sweep"]
 fn fault_sweep_long() {
     sweep(20, 80, &(0..16).map(|k| k * 2048).collect::<Vec<_>>());
 }
