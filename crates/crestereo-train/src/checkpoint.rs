@@ -1,17 +1,13 @@
 //! Checkpoints: `<run>/checkpoints/step-NNNNNNNN/` holding the model, the optimiser state and
 //! the training state (step, data position, seed). A checkpoint is written into a hidden temp
-//! directory (each file encoded in memory and written durably through `stereo_io::atomic`, so
-//! a disk that fills up is an error, never a short file), renamed into place and the rename
-//! synced, so a crash mid-save never leaves a half checkpoint that `--resume` would pick; older
-//! checkpoints are pruned only after the new one is complete. Temp directories of saves that
-//! were killed are removed by the next save.
+//! directory and renamed into place, so a crash mid-save never leaves a half checkpoint that
+//! `--resume` would pick; older checkpoints are pruned only after the new one is complete.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use burn::optim::Optimizer;
-use burn::module::Module;
-use burn::record::{FullPrecisionSettings, NamedMpkBytesRecorder, NamedMpkFileRecorder, Record, Recorder};
+use burn::record::{FullPrecisionSettings, NamedMpkFileRecorder, Recorder};
 use burn::tensor::backend::AutodiffBackend;
 use crestereo::CREStereo;
 use serde::{Deserialize, Serialize};
@@ -53,26 +49,6 @@ fn recorder() -> NamedMpkFileRecorder<FullPrecisionSettings> {
     NamedMpkFileRecorder::<FullPrecisionSettings>::new()
 }
 
-/// A record as the bytes [`recorder`] writes to a `.mpk` file (Burn's file recorder writes
-/// through a `BufWriter` whose last flush can fail unnoticed; these bytes are written durably).
-fn mpk_bytes<B: burn::tensor::backend::Backend, R: Record<B>>(record: R) -> Result<Vec<u8>> {
-    NamedMpkBytesRecorder::<FullPrecisionSettings>::new().record(record, ()).map_err(|e| anyhow::anyhow!("cannot encode: {e}"))
-}
-
-const TEMP_PREFIX: &str = ".tmp-";
-
-/// Removes the temp directories of saves whose process is gone.
-fn remove_orphaned_temp_dirs(dir: &Path) {
-    let Ok(entries) = std::fs::read_dir(dir) else { return };
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let owner = name.strip_prefix(TEMP_PREFIX).and_then(|rest| rest.rsplit('-').next()).and_then(|pid| pid.parse::<u32>().ok());
-        if owner.is_some_and(|pid| !stereo_io::atomic::process_alive(pid)) {
-            let _ = std::fs::remove_dir_all(e.path());
-        }
-    }
-}
-
 pub fn checkpoints_dir(run: &Path) -> PathBuf {
     run.join("checkpoints")
 }
@@ -105,19 +81,21 @@ where
 {
     let dir = checkpoints_dir(run);
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    remove_orphaned_temp_dirs(&dir);
     let name = format!("step-{:08}", state.step);
-    let tmp = dir.join(format!("{TEMP_PREFIX}{name}-{}", std::process::id()));
+    let tmp = dir.join(format!(".tmp-{name}-{}", std::process::id()));
     if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).with_context(|| format!("cannot remove {}", tmp.display()))?;
+        std::fs::remove_dir_all(&tmp)?;
     }
-    std::fs::create_dir(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+    std::fs::create_dir(&tmp)?;
     let write = || -> Result<()> {
-        let model_bytes = mpk_bytes::<B, _>(model.clone().into_record()).context("the model")?;
-        stereo_io::write_bytes_atomically(&tmp.join(format!("{MODEL}.mpk")), &model_bytes)?;
-        let optim_bytes = mpk_bytes::<B, _>(optim.to_record()).context("the optimiser state")?;
-        stereo_io::write_bytes_atomically(&tmp.join(format!("{OPTIMIZER}.mpk")), &optim_bytes)?;
-        stereo_io::write_bytes_atomically(&tmp.join(STATE), &serde_json::to_vec_pretty(state)?)?;
+        crestereo::weights::save_record(model, tmp.join(MODEL))?;
+        Recorder::<B>::record(&recorder(), optim.to_record(), tmp.join(OPTIMIZER))
+            .map_err(|e| anyhow::anyhow!("saving optimiser state: {e}"))?;
+        let json = serde_json::to_vec_pretty(state)?;
+        std::fs::write(tmp.join(STATE), json)?;
+        for f in std::fs::read_dir(&tmp)? {
+            std::fs::File::open(f?.path())?.sync_all()?;
+        }
         Ok(())
     };
     if let Err(e) = write() {
@@ -126,10 +104,10 @@ where
     }
     let target = dir.join(&name);
     if target.exists() {
-        std::fs::remove_dir_all(&target).with_context(|| format!("cannot replace {}", target.display()))?;
+        std::fs::remove_dir_all(&target)?;
     }
     std::fs::rename(&tmp, &target).with_context(|| format!("cannot move checkpoint into {}", target.display()))?;
-    stereo_io::atomic::sync_dir(&dir)?;
+    std::fs::File::open(&dir)?.sync_all()?;
     let all = list_checkpoints(run)?;
     if all.len() > keep {
         for old in &all[..all.len() - keep] {
@@ -159,15 +137,9 @@ where
     Ok(Learner { model, optim: optim.load_record(record), state })
 }
 
-/// Extensions of the weight files `eval`/`infer --weights` load: PyTorch state dicts, Burn records.
-const WEIGHT_EXTENSIONS: [&str; 4] = ["pt", "pth", "bin", "mpk"];
-
-/// The model weights file of a checkpoint directory, or `path` itself when it is a weights file:
-/// what `eval`/`infer --weights` accept.
+/// The model weights file of a checkpoint directory, or `path` itself when it is a file: what
+/// `eval`/`infer --weights` accept.
 pub fn weights_file(path: &Path) -> Result<PathBuf> {
-    if !path.exists() {
-        bail!("--weights {} does not exist", path.display());
-    }
     if path.is_dir() {
         let direct = path.join(format!("{MODEL}.mpk"));
         if direct.is_file() {
@@ -178,13 +150,6 @@ pub fn weights_file(path: &Path) -> Result<PathBuf> {
             return Ok(last.dir.join(format!("{MODEL}.mpk")));
         }
         bail!("{} holds no checkpoint (expected model.mpk or checkpoints/step-*/)", path.display());
-    }
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or_default();
-    if !WEIGHT_EXTENSIONS.contains(&ext) {
-        bail!(
-            "--weights {}: not a weights file (expected a PyTorch state dict .pt/.pth/.bin, a Burn record .mpk, a checkpoint directory or a training run)",
-            path.display()
-        );
     }
     Ok(path.to_path_buf())
 }

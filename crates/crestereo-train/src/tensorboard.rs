@@ -11,9 +11,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 
-/// Appends scalars to one new event file. The file is a log: records are appended, each framed
-/// with CRCs, so a reader stops cleanly at a record torn by a kill. [`EventWriter::flush`] checks
-/// the write and syncs the data to disk; dropping the writer flushes, and logs a failure.
+/// Appends scalars to one new event file.
 pub struct EventWriter {
     path: PathBuf,
     out: BufWriter<File>,
@@ -69,8 +67,7 @@ impl EventWriter {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let host = std::fs::read_to_string("/etc/hostname").map(|h| h.trim().to_string()).unwrap_or_else(|_| "localhost".into());
         let path = dir.join(format!("events.out.tfevents.{}.{host}.{}", now() as u64, std::process::id()));
-        let file = std::fs::OpenOptions::new().write(true).create_new(true).open(&path).with_context(|| format!("cannot create {}", path.display()))?;
-        stereo_io::atomic::sync_dir(dir)?;
+        let file = File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
         let mut w = Self { path, out: BufWriter::new(file) };
         let mut event = Vec::new();
         event_header(now(), 0, &mut event);
@@ -98,17 +95,8 @@ impl EventWriter {
             .with_context(|| format!("cannot write {}", self.path.display()))
     }
 
-    /// Writes what is buffered and syncs it to disk.
     pub fn flush(&mut self) -> Result<()> {
-        self.out.flush().and_then(|()| self.out.get_ref().sync_data()).with_context(|| format!("cannot write {}", self.path.display()))
-    }
-}
-
-impl Drop for EventWriter {
-    fn drop(&mut self) {
-        if let Err(e) = self.flush() {
-            tracing::error!("{e:#}");
-        }
+        self.out.flush().with_context(|| format!("cannot write {}", self.path.display()))
     }
 }
 

@@ -38,32 +38,7 @@ pub struct InferArgs {
     pub stages: u8,
 }
 
-/// Fails before inference when an output cannot be written where it is asked for.
-fn check_output_dirs(a: &InferArgs) -> Result<()> {
-    for out in std::iter::once(&a.output).chain(&a.pfm).chain(&a.viz) {
-        let dir = out.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        if !dir.is_dir() {
-            bail!("cannot write {}: the directory {} does not exist", out.display(), dir.display());
-        }
-    }
-    Ok(())
-}
-
-/// [`write_visualisation`] through a durable write: it saves through a `BufWriter` whose last
-/// flush can fail unnoticed, so its file is decoded before its bytes are written into place.
-fn write_visualisation_durably(path: &Path, width: usize, height: usize, disp: &[f32]) -> Result<()> {
-    let tmp = stereo_io::temp_sibling(path);
-    // The encoder picks the format from the extension.
-    let scratch = tmp.with_file_name(format!("{}.png", tmp.file_name().unwrap_or_default().to_string_lossy()));
-    let bytes = write_visualisation(&scratch, width, height, disp).and_then(|()| Ok(std::fs::read(&scratch)?));
-    let _ = std::fs::remove_file(&scratch);
-    let bytes = bytes.with_context(|| format!("cannot write {}", path.display()))?;
-    image::load_from_memory(&bytes).with_context(|| format!("cannot write {}: the PNG came out unreadable", path.display()))?;
-    Ok(stereo_io::write_bytes_atomically(path, &bytes)?)
-}
-
 pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
-    check_output_dirs(a)?;
     let (left, right): (&Path, &Path) = (&a.left, &a.right);
     let l = read_bgr(left)?;
     let r = read_bgr(right)?;
@@ -117,7 +92,7 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
         write_pfm(p, disp.width, disp.height, &disp.data)?;
     }
     if let Some(v) = &a.viz {
-        write_visualisation_durably(v, disp.width, disp.height, &disp.data)?;
+        write_visualisation(v, disp.width, disp.height, &disp.data)?;
     }
     Ok(())
 }
