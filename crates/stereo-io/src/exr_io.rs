@@ -20,10 +20,17 @@ fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Exr { path: path.to_path_buf(), message: e.to_string() }
 }
 
-/// Writes a disparity map as a ZIP-compressed float32 EXR. Output bytes depend only on the inputs.
+/// Writes a disparity map as a ZIP-compressed float32 EXR, durably ([`crate::atomic`]). Output
+/// bytes depend only on the inputs.
 pub fn write_disparity_exr(path: &Path, map: &DisparityMap, meta: &DisparityMeta) -> IoResult<()> {
+    let bytes = encode_disparity_exr(map, meta).map_err(|m| Error::format(path, m))?;
+    crate::atomic::write_bytes_atomically(path, &bytes)
+}
+
+/// The bytes of [`write_disparity_exr`]'s file.
+pub fn encode_disparity_exr(map: &DisparityMap, meta: &DisparityMeta) -> std::result::Result<Vec<u8>, String> {
     if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
-        return Err(Error::format(path, "disparity map buffers do not match its size"));
+        return Err("disparity map buffers do not match its size".into());
     }
     let mut attrs = LayerAttributes::named("disparity");
     if let Some(f) = meta.f_px {
@@ -46,10 +53,10 @@ pub fn write_disparity_exr(path: &Path, map: &DisparityMap, meta: &DisparityMeta
     let encoding = Encoding { compression: Compression::ZIP16, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
     let layer = Layer::new((map.width, map.height), attrs, encoding, channels);
     let mut bytes = std::io::Cursor::new(Vec::new());
-    Image::from_layer(layer).write().to_buffered(&mut bytes).map_err(|e| exr_err(path, e))?;
+    Image::from_layer(layer).write().to_buffered(&mut bytes).map_err(|e| format!("cannot encode EXR: {e}"))?;
     let mut bytes = bytes.into_inner();
-    sort_header_attributes(&mut bytes).map_err(|m| Error::format(path, m))?;
-    std::fs::write(path, &bytes).map_err(|e| Error::io(path, e))
+    sort_header_attributes(&mut bytes)?;
+    Ok(bytes)
 }
 
 /// `exr` keeps custom attributes in a `HashMap`, so their order in the header changes from one

@@ -91,7 +91,7 @@ pub fn read_disparity(path: &Path, format: Option<DisparityFormat>) -> Result<(D
 /// Writes a disparity file atomically; only EXR keeps `meta`.
 pub fn write_disparity(path: &Path, map: &DisparityMap, meta: &DisparityMeta, format: Option<DisparityFormat>) -> Result<()> {
     match resolve(path, format)? {
-        DisparityFormat::Exr => crate::atomic::write_atomically(path, |tmp| crate::exr_io::write_disparity_exr(tmp, map, meta)),
+        DisparityFormat::Exr => crate::exr_io::write_disparity_exr(path, map, meta),
         DisparityFormat::Pfm => crate::pfm::write_disparity_pfm(path, map),
         DisparityFormat::Png16 { scale } => crate::png_disp::write_disparity_png16(path, map, scale),
         DisparityFormat::SintelPng => crate::png_disp::write_disparity_sintel(path, map),

@@ -98,22 +98,22 @@ pub fn encode_png(img: &Image) -> std::result::Result<Vec<u8>, String> {
     Ok(out.into_inner())
 }
 
-/// Writes an 8- or 16-bit PNG atomically.
+/// Writes an 8- or 16-bit PNG durably ([`crate::atomic`]).
 pub fn write_png(path: &Path, img: &Image) -> Result<()> {
-    let bytes = encode_png(img).map_err(|m| Error::format(path, m))?;
+    let bytes = encode_png(img).map_err(|m| Error::format(path, format!("cannot encode PNG: {m}")))?;
     crate::atomic::write_bytes_atomically(path, &bytes)
 }
 
-/// Writes an RGB8 PNG.
+/// Writes an RGB8 PNG durably: encoded in memory, then written, synced and renamed into place,
+/// so a disk that fills up can never leave a short PNG under `path`.
 pub fn write_png_rgb(path: &Path, img: &RgbImage) -> Result<()> {
     if img.data.len() != img.width * img.height * 3 {
         return Err(Error::format(path, "image buffer does not match its size"));
     }
-    image::save_buffer_with_format(path, &img.data, img.width as u32, img.height as u32, image::ExtendedColorType::Rgb8, ImageFormat::Png)
-        .map_err(|e| image_err(path, e))
+    write_png(path, &Image { width: img.width, height: img.height, channels: 3, samples: Samples::U8(img.data.clone()) })
 }
 
-/// Writes an RGB8 JPEG with `quality` 1..=100, atomically.
+/// Writes an RGB8 JPEG with `quality` 1..=100, durably.
 pub fn write_jpeg_rgb(path: &Path, img: &RgbImage, quality: u8) -> Result<()> {
     if img.data.len() != img.width * img.height * 3 {
         return Err(Error::format(path, "image buffer does not match its size"));
@@ -121,7 +121,7 @@ pub fn write_jpeg_rgb(path: &Path, img: &RgbImage, quality: u8) -> Result<()> {
     let mut out = Cursor::new(Vec::new());
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
         .encode(&img.data, img.width as u32, img.height as u32, image::ExtendedColorType::Rgb8)
-        .map_err(|e| image_err(path, e))?;
+        .map_err(|e| Error::format(path, format!("cannot encode JPEG: {e}")))?;
     crate::atomic::write_bytes_atomically(path, &out.into_inner())
 }
 

@@ -10,7 +10,7 @@ use image::DynamicImage;
 
 use crate::disparity::DisparityMap;
 use crate::error::{Error, Result};
-use crate::image_io::{Image, Samples, decode, decode_bytes, encode_png, image_err};
+use crate::image_io::{Image, Samples, decode, decode_bytes, encode_png};
 
 /// CREStereo's release: value = round(d · 32).
 pub const CRESTEREO_SCALE: f32 = 32.0;
@@ -119,7 +119,7 @@ pub fn write_disparity_sintel(path: &Path, map: &DisparityMap) -> Result<()> {
         let q = q as u32;
         rgb.extend_from_slice(&[(q >> 16) as u8, (q >> 8) as u8, q as u8]);
     }
-    let bytes = encode_png(&Image { width: map.width, height: map.height, channels: 3, samples: Samples::U8(rgb) }).map_err(|m| image_err(path, m))?;
+    let bytes = encode_png(&Image { width: map.width, height: map.height, channels: 3, samples: Samples::U8(rgb) }).map_err(|m| Error::format(path, format!("cannot encode PNG: {m}")))?;
     crate::atomic::write_bytes_atomically(path, &bytes)
 }
 

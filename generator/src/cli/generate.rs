@@ -5,6 +5,7 @@ use std::time::Duration;
 use anyhow::bail;
 use indicatif::{ProgressBar, ProgressStyle};
 use stereogen::dataset::generate::Progress;
+use stereogen::dataset::interrupt::{self, Interrupted};
 use stereogen::dataset::{DatasetLayout, GenerateOptions, generate};
 
 /// Draws the library's progress reports (a hidden bar when `show` is false).
@@ -33,9 +34,13 @@ fn draw(bar: &ProgressBar, event: Progress<'_>) {
     }
 }
 
+/// Runs `opts` with SIGTERM/SIGINT handled: a signal stops the run cleanly and the error is
+/// [`Interrupted`] (the caller's exit status [`interrupt::EXIT_INTERRUPTED`]).
 pub fn run(opts: &GenerateOptions, show_progress: bool) -> anyhow::Result<()> {
+    let mut opts = opts.clone();
+    opts.stop = interrupt::install()?;
     let bar = progress_bar(show_progress);
-    let outcome = generate(opts, &|event| draw(&bar, event));
+    let outcome = generate(&opts, &|event| draw(&bar, event));
     bar.finish_and_clear();
     let s = outcome?;
     eprintln!(
@@ -48,6 +53,9 @@ pub fn run(opts: &GenerateOptions, show_progress: bool) -> anyhow::Result<()> {
         s.seconds_per_sample,
         opts.dataset_dir().display()
     );
+    if s.interrupted {
+        return Err(Interrupted::now().into());
+    }
     if !s.failed.is_empty() {
         let failures = DatasetLayout::new(opts.dataset_dir()).failures();
         bail!("{} sample(s) failed (listed in {}); re-run the same command to retry them", s.failed.len(), failures.display());

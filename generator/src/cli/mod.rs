@@ -5,6 +5,7 @@ mod audit;
 mod farm;
 mod generate;
 mod merge;
+mod render;
 mod report;
 mod setup;
 mod stats;
@@ -19,10 +20,9 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand};
 use stereogen::assets::{index_sources, stereogen_home};
 use stereogen::dataset::shard::{ShardArg, resolve_shard};
-use stereogen::dataset::{DatasetLayout, finalize_sample};
 use stereogen::plan::recipe::DEFAULT_PRESET;
 use stereogen::plan::{Recipe, plan_scene};
-use stereogen::render::{Device, RenderService, WorkerOptions};
+use stereogen::render::{Device, WorkerOptions};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -50,7 +50,7 @@ pub struct RuntimeArgs {
     #[arg(long, value_name = "N")]
     pub threads: Option<u32>,
     /// Seconds one sample may take before its worker is considered hung, killed and restarted.
-    #[arg(long, value_name = "SECS", default_value_t = WorkerOptions::DEFAULT_RENDER_TIMEOUT_S)]
+    #[arg(long, value_name = "SECS", default_value_t = WorkerOptions::DEFAULT_RENDER_TIMEOUT_S, value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout: u64,
     /// How many times a sample is retried after its worker crashed or hung.
     #[arg(long, value_name = "N", default_value_t = WorkerOptions::DEFAULT_RETRIES)]
@@ -215,6 +215,10 @@ pub enum Command {
         /// Significance of the KS test and of the gap check's bin-count rule.
         #[arg(long, value_name = "ALPHA", default_value_t = 0.01)]
         ks_alpha: f64,
+        /// Also check every file's SHA-256 against the manifest and decode every image (exits
+        /// non-zero on a mismatch).
+        #[arg(long)]
+        verify: bool,
         /// Bins of the pixel-level histograms in stats.json and the plots [default: 64].
         #[arg(long, value_name = "N")]
         bins: Option<usize>,
@@ -286,16 +290,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let assets = index_sources(&recipe.sources, &stereogen_home())?;
             println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
-        Command::Render { spec, out, runtime } => {
-            let spec = stereogen::dataset::read_scene_spec(&spec)?;
-            let mut service = RenderService::new(runtime.worker_options().resolve(1)?);
-            let t0 = std::time::Instant::now();
-            let rendered = service.render(&spec, |_| None)?;
-            let layout = DatasetLayout::new(&out);
-            let reply = &rendered.reply;
-            let entry = finalize_sample(&layout, &spec, &reply.files, &reply.notes, t0.elapsed().as_secs_f64(), &reply.timings)?;
-            println!("{}", serde_json::to_string(&entry)?);
-        }
+        Command::Render { spec, out, runtime } => render::run(&spec, &out, &runtime.worker_options())?,
         Command::Export { dataset, format, from_format, out, jpeg_quality } => {
             let opts = stereogen::dataset::export::ExportOptions { dataset, from: from_format, format, out: out.clone(), jpeg_quality };
             let s = stereogen::dataset::export::export(&opts)?;
@@ -311,8 +306,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Audit(args) => audit::run(args)?,
         Command::Report(args) => report::run(args)?,
-        Command::Stats { dataset, plot, check, ks_alpha, bins, gap_bins, out } => {
-            let opts = stereogen::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins };
+        Command::Stats { dataset, plot, check, ks_alpha, verify, bins, gap_bins, out } => {
+            let opts = stereogen::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins, verify };
             stats::run(&opts, out, plot, check)?;
         }
     }
@@ -332,7 +327,11 @@ pub fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            ExitCode::FAILURE
+            if e.downcast_ref::<stereogen::dataset::interrupt::Interrupted>().is_some() {
+                ExitCode::from(stereogen::dataset::interrupt::EXIT_INTERRUPTED)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }

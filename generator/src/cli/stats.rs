@@ -19,6 +19,13 @@ pub fn run(opts: &StatsOptions, out: Option<PathBuf>, plot: bool, check: bool) -
             println!("wrote {}", p.display());
         }
     }
+    if opts.verify && report.errors.is_empty() {
+        println!("verified: every file of the {} samples matches its manifest checksum and decodes", report.samples);
+    }
+    // A broken or unreadable file never looks like success, with or without --check.
+    if !report.errors.is_empty() {
+        anyhow::bail!("{} file(s) of the dataset are unreadable or fail verification (see the ERROR lines above)", report.errors.len());
+    }
     if check && !report.pass {
         anyhow::bail!("stats --check: the dataset does not follow its recipe (see the FAIL and ERROR lines above)");
     }

@@ -1,6 +1,8 @@
 //! `stereogen generate`: plan, render and finish samples with a pool of Blender workers.
 //! Resumable: samples already in the manifest are skipped, half-written files are cleared.
-//! Progress goes to a callback ([`Progress`]); drawing it is the caller's business.
+//! Stoppable: [`GenerateOptions::stop`] (set by SIGTERM/SIGINT through [`super::interrupt`]) ends
+//! the run cleanly between samples. Progress goes to a callback ([`Progress`]); drawing it is the
+//! caller's business.
 
 use std::collections::{BTreeSet, VecDeque};
 use std::path::{Path, PathBuf};
@@ -12,15 +14,17 @@ use anyhow::{Context, bail};
 use serde::Serialize;
 use stereo_io::datasets::stereogen::ShardInfo;
 
+use super::interrupt::StopFlag;
 use super::layout::{CreateDataset, DatasetLayout};
 use super::lock::DatasetLock;
+use super::manifest::{Manifest, read_manifest};
+use super::sample::{VERIFY_TIMING, finalize_sample};
 use super::shard::ShardId;
-use super::manifest::Manifest;
-use super::sample::finalize_sample;
 use crate::assets::{AssetIndex, SkippedAsset, index_sources};
 use crate::plan::{Recipe, SceneSpec, plan_scene};
 use crate::render::protocol::Fault;
 use crate::render::runtime::stereogen_home;
+use crate::render::scratch;
 use crate::render::worker::{RenderService, Rendered, WorkerConfig, WorkerError, WorkerOptions};
 
 #[derive(Debug, Clone)]
@@ -39,11 +43,13 @@ pub struct GenerateOptions {
     pub workers: usize,
     /// How each worker is found, started and supervised.
     pub worker_options: WorkerOptions,
+    /// Set (by a signal, see [`super::interrupt::install`]): stop cleanly.
+    pub stop: StopFlag,
 }
 
 impl GenerateOptions {
     pub fn new(out: impl Into<PathBuf>, recipe: Recipe, seed: u64, count: u64) -> Self {
-        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, break_lock: false, workers: 1, worker_options: WorkerOptions::default() }
+        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, break_lock: false, workers: 1, worker_options: WorkerOptions::default(), stop: StopFlag::new() }
     }
 
     /// The directory this run writes: `out`, or its shard's directory under `out/shards/`.
@@ -54,7 +60,8 @@ impl GenerateOptions {
         }
     }
 
-    /// The indices this run is responsible for (its range, less other shards').
+    /// The indices this run is responsible for (its range, less other shards'); the range was
+    /// checked by [`check_options`].
     fn indices(&self) -> Vec<u64> {
         (self.start..self.start + self.count).filter(|&i| self.shard.is_none_or(|s| s.owns(i))).collect()
     }
@@ -87,6 +94,13 @@ pub struct GenerateSummary {
     pub seconds: f64,
     /// Mean wall seconds per rendered sample, per worker.
     pub seconds_per_sample: f64,
+    /// Mean seconds per rendered sample spent reading its files back to verify them.
+    pub verify_seconds_per_sample: f64,
+    /// The run stopped early on [`GenerateOptions::stop`]; samples it did not finish are left
+    /// for the next run.
+    pub interrupted: bool,
+    /// Scratch folders of dead processes removed at the start.
+    pub orphaned_scratch_removed: usize,
 }
 
 /// Test hook: `STEREOGEN_FAULT=crash@3,hang@5,crash-always@7,raise@9` makes the worker crash,
@@ -120,37 +134,81 @@ impl FaultPlan {
     }
 }
 
-fn append_line(path: &Path, line: &str) {
-    use std::io::Write;
-    let appended = std::fs::OpenOptions::new().create(true).append(true).open(path).and_then(|mut f| writeln!(f, "{line}"));
-    if let Err(e) = appended {
-        tracing::error!("cannot append to {}: {e}", path.display());
+/// Rewrites a small JSON-lines log durably with `keep` lines of it and `add` after them: a kill
+/// can never leave half a line. The logs are written by one process (the dataset's lock holder),
+/// one thread at a time (`guard`).
+fn rewrite_log(guard: &Mutex<()>, path: &Path, keep: impl Fn(&str) -> bool, add: &[String]) {
+    let _guard = guard.lock().unwrap();
+    let old = std::fs::read_to_string(path).unwrap_or_default();
+    let mut text: String = old.lines().filter(|l| !l.trim().is_empty() && keep(l)).map(|l| format!("{l}\n")).collect();
+    for line in add {
+        text.push_str(line);
+        text.push('\n');
+    }
+    if text == old {
+        return;
+    }
+    let written = if text.is_empty() { stereo_io::atomic::remove_file_durably(path) } else { stereo_io::write_bytes_atomically(path, text.as_bytes()) };
+    if let Err(e) = written {
+        tracing::error!("cannot update {e}");
     }
 }
 
 /// One line of `failures.jsonl`: the sample, the error, and the worker's traceback if it sent one.
-fn append_failure(layout: &DatasetLayout, index: u64, error: &WorkerError) {
+fn append_failure(guard: &Mutex<()>, layout: &DatasetLayout, index: u64, error: &WorkerError) {
     let mut line = serde_json::json!({ "index": index, "error": error.to_string() });
     if let Some(traceback) = error.traceback() {
         line["traceback"] = traceback.into();
     }
-    append_line(&layout.failures(), &line.to_string());
+    rewrite_log(guard, &layout.failures(), |_| true, &[line.to_string()]);
 }
 
-/// Assets the index or a worker refused go to `skipped_assets.jsonl`, once per run and file.
-fn record_skipped(layout: &DatasetLayout, seen: &Mutex<BTreeSet<PathBuf>>, skipped: &[SkippedAsset], index: Option<u64>) {
+/// The index a line of `failures.jsonl` is about.
+fn failure_index(line: &str) -> Option<u64> {
+    serde_json::from_str::<serde_json::Value>(line).ok()?.get("index")?.as_u64()
+}
+
+/// Drops from `failures.jsonl` the samples that are now in the manifest (a later run rendered
+/// them), so the file lists exactly the samples still missing.
+fn forget_finished_failures(guard: &Mutex<()>, layout: &DatasetLayout) {
+    if !layout.failures().exists() {
+        return;
+    }
+    let Ok(done) = read_manifest(&layout.manifest()) else { return };
+    let done: BTreeSet<u64> = done.entries.iter().map(|e| e.index).collect();
+    rewrite_log(guard, &layout.failures(), |l| failure_index(l).is_none_or(|i| !done.contains(&i)), &[]);
+}
+
+/// Assets the index or a worker refused go to `skipped_assets.jsonl`, once per dataset and file.
+fn record_skipped(guard: &Mutex<()>, layout: &DatasetLayout, seen: &Mutex<BTreeSet<PathBuf>>, skipped: &[SkippedAsset], index: Option<u64>) {
     let mut seen = seen.lock().unwrap();
+    let mut lines = Vec::new();
     for s in skipped {
         if seen.insert(s.path.clone()) {
             tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);
-            append_line(&layout.skipped_assets(), &serde_json::json!({ "path": s.path, "reason": s.reason, "sample": index }).to_string());
+            lines.push(serde_json::json!({ "path": s.path, "reason": s.reason, "sample": index }).to_string());
         }
     }
+    if !lines.is_empty() {
+        rewrite_log(guard, &layout.skipped_assets(), |_| true, &lines);
+    }
+}
+
+/// Assets `skipped_assets.jsonl` already lists (warned about by an earlier run).
+fn already_skipped(layout: &DatasetLayout) -> BTreeSet<PathBuf> {
+    let text = std::fs::read_to_string(layout.skipped_assets()).unwrap_or_default();
+    text.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()?.get("path")?.as_str().map(PathBuf::from)).collect()
 }
 
 fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
     if opts.workers == 0 {
         bail!("--workers must be at least 1");
+    }
+    if opts.start.checked_add(opts.count).is_none() {
+        bail!("--start {} --count {}: the range ends past the largest index {}", opts.start, opts.count, u64::MAX);
+    }
+    if opts.worker_options.render_timeout.is_zero() {
+        bail!("--timeout must be at least 1 second");
     }
     Ok(())
 }
@@ -210,6 +268,8 @@ fn open_dataset(opts: &GenerateOptions) -> anyhow::Result<OpenDataset> {
     if removed > 0 {
         tracing::info!("removed {removed} partial file(s) left by an interrupted run");
     }
+    // Without a lock holder, whatever is in the dataset's own scratch folder is left over.
+    let _ = std::fs::remove_dir_all(layout.root.join(scratch::DATASET_SCRATCH_DIR));
     let (manifest, contents) = Manifest::open(&layout.manifest())?;
     if contents.has_unfinished_line() {
         tracing::warn!("{}: dropped a torn last line left by an interrupted run", layout.manifest().display());
@@ -226,6 +286,8 @@ struct Totals {
     restarts: u32,
     /// Wall seconds spent on rendered samples, summed over workers.
     busy_seconds: f64,
+    /// Seconds spent reading samples back to verify them.
+    verify_seconds: f64,
 }
 
 /// State the worker threads share during one run.
@@ -236,8 +298,11 @@ struct Run<'a> {
     faults: FaultPlan,
     progress: &'a (dyn Fn(Progress<'_>) + Sync),
     queue: Mutex<VecDeque<u64>>,
-    manifest: Mutex<Manifest>,
+    /// `None` once an append failed: a torn line must not get another one appended to it.
+    manifest: Mutex<Option<Manifest>>,
     seen_skipped: Mutex<BTreeSet<PathBuf>>,
+    /// One writer at a time for the small JSON-lines logs.
+    logs: Mutex<()>,
     /// Set on a fatal error: the workers stop taking samples.
     stop: AtomicBool,
     fatal: Mutex<Option<anyhow::Error>>,
@@ -248,12 +313,14 @@ impl Run<'_> {
     /// One worker thread: takes samples from the queue until it is empty or the run stops.
     fn worker_loop(&self, cfg: WorkerConfig) {
         let mut service = RenderService::new(cfg);
-        while !self.stop.load(Ordering::SeqCst) {
+        while !self.stop.load(Ordering::SeqCst) && !self.opts.stop.is_set() {
             let Some(index) = self.queue.lock().unwrap().pop_front() else { break };
             let spec = plan_scene(&self.opts.recipe, &self.assets, self.opts.seed, index);
             let t0 = Instant::now();
             match service.render(&spec, |attempt| self.faults.fault(index, attempt)) {
                 Ok(rendered) => self.finish_sample(&spec, &rendered, t0),
+                // Abandoned: its scratch is gone with `service.render`, it stays pending.
+                Err(WorkerError::Interrupted) => break,
                 Err(e) if e.is_fatal() => self.fail_run(anyhow::Error::new(e)),
                 Err(e) => self.record_failure(&spec, &e),
             }
@@ -265,26 +332,40 @@ impl Run<'_> {
     /// Writes a rendered sample into the dataset and appends its manifest line.
     fn finish_sample(&self, spec: &SceneSpec, rendered: &Rendered, t0: Instant) {
         let reply = &rendered.reply;
-        record_skipped(self.layout, &self.seen_skipped, &reply.skipped_assets, Some(spec.index));
-        let seconds = t0.elapsed().as_secs_f64();
-        let finished = finalize_sample(self.layout, spec, &reply.files, &reply.notes, seconds, &reply.timings)
-            .and_then(|entry| Ok(self.manifest.lock().unwrap().append(&entry)?));
+        record_skipped(&self.logs, self.layout, &self.seen_skipped, &reply.skipped_assets, Some(spec.index));
+        let finished = finalize_sample(self.layout, spec, &reply.files, &reply.notes, t0.elapsed().as_secs_f64(), &reply.timings).and_then(|entry| {
+            self.append(&entry)?;
+            Ok(entry)
+        });
         match finished {
-            Ok(()) => {
+            Ok(entry) => {
                 let mut totals = self.totals.lock().unwrap();
                 totals.rendered += 1;
-                totals.busy_seconds += seconds;
+                totals.busy_seconds += entry.render_seconds;
+                totals.verify_seconds += entry.render_timings.get(VERIFY_TIMING).copied().unwrap_or(0.0);
                 drop(totals);
-                (self.progress)(Progress::Rendered { index: spec.index, seconds });
+                (self.progress)(Progress::Rendered { index: spec.index, seconds: entry.render_seconds });
             }
             // A write failure (disk full, permissions) will hit every sample.
             Err(e) => self.fail_run(e.context(format!("sample {}", spec.id))),
         }
     }
 
+    /// Appends a finished sample's line. After a failed append the manifest is closed for the
+    /// rest of the run: its torn last line is cut off by the next run's open.
+    fn append(&self, entry: &super::manifest::ManifestEntry) -> anyhow::Result<()> {
+        let mut manifest = self.manifest.lock().unwrap();
+        let Some(m) = manifest.as_mut() else { bail!("the manifest is closed after a failed append") };
+        if let Err(e) = m.append(entry) {
+            *manifest = None;
+            return Err(e.into());
+        }
+        Ok(())
+    }
+
     fn record_failure(&self, spec: &SceneSpec, error: &WorkerError) {
         let message = error.to_string();
-        append_failure(self.layout, spec.index, error);
+        append_failure(&self.logs, self.layout, spec.index, error);
         (self.progress)(Progress::Failed { index: spec.index, id: &spec.id, error: &message });
         self.totals.lock().unwrap().failed.push(FailedSample { index: spec.index, error: message });
     }
@@ -302,18 +383,27 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
     check_options(opts)?;
     let faults = FaultPlan::from_env()?;
     let dataset = open_dataset(opts)?;
+    let orphaned_scratch_removed = scratch::remove_orphans(&scratch::candidate_bases(Some(&dataset.layout.root)));
+    if orphaned_scratch_removed > 0 {
+        tracing::info!("removed {orphaned_scratch_removed} scratch folder(s) of runs that are no longer running");
+    }
+    let logs = Mutex::new(());
+    forget_finished_failures(&logs, &dataset.layout);
     let indices = opts.indices();
     let pending: VecDeque<u64> = indices.iter().copied().filter(|i| !dataset.done.contains(i)).collect();
     let skipped = (indices.len() - pending.len()) as u64;
-    if pending.is_empty() {
-        return Ok(GenerateSummary { skipped, seconds: started.elapsed().as_secs_f64(), ..Default::default() });
+    if pending.is_empty() || opts.stop.is_set() {
+        let interrupted = !pending.is_empty();
+        return Ok(GenerateSummary { skipped, seconds: started.elapsed().as_secs_f64(), interrupted, orphaned_scratch_removed, ..Default::default() });
     }
 
     let assets = index_sources(&opts.recipe.sources, &stereogen_home())?;
     dataset.layout.check_assets(assets.fingerprint.as_deref())?;
-    let seen_skipped = Mutex::new(BTreeSet::new());
-    record_skipped(&dataset.layout, &seen_skipped, &assets.skipped, None);
-    let cfg = opts.worker_options.resolve(opts.workers)?;
+    let seen_skipped = Mutex::new(already_skipped(&dataset.layout));
+    record_skipped(&logs, &dataset.layout, &seen_skipped, &assets.skipped, None);
+    let mut cfg = opts.worker_options.resolve(opts.workers)?;
+    cfg.scratch = scratch::choose_base(Some(&dataset.layout.root), opts.workers, scratch::bytes_per_render(opts.recipe.camera.width, opts.recipe.camera.height));
+    cfg.stop = opts.stop.clone();
     let threads = opts.workers.min(pending.len());
     let run = Run {
         opts,
@@ -322,8 +412,9 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
         faults,
         progress,
         queue: Mutex::new(pending),
-        manifest: Mutex::new(dataset.manifest),
+        manifest: Mutex::new(Some(dataset.manifest)),
         seen_skipped,
+        logs,
         stop: AtomicBool::new(false),
         fatal: Mutex::new(None),
         totals: Mutex::new(Totals::default()),
@@ -334,16 +425,23 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
             s.spawn(|| run.worker_loop(cfg.clone()));
         }
     });
+    forget_finished_failures(&run.logs, &dataset.layout);
+    let _ = std::fs::remove_dir(dataset.layout.root.join(scratch::DATASET_SCRATCH_DIR));
     if let Some(e) = run.fatal.into_inner().unwrap() {
         return Err(e);
     }
     let totals = run.totals.into_inner().unwrap();
+    let per_sample = |s: f64| if totals.rendered > 0 { s / totals.rendered as f64 } else { 0.0 };
+    let interrupted = opts.stop.is_set() && totals.rendered + skipped + (totals.failed.len() as u64) < indices.len() as u64;
     Ok(GenerateSummary {
         rendered: totals.rendered,
         skipped,
-        seconds_per_sample: if totals.rendered > 0 { totals.busy_seconds / totals.rendered as f64 } else { 0.0 },
+        seconds_per_sample: per_sample(totals.busy_seconds),
+        verify_seconds_per_sample: per_sample(totals.verify_seconds),
         failed: totals.failed,
         worker_restarts: totals.restarts,
         seconds: started.elapsed().as_secs_f64(),
+        interrupted,
+        orphaned_scratch_removed,
     })
 }

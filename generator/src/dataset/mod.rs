@@ -2,6 +2,7 @@
 
 pub mod export;
 pub mod generate;
+pub mod interrupt;
 pub mod layout;
 pub mod lock;
 pub mod manifest;

@@ -1,17 +1,24 @@
 //! Turns a worker's intermediate files into a finished sample: depth → disparity for both views,
-//! files renamed into place, then the manifest entry describing them.
+//! files written durably into place, every file read back and checked, then the manifest entry
+//! describing them.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::{Context, bail};
 use sha2::{Digest, Sha256};
-use stereo_io::{DisparityMap, DisparityMeta};
+use stereo_io::{DisparityMap, DisparityMeta, RgbImage};
 
-use super::layout::DatasetLayout;
+use super::layout::{DatasetLayout, SamplePaths};
 use super::manifest::{DisparitySummary, ManifestEntry};
 use crate::plan::SceneSpec;
 use crate::render::protocol::RenderedFiles;
+
+/// Keys the generator adds to a manifest entry's `render_timings`, beside the worker's steps:
+/// seconds spent writing the sample's files, and reading them back to verify them.
+pub const WRITE_TIMING: &str = "write_s";
+pub const VERIFY_TIMING: &str = "verify_s";
 
 fn summary(map: &DisparityMap) -> Option<DisparitySummary> {
     map.stats().map(|s| DisparitySummary { min: s.min, max: s.max, mean: s.mean, valid_fraction: s.valid_pixels as f64 / map.data.len() as f64 })
@@ -27,46 +34,134 @@ pub fn disparity_from_depth_exr(path: &Path, spec: &SceneSpec) -> anyhow::Result
     Ok(DisparityMap::from_depth(w, h, &depth, spec.rig.f_px(), spec.rig.baseline_m, spec.render.clip_end as f32))
 }
 
-fn sha256_file(path: &Path) -> anyhow::Result<String> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read back {}", path.display()))?;
-    Ok(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
-}
-
-/// Re-encodes the worker's PNG: Cycles writes render times into PNG text chunks, so a plain copy
-/// would make every re-render of a spec a different file. Decoding also checks the image.
-fn write_canonical_png(from: &Path, to: &Path, spec: &SceneSpec) -> anyhow::Result<()> {
+/// The worker's PNG decoded. It is re-encoded, not copied: Cycles writes render times into PNG
+/// text chunks, so a plain copy would make every re-render of a spec a different file.
+fn read_worker_png(from: &Path, spec: &SceneSpec) -> anyhow::Result<RgbImage> {
     let img = stereo_io::read_rgb(from)?;
     if (img.width, img.height) != (spec.rig.width as usize, spec.rig.height as usize) {
         bail!("{}: image is {}x{}, the spec asks for {}x{}", from.display(), img.width, img.height, spec.rig.width, spec.rig.height);
     }
-    stereo_io::write_atomically(to, |tmp| stereo_io::write_png_rgb(tmp, &img)).with_context(|| format!("cannot write {}", to.display()))
+    Ok(img)
 }
 
-/// Writes all files of a rendered sample into the dataset and returns its manifest entry.
-/// Each file appears atomically; the caller appends the entry to the manifest last.
-/// `render_timings` is where the worker says its time went (stage → seconds).
+/// What a sample's files must hold: the read-back check compares against it.
+struct SampleContent<'a> {
+    spec: &'a SceneSpec,
+    left: RgbImage,
+    right: RgbImage,
+    disp_left: DisparityMap,
+    disp_right: DisparityMap,
+}
+
+impl SampleContent<'_> {
+    fn meta(&self, view: &str) -> DisparityMeta {
+        DisparityMeta { f_px: Some(self.spec.rig.f_px()), baseline_m: Some(self.spec.rig.baseline_m), view: Some(view.into()) }
+    }
+
+    /// Writes every file durably (each one whole under its final name, or not at all).
+    fn write(&self, layout: &DatasetLayout, paths: &SamplePaths) -> anyhow::Result<()> {
+        stereo_io::write_disparity_exr(&layout.abs(&paths.disp_left), &self.disp_left, &self.meta("left"))?;
+        stereo_io::write_disparity_exr(&layout.abs(&paths.disp_right), &self.disp_right, &self.meta("right"))?;
+        stereo_io::write_png_rgb(&layout.abs(&paths.left), &self.left)?;
+        stereo_io::write_png_rgb(&layout.abs(&paths.right), &self.right)?;
+        super::scene_file::write_scene_spec(&layout.abs(&paths.scene), self.spec)
+    }
+
+    /// Checks the bytes read back from the file with key `key` against what was written.
+    fn check(&self, key: &str, path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+        let same = match key {
+            "left" | "right" => {
+                let expected = if key == "left" { &self.left } else { &self.right };
+                let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png).with_context(|| format!("{}: cannot decode the PNG read back", path.display()))?;
+                img.width() as usize == expected.width && img.height() as usize == expected.height && img.to_rgb8().as_raw() == &expected.data
+            }
+            "disp_left" | "disp_right" => {
+                let expected = if key == "disp_left" { &self.disp_left } else { &self.disp_right };
+                let (map, _) = stereo_io::decode_disparity_exr(bytes, path)?;
+                (map.width, map.height) == (expected.width, expected.height)
+                    && map.valid == expected.valid
+                    && map.data.iter().zip(&expected.data).all(|(a, b)| a.to_bits() == b.to_bits())
+            }
+            "scene" => {
+                let text = std::str::from_utf8(bytes).with_context(|| format!("{}: not UTF-8", path.display()))?;
+                crate::plan::SceneSpec::from_json(text).with_context(|| format!("{}: not a SceneSpec", path.display()))? == *self.spec
+            }
+            other => bail!("no read-back check for file key {other:?}"),
+        };
+        if !same {
+            bail!("{}: what was read back differs from what was written", path.display());
+        }
+        Ok(())
+    }
+
+    /// Reads every file back from the disk, decodes it fully, compares it with what was
+    /// written, and returns its SHA-256 taken from the bytes read.
+    fn verify(&self, layout: &DatasetLayout, paths: &SamplePaths) -> anyhow::Result<BTreeMap<String, String>> {
+        let mut sha256 = BTreeMap::new();
+        for (key, rel) in paths.all() {
+            let path = layout.abs(rel);
+            let bytes = read_back(&path)?;
+            self.check(key, &path, &bytes)?;
+            sha256.insert(key.to_string(), hex(&Sha256::digest(&bytes)));
+        }
+        Ok(sha256)
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Reads a file that was just written and synced, from the storage rather than from the page
+/// cache where the kernel can (its clean pages are dropped first), so a write the device or the
+/// network filesystem lost shows up here.
+fn read_back(path: &Path) -> anyhow::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut file = std::fs::File::open(path).with_context(|| format!("{}: cannot read back", path.display()))?;
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        // Advice only: where the kernel keeps the pages (tmpfs) the read comes from memory.
+        unsafe { libc::posix_fadvise(file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED) };
+    }
+    let mut bytes = Vec::new();
+    file.read_to_end(&mut bytes).with_context(|| format!("{}: cannot read back", path.display()))?;
+    Ok(bytes)
+}
+
+/// Writes all files of a rendered sample into the dataset, reads each back (fully decoded and
+/// compared with what was written; checksums taken from what was read) and returns its manifest
+/// entry; the caller appends the entry to the manifest last. On any error nothing of the sample
+/// stays in the dataset. `render_timings` is where the worker says its time went (stage →
+/// seconds); [`WRITE_TIMING`] and [`VERIFY_TIMING`] are added.
 pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &RenderedFiles, notes: &[String], render_seconds: f64, render_timings: &BTreeMap<String, f64>) -> anyhow::Result<ManifestEntry> {
     let paths = layout.sample_paths(&spec.category, &spec.id);
     let dir = layout.abs(&paths.left).parent().expect("category dir").to_path_buf();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
 
-    let f_px = spec.rig.f_px();
-    let disp_left = disparity_from_depth_exr(&files.left_depth_exr, spec)?;
-    let disp_right = disparity_from_depth_exr(&files.right_depth_exr, spec)?;
-    for (map, rel, view) in [(&disp_left, &paths.disp_left, "left"), (&disp_right, &paths.disp_right, "right")] {
-        let meta = DisparityMeta { f_px: Some(f_px), baseline_m: Some(spec.rig.baseline_m), view: Some(view.into()) };
-        let path = layout.abs(rel);
-        stereo_io::write_atomically(&path, |tmp| stereo_io::write_disparity_exr(tmp, map, &meta)).with_context(|| format!("cannot write {}", path.display()))?;
-    }
-    write_canonical_png(&files.left_png, &layout.abs(&paths.left), spec)?;
-    write_canonical_png(&files.right_png, &layout.abs(&paths.right), spec)?;
-    let scene_path = layout.abs(&paths.scene);
-    super::scene_file::write_scene_spec(&scene_path, spec)?;
-
-    let mut sha256 = BTreeMap::new();
-    for (key, rel) in paths.all() {
-        sha256.insert(key.to_string(), sha256_file(&layout.abs(rel))?);
-    }
+    let content = SampleContent {
+        spec,
+        disp_left: disparity_from_depth_exr(&files.left_depth_exr, spec)?,
+        disp_right: disparity_from_depth_exr(&files.right_depth_exr, spec)?,
+        left: read_worker_png(&files.left_png, spec)?,
+        right: read_worker_png(&files.right_png, spec)?,
+    };
+    let t0 = Instant::now();
+    let written = content.write(layout, &paths).and_then(|()| {
+        let write_s = t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
+        Ok((write_s, content.verify(layout, &paths)?, t1.elapsed().as_secs_f64()))
+    });
+    let (write_s, sha256, verify_s) = match written {
+        Ok(w) => w,
+        Err(e) => {
+            remove_sample_files(layout, &paths);
+            return Err(e);
+        }
+    };
+    let mut timings = render_timings.clone();
+    timings.insert(WRITE_TIMING.to_string(), write_s);
+    timings.insert(VERIFY_TIMING.to_string(), verify_s);
     let (cx, cy) = spec.rig.principal_point();
     Ok(ManifestEntry {
         id: spec.id.clone(),
@@ -76,16 +171,25 @@ pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &Rendere
         files: paths,
         width: spec.rig.width,
         height: spec.rig.height,
-        f_px,
+        f_px: spec.rig.f_px(),
         baseline_m: spec.rig.baseline_m,
         cx,
         cy,
-        disparity_left: summary(&disp_left),
-        disparity_right: summary(&disp_right),
-        render_seconds,
-        render_timings: render_timings.clone(),
+        disparity_left: summary(&content.disp_left),
+        disparity_right: summary(&content.disp_right),
+        render_seconds: render_seconds + write_s + verify_s,
+        render_timings: timings,
         notes: notes.to_vec(),
         sha256,
         stereogen_version: env!("CARGO_PKG_VERSION").to_string(),
     })
+}
+
+/// Removes whatever files of a sample that failed to finish are in place (it has no manifest
+/// line, so none of them is part of the dataset).
+fn remove_sample_files(layout: &DatasetLayout, paths: &SamplePaths) {
+    for (_, rel) in paths.all() {
+        let path: PathBuf = layout.abs(rel);
+        let _ = stereo_io::atomic::remove_file_durably(&path);
+    }
 }

@@ -3,6 +3,7 @@
 
 pub mod protocol;
 pub mod runtime;
+pub mod scratch;
 pub mod scripts;
 pub mod worker;
 

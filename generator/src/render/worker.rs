@@ -11,6 +11,8 @@ use std::time::Duration;
 use anyhow::Context;
 
 use super::protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request};
+use super::scratch;
+use crate::dataset::interrupt::StopFlag;
 use super::runtime::{BLENDER_SERIES, BlenderRuntime, discover_or_install, stereogen_home};
 use super::scripts::install_scripts;
 use crate::plan::SceneSpec;
@@ -55,6 +57,8 @@ impl WorkerOptions {
             startup_timeout: self.startup_timeout,
             render_timeout: self.render_timeout,
             retries: self.retries,
+            scratch: scratch::default_base(),
+            stop: StopFlag::new(),
         })
     }
 }
@@ -87,6 +91,10 @@ pub struct WorkerConfig {
     pub render_timeout: Duration,
     /// Attempts after the first when a worker crashes or hangs.
     pub retries: u32,
+    /// Where each render's scratch folder is made (see [`scratch::choose_base`]).
+    pub scratch: PathBuf,
+    /// Set: start nothing more, kill the worker and abandon its render ([`WorkerError::Interrupted`]).
+    pub stop: StopFlag,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -108,12 +116,14 @@ pub enum WorkerError {
     Scene { message: String, traceback: Option<String> },
     #[error("cannot create a scratch directory in {0}")]
     Scratch(String),
+    #[error("the render was abandoned: the run is stopping")]
+    Interrupted,
 }
 
 impl WorkerError {
     /// Errors that will happen again for every sample: the whole run should stop.
     pub fn is_fatal(&self) -> bool {
-        matches!(self, WorkerError::Start { .. } | WorkerError::WrongVersion { .. } | WorkerError::SpecVersion { .. } | WorkerError::Scratch(_))
+        matches!(self, WorkerError::Start { .. } | WorkerError::WrongVersion { .. } | WorkerError::SpecVersion { .. } | WorkerError::Scratch(_) | WorkerError::Interrupted)
     }
 
     /// The worker's Python traceback, for a scene that raised.
@@ -138,6 +148,7 @@ struct Process {
     stdin: ChildStdin,
     replies: Receiver<String>,
     stderr_tail: Arc<Mutex<VecDeque<String>>>,
+    stop: StopFlag,
 }
 
 /// Calls `f` with every line of `stream` until it returns false or the stream ends.
@@ -176,7 +187,7 @@ impl Worker {
         let stdin = child.stdin.take().expect("piped");
         let replies = read_lines_in_background(child.stdout.take().expect("piped"));
         let stderr_tail = collect_stderr_tail(child.stderr.take().expect("piped"));
-        let mut process = Process { child, stdin, replies, stderr_tail };
+        let mut process = Process { child, stdin, replies, stderr_tail, stop: cfg.stop.clone() };
         let hello = read_hello(&mut process, cfg, &runtime)?;
         tracing::debug!("worker {} ready: Blender {} / Python {}", process.child.id(), hello.blender, hello.python);
         Ok(Worker { process, hello })
@@ -230,8 +241,22 @@ fn read_hello(process: &mut Process, cfg: &WorkerConfig, runtime: &str) -> Resul
 }
 
 impl Process {
+    /// The worker's next line; checks the stop flag while it waits.
     fn next_line(&mut self, timeout: Duration) -> Result<String, WorkerError> {
-        match self.replies.recv_timeout(timeout) {
+        const POLL: Duration = Duration::from_millis(100);
+        let deadline = std::time::Instant::now() + timeout;
+        let received = loop {
+            if self.stop.is_set() {
+                self.kill();
+                return Err(WorkerError::Interrupted);
+            }
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match self.replies.recv_timeout(left.min(POLL)) {
+                Err(RecvTimeoutError::Timeout) if !left.is_zero() => continue,
+                other => break other,
+            }
+        };
+        match received {
             Ok(line) => Ok(line),
             Err(RecvTimeoutError::Timeout) => {
                 self.kill();
@@ -291,10 +316,11 @@ fn start_process(cfg: &WorkerConfig) -> std::io::Result<Child> {
         use std::os::unix::process::CommandExt;
         // A worker must not outlive a killed orchestrator (it would keep rendering into a
         // dataset nobody finishes). The signal fires when the spawning thread exits, and
-        // every worker is shut down before its thread ends.
+        // every worker is shut down before its thread ends. Its own process group keeps a
+        // terminal's Ctrl-C away from it: the orchestrator decides when a worker stops.
         unsafe {
             cmd.pre_exec(|| {
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 || libc::setpgid(0, 0) != 0 {
                     return Err(std::io::Error::last_os_error());
                 }
                 Ok(())
@@ -349,23 +375,16 @@ fn describe_status(status: &std::process::ExitStatus) -> String {
     }
 }
 
-/// Where intermediate files go: tmpfs when the machine has one (renders never touch the disk
-/// until the finished files are written), otherwise the system temp dir.
-pub fn scratch_base() -> PathBuf {
-    let shm = Path::new("/dev/shm");
-    if shm.is_dir() && tempfile::tempdir_in(shm).is_ok() { shm.to_path_buf() } else { std::env::temp_dir() }
-}
-
 /// Keeps one worker alive: starts it lazily, restarts it after a crash or hang, and retries.
 pub struct RenderService {
     cfg: WorkerConfig,
     worker: Option<Worker>,
-    scratch: PathBuf,
     /// Worker restarts so far (crashes and hangs).
     pub restarts: u32,
 }
 
-/// A finished render: the reply plus the scratch directory that holds its files until dropped.
+/// A finished render: the reply plus the scratch directory that holds its files until dropped
+/// (see [`scratch`]).
 pub struct Rendered {
     pub reply: RenderOutput,
     pub scratch: tempfile::TempDir,
@@ -379,7 +398,7 @@ pub struct ExportedGeometry {
 
 impl RenderService {
     pub fn new(cfg: WorkerConfig) -> Self {
-        Self { cfg, worker: None, scratch: scratch_base(), restarts: 0 }
+        Self { cfg, worker: None, restarts: 0 }
     }
 
     fn ensure_worker(&mut self) -> Result<&mut Worker, WorkerError> {
@@ -406,14 +425,20 @@ impl RenderService {
     fn with_retries<T>(&mut self, spec: &SceneSpec, request: impl Fn(&mut Worker, &Path, u32, Duration) -> Result<T, WorkerError>) -> Result<(T, tempfile::TempDir), WorkerError> {
         let mut attempt = 0;
         loop {
-            let scratch = tempfile::Builder::new()
-                .prefix("stereogen-")
-                .tempdir_in(&self.scratch)
-                .map_err(|e| WorkerError::Scratch(format!("{}: {e}", self.scratch.display())))?;
+            if self.cfg.stop.is_set() {
+                return Err(WorkerError::Interrupted);
+            }
+            let scratch = scratch::create(&self.cfg.scratch).map_err(|e| WorkerError::Scratch(format!("{}: {e}", self.cfg.scratch.display())))?;
             let timeout = self.cfg.render_timeout;
             let outcome = self.ensure_worker().and_then(|w| request(w, scratch.path(), attempt, timeout));
             match outcome {
                 Ok(reply) => return Ok((reply, scratch)),
+                Err(WorkerError::Interrupted) => {
+                    if let Some(mut w) = self.worker.take() {
+                        w.kill();
+                    }
+                    return Err(WorkerError::Interrupted);
+                }
                 Err(e) if e.is_fatal() => return Err(e),
                 Err(e @ WorkerError::Scene { .. }) => return Err(e),
                 Err(e) => {
@@ -422,6 +447,10 @@ impl RenderService {
                         w.kill();
                     }
                     self.restarts += 1;
+                    if self.cfg.stop.is_set() {
+                        // A worker killed by the same signal that stops the run.
+                        return Err(WorkerError::Interrupted);
+                    }
                     if attempt >= self.cfg.retries {
                         return Err(e);
                     }

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use stereo_io::RgbImage;
 use stereo_io::colormap::{DisparityRange, colourise};
 
@@ -50,6 +50,6 @@ pub fn write_contact_sheet(dataset: &Path, count: usize, cols: usize, out: &Path
         // Zero to the sample's largest disparity, the shared colour map (`stereo_io::colormap`).
         blit(&mut sheet, &colourise(&disp, DisparityRange::new(0.0, max)), x0 + w + GAP, y0);
     }
-    stereo_io::write_atomically(out, |tmp| stereo_io::write_png_rgb(tmp, &sheet)).with_context(|| format!("cannot write {}", out.display()))?;
+    stereo_io::write_png_rgb(out, &sheet)?;
     Ok(entries.len())
 }

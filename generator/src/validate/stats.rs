@@ -26,12 +26,44 @@ pub struct StatsOptions {
     pub bins: Option<usize>,
     /// Gap-check bins for every category; chosen from the object count when unset.
     pub gap_bins: Option<usize>,
+    /// Also read every file of every sample, check its SHA-256 against the manifest and decode
+    /// the images fully (`--verify`); a mismatch is an error of the report.
+    pub verify: bool,
 }
 
 impl StatsOptions {
     pub fn new(dataset: impl Into<PathBuf>) -> Self {
-        Self { dataset: dataset.into(), ks_alpha: 0.01, bins: None, gap_bins: None }
+        Self { dataset: dataset.into(), ks_alpha: 0.01, bins: None, gap_bins: None, verify: false }
     }
+}
+
+/// The SHA-256 of `bytes`, as the manifest writes it.
+fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Reads one file of a sample: with `verify`, its checksum is compared with the manifest's and
+/// an image is decoded in full. Returns the bytes read.
+fn read_sample_file(root: &Path, e: &ManifestEntry, key: &str, rel: &Path, verify: bool) -> Result<Vec<u8>, String> {
+    let path = root.join(rel);
+    let bytes = std::fs::read(&path).map_err(|err| format!("{}: {err}", path.display()))?;
+    if verify {
+        let Some(recorded) = e.sha256.get(key) else { return Err(format!("{}: the manifest records no checksum for it", path.display())) };
+        let actual = sha256_hex(&bytes);
+        if &actual != recorded {
+            return Err(format!("{}: SHA-256 {actual} differs from the manifest's {recorded}", path.display()));
+        }
+        if matches!(key, "left" | "right") {
+            image::load_from_memory(&bytes).map_err(|err| format!("{}: cannot decode: {err}", path.display()))?;
+        }
+    }
+    Ok(bytes)
+}
+
+/// Verifies the files the pixel pass does not read (images and the scene file).
+fn verify_other_files(root: &Path, e: &ManifestEntry) -> Vec<String> {
+    [("left", &e.files.left), ("right", &e.files.right), ("scene", &e.files.scene)].into_iter().filter_map(|(key, rel)| read_sample_file(root, e, key, rel, true).err()).collect()
 }
 
 /// A dataset read for statistics: its description, manifest and category list.
@@ -152,16 +184,19 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
             || (vec![None; categories.len()], Vec::new()),
             |(mut accs, mut errs): Fold, e| {
                 let c = cat_of(&e.category);
-                for (view, rel) in [&e.files.disp_left, &e.files.disp_right].into_iter().enumerate() {
+                for (view, (key, rel)) in [("disp_left", &e.files.disp_left), ("disp_right", &e.files.disp_right)].into_iter().enumerate() {
                     let path = root.join(rel);
-                    match stereo_io::read_disparity_exr(&path) {
+                    let read = read_sample_file(root, e, key, rel, opts.verify).and_then(|bytes| stereo_io::decode_disparity_exr(&bytes, &path).map_err(|err| err.to_string()));
+                    match read {
                         Ok((map, _)) => accs[c].get_or_insert_with(|| new_acc(c)).add_map(view, &map),
-                        Err(err) => {
-                            // stereo-io errors name their file; add it only if one does not.
-                            let msg = err.to_string();
+                        Err(msg) => {
+                            // Every message names its file; add it only if one does not.
                             errs.push(if msg.contains(&*path.to_string_lossy()) { msg } else { format!("{}: {msg}", path.display()) });
                         }
                     }
+                }
+                if opts.verify {
+                    errs.extend(verify_other_files(root, e));
                 }
                 progress.tick();
                 (accs, errs)

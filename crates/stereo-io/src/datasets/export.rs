@@ -34,6 +34,13 @@ fn export_name(format: DatasetFormat, meta: &SampleMeta) -> String {
 }
 
 /// Writes every sample of the dataset at `source` into `out` as `opts.to`; returns what was written.
+///
+/// Each sample is all-or-nothing: its files are written and synced under temporary names and
+/// renamed into place together ([`crate::atomic::Batch`]). Re-running into the same `out` is
+/// safe: samples already there are replaced by the same files (links to the same source file are
+/// left as they are), and temporary files of an export that was killed are removed first. When a
+/// sample fails, the export stops; the error says what `out` holds (the samples before it, listed
+/// in [`EXPORT_INDEX_FILE`], and nothing of the failed one).
 pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result<WriteSummary> {
     if !source.is_dir() {
         return Err(Error::format(source, "no such dataset directory (a stereogen dataset holds manifest.jsonl; the other layouts are listed by `open_dataset`)"));
@@ -43,13 +50,31 @@ pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result
     }
     let dataset = open_dataset(source, opts.from)?;
     let mut writer = create_writer(opts.to, out, opts.images)?;
+    crate::atomic::remove_orphaned_temp_files(out);
     let mut index = String::new();
     for n in 0..dataset.len() {
-        let sample = dataset.sample(n)?;
-        let name = export_name(dataset.format(), &sample.meta);
-        writer.write(n, &name, &sample).map_err(|e| Error::format(source, format!("sample {}: {e}", sample.meta.id)))?;
-        let category = sample.meta.extra.get("category").map_or("", String::as_str);
-        index.push_str(&format!("{n:06}\t{category}\t{}\n", sample.meta.id));
+        let exported = dataset.sample(n).and_then(|sample| {
+            let name = export_name(dataset.format(), &sample.meta);
+            let batch = crate::atomic::Batch::begin();
+            writer.write(n, &name, &sample)?;
+            batch.commit()?;
+            let category = sample.meta.extra.get("category").map_or("", String::as_str);
+            index.push_str(&format!("{n:06}\t{category}\t{}\n", sample.meta.id));
+            Ok(())
+        });
+        if let Err(e) = exported {
+            let listed = crate::atomic::write_bytes_atomically(&out.join(EXPORT_INDEX_FILE), index.as_bytes()).is_ok();
+            let id = dataset.id(n).unwrap_or("?").to_string();
+            return Err(Error::format(
+                out,
+                format!(
+                    "export stopped at sample {id} ({} of {}): {e}; left: the {n} sample(s) before it, complete{}, and nothing of {id}; re-run the same command to finish",
+                    n + 1,
+                    dataset.len(),
+                    if listed { format!(" (listed in {EXPORT_INDEX_FILE})") } else { String::new() }
+                ),
+            ));
+        }
     }
     crate::atomic::write_bytes_atomically(&out.join(EXPORT_INDEX_FILE), index.as_bytes())?;
     Ok(writer.summary().clone())

@@ -154,25 +154,42 @@ pub(crate) fn sniff(path: &Path) -> ImageFile {
 }
 
 /// Removes what an earlier write left at `path` (a right-view disparity the source now lacks), so
-/// the output says what this write wrote.
+/// the output says what this write wrote; with the sample's other files (see [`crate::atomic::Batch`]).
 pub(crate) fn remove_stale(path: &Path) -> Result<()> {
-    match std::fs::remove_file(path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(Error::io(path, e)),
-        _ => Ok(()),
+    crate::atomic::remove_file_durably(path)
+}
+
+/// Whether `a` and `b` are the same file (one is a hard link of the other).
+#[cfg(unix)]
+fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(a), Ok(b)) => (a.dev(), a.ino()) == (b.dev(), b.ino()),
+        _ => false,
     }
 }
 
-/// Places `src` at `dst`: a hard link, or a copy where the filesystem refuses links; atomically.
+#[cfg(not(unix))]
+fn same_file(_: &Path, _: &Path) -> bool {
+    false
+}
+
+/// Places `src` at `dst`: a hard link, or a durable copy where the filesystem refuses links;
+/// atomically. A `dst` that already is a link of `src` (a re-export) is left as it is.
 fn link_or_copy(src: &Path, dst: &Path, summary: &mut WriteSummary) -> Result<()> {
+    if same_file(src, dst) {
+        summary.linked += 1;
+        return Ok(());
+    }
     let tmp = crate::atomic::temp_sibling(dst);
-    let _ = std::fs::remove_file(&tmp);
     if std::fs::hard_link(src, &tmp).is_ok() {
         summary.linked += 1;
-    } else {
-        std::fs::copy(src, &tmp).map_err(|e| Error::io(src, e))?;
-        summary.written += 1;
+        return crate::atomic::place(&tmp, dst);
     }
-    std::fs::rename(&tmp, dst).map_err(|e| Error::io(dst, e))
+    let bytes = std::fs::read(src).map_err(|e| Error::io(src, e))?;
+    crate::atomic::write_bytes_atomically(dst, &bytes)?;
+    summary.written += 1;
+    Ok(())
 }
 
 /// Stores one view's image at `dst`: the source file linked if it is one of `linkable`, else

@@ -8,7 +8,7 @@ use std::path::Path;
 use base64::Engine;
 use image::imageops::FilterType;
 
-use super::super::contact_sheet::colourise;
+use stereo_io::colormap::{DisparityRange, colourise};
 use crate::dataset::{DatasetLayout, ManifestEntry};
 
 /// Widest thumbnail (px); smaller images keep their size.
@@ -77,7 +77,7 @@ fn photo(path: &Path) -> Result<String, String> {
 fn disparity(path: &Path) -> Result<(String, f32), String> {
     let (map, _) = stereo_io::read_disparity_exr(path).map_err(|e| e.to_string())?;
     let max = map.stats().map_or(1.0, |s| s.max).max(1e-3);
-    let rgb = colourise(&map, max);
+    let rgb = colourise(&map, DisparityRange::new(0.0, max));
     let img = image::RgbImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data).ok_or_else(|| format!("{}: bad size", path.display()))?;
     let (w, h) = thumb_size(img.width(), img.height());
     let small = if (w, h) == img.dimensions() { img } else { image::imageops::resize(&img, w, h, FilterType::Nearest) };
