@@ -112,6 +112,22 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     });
     assert!(o.status.success(), "export of the merged dataset: {}", text(&o));
     assert_eq!(stereo_io::open_dataset(&out, None).unwrap().len(), 4);
+    // The audit and the report take the merged dataset too (paths into the shards).
+    let o = run({
+        let mut c = stereogen(&["audit", "--all", "--every-pixel", "--check"]);
+        c.arg(&out);
+        c
+    });
+    assert!(o.status.success(), "audit --check on the merged dataset: {}", text(&o));
+    let report = dir.path().join("merged-report.html");
+    let o = run({
+        let mut c = stereogen(&["report", "--out"]);
+        c.arg(&report).arg(&out);
+        c
+    });
+    assert!(o.status.success(), "report of the merged dataset: {}", text(&o));
+    let html = std::fs::read_to_string(&report).unwrap();
+    assert!(html.contains("data:image/"), "the merged report embeds the gallery's pictures");
 
     // One set with four problems: a missing index, a duplicated one, another recipe, a live lock.
     let shard1 = DatasetLayout::new(broken.join("shards/0001-of-0002"));

@@ -23,8 +23,9 @@ use crate::render::Device;
 /// The exit code of a `generate` that stopped on SIGTERM/SIGINT before finishing its range
 /// (EX_TEMPFAIL: nothing is wrong, run the same command again to resume). The job files treat
 /// it as "requeue this task": Slurm's script requeues itself, the Kubernetes Job's pod failure
-/// policy does not count it against the retry limit.
-pub const INTERRUPTED_EXIT_CODE: i32 = 75;
+/// policy does not count it against the retry limit. The one definition is
+/// [`crate::dataset::interrupt::EXIT_INTERRUPTED`], which `generate` exits with.
+pub const INTERRUPTED_EXIT_CODE: i32 = crate::dataset::interrupt::EXIT_INTERRUPTED as i32;
 
 /// What a farm run renders and how its tasks are shaped.
 #[derive(Debug, Clone)]

@@ -474,6 +474,9 @@ mod tests {
         assert!(err.contains("camera.width") && err.contains("16..=16384"), "{err}");
         let err = Recipe::from_toml_str(&default_text().replace("boolean_probability = 0.25", "boolean_probability = 1.5"), "x.toml").unwrap_err().to_string();
         assert!(err.contains("primitives.boolean_probability"), "{err}");
+        // A bound derived from the width prints as the number a person would write.
+        let err = Recipe::from_toml_str(&default_text().replace("width = 960", "width = 96"), "x.toml").unwrap_err().to_string();
+        assert!(err.contains("placement.disparity_px") && err.contains("76.8") && !err.contains("76.80000"), "{err}");
     }
 
     /// A preset with the keys of `added_keys!` removed: what recipes written before them look like.

@@ -50,7 +50,8 @@ impl Recipe {
 
         let p = &self.placement;
         // An object centre must fit in both views: its disparity must leave room in the width.
-        dist("placement.disparity_px", &p.disparity_px, 0.01, f64::from(c.width) * 0.8)?;
+        // (4/5 as a division: `width * 0.8` prints as 76.80000000000001 for width 96.)
+        dist("placement.disparity_px", &p.disparity_px, 0.01, f64::from(c.width) * 4.0 / 5.0)?;
         dist("placement.angular_size", &p.angular_size, 1e-3, 3.0)?;
         if !(0.0..0.4).contains(&p.margin) {
             return Err(bad("placement.margin", format!("need 0 <= margin < 0.4, got {}", p.margin)));
