@@ -61,7 +61,7 @@ impl fmt::Display for ChromaSampling {
 impl FromStr for ChromaSampling {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s.trim_start_matches("4:").replace(':', "").as_str() {
+        match s.replace(':', "").as_str() {
             "444" => Ok(Self::Full),
             "420" => Ok(Self::Half),
             _ => Err(format!("unknown chroma sampling {s:?} (444 or 420)")),

@@ -28,7 +28,8 @@ pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomi
 pub use datasets::export::{ExportOptions, export_dataset};
 pub use datasets::stereogen::{DatasetInfo, DatasetLayout, DisparitySummary, Manifest, ManifestContents, ManifestEntry, SamplePaths, read_manifest};
 pub use datasets::write::{DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, create_writer};
-pub use datasets::{DatasetFormat, SampleMeta, StereoDataset, StereoSample, detect_format, open_dataset};
+pub use datasets::middlebury::MiddleburyVariant;
+pub use datasets::{DatasetFormat, ReadOptions, SampleMeta, StereoDataset, StereoSample, detect_format, open_dataset, open_dataset_with};
 pub use disparity::{DisparityMap, DisparityMeta, DisparityStats};
 pub use error::{Error, Result};
 pub use exr_io::{decode_disparity_exr, read_depth_channel, read_disparity_exr, write_disparity_exr};

@@ -40,11 +40,12 @@ pub enum DatasetFormat {
     SceneFlow,
     /// Middlebury 2014 / MiddEval3: `<scene>/im0.png, im1.png, disp0.pfm, calib.txt`.
     Middlebury,
-    /// ETH3D two-view: `<scene>/im0.png, im1.png, disp0GT.pfm, mask0nocc.png`.
+    /// ETH3D two-view: `<scene>/im0.png, im1.png, disp0GT.pfm, mask0nocc.png`, the ground truth
+    /// beside the images or in the official `_gt` tree.
     Eth3d,
     /// KITTI 2012: `training/colored_0|colored_1|disp_occ` (÷256).
     Kitti2012,
-    /// KITTI 2015: `training/image_2|image_3|disp_occ_0` (÷256).
+    /// KITTI 2015: `training/image_2|image_3|disp_occ_0` (÷256); no right-view disparity.
     Kitti2015,
     /// MPI Sintel stereo: `training/clean_left|clean_right|disparities` (RGB-packed).
     Sintel,
@@ -314,9 +315,21 @@ impl StereoDataset for FileListDataset {
     }
 }
 
+/// Choices a layout leaves to the reader.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ReadOptions {
+    /// Which rectification of Middlebury 2014's scenes is read.
+    pub middlebury_variant: middlebury::MiddleburyVariant,
+}
+
 /// Opens the dataset at `root`: with `format` given, as that layout; otherwise the layout is
-/// recognised from the folder (see [`detect_format`]).
+/// recognised from the folder (see [`detect_format`]). Layout choices take their defaults.
 pub fn open_dataset(root: &Path, format: Option<DatasetFormat>) -> Result<Box<dyn StereoDataset>> {
+    open_dataset_with(root, format, &ReadOptions::default())
+}
+
+/// [`open_dataset`] with the layout choices of `opts`.
+pub fn open_dataset_with(root: &Path, format: Option<DatasetFormat>, opts: &ReadOptions) -> Result<Box<dyn StereoDataset>> {
     if !root.is_dir() {
         return Err(Error::format(root, "is not a directory"));
     }
@@ -324,7 +337,7 @@ pub fn open_dataset(root: &Path, format: Option<DatasetFormat>) -> Result<Box<dy
         Some(f) => f,
         None => detect_format(root)?,
     };
-    let samples = scan::scan(format, root)?;
+    let samples = scan::scan(format, root, opts)?;
     if samples.is_empty() {
         return Err(Error::format(root, format!("no {format} samples found")));
     }
