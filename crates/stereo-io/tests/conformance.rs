@@ -165,7 +165,8 @@ fn every_export_target_reads_back_through_opencv_and_pillow() {
     }
     for calib in facts["middlebury_calib"].as_array().unwrap() {
         assert_eq!((calib["f"].as_f64(), calib["baseline_mm"].as_f64()), (Some(480.0), Some(120.0)));
-        assert_eq!((calib["cx"].as_f64(), calib["cy"].as_f64()), (Some((W as f64 - 1.0) / 2.0), Some((H as f64 - 1.0) / 2.0)));
+        // Middlebury's corner origin (cvkit): the centred principal point is W/2, H/2.
+        assert_eq!((calib["cx"].as_f64(), calib["cy"].as_f64()), (Some(W as f64 / 2.0), Some(H as f64 / 2.0)));
         assert_eq!((calib["width"].as_u64(), calib["height"].as_u64()), (Some(W as u64), Some(H as u64)));
     }
 

@@ -70,7 +70,8 @@ fn middlebury_2014_layout_inf_is_invalid_and_calib_is_parsed() {
     let s = ds.sample(0).unwrap();
     assert_eq!((s.left.clone(), s.right.clone()), (rgb(5), rgb(6)));
     assert_disp_eq(&s.disp_left, &want);
-    assert_eq!((s.meta.f_px, s.meta.ndisp, s.meta.cx), (Some(3997.684), Some(280), Some(1176.728)));
+    // calib.txt's corner-origin cx, as a 0-based pixel centre.
+    assert_eq!((s.meta.f_px, s.meta.ndisp, s.meta.cx, s.meta.cy), (Some(3997.684), Some(280), Some(1176.228), Some(1011.228)));
     assert!((s.meta.baseline_m.unwrap() - 0.193001).abs() < 1e-12);
     assert_eq!(s.meta.extra.get("doffs").map(String::as_str), Some("131.111"));
     assert!(s.valid_left.is_none());

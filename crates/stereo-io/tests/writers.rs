@@ -78,6 +78,26 @@ fn each_writer_round_trips_through_its_reader() {
 }
 
 #[test]
+fn kitti_writes_disp_noc_where_the_source_has_a_stricter_mask() {
+    let t = tempfile::tempdir().unwrap();
+    let mut s = sample(2, false);
+    let mut keep = s.disp_left.valid.clone();
+    keep[0] = false;
+    s.valid_left = Some(keep.clone());
+    for (format, noc) in [(WritableFormat::Kitti2012, "disp_noc"), (WritableFormat::Kitti2015, "disp_noc_0")] {
+        let root = t.path().join(format.to_string());
+        write_all(format, &root, &[("x", s.clone()), ("y", sample(3, false))]);
+        assert!(root.join("training").join(noc).join("000000_10.png").is_file(), "{format}");
+        assert!(!root.join("training").join(noc).join("000001_10.png").exists(), "{format}: no mask, no {noc}");
+        let ds = open_dataset(&root, None).unwrap();
+        let got = ds.sample(0).unwrap();
+        assert_disp_eq(&got.disp_left, &s.disp_left);
+        assert_eq!(got.valid_left.as_ref(), Some(&keep), "{format}");
+        assert!(ds.sample(1).unwrap().valid_left.is_none());
+    }
+}
+
+#[test]
 fn sixteen_bit_layouts_drop_what_they_cannot_hold_and_count_it() {
     for (format, max) in [(WritableFormat::Kitti2015, 256.0), (WritableFormat::Crestereo, 2048.0)] {
         let t = tempfile::tempdir().unwrap();
@@ -108,7 +128,8 @@ fn middlebury_calib_needs_the_camera_and_states_doffs() {
     s.meta.extra.insert("doffs".into(), "131.5".into());
     w.write(1, "b", &s).unwrap();
     let calib = std::fs::read_to_string(t.path().join("Middlebury2014/train/b-perfect/calib.txt")).unwrap();
-    assert!(calib.contains("cam0=[64 0 1.5; 0 64 1; 0 0 1]\ncam1=[64 0 133; 0 64 1; 0 0 1]\ndoffs=131.5\nbaseline=100\n"), "{calib}");
+    // cx = 1.5 and cy = 1 (pixel centres) are 2 and 1.5 in calib.txt's corner-origin convention.
+    assert!(calib.contains("cam0=[64 0 2; 0 64 1.5; 0 0 1]\ncam1=[64 0 133.5; 0 64 1.5; 0 0 1]\ndoffs=131.5\nbaseline=100\n"), "{calib}");
 }
 
 #[test]
@@ -178,7 +199,7 @@ fn sceneflow_and_middlebury_export_to_crestereo_and_read_back() {
 }
 
 #[test]
-fn our_principal_point_is_written_to_calib_txt_in_pixel_centres() {
+fn our_principal_point_is_written_to_calib_txt_in_middleburys_corner_origin_convention() {
     let t = tempfile::tempdir().unwrap();
     let root = t.path().join("ours");
     let layout = DatasetLayout::new(&root);
@@ -199,9 +220,10 @@ fn our_principal_point_is_written_to_calib_txt_in_pixel_centres() {
     let out = t.path().join("mb");
     let s = export_dataset(&root, &out, &ExportOptions { from: None, to: WritableFormat::Middlebury, images: ImageEncoding::Lossless, read: ReadOptions::default() }).unwrap();
     assert_eq!((s.samples, s.linked), (1, 2));
-    // Continuous cx = W/2 = 2 is pixel centre (W - 1)/2 = 1.5 (and cy = 1.5 is 1).
+    // Our continuous cx = W/2 = 2 is Middlebury's (cvkit's corner origin) cx = 2 too; read back,
+    // it is the pixel centre (W - 1)/2 = 1.5 (and cy = 1.5 is 1).
     let calib = std::fs::read_to_string(out.join("Middlebury2014/train/tree_0000000-perfect/calib.txt")).unwrap();
-    assert!(calib.starts_with("cam0=[64 0 1.5; 0 64 1; 0 0 1]\ncam1=[64 0 1.5; 0 64 1; 0 0 1]\ndoffs=0\n"), "{calib}");
+    assert!(calib.starts_with("cam0=[64 0 2; 0 64 1.5; 0 0 1]\ncam1=[64 0 2; 0 64 1.5; 0 0 1]\ndoffs=0\n"), "{calib}");
     let back = open_dataset(&out, None).unwrap().sample(0).unwrap();
     let ours = open_dataset(&root, None).unwrap().sample(0).unwrap();
     assert_eq!((back.meta.cx, back.meta.cy), (ours.meta.cx, ours.meta.cy));

@@ -26,8 +26,6 @@ use crate::png_disp::KITTI_SCALE;
 pub const TRAINING_DIR: &str = "training";
 /// The frame of a pair that has ground truth.
 pub const REFERENCE_FRAME_SUFFIX: &str = "_10.png";
-/// KITTI 2015's scene-flow disparity of the second frame (not a right-view disparity).
-pub const KITTI_2015_SECOND_FRAME_DISPARITY: &str = "disp_occ_1";
 
 /// The folders of one KITTI release.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -16,9 +16,12 @@
 //! `calib.txt` (vision.middlebury.edu/stereo/data/scenes2014): `cam0`/`cam1` = `[f 0 cx; 0 f cy;
 //! 0 0 1]` of the rectified views, `doffs = cx1 − cx0`, `baseline` in mm, `width`, `height`,
 //! `ndisp` (a bound: disparities lie in `0 .. ndisp−1`), `isint`, `vmin`/`vmax` (a tight range).
-//! The page does not say where pixel centres lie; its matrices are OpenCV-style `K` matrices and
-//! are used as such (0-based pixel centres), which is the convention of
-//! [`SampleMeta`](super::SampleMeta) too: `cx`, `cy` pass through unchanged both ways.
+//! The page does not say where pixel centres lie. Middlebury's own tool, cvkit (by an author of
+//! the 2014 datasets), loads `calib.txt` with its default corner origin: pixel `i` covers
+//! `[i, i + 1)`, its centre at `i + 0.5`. ETH3D's `calib.txt` comes from COLMAP, whose image
+//! coordinates have the same origin. So `cx`, `cy` in `calib.txt` are read as corner-origin and
+//! converted to [`SampleMeta`](super::SampleMeta)'s 0-based pixel centres (`− 0.5`), and written
+//! back the other way: an exactly centred principal point is `width/2` in the file.
 
 use std::path::{Path, PathBuf};
 
@@ -26,6 +29,7 @@ use super::scan::{file_name, rel_id, require, walk};
 use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under, write_right_disparity};
 use super::{DatasetFormat, DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
 use crate::error::{Error, Result};
+use crate::pixel_coords::{continuous_to_pixel_centres, pixel_centres_to_continuous};
 
 pub const LEFT_IMAGE: &str = "im0.png";
 pub const RIGHT_IMAGE: &str = "im1.png";
@@ -120,8 +124,8 @@ pub(crate) fn parse_calib(path: &Path, meta: &mut SampleMeta) -> Result<()> {
                     return Err(Error::format(path, format!("cam0 has {} numbers, expected a 3x3 matrix", nums.len())));
                 }
                 meta.f_px = Some(nums[0]);
-                meta.cx = Some(nums[2]);
-                meta.cy = Some(nums[5]);
+                meta.cx = Some(continuous_to_pixel_centres(nums[2]));
+                meta.cy = Some(continuous_to_pixel_centres(nums[5]));
             }
             "baseline" => meta.baseline_m = Some(num(v)? / 1000.0),
             "ndisp" => meta.ndisp = Some(num(v)? as u32),
@@ -133,7 +137,8 @@ pub(crate) fn parse_calib(path: &Path, meta: &mut SampleMeta) -> Result<()> {
     Ok(())
 }
 
-/// What a written `calib.txt` holds. Principal point in 0-based pixel centres.
+/// What a written `calib.txt` holds. Principal point in 0-based pixel centres (written in the
+/// file's corner-origin convention, see the module).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Calibration {
     pub f_px: f64,
@@ -167,7 +172,7 @@ impl Calibration {
     }
 
     pub fn to_text(&self) -> String {
-        let cam = |cx: f64| format!("[{} 0 {cx}; 0 {} {}; 0 0 1]", self.f_px, self.f_px, self.cy);
+        let cam = |cx: f64| format!("[{} 0 {}; 0 {} {}; 0 0 1]", self.f_px, pixel_centres_to_continuous(cx), self.f_px, pixel_centres_to_continuous(self.cy));
         format!(
             "cam0={}\ncam1={}\ndoffs={}\nbaseline={}\nwidth={}\nheight={}\nndisp={}\nisint=0\nvmin={}\nvmax={}\n",
             cam(self.cx),
@@ -244,8 +249,8 @@ pub(crate) fn scan(root: &Path, format: DatasetFormat, variant: MiddleburyVarian
 /// (the layout the popular loaders look for; "perfect": a synthetic rig is exactly rectified):
 /// `im0.png`, `im1.png`, `disp0.pfm`, `disp1.pfm` (where the sample has a right-view disparity)
 /// and `calib.txt` (which needs the sample's focal length, baseline and principal point: an
-/// error without). `calib.txt`'s principal point is in 0-based pixel centres, as
-/// [`SampleMeta`]'s, the convention of Middlebury's OpenCV-style `K` matrices.
+/// error without). `calib.txt`'s principal point is in Middlebury's corner-origin convention
+/// (see the module).
 pub struct MiddleburyWriter {
     root: PathBuf,
     summary: WriteSummary,

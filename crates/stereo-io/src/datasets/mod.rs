@@ -108,8 +108,8 @@ impl FromStr for DatasetFormat {
 /// What is known about a sample besides its pixels.
 ///
 /// `cx`, `cy` use **0-based pixel centres** (pixel `i`'s centre is at `x = i`; the convention of
-/// OpenCV `K` matrices and Middlebury/ETH3D `calib.txt`, see [`crate::pixel_coords`]): our
-/// manifest's continuous `cx = W/2` reads as `(W − 1)/2`. Falling Things' values are passed on
+/// OpenCV `K` matrices, see [`crate::pixel_coords`]): our manifest's continuous `cx = W/2` reads
+/// as `(W − 1)/2`, and so does a Middlebury/ETH3D `calib.txt`'s corner-origin `cx = W/2`. Falling Things' values are passed on
 /// as its `_camera_settings.json` gives them.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SampleMeta {
