@@ -30,12 +30,15 @@ fn assert_close(got: &DisparityMap, want: &DisparityMap, tol: f32, what: &str) {
     assert!(worst <= tol, "{what}: max error {worst} > {tol}");
 }
 
-/// `path` is a real JPEG whose pixels `got` are close to `want` (quality 95, full chroma).
+/// `path` is a real JPEG: exactly libjpeg-turbo's encoding of `want` at quality 95, 4:4:4 (the
+/// export's default), and `got` (its decode) is that encoding's pixels.
 fn assert_jpeg_of(path: &Path, got: &stereo_io::RgbImage, want: &stereo_io::RgbImage) {
-    assert_eq!(&std::fs::read(path).unwrap()[..3], &[0xFF, 0xD8, 0xFF], "{} is a real JPEG", path.display());
-    assert_eq!((got.width, got.height), (want.width, want.height));
-    let mean = got.data.iter().zip(&want.data).map(|(a, b)| f64::from(a.abs_diff(*b))).sum::<f64>() / got.data.len() as f64;
-    assert!(mean < 2.0, "{}: mean difference {mean} to the source pixels", path.display());
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..3], &[0xFF, 0xD8, 0xFF], "{} is a real JPEG", path.display());
+    let expected = stereo_io::encode_jpeg_rgb(want, stereo_io::JpegOptions::default()).unwrap();
+    assert!(bytes == expected, "{}: not the quality-95 4:4:4 JPEG of the source pixels", path.display());
+    let decoded = stereo_io::decode_jpeg(&expected, path).unwrap();
+    assert_eq!(decoded.samples, stereo_io::Samples::U8(got.data.clone()), "{}", path.display());
 }
 
 fn same_inode(a: &Path, b: &Path) -> bool {
