@@ -154,6 +154,35 @@ fn middlebury_2014_perfect_and_imperfect_are_one_scene_read_once() {
 }
 
 #[test]
+fn instereo2k_layout_is_sixteen_bit_times_100() {
+    let t = tempfile::tempdir().unwrap();
+    // As the archive extracts: train/partN/<pair>/.
+    let pair = mkdir(&t.path().join("train/part1/000000"));
+    write_png_rgb(&pair.join("left.png"), &rgb(1)).unwrap();
+    write_png_rgb(&pair.join("right.png"), &rgb(2)).unwrap();
+    // Values that are multiples of 1/100 but not of 1/256: a wrong scale cannot pass.
+    let mut want = disp(1.0);
+    for (d, _) in want.data.iter_mut().zip(&want.valid).filter(|(_, v)| **v) {
+        *d += 0.37;
+    }
+    write_disparity_png16(&pair.join("left_disp.png"), &want, 100.0).unwrap();
+    write_disparity_png16(&pair.join("right_disp.png"), &disp(2.0), 100.0).unwrap();
+    let ds = open(t.path(), DatasetFormat::InStereo2k);
+    assert_eq!(ds.id(0), Some("train/part1/000000"));
+    let s = ds.sample(0).unwrap();
+    assert_eq!((&s.left, &s.right), (&rgb(1), &rgb(2)));
+    for (g, w) in s.disp_left.data.iter().zip(&want.data) {
+        assert!((g - w).abs() < 1e-4, "{g} vs {w}");
+    }
+    assert_eq!(s.disp_left.valid, want.valid, "0 = invalid");
+    assert!(s.disp_right.is_some());
+    // An 8-bit disparity PNG is refused, naming the depth expected.
+    grey8(&pair.join("left_disp.png"), |i| i as u8);
+    let e = ds.sample(0).unwrap_err().to_string();
+    assert!(e.contains("left_disp.png") && e.contains("16-bit"), "{e}");
+}
+
+#[test]
 fn kitti_2015_and_2012_layouts() {
     for (l, r, occ, occ1, noc, fmt) in [
         ("image_2", "image_3", "disp_occ_0", Some("disp_occ_1"), "disp_noc_0", DatasetFormat::Kitti2015),

@@ -164,7 +164,7 @@ pub enum Command {
         #[arg(long, value_name = "LAYOUT")]
         format: stereo_io::WritableFormat,
         /// The layout of DATASET (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012,
-        /// kitti2015, sintel, fallingthings) [default: recognised from its files].
+        /// kitti2015, sintel, fallingthings, instereo2k) [default: recognised from its files].
         #[arg(long, value_name = "LAYOUT")]
         from_format: Option<stereo_io::DatasetFormat>,
         /// Output directory (created if missing).

@@ -10,6 +10,7 @@ pub mod crestereo;
 mod detect;
 pub mod export;
 pub mod falling_things;
+pub mod instereo2k;
 pub mod kitti;
 pub mod middlebury;
 mod scan;
@@ -51,10 +52,12 @@ pub enum DatasetFormat {
     Sintel,
     /// NVIDIA Falling Things: `*.left.jpg`, `*.left.depth.png` (1e-4 m) + `_camera_settings.json`.
     FallingThings,
+    /// InStereo2K: `<pair>/left.png, right.png, left_disp.png, right_disp.png` (÷100).
+    InStereo2k,
 }
 
 impl DatasetFormat {
-    pub const ALL: [DatasetFormat; 9] = [
+    pub const ALL: [DatasetFormat; 10] = [
         Self::Stereogen,
         Self::Crestereo,
         Self::SceneFlow,
@@ -64,6 +67,7 @@ impl DatasetFormat {
         Self::Kitti2015,
         Self::Sintel,
         Self::FallingThings,
+        Self::InStereo2k,
     ];
 
     pub fn name(self) -> &'static str {
@@ -77,6 +81,7 @@ impl DatasetFormat {
             Self::Kitti2015 => "kitti2015",
             Self::Sintel => "sintel",
             Self::FallingThings => "fallingthings",
+            Self::InStereo2k => "instereo2k",
         }
     }
 }

@@ -18,6 +18,7 @@ pub(crate) fn scan(format: DatasetFormat, root: &Path, opts: &ReadOptions) -> Re
         DatasetFormat::Kitti2015 => super::kitti::scan(root, &super::kitti::KITTI_2015)?,
         DatasetFormat::Sintel => super::sintel::scan(root)?,
         DatasetFormat::FallingThings => super::falling_things::scan(root)?,
+        DatasetFormat::InStereo2k => super::instereo2k::scan(root)?,
     };
     // Ours keep manifest order; the others are sorted so indices are stable.
     if format != DatasetFormat::Stereogen {
