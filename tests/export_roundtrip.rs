@@ -122,6 +122,24 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
         assert_close(&got.disp_left, &want.disp_left, 0.5 / 32.0, &format!("{name} left"));
         assert_close(got.disp_right.as_ref().unwrap(), want.disp_right.as_ref().unwrap(), 0.5 / 32.0, &format!("{name} right"));
     }
+    // Middlebury -> KITTI 2012, the variant named explicitly (our export is "-perfect" only).
+    let out = dir.path().join("middlebury_to_kitti2012");
+    let o2 = export(&dir.path().join("middlebury"), "kitti2012", &out, &["--from-format", "middlebury", "--middlebury-variant", "perfect"]);
+    assert!(o2.status.success(), "{}", String::from_utf8_lossy(&o2.stderr));
+    let kitti = open_dataset(&out, None).unwrap();
+    assert_eq!((kitti.format(), kitti.len()), (DatasetFormat::Kitti2012, ours.len()));
+    let index = std::fs::read_to_string(out.join("stereogen_samples.tsv")).unwrap();
+    for (n, line) in index.lines().enumerate() {
+        let source = line.rsplit('\t').next().unwrap();
+        let want = ours.iter().find(|w| source == format!("Middlebury2014/train/{}_{}-perfect", w.meta.extra["category"], w.meta.id)).unwrap_or_else(|| panic!("{line}"));
+        let got = kitti.sample(n).unwrap();
+        assert_eq!((&got.left, &got.right), (&want.left, &want.right), "{line}: PNG images pass through");
+        assert_close(&got.disp_left, &want.disp_left, 0.5 / 256.0, line);
+    }
+    let bad = export(&dir.path().join("middlebury"), "kitti2012", &dir.path().join("x"), &["--middlebury-variant", "exact"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("perfect, imperfect or both"), "{err}");
+
     let o = String::from_utf8_lossy(&o.stderr);
     assert!(o.contains("have no CREStereo category") && o.contains("tree/, shapenet/, reflective/ and hole/"), "the export says which loaders miss uncategorised samples: {o}");
 }
