@@ -96,7 +96,7 @@ fn every_reader_leaves_an_unfinished_last_line_out_and_only_the_appender_cuts_it
     assert_eq!(stereogen::validate::contact_sheet::write_contact_sheet(&root, 10, 2, &sheet).unwrap() as u64, FINISHED, "sheet");
 
     let out = tmp.path().join("cre");
-    let opts = ExportOptions { dataset: root.clone(), from: None, format: "crestereo".parse().unwrap(), out: out.clone(), jpeg_quality: None };
+    let opts = ExportOptions { dataset: root.clone(), from: None, format: "crestereo".parse().unwrap(), out: out.clone(), jpeg_quality: None, jpeg_chroma: Default::default(), middlebury_variant: Default::default() };
     assert_eq!(export(&opts).unwrap().samples as u64, FINISHED, "export");
     assert_eq!(stereo_io::open_dataset(&out, None).unwrap().len() as u64, FINISHED);
 

@@ -1,5 +1,6 @@
-//! Images through the `image` crate: 8- and 16-bit, grey and colour, PNG and JPEG (the format is
-//! recognised from the file's bytes, not its name).
+//! Images: 8- and 16-bit, grey and colour, PNG and JPEG (the format is recognised from the file's
+//! bytes, not its name). PNG goes through the `image` crate, JPEG through libjpeg-turbo's decoder
+//! ([`crate::jpeg`]).
 
 use std::io::Cursor;
 use std::path::Path;
@@ -43,6 +44,9 @@ pub(crate) fn decode(path: &Path) -> Result<DynamicImage> {
 }
 
 pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<DynamicImage> {
+    if crate::jpeg::is_jpeg(bytes) {
+        return jpeg_to_dynamic(crate::jpeg::decode_jpeg(bytes, path)?, path);
+    }
     let reader = ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| image_err(path, e))?;
     if reader.format().is_none() {
         return Err(image_err(path, "unknown image format (not PNG or JPEG)"));
@@ -50,7 +54,19 @@ pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<DynamicImage> {
     reader.decode().map_err(|e| image_err(path, e))
 }
 
-/// Reads any format `image` decodes (PNG, JPEG) and converts it to RGB8.
+/// A decoded JPEG (8-bit grey or RGB) as the `image` crate's type.
+fn jpeg_to_dynamic(img: Image, path: &Path) -> Result<DynamicImage> {
+    let (w, h) = (img.width as u32, img.height as u32);
+    let Samples::U8(data) = img.samples else { return Err(image_err(path, "JPEG decoded to 16-bit samples")) };
+    let built = match img.channels {
+        1 => image::GrayImage::from_raw(w, h, data).map(DynamicImage::ImageLuma8),
+        _ => image::RgbImage::from_raw(w, h, data).map(DynamicImage::ImageRgb8),
+    };
+    built.ok_or_else(|| image_err(path, "JPEG decoder returned a buffer of the wrong size"))
+}
+
+/// Reads PNG or JPEG (JPEG through libjpeg-turbo's decoder, see [`crate::jpeg`]) and converts it
+/// to RGB8.
 pub fn read_rgb(path: &Path) -> Result<RgbImage> {
     Ok(to_rgb(decode(path)?))
 }

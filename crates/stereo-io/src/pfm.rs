@@ -134,13 +134,13 @@ pub(crate) fn floats_to_disparity(path: &Path, width: usize, height: usize, data
     Ok(DisparityMap { width, height, data, valid })
 }
 
-/// Reads a 1-channel disparity PFM. `inf` marks pixels without ground truth (Middlebury, ETH3D).
+/// Reads a disparity PFM. `inf` marks pixels without ground truth (Middlebury, ETH3D). A
+/// 3-channel `PF` file (some datasets and tools write disparity so) is read from its first
+/// channel.
 pub fn read_disparity_pfm(path: &Path) -> Result<DisparityMap> {
     let img = read_pfm(path)?;
-    if img.channels != 1 {
-        return Err(Error::format(path, format!("a disparity PFM must have 1 channel (Pf), this one has {} (PF)", img.channels)));
-    }
-    floats_to_disparity(path, img.width, img.height, img.data)
+    let data = if img.channels == 1 { img.data } else { img.data.iter().step_by(img.channels).copied().collect() };
+    floats_to_disparity(path, img.width, img.height, data)
 }
 
 /// Writes a little-endian 1-channel disparity PFM with `inf` where the map is invalid

@@ -1,10 +1,11 @@
 //! Image coordinates of a principal point: the two conventions in use, and the one conversion.
 //!
-//! - **Continuous** (ours: the manifest's `cx`/`cy`, the SceneSpec, Blender): x runs from 0 at
+//! - **Continuous** (ours: the manifest's `cx`/`cy`, the SceneSpec, Blender; Middlebury/ETH3D
+//!   `calib.txt` as cvkit and COLMAP read it): x runs from 0 at
 //!   the left edge of the image to W at its right edge; pixel `i` covers `[i, i + 1)` and its
 //!   centre is at `i + 0.5`. A centred principal point is `cx = W/2`.
-//! - **Pixel centres** (OpenCV `K` matrices, Middlebury/ETH3D `calib.txt`, KITTI `P` matrices,
-//!   and [`SampleMeta`](crate::SampleMeta)): pixel `i`'s centre is at `x = i`. A centred principal
+//! - **Pixel centres** (OpenCV `K` matrices, KITTI `P` matrices, and
+//!   [`SampleMeta`](crate::SampleMeta)): pixel `i`'s centre is at `x = i`. A centred principal
 //!   point is `cx = (W − 1)/2`.
 //!
 //! Disparities are differences of coordinates and are the same in both.

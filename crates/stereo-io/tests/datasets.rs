@@ -70,7 +70,8 @@ fn middlebury_2014_layout_inf_is_invalid_and_calib_is_parsed() {
     let s = ds.sample(0).unwrap();
     assert_eq!((s.left.clone(), s.right.clone()), (rgb(5), rgb(6)));
     assert_disp_eq(&s.disp_left, &want);
-    assert_eq!((s.meta.f_px, s.meta.ndisp, s.meta.cx), (Some(3997.684), Some(280), Some(1176.728)));
+    // calib.txt's corner-origin cx, as a 0-based pixel centre.
+    assert_eq!((s.meta.f_px, s.meta.ndisp, s.meta.cx, s.meta.cy), (Some(3997.684), Some(280), Some(1176.228), Some(1011.228)));
     assert!((s.meta.baseline_m.unwrap() - 0.193001).abs() < 1e-12);
     assert_eq!(s.meta.extra.get("doffs").map(String::as_str), Some("131.111"));
     assert!(s.valid_left.is_none());
@@ -98,6 +99,90 @@ fn eth3d_two_view_layout_applies_the_nocc_mask() {
 }
 
 #[test]
+fn eth3d_official_archives_keep_ground_truth_in_a_separate_tree() {
+    // two_view_training.7z and two_view_training_gt.7z extracted side by side.
+    let t = tempfile::tempdir().unwrap();
+    for scene in ["delivery_area_1l", "electro_1l"] {
+        let images = mkdir(&t.path().join("two_view_training").join(scene));
+        write_png_rgb(&images.join("im0.png"), &rgb(8)).unwrap();
+        write_png_rgb(&images.join("im1.png"), &rgb(9)).unwrap();
+        fs::write(images.join("calib.txt"), "cam0=[541.764 0 553.869; 0 541.764 232.396; 0 0 1]\ncam1=[541.764 0 553.869; 0 541.764 232.396; 0 0 1]\ndoffs=0\nbaseline=59.9584\nwidth=4\nheight=3\nndisp=64\n").unwrap();
+        let gt = mkdir(&t.path().join("two_view_training_gt").join(scene));
+        write_disparity_pfm(&gt.join("disp0GT.pfm"), &disp(0.5)).unwrap();
+        grey8(&gt.join("mask0nocc.png"), |i| [255, 128, 0][i % 3]);
+    }
+    // The test images have no ground truth and are not samples.
+    let test = mkdir(&t.path().join("two_view_test/lakeside_1l"));
+    write_png_rgb(&test.join("im0.png"), &rgb(1)).unwrap();
+    write_png_rgb(&test.join("im1.png"), &rgb(1)).unwrap();
+    let ds = open(t.path(), DatasetFormat::Eth3d);
+    assert_eq!(ds.len(), 2);
+    assert_eq!(ds.id(0), Some("two_view_training/delivery_area_1l"));
+    let s = ds.sample(0).unwrap();
+    assert_eq!((&s.left, &s.right), (&rgb(8), &rgb(9)));
+    assert_disp_eq(&s.disp_left, &disp(0.5));
+    assert_eq!(s.meta.f_px, Some(541.764));
+    // ETH3D's evaluator counts a pixel where the mask is 255.
+    let want: Vec<bool> = (0..W * H).map(|i| i % 3 == 0 && i != 5).collect();
+    assert_eq!(s.valid_mask(), &want[..]);
+    // A GT folder whose images are missing is an error naming the missing file.
+    fs::remove_file(t.path().join("two_view_training/electro_1l/im1.png")).unwrap();
+    let e = open_dataset(t.path(), None).err().unwrap().to_string();
+    assert!(e.contains("two_view_training/electro_1l/im1.png") && e.contains("missing"), "{e}");
+}
+
+#[test]
+fn middlebury_2014_perfect_and_imperfect_are_one_scene_read_once() {
+    let t = tempfile::tempdir().unwrap();
+    let train = t.path().join("Middlebury2014/train");
+    middlebury_scene(&train.join("Adirondack-perfect"));
+    middlebury_scene(&train.join("Adirondack-imperfect"));
+    fs::write(train.join("Adirondack-imperfect/calib.txt"), "cam0=[4161.221 0 1445.577; 0 4161.221 984.686; 0 0 1]\ncam1=[4161.221 0 1654.636; 0 4161.221 984.686; 0 0 1]\ndoffs=209.059\nbaseline=176.252\nwidth=4\nheight=3\nndisp=280\n").unwrap();
+    middlebury_scene(&train.join("Jadeplant-perfect"));
+    let ids = |variant| {
+        let ds = open_dataset_with(t.path(), None, &ReadOptions { middlebury_variant: variant }).unwrap();
+        (0..ds.len()).map(|i| ds.id(i).unwrap().to_string()).collect::<Vec<_>>()
+    };
+    // The default is MiddEval3's: the imperfect rectification, where a scene has it.
+    assert_eq!(ids(MiddleburyVariant::default()), ["Middlebury2014/train/Adirondack-imperfect", "Middlebury2014/train/Jadeplant-perfect"]);
+    assert_eq!(ids(MiddleburyVariant::Perfect), ["Middlebury2014/train/Adirondack-perfect", "Middlebury2014/train/Jadeplant-perfect"]);
+    assert_eq!(ids(MiddleburyVariant::Both).len(), 3);
+    let s = open_dataset(t.path(), None).unwrap().sample(0).unwrap();
+    assert_eq!(s.meta.extra.get("doffs").map(String::as_str), Some("209.059"));
+    assert_eq!("Both".parse::<MiddleburyVariant>(), Ok(MiddleburyVariant::Both));
+    assert!("exact".parse::<MiddleburyVariant>().unwrap_err().contains("perfect, imperfect or both"));
+}
+
+#[test]
+fn instereo2k_layout_is_sixteen_bit_times_100() {
+    let t = tempfile::tempdir().unwrap();
+    // As the archive extracts: train/partN/<pair>/.
+    let pair = mkdir(&t.path().join("train/part1/000000"));
+    write_png_rgb(&pair.join("left.png"), &rgb(1)).unwrap();
+    write_png_rgb(&pair.join("right.png"), &rgb(2)).unwrap();
+    // Values that are multiples of 1/100 but not of 1/256: a wrong scale cannot pass.
+    let mut want = disp(1.0);
+    for (d, _) in want.data.iter_mut().zip(&want.valid).filter(|(_, v)| **v) {
+        *d += 0.37;
+    }
+    write_disparity_png16(&pair.join("left_disp.png"), &want, 100.0).unwrap();
+    write_disparity_png16(&pair.join("right_disp.png"), &disp(2.0), 100.0).unwrap();
+    let ds = open(t.path(), DatasetFormat::InStereo2k);
+    assert_eq!(ds.id(0), Some("train/part1/000000"));
+    let s = ds.sample(0).unwrap();
+    assert_eq!((&s.left, &s.right), (&rgb(1), &rgb(2)));
+    for (g, w) in s.disp_left.data.iter().zip(&want.data) {
+        assert!((g - w).abs() < 1e-4, "{g} vs {w}");
+    }
+    assert_eq!(s.disp_left.valid, want.valid, "0 = invalid");
+    assert!(s.disp_right.is_some());
+    // An 8-bit disparity PNG is refused, naming the depth expected.
+    grey8(&pair.join("left_disp.png"), |i| i as u8);
+    let e = ds.sample(0).unwrap_err().to_string();
+    assert!(e.contains("left_disp.png") && e.contains("16-bit"), "{e}");
+}
+
+#[test]
 fn kitti_2015_and_2012_layouts() {
     for (l, r, occ, occ1, noc, fmt) in [
         ("image_2", "image_3", "disp_occ_0", Some("disp_occ_1"), "disp_noc_0", DatasetFormat::Kitti2015),
@@ -122,7 +207,8 @@ fn kitti_2015_and_2012_layouts() {
         assert_eq!(ds.len(), 2, "only the _10 frames have ground truth");
         let s1 = ds.sample(1).unwrap();
         assert_disp_eq(&s1.disp_left, &disp(9.0));
-        assert_eq!(s1.disp_right.is_some(), occ1.is_some());
+        // KITTI 2015's disp_occ_1 is the second frame's disparity, not the right view's.
+        assert!(s1.disp_right.is_none(), "{fmt}: KITTI has no right-view disparity (disp_occ_1 is frame t+1)");
         let mut want = s1.disp_left.valid.clone();
         want[0] = false;
         assert_eq!(s1.valid_left, Some(want));

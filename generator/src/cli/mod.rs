@@ -177,26 +177,36 @@ pub enum Command {
         #[command(flatten)]
         runtime: RuntimeArgs,
     },
-    /// Write DATASET in another layout: crestereo (the official trainer's `*_left.jpg` +
-    /// `*.disp.png` x32), kitti (KITTI 2015: `training/image_2`, `disp_occ_0` x256) or middlebury
-    /// (`im0.png`, `disp0.pfm`, `calib.txt`). DATASET is ours or any layout the readers know.
-    /// Images are hard links where the source file is what the layout stores.
+    /// Write DATASET in another layout: crestereo (the official trainer's `<category>/*_left.jpg`,
+    /// real JPEG, + `*.disp.png` x32), kitti2012 (`training/colored_0`, `disp_occ` x256), kitti
+    /// or kitti2015 (`training/image_2`, `disp_occ_0` x256) or middlebury
+    /// (`Middlebury2014/train/<scene>-perfect/im0.png`, `disp0.pfm`, `calib.txt`). DATASET is
+    /// ours or any layout the readers know. Images are hard links where the source file is what
+    /// the layout stores.
     Export {
         /// The dataset directory (ours holds manifest.jsonl).
         dataset: PathBuf,
-        /// The layout to write: crestereo, kitti or middlebury.
+        /// The layout to write: crestereo, kitti2012, kitti2015 (or kitti) or middlebury.
         #[arg(long, value_name = "LAYOUT")]
         format: stereo_io::WritableFormat,
         /// The layout of DATASET (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012,
-        /// kitti2015, sintel, fallingthings) [default: recognised from its files].
+        /// kitti2015, sintel, fallingthings, instereo2k) [default: recognised from its files].
         #[arg(long, value_name = "LAYOUT")]
         from_format: Option<stereo_io::DatasetFormat>,
         /// Output directory (created if missing).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// crestereo only: write real JPEGs of this quality (1-100) instead of linking the source images.
+        /// crestereo only: re-encode every image as a JPEG of this quality (1-100) [default:
+        /// source JPEGs linked, other images encoded at 95].
         #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
         jpeg_quality: Option<u8>,
+        /// crestereo only: chroma sampling of the JPEGs written, 444 (full colour) or 420.
+        #[arg(long, value_name = "SAMPLING", default_value_t = stereo_io::ChromaSampling::Full)]
+        jpeg_chroma: stereo_io::ChromaSampling,
+        /// Which rectification of a Middlebury 2014 source to read: perfect, imperfect (what
+        /// MiddEval3 uses; a scene with only the other is read in that one) or both.
+        #[arg(long, value_name = "VARIANT", default_value_t = stereo_io::MiddleburyVariant::Imperfect)]
+        middlebury_variant: stereo_io::MiddleburyVariant,
     },
     /// Disparity statistics of a dataset: pixel-level histograms of both views, the object-level
     /// target disparities, percentiles, invalid pixels, KS distance to the recipe's law, per
@@ -291,9 +301,16 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
         Command::Render { spec, out, runtime } => render::run(&spec, &out, &runtime.worker_options())?,
-        Command::Export { dataset, format, from_format, out, jpeg_quality } => {
-            let opts = stereogen::dataset::export::ExportOptions { dataset, from: from_format, format, out: out.clone(), jpeg_quality };
+        Command::Export { dataset, format, from_format, out, jpeg_quality, jpeg_chroma, middlebury_variant } => {
+            let opts = stereogen::dataset::export::ExportOptions { dataset, from: from_format, format, out: out.clone(), jpeg_quality, jpeg_chroma, middlebury_variant };
             let s = stereogen::dataset::export::export(&opts)?;
+            if format == stereo_io::WritableFormat::Crestereo && s.outside_categories > 0 {
+                eprintln!(
+                    "stereogen: note: {} sample(s) have no CREStereo category and sit at the top of {}: the release's loader (a recursive glob) reads them, loaders that list tree/, shapenet/, reflective/ and hole/ do not",
+                    s.outside_categories,
+                    out.display()
+                );
+            }
             eprintln!(
                 "stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid, {} without a right-view disparity) -> {}",
                 s.samples,

@@ -1,11 +1,14 @@
 //! CREStereo's release layout: `<prefix>_left.jpg`, `<prefix>_right.jpg`,
 //! `<prefix>_left.disp.png`, `<prefix>_right.disp.png` (16-bit, d·32, 0 = invalid), anywhere
-//! below the root. The official loader globs `**/*_left.jpg` and cuts the name at its last `_`.
+//! below the root. The official loader globs `**/*_left.jpg` and cuts the name at its last `_`;
+//! other popular loaders list the release's four category folders ([`CATEGORIES`]) one by one
+//! and fail on a missing folder, so the writer creates all four, empty where no sample has that
+//! category. Images are real JPEGs (a strict decoder refuses PNG bytes under a `.jpg` name).
 
 use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
-use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under, write_png16, write_right_disparity};
+use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, sniff, under, write_png16, write_right_disparity};
 use super::{DispKind, SampleFiles, SampleMeta, StereoSample};
 use crate::error::Result;
 use crate::png_disp::CRESTEREO_SCALE;
@@ -15,6 +18,9 @@ pub const LEFT_IMAGE_SUFFIX: &str = "_left.jpg";
 pub const RIGHT_IMAGE_SUFFIX: &str = "_right.jpg";
 pub const LEFT_DISPARITY_SUFFIX: &str = "_left.disp.png";
 pub const RIGHT_DISPARITY_SUFFIX: &str = "_right.disp.png";
+
+/// The release's category folders (ours are named after them).
+pub const CATEGORIES: [&str; 4] = ["tree", "shapenet", "reflective", "hole"];
 
 /// The files of the sample at `prefix` (a path without the suffixes).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -58,8 +64,10 @@ pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
     Ok(out)
 }
 
-/// Writes samples as `<root>/<name>_left.jpg`, … . With [`ImageEncoding::Lossless`] the `.jpg`
-/// files are links to the source images (PNG or JPEG) or PNG bytes.
+/// Writes samples as `<root>/<name>_left.jpg`, … (ours are named `<category>/<id>`), with the
+/// four [`CATEGORIES`] folders always present. Images are real JPEGs: with
+/// [`ImageEncoding::Lossless`] a source JPEG is linked as it is and any other image encoded with
+/// [`JpegOptions::default`](crate::jpeg::JpegOptions); the JPEG encodings re-encode every image.
 pub struct CrestereoWriter {
     root: PathBuf,
     images: ImageEncoding,
@@ -67,9 +75,27 @@ pub struct CrestereoWriter {
 }
 
 impl CrestereoWriter {
-    pub fn new(root: &Path, images: ImageEncoding) -> Self {
-        Self { root: root.to_path_buf(), images, summary: WriteSummary::default() }
+    pub fn new(root: &Path, images: ImageEncoding) -> Result<Self> {
+        for category in CATEGORIES {
+            mkdir(&root.join(category))?;
+        }
+        Ok(Self { root: root.to_path_buf(), images, summary: WriteSummary::default() })
     }
+
+    /// One view's image: linked where the source is a JPEG and no re-encoding was asked for.
+    fn place(&mut self, source: &Path, pixels: &crate::image_io::RgbImage, dst: &Path) -> Result<()> {
+        let encoding = match self.images {
+            ImageEncoding::Lossless if !source.as_os_str().is_empty() && sniff(source) == ImageFile::Jpeg => ImageEncoding::Lossless,
+            other => ImageEncoding::JpegWith(other.jpeg_options().unwrap_or_default()),
+        };
+        place_image(source, pixels, dst, &[ImageFile::Jpeg], encoding, &mut self.summary)
+    }
+}
+
+/// Whether a sample named `name` lands in one of the release's category folders (the loaders
+/// that list those folders see only such samples).
+pub fn in_category_folder(name: &str) -> bool {
+    name.split_once('/').is_some_and(|(first, _)| CATEGORIES.contains(&first))
 }
 
 impl DatasetWriter for CrestereoWriter {
@@ -80,11 +106,11 @@ impl DatasetWriter for CrestereoWriter {
     fn write(&mut self, _n: usize, name: &str, s: &StereoSample) -> Result<()> {
         let paths = CrestereoPaths::new(&under(&self.root, name)?);
         mkdir(paths.left.parent().unwrap_or(&self.root))?;
-        let linkable = [ImageFile::PngRgb8, ImageFile::Jpeg];
-        place_image(&s.meta.left_path, &s.left, &paths.left, &linkable, self.images, &mut self.summary)?;
-        place_image(&s.meta.right_path, &s.right, &paths.right, &linkable, self.images, &mut self.summary)?;
+        self.place(&s.meta.left_path, &s.left, &paths.left)?;
+        self.place(&s.meta.right_path, &s.right, &paths.right)?;
         write_png16(&paths.disp_left, &s.disp_left, CRESTEREO_SCALE, &mut self.summary)?;
         write_right_disparity(&paths.disp_right, s, &mut self.summary, |d, sum| write_png16(&paths.disp_right, d, CRESTEREO_SCALE, sum))?;
+        self.summary.outside_categories += usize::from(!in_category_folder(name));
         self.summary.samples += 1;
         Ok(())
     }

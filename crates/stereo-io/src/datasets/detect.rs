@@ -3,13 +3,13 @@
 use std::path::Path;
 
 use super::scan::{file_name, walk};
-use super::{DatasetFormat, crestereo, falling_things, kitti, middlebury, sceneflow, sintel, stereogen};
+use super::{DatasetFormat, crestereo, falling_things, instereo2k, kitti, middlebury, sceneflow, sintel, stereogen};
 use crate::error::{Error, Result};
 
 /// Recognises a layout from the files under `root`, most specific first: `manifest.jsonl`
 /// (ours), Sintel's and KITTI's fixed folders, SceneFlow's `frames_*pass`, Falling Things'
 /// `_camera_settings.json`, ETH3D's `disp0GT.pfm`, Middlebury's `disp0.pfm`, CREStereo's
-/// `*_left.disp.png`.
+/// `*_left.disp.png`, InStereo2K's `left_disp.png`.
 pub fn detect_format(root: &Path) -> Result<DatasetFormat> {
     if root.join(stereogen::MANIFEST_FILE).is_file() {
         return Ok(DatasetFormat::Stereogen);
@@ -44,11 +44,12 @@ pub fn detect_format(root: &Path) -> Result<DatasetFormat> {
             falling_things::CAMERA_SETTINGS => note(DatasetFormat::FallingThings, 1),
             middlebury::ETH3D_LEFT_DISPARITY => note(DatasetFormat::Eth3d, 2),
             middlebury::LEFT_DISPARITY => note(DatasetFormat::Middlebury, 3),
-            n if n.ends_with(crestereo::LEFT_DISPARITY_SUFFIX) => note(DatasetFormat::Crestereo, 4),
+            instereo2k::LEFT_DISPARITY => note(DatasetFormat::InStereo2k, 4),
+            n if n.ends_with(crestereo::LEFT_DISPARITY_SUFFIX) => note(DatasetFormat::Crestereo, 5),
             _ => {}
         }
     }
     found.ok_or_else(|| {
-        Error::format(root, "cannot recognise the dataset layout (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012, kitti2015, sintel, fallingthings); pass the format explicitly")
+        Error::format(root, "cannot recognise the dataset layout (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012, kitti2015, sintel, fallingthings, instereo2k); pass the format explicitly")
     })
 }

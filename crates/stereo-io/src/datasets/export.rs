@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use super::write::{ImageEncoding, WritableFormat, WriteSummary, create_writer};
-use super::{DatasetFormat, SampleMeta, open_dataset};
+use super::{DatasetFormat, ReadOptions, SampleMeta, open_dataset_with};
 use crate::error::{Error, Result};
 
 /// The index an export writes beside the samples: one line per sample, `n` (its number in the
@@ -18,6 +18,8 @@ pub struct ExportOptions {
     pub from: Option<DatasetFormat>,
     pub to: WritableFormat,
     pub images: ImageEncoding,
+    /// Choices of the source's layout (which Middlebury variant).
+    pub read: ReadOptions,
 }
 
 /// The name a sample gets in the output: ours keep `<category>/<id>`; others are named by their
@@ -48,7 +50,7 @@ pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result
     if out.canonicalize().ok().is_some_and(|o| source.canonicalize().ok().is_some_and(|s| o == s)) {
         return Err(Error::format(out, "the output must differ from the dataset directory"));
     }
-    let dataset = open_dataset(source, opts.from)?;
+    let dataset = open_dataset_with(source, opts.from, &opts.read)?;
     let mut writer = create_writer(opts.to, out, opts.images)?;
     crate::atomic::remove_orphaned_temp_files(out);
     let mut index = String::new();

@@ -1,12 +1,24 @@
 //! KITTI 2012 and 2015 stereo: fixed folders under `training/` (or the root itself), frames
-//! named `NNNNNN_10.png` (the reference frame, the one with ground truth) and `NNNNNN_11.png`;
-//! disparity as 16-bit PNG, d·256, 0 = invalid; `disp_noc*` marks the non-occluded pixels.
+//! named `NNNNNN_10.png` (the reference frame, the one with ground truth) and `NNNNNN_11.png`
+//! (the next frame in time); disparity as 16-bit PNG, d·256, 0 = no ground truth (the devkit's
+//! `disp_read`: `d = v/256`, invalid where `v = 0`).
+//!
+//! | release | left | right | all pixels | non-occluded |
+//! | --- | --- | --- | --- | --- |
+//! | 2012 | `colored_0` | `colored_1` | `disp_occ` | `disp_noc` |
+//! | 2015 | `image_2` | `image_3` | `disp_occ_0` | `disp_noc_0` |
+//!
+//! KITTI has no right-view disparity. KITTI 2015's `disp_occ_1`/`disp_noc_1` belong to its scene
+//! flow benchmark: the disparity of the *second* frame (t+1, `_11`) of each point, stored at that
+//! point's pixel in the *first* frame's left image. Reading it as the right view's disparity
+//! would be silently wrong, so neither folder is read nor written.
 
 use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
-use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, write_png16, write_right_disparity};
+use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, write_png16};
 use super::{DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
+use crate::disparity::DisparityMap;
 use crate::error::{Error, Result};
 use crate::png_disp::KITTI_SCALE;
 
@@ -20,16 +32,14 @@ pub const REFERENCE_FRAME_SUFFIX: &str = "_10.png";
 pub struct KittiFolders {
     pub left: &'static str,
     pub right: &'static str,
-    /// Disparity of all pixels with ground truth (left view).
+    /// Left-view disparity of all pixels with ground truth.
     pub disp_occ: &'static str,
-    /// A second `disp_occ` folder, read as the right view's disparity.
-    pub disp_occ_right: Option<&'static str>,
-    /// Disparity of the non-occluded pixels only: used as a mask.
+    /// Left-view disparity of the non-occluded pixels only: read as a mask.
     pub disp_noc: &'static str,
 }
 
-pub const KITTI_2015: KittiFolders = KittiFolders { left: "image_2", right: "image_3", disp_occ: "disp_occ_0", disp_occ_right: Some("disp_occ_1"), disp_noc: "disp_noc_0" };
-pub const KITTI_2012: KittiFolders = KittiFolders { left: "colored_0", right: "colored_1", disp_occ: "disp_occ", disp_occ_right: None, disp_noc: "disp_noc" };
+pub const KITTI_2015: KittiFolders = KittiFolders { left: "image_2", right: "image_3", disp_occ: "disp_occ_0", disp_noc: "disp_noc_0" };
+pub const KITTI_2012: KittiFolders = KittiFolders { left: "colored_0", right: "colored_1", disp_occ: "disp_occ", disp_noc: "disp_noc" };
 
 /// The file name of the `n`-th reference frame.
 pub fn frame_name(n: usize) -> String {
@@ -51,14 +61,13 @@ pub(crate) fn scan(root: &Path, f: &KittiFolders) -> Result<Vec<SampleFiles>> {
         }
         let right = require(base.join(f.right).join(&name), "right image", e.path())?;
         let disp = require(base.join(f.disp_occ).join(&name), "disparity", e.path())?;
-        let disp_r = f.disp_occ_right.map(|d| base.join(d).join(&name)).filter(|p| p.is_file());
         let noc = base.join(f.disp_noc).join(&name);
         out.push(SampleFiles {
             id: rel_id(root, e.path()),
             left: e.path().to_path_buf(),
             right,
             disp_left: (disp, DispKind::Png16(KITTI_SCALE)),
-            disp_right: disp_r.map(|p| (p, DispKind::Png16(KITTI_SCALE))),
+            disp_right: None,
             masks: if noc.is_file() { vec![(noc, MaskKind::Png16NonZero)] } else { vec![] },
             meta: SampleMeta::default(),
         });
@@ -66,28 +75,40 @@ pub(crate) fn scan(root: &Path, f: &KittiFolders) -> Result<Vec<SampleFiles>> {
     Ok(out)
 }
 
-/// Writes the `n`-th sample as `training/image_2/NNNNNN_10.png`, `image_3/`, `disp_occ_0/` and,
-/// where the sample has a right-view disparity, `disp_occ_1/` (the folder this crate reads the
-/// right view from). No `disp_noc_0`: the sample's own validity is all that is known. KITTI
-/// cannot hold disparities of 256 px or more: those pixels become invalid and are counted.
-pub struct Kitti2015Writer {
+/// Writes the `n`-th sample as `training/<left>/NNNNNN_10.png` with the right image and the
+/// left-view disparity beside it in the release's folders (see the module's table). Where the
+/// sample carries a stricter validity mask than its disparity's (a KITTI `disp_noc`, an ETH3D or
+/// Middlebury `mask0nocc`), the disparity restricted to it is written as `disp_noc*`; otherwise
+/// no `disp_noc*` (nothing more is known). No `_11` frame and no right-view disparity: KITTI
+/// has neither. Disparities of 256 px or more do not fit: those pixels become invalid, counted.
+pub struct KittiWriter {
     root: PathBuf,
+    folders: KittiFolders,
     summary: WriteSummary,
 }
 
-impl Kitti2015Writer {
-    pub fn new(root: &Path) -> Self {
-        Self { root: root.to_path_buf(), summary: WriteSummary::default() }
+impl KittiWriter {
+    pub fn new(root: &Path, folders: KittiFolders) -> Self {
+        Self { root: root.to_path_buf(), folders, summary: WriteSummary::default() }
     }
 }
 
-impl DatasetWriter for Kitti2015Writer {
+/// `disp` with only the pixels `keep` says are valid.
+fn restricted(disp: &DisparityMap, keep: &[bool]) -> DisparityMap {
+    let mut out = disp.clone();
+    for (v, k) in out.valid.iter_mut().zip(keep) {
+        *v &= *k;
+    }
+    out
+}
+
+impl DatasetWriter for KittiWriter {
     fn summary(&self) -> &WriteSummary {
         &self.summary
     }
 
     fn write(&mut self, n: usize, _name: &str, s: &StereoSample) -> Result<()> {
-        let f = KITTI_2015;
+        let f = self.folders;
         let base = self.root.join(TRAINING_DIR);
         let name = frame_name(n);
         let dir = |d: &str| -> Result<PathBuf> {
@@ -98,11 +119,13 @@ impl DatasetWriter for Kitti2015Writer {
         place_image(&s.meta.left_path, &s.left, &dir(f.left)?, &png, ImageEncoding::Lossless, &mut self.summary)?;
         place_image(&s.meta.right_path, &s.right, &dir(f.right)?, &png, ImageEncoding::Lossless, &mut self.summary)?;
         write_png16(&dir(f.disp_occ)?, &s.disp_left, KITTI_SCALE, &mut self.summary)?;
-        let right = base.join(f.disp_occ_right.expect("KITTI 2015 has a second disparity folder")).join(&name);
-        if s.disp_right.is_some() {
-            mkdir(right.parent().expect("a folder"))?;
+        if let Some(keep) = &s.valid_left {
+            // Pixels dropped from disp_occ are already counted; the same ones here are not.
+            let mut noc_summary = WriteSummary::default();
+            write_png16(&dir(f.disp_noc)?, &restricted(&s.disp_left, keep), KITTI_SCALE, &mut noc_summary)?;
+            self.summary.written += noc_summary.written;
         }
-        write_right_disparity(&right, s, &mut self.summary, |d, sum| write_png16(&right, d, KITTI_SCALE, sum))?;
+        self.summary.without_right_disparity += 1;
         self.summary.samples += 1;
         Ok(())
     }

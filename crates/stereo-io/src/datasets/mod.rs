@@ -10,6 +10,7 @@ pub mod crestereo;
 mod detect;
 pub mod export;
 pub mod falling_things;
+pub mod instereo2k;
 pub mod kitti;
 pub mod middlebury;
 mod scan;
@@ -40,20 +41,23 @@ pub enum DatasetFormat {
     SceneFlow,
     /// Middlebury 2014 / MiddEval3: `<scene>/im0.png, im1.png, disp0.pfm, calib.txt`.
     Middlebury,
-    /// ETH3D two-view: `<scene>/im0.png, im1.png, disp0GT.pfm, mask0nocc.png`.
+    /// ETH3D two-view: `<scene>/im0.png, im1.png, disp0GT.pfm, mask0nocc.png`, the ground truth
+    /// beside the images or in the official `_gt` tree.
     Eth3d,
     /// KITTI 2012: `training/colored_0|colored_1|disp_occ` (÷256).
     Kitti2012,
-    /// KITTI 2015: `training/image_2|image_3|disp_occ_0` (÷256).
+    /// KITTI 2015: `training/image_2|image_3|disp_occ_0` (÷256); no right-view disparity.
     Kitti2015,
     /// MPI Sintel stereo: `training/clean_left|clean_right|disparities` (RGB-packed).
     Sintel,
     /// NVIDIA Falling Things: `*.left.jpg`, `*.left.depth.png` (1e-4 m) + `_camera_settings.json`.
     FallingThings,
+    /// InStereo2K: `<pair>/left.png, right.png, left_disp.png, right_disp.png` (÷100).
+    InStereo2k,
 }
 
 impl DatasetFormat {
-    pub const ALL: [DatasetFormat; 9] = [
+    pub const ALL: [DatasetFormat; 10] = [
         Self::Stereogen,
         Self::Crestereo,
         Self::SceneFlow,
@@ -63,6 +67,7 @@ impl DatasetFormat {
         Self::Kitti2015,
         Self::Sintel,
         Self::FallingThings,
+        Self::InStereo2k,
     ];
 
     pub fn name(self) -> &'static str {
@@ -76,6 +81,7 @@ impl DatasetFormat {
             Self::Kitti2015 => "kitti2015",
             Self::Sintel => "sintel",
             Self::FallingThings => "fallingthings",
+            Self::InStereo2k => "instereo2k",
         }
     }
 }
@@ -107,8 +113,8 @@ impl FromStr for DatasetFormat {
 /// What is known about a sample besides its pixels.
 ///
 /// `cx`, `cy` use **0-based pixel centres** (pixel `i`'s centre is at `x = i`; the convention of
-/// OpenCV `K` matrices and Middlebury/ETH3D `calib.txt`, see [`crate::pixel_coords`]): our
-/// manifest's continuous `cx = W/2` reads as `(W − 1)/2`. Falling Things' values are passed on
+/// OpenCV `K` matrices, see [`crate::pixel_coords`]): our manifest's continuous `cx = W/2` reads
+/// as `(W − 1)/2`, and so does a Middlebury/ETH3D `calib.txt`'s corner-origin `cx = W/2`. Falling Things' values are passed on
 /// as its `_camera_settings.json` gives them.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SampleMeta {
@@ -314,9 +320,21 @@ impl StereoDataset for FileListDataset {
     }
 }
 
+/// Choices a layout leaves to the reader.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ReadOptions {
+    /// Which rectification of Middlebury 2014's scenes is read.
+    pub middlebury_variant: middlebury::MiddleburyVariant,
+}
+
 /// Opens the dataset at `root`: with `format` given, as that layout; otherwise the layout is
-/// recognised from the folder (see [`detect_format`]).
+/// recognised from the folder (see [`detect_format`]). Layout choices take their defaults.
 pub fn open_dataset(root: &Path, format: Option<DatasetFormat>) -> Result<Box<dyn StereoDataset>> {
+    open_dataset_with(root, format, &ReadOptions::default())
+}
+
+/// [`open_dataset`] with the layout choices of `opts`.
+pub fn open_dataset_with(root: &Path, format: Option<DatasetFormat>, opts: &ReadOptions) -> Result<Box<dyn StereoDataset>> {
     if !root.is_dir() {
         return Err(Error::format(root, "is not a directory"));
     }
@@ -324,7 +342,7 @@ pub fn open_dataset(root: &Path, format: Option<DatasetFormat>) -> Result<Box<dy
         Some(f) => f,
         None => detect_format(root)?,
     };
-    let samples = scan::scan(format, root)?;
+    let samples = scan::scan(format, root, opts)?;
     if samples.is_empty() {
         return Err(Error::format(root, format!("no {format} samples found")));
     }

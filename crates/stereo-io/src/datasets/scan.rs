@@ -5,19 +5,20 @@ use std::path::{Path, PathBuf};
 
 use walkdir::WalkDir;
 
-use super::{DatasetFormat, SampleFiles};
+use super::{DatasetFormat, ReadOptions, SampleFiles};
 use crate::error::{Error, Result};
 
-pub(crate) fn scan(format: DatasetFormat, root: &Path) -> Result<Vec<SampleFiles>> {
+pub(crate) fn scan(format: DatasetFormat, root: &Path, opts: &ReadOptions) -> Result<Vec<SampleFiles>> {
     let mut samples = match format {
         DatasetFormat::Stereogen => super::stereogen::scan(root)?,
         DatasetFormat::Crestereo => super::crestereo::scan(root)?,
         DatasetFormat::SceneFlow => super::sceneflow::scan(root)?,
-        DatasetFormat::Middlebury | DatasetFormat::Eth3d => super::middlebury::scan(root, format)?,
+        DatasetFormat::Middlebury | DatasetFormat::Eth3d => super::middlebury::scan(root, format, opts.middlebury_variant)?,
         DatasetFormat::Kitti2012 => super::kitti::scan(root, &super::kitti::KITTI_2012)?,
         DatasetFormat::Kitti2015 => super::kitti::scan(root, &super::kitti::KITTI_2015)?,
         DatasetFormat::Sintel => super::sintel::scan(root)?,
         DatasetFormat::FallingThings => super::falling_things::scan(root)?,
+        DatasetFormat::InStereo2k => super::instereo2k::scan(root)?,
     };
     // Ours keep manifest order; the others are sorted so indices are stable.
     if format != DatasetFormat::Stereogen {

@@ -3,9 +3,10 @@
 //!
 //! | layout | writer | files of one sample |
 //! | --- | --- | --- |
-//! | `crestereo` | [`CrestereoWriter`](super::crestereo::CrestereoWriter) | `<name>_left.jpg`, `_right.jpg`, `_left.disp.png`, `_right.disp.png` (d·32) |
-//! | `kitti2015` | [`Kitti2015Writer`](super::kitti::Kitti2015Writer) | `training/image_2/NNNNNN_10.png`, `image_3/`, `disp_occ_0/`, `disp_occ_1/` (d·256) |
-//! | `middlebury` | [`MiddleburyWriter`](super::middlebury::MiddleburyWriter) | `<name>/im0.png`, `im1.png`, `disp0.pfm`, `disp1.pfm`, `calib.txt` |
+//! | `crestereo` | [`CrestereoWriter`](super::crestereo::CrestereoWriter) | `<category>/<name>_left.jpg`, `_right.jpg` (real JPEG), `_left.disp.png`, `_right.disp.png` (d·32) |
+//! | `kitti2012` | [`KittiWriter`](super::kitti::KittiWriter) | `training/colored_0/NNNNNN_10.png`, `colored_1/`, `disp_occ/`, `disp_noc/` (d·256) |
+//! | `kitti2015` | [`KittiWriter`](super::kitti::KittiWriter) | `training/image_2/NNNNNN_10.png`, `image_3/`, `disp_occ_0/`, `disp_noc_0/` (d·256) |
+//! | `middlebury` | [`MiddleburyWriter`](super::middlebury::MiddleburyWriter) | `Middlebury2014/train/<name>-perfect/im0.png`, `im1.png`, `disp0.pfm`, `disp1.pfm`, `calib.txt` |
 //!
 //! Our own layout is written by the generator (it renders; it does not convert).
 //!
@@ -29,13 +30,28 @@ use crate::image_io::RgbImage;
 /// How a writer stores images.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ImageEncoding {
-    /// Without loss: the source file linked where the layout's readers decode it, else PNG.
-    /// CREStereo's `*.jpg` names then hold PNG bytes: its loaders (OpenCV, Pillow) decode by
-    /// content, not by name.
+    /// The layout's own image format, re-encoding as little as possible: the source file linked
+    /// where it already is what the layout stores (an RGB PNG; for CREStereo also a JPEG), else
+    /// PNG without loss, or for CREStereo, whose files are JPEG, a real JPEG with
+    /// [`JpegOptions::default`](crate::jpeg::JpegOptions) (quality 95, 4:4:4). No file's bytes
+    /// differ from what its name says.
     #[default]
     Lossless,
-    /// Real JPEGs at this quality (1..=100); only CREStereo stores JPEG.
+    /// Real JPEGs at this quality (1..=100), 4:4:4; only CREStereo stores JPEG.
     Jpeg(u8),
+    /// Real JPEGs with this quality and chroma sampling; only CREStereo stores JPEG.
+    JpegWith(crate::jpeg::JpegOptions),
+}
+
+impl ImageEncoding {
+    /// The JPEG settings of a re-encoding encoding.
+    pub fn jpeg_options(self) -> Option<crate::jpeg::JpegOptions> {
+        match self {
+            Self::Lossless => None,
+            Self::Jpeg(quality) => Some(crate::jpeg::JpegOptions { quality, ..Default::default() }),
+            Self::JpegWith(opts) => Some(opts),
+        }
+    }
 }
 
 /// What a writer has done so far.
@@ -48,8 +64,11 @@ pub struct WriteSummary {
     pub written: usize,
     /// Valid pixels the layout cannot hold, stored as invalid.
     pub dropped_pixels: usize,
-    /// Samples written without a right-view disparity because the source has none.
+    /// Samples written without a right-view disparity: the source has none, or the layout
+    /// holds none (KITTI).
     pub without_right_disparity: usize,
+    /// CREStereo: samples outside the release's category folders (no category in the source).
+    pub outside_categories: usize,
 }
 
 /// A layout being written, one sample at a time.
@@ -64,16 +83,18 @@ pub trait DatasetWriter {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum WritableFormat {
     Crestereo,
+    Kitti2012,
     Kitti2015,
     Middlebury,
 }
 
 impl WritableFormat {
-    pub const ALL: [WritableFormat; 3] = [Self::Crestereo, Self::Kitti2015, Self::Middlebury];
+    pub const ALL: [WritableFormat; 4] = [Self::Crestereo, Self::Kitti2012, Self::Kitti2015, Self::Middlebury];
 
     pub fn dataset_format(self) -> DatasetFormat {
         match self {
             Self::Crestereo => DatasetFormat::Crestereo,
+            Self::Kitti2012 => DatasetFormat::Kitti2012,
             Self::Kitti2015 => DatasetFormat::Kitti2015,
             Self::Middlebury => DatasetFormat::Middlebury,
         }
@@ -98,18 +119,19 @@ impl FromStr for WritableFormat {
 
 /// A writer of `format` creating its files under `root`.
 pub fn create_writer(format: WritableFormat, root: &Path, images: ImageEncoding) -> Result<Box<dyn DatasetWriter>> {
-    if let ImageEncoding::Jpeg(q) = images {
+    if let Some(jpeg) = images.jpeg_options() {
         if format != WritableFormat::Crestereo {
             return Err(Error::format(root, format!("the {format} layout stores PNG images; JPEG quality applies to crestereo only")));
         }
-        if !(1..=100).contains(&q) {
-            return Err(Error::format(root, format!("JPEG quality {q} is outside 1..=100")));
+        if !(1..=100).contains(&jpeg.quality) {
+            return Err(Error::format(root, format!("JPEG quality {} is outside 1..=100", jpeg.quality)));
         }
     }
     mkdir(root)?;
     Ok(match format {
-        WritableFormat::Crestereo => Box::new(super::crestereo::CrestereoWriter::new(root, images)),
-        WritableFormat::Kitti2015 => Box::new(super::kitti::Kitti2015Writer::new(root)),
+        WritableFormat::Crestereo => Box::new(super::crestereo::CrestereoWriter::new(root, images)?),
+        WritableFormat::Kitti2012 => Box::new(super::kitti::KittiWriter::new(root, super::kitti::KITTI_2012)),
+        WritableFormat::Kitti2015 => Box::new(super::kitti::KittiWriter::new(root, super::kitti::KITTI_2015)),
         WritableFormat::Middlebury => Box::new(super::middlebury::MiddleburyWriter::new(root)),
     })
 }
@@ -202,8 +224,8 @@ pub(crate) fn place_image(source: &Path, pixels: &RgbImage, dst: &Path, linkable
             summary.written += 1;
             Ok(())
         }
-        ImageEncoding::Jpeg(q) => {
-            crate::image_io::write_jpeg_rgb(dst, pixels, q)?;
+        ImageEncoding::Jpeg(_) | ImageEncoding::JpegWith(_) => {
+            crate::jpeg::write_jpeg(dst, pixels, encoding.jpeg_options().expect("a JPEG encoding"))?;
             summary.written += 1;
             Ok(())
         }
@@ -257,7 +279,8 @@ mod tests {
         assert_eq!("KITTI-2015".parse::<WritableFormat>(), Ok(WritableFormat::Kitti2015));
         assert_eq!("middlebury".parse::<WritableFormat>(), Ok(WritableFormat::Middlebury));
         let e = "sceneflow".parse::<WritableFormat>().unwrap_err();
-        assert!(e.contains("no writer for the sceneflow layout") && e.contains("crestereo, kitti2015, middlebury"), "{e}");
+        assert!(e.contains("no writer for the sceneflow layout") && e.contains("crestereo, kitti2012, kitti2015, middlebury"), "{e}");
+        assert_eq!("kitti2012".parse::<WritableFormat>(), Ok(WritableFormat::Kitti2012));
         assert!("pngs".parse::<WritableFormat>().unwrap_err().contains("unknown layout"));
     }
 
