@@ -25,7 +25,9 @@ pub fn worker_config() -> WorkerConfig {
             retries: 1,
             ..WorkerOptions::default()
         };
-        options.resolve(1).expect("a Blender runtime (installed by `stereogen setup`)")
+        options
+            .resolve(1)
+            .expect("a Blender runtime (installed by `stereogen setup`)")
     })
     .clone()
 }
@@ -45,10 +47,26 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
     let dir = tempfile::tempdir().expect("tempdir");
     let layout = DatasetLayout::new(dir.path());
     let reply = &rendered.reply;
-    let entry = stereogen::dataset::finalize_sample(&layout, spec, &reply.files, &reply.notes, 0.0, &reply.timings).expect("finalize");
-    let (left, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_left)).expect("left exr");
-    let (right, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_right)).expect("right exr");
-    RenderedPair { left, right, dir, layout, entry }
+    let entry = stereogen::dataset::finalize_sample(
+        &layout,
+        spec,
+        &reply.files,
+        &reply.notes,
+        0.0,
+        &reply.timings,
+    )
+    .expect("finalize");
+    let (left, _) =
+        stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_left)).expect("left exr");
+    let (right, _) =
+        stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_right)).expect("right exr");
+    RenderedPair {
+        left,
+        right,
+        dir,
+        layout,
+        entry,
+    }
 }
 
 /// The `stereogen` binary that `cargo test --workspace` built next to this test executable.
@@ -57,9 +75,16 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
 /// stereogen-e2e` alone rebuilds the library but not this binary, and would test an old one.
 pub fn stereogen_bin() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
-    let profile_dir = exe.parent().and_then(|deps| deps.parent()).expect("target/<profile>/deps");
+    let profile_dir = exe
+        .parent()
+        .and_then(|deps| deps.parent())
+        .expect("target/<profile>/deps");
     let bin = profile_dir.join("stereogen");
-    assert!(bin.is_file(), "{} is missing: run the tests with `cargo test --workspace` so the CLI is built", bin.display());
+    assert!(
+        bin.is_file(),
+        "{} is missing: run the tests with `cargo test --workspace` so the CLI is built",
+        bin.display()
+    );
     bin
 }
 
@@ -84,7 +109,11 @@ pub fn tiny_recipe(preset: &str) -> Recipe {
 /// Writes [`tiny_recipe`] as TOML into `dir` and returns its path.
 pub fn write_tiny_recipe(dir: &std::path::Path, preset: &str) -> PathBuf {
     let path = dir.join(format!("tiny-{preset}.toml"));
-    std::fs::write(&path, toml::to_string(&tiny_recipe(preset)).expect("recipes serialise")).expect("write recipe");
+    std::fs::write(
+        &path,
+        toml::to_string(&tiny_recipe(preset)).expect("recipes serialise"),
+    )
+    .expect("write recipe");
     path
 }
 
@@ -93,7 +122,17 @@ pub fn generate_tiny_dataset(dir: &std::path::Path, name: &str, count: u64, seed
     let recipe = write_tiny_recipe(dir, "crestereo");
     let out = dir.join(name);
     let o = std::process::Command::new(stereogen_bin())
-        .args(["generate", "--no-progress", "--threads", "1", "--seed", &seed.to_string(), "--count", &count.to_string(), "--recipe"])
+        .args([
+            "generate",
+            "--no-progress",
+            "--threads",
+            "1",
+            "--seed",
+            &seed.to_string(),
+            "--count",
+            &count.to_string(),
+            "--recipe",
+        ])
         .arg(&recipe)
         .arg("--out")
         .arg(&out)
@@ -101,6 +140,10 @@ pub fn generate_tiny_dataset(dir: &std::path::Path, name: &str, count: u64, seed
         .stdin(std::process::Stdio::null())
         .output()
         .expect("run stereogen");
-    assert!(o.status.success(), "generate failed: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "generate failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     out
 }

@@ -10,7 +10,11 @@ fn sub(a: V3, b: V3) -> V3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 fn cross(a: V3, b: V3) -> V3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 fn dot(a: V3, b: V3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -30,12 +34,27 @@ fn rotate_xyz(p: V3, r: V3) -> V3 {
 fn local_triangles(shape: &Shape) -> Vec<[V3; 3]> {
     match shape {
         Shape::Plane => {
-            let q = [[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]];
+            let q = [
+                [-1.0, -1.0, 0.0],
+                [1.0, -1.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [-1.0, 1.0, 0.0],
+            ];
             vec![[q[0], q[1], q[2]], [q[0], q[2], q[3]]]
         }
-        Shape::Mesh { vertices, triangles } => {
-            triangles.iter().map(|t| [vertices[t[0] as usize], vertices[t[1] as usize], vertices[t[2] as usize]]).collect()
-        }
+        Shape::Mesh {
+            vertices,
+            triangles,
+        } => triangles
+            .iter()
+            .map(|t| {
+                [
+                    vertices[t[0] as usize],
+                    vertices[t[1] as usize],
+                    vertices[t[2] as usize],
+                ]
+            })
+            .collect(),
         other => panic!("the test ray caster does not model {other:?}"),
     }
 }
@@ -50,7 +69,10 @@ pub fn scene_triangles(spec: &SceneSpec) -> Vec<Triangle> {
     let mut out = Vec::new();
     for (i, o) in spec.objects.iter().enumerate() {
         for t in local_triangles(&o.shape) {
-            out.push(Triangle { v: t.map(|p| to_world(o, p)), object: i });
+            out.push(Triangle {
+                v: t.map(|p| to_world(o, p)),
+                object: i,
+            });
         }
     }
     out
@@ -59,7 +81,11 @@ pub fn scene_triangles(spec: &SceneSpec) -> Vec<Triangle> {
 fn to_world(o: &ObjectSpec, p: V3) -> V3 {
     let s = [p[0] * o.scale[0], p[1] * o.scale[1], p[2] * o.scale[2]];
     let r = rotate_xyz(s, o.rotation);
-    [r[0] + o.location[0], r[1] + o.location[1], r[2] + o.location[2]]
+    [
+        r[0] + o.location[0],
+        r[1] + o.location[1],
+        r[2] + o.location[2],
+    ]
 }
 
 /// Nearest hit along `origin + t·dir` (t > 0): (t, object index). Möller–Trumbore, two-sided.
@@ -94,7 +120,13 @@ pub fn cast(tris: &[Triangle], origin: V3, dir: V3) -> Option<(f64, usize)> {
 
 /// Ground truth for pixel position (u, v) of a view: (disparity, object) or None for background.
 /// The ray direction has z = −1, so the hit parameter t is the planar depth itself.
-pub fn disparity_at(rig: &StereoRig, tris: &[Triangle], view: View, u: f64, v: f64) -> Option<(f64, usize)> {
+pub fn disparity_at(
+    rig: &StereoRig,
+    tris: &[Triangle],
+    view: View,
+    u: f64,
+    v: f64,
+) -> Option<(f64, usize)> {
     let origin = [rig.camera_x(view), 0.0, 0.0];
     cast(tris, origin, rig.ray_direction(u, v)).map(|(z, obj)| (rig.disparity_at_depth(z), obj))
 }
@@ -120,7 +152,14 @@ mod tests {
         // 90° about X takes +Y to +Z; then 90° about Z takes +X to +Y.
         let p = rotate_xyz([0.0, 1.0, 0.0], [std::f64::consts::FRAC_PI_2, 0.0, 0.0]);
         assert!((p[2] - 1.0).abs() < 1e-12);
-        let q = rotate_xyz([1.0, 0.0, 0.0], [std::f64::consts::FRAC_PI_2, 0.0, std::f64::consts::FRAC_PI_2]);
+        let q = rotate_xyz(
+            [1.0, 0.0, 0.0],
+            [
+                std::f64::consts::FRAC_PI_2,
+                0.0,
+                std::f64::consts::FRAC_PI_2,
+            ],
+        );
         assert!((q[1] - 1.0).abs() < 1e-12);
     }
 }

@@ -31,7 +31,10 @@ fn write(path: &Path, bytes: &[u8]) {
 }
 
 fn mesh_file(candidates: Vec<std::path::PathBuf>) -> Shape {
-    Shape::MeshFile { candidates, max_triangles: 100_000 }
+    Shape::MeshFile {
+        candidates,
+        max_triangles: 100_000,
+    }
 }
 
 #[test]
@@ -46,31 +49,91 @@ fn every_mesh_format_loads_and_broken_candidates_fall_back() {
     write(&p("broken.ply"), GARBAGE);
     let flat = MaterialSpec::flat([0.6, 0.5, 0.4], 0.5);
     let mut objects = vec![plane("wall", [0.0, 0.0, -6.0], [0.0; 3], 40.0)];
-    for (i, name) in ["cube.obj", "tetra.ply", "tetra.stl", "octa.off"].iter().enumerate() {
-        objects.push(object(name, mesh_file(vec![p(name)]), [-0.9 + 0.6 * i as f64, 0.0, -3.0], [0.3, 0.4, 0.0], [0.25; 3], flat.clone()));
+    for (i, name) in ["cube.obj", "tetra.ply", "tetra.stl", "octa.off"]
+        .iter()
+        .enumerate()
+    {
+        objects.push(object(
+            name,
+            mesh_file(vec![p(name)]),
+            [-0.9 + 0.6 * i as f64, 0.0, -3.0],
+            [0.3, 0.4, 0.0],
+            [0.25; 3],
+            flat.clone(),
+        ));
     }
-    objects.push(object("fallback", mesh_file(vec![p("broken.obj"), p("missing.obj"), p("broken.ply"), p("cube.obj")]), [0.0, 0.6, -3.0], [0.0; 3], [0.2; 3], flat.clone()));
-    objects.push(object("hopeless", mesh_file(vec![p("broken.obj")]), [0.0, -0.6, -3.0], [0.0; 3], [0.2; 3], flat));
+    objects.push(object(
+        "fallback",
+        mesh_file(vec![
+            p("broken.obj"),
+            p("missing.obj"),
+            p("broken.ply"),
+            p("cube.obj"),
+        ]),
+        [0.0, 0.6, -3.0],
+        [0.0; 3],
+        [0.2; 3],
+        flat.clone(),
+    ));
+    objects.push(object(
+        "hopeless",
+        mesh_file(vec![p("broken.obj")]),
+        [0.0, -0.6, -3.0],
+        [0.0; 3],
+        [0.2; 3],
+        flat,
+    ));
     let spec = base("meshes", objects);
-    let rendered = RenderService::new(worker_config()).render(&spec, |_| None).expect("a broken asset never fails the scene");
+    let rendered = RenderService::new(worker_config())
+        .render(&spec, |_| None)
+        .expect("a broken asset never fails the scene");
     let notes = rendered.reply.notes.join("\n");
     println!("{notes}");
     for name in ["cube.obj", "tetra.ply", "tetra.stl", "octa.off"] {
-        assert!(notes.contains(&format!("{} uses {}", name, p(name).display())), "{name} not loaded:\n{notes}");
+        assert!(
+            notes.contains(&format!("{} uses {}", name, p(name).display())),
+            "{name} not loaded:\n{notes}"
+        );
     }
-    assert!(notes.contains(&format!("fallback uses {}", p("cube.obj").display())), "{notes}");
+    assert!(
+        notes.contains(&format!("fallback uses {}", p("cube.obj").display())),
+        "{notes}"
+    );
     assert!(notes.contains("hopeless dropped"), "{notes}");
-    let skipped: BTreeMap<String, String> = rendered.reply.skipped_assets.iter().map(|s| (s.path.file_name().unwrap().to_string_lossy().into_owned(), s.reason.clone())).collect();
+    let skipped: BTreeMap<String, String> = rendered
+        .reply
+        .skipped_assets
+        .iter()
+        .map(|s| {
+            (
+                s.path.file_name().unwrap().to_string_lossy().into_owned(),
+                s.reason.clone(),
+            )
+        })
+        .collect();
     println!("{skipped:?}");
     for name in ["broken.obj", "missing.obj", "broken.ply"] {
-        assert!(skipped.contains_key(name), "{name} not reported: {skipped:?}");
+        assert!(
+            skipped.contains_key(name),
+            "{name} not reported: {skipped:?}"
+        );
     }
     assert_eq!(skipped["missing.obj"], "file not found");
 }
 
 fn generate(recipe: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     Command::new(stereogen_bin())
-        .args(["generate", "--no-progress", "--threads", "1", "--seed", "3", "--count", "3", "--recipe"])
+        .args([
+            "generate",
+            "--no-progress",
+            "--threads",
+            "1",
+            "--seed",
+            "3",
+            "--count",
+            "3",
+            "--recipe",
+        ])
         .arg(recipe)
         .arg("--out")
         .arg(out)
@@ -91,17 +154,43 @@ fn scenes(out: &Path) -> Vec<SceneSpec> {
 fn shapenet_layouts_and_a_texture_folder_with_broken_files() {
     let dir = tempfile::tempdir().unwrap();
     let shapenet = dir.path().join("ShapeNetCore");
-    write(&shapenet.join("02691156/plane01/model.obj"), CUBE_OBJ.as_bytes()); // v1
-    write(&shapenet.join("03001627/chair01/models/model_normalized.obj"), CUBE_OBJ.as_bytes()); // v2
-    write(&shapenet.join("03001627/chair02/models/model_normalized.obj"), GARBAGE);
-    write(&shapenet.join("04379243/table01/models/model_normalized.obj"), b"");
-    write(&shapenet.join("taxonomy.json"), br#"[{"synsetId":"03001627","name":"chair","children":[],"numInstances":2}]"#);
+    write(
+        &shapenet.join("02691156/plane01/model.obj"),
+        CUBE_OBJ.as_bytes(),
+    ); // v1
+    write(
+        &shapenet.join("03001627/chair01/models/model_normalized.obj"),
+        CUBE_OBJ.as_bytes(),
+    ); // v2
+    write(
+        &shapenet.join("03001627/chair02/models/model_normalized.obj"),
+        GARBAGE,
+    );
+    write(
+        &shapenet.join("04379243/table01/models/model_normalized.obj"),
+        b"",
+    );
+    write(
+        &shapenet.join("taxonomy.json"),
+        br#"[{"synsetId":"03001627","name":"chair","children":[],"numInstances":2}]"#,
+    );
     let textures = dir.path().join("photos");
     for (i, c) in [[200u8, 40, 40], [30, 160, 90]].iter().enumerate() {
         std::fs::create_dir_all(&textures).unwrap();
-        image::RgbImage::from_fn(16, 16, |x, y| if (x / 4 + y / 4) % 2 == 0 { image::Rgb(*c) } else { image::Rgb([250, 250, 250]) }).save(textures.join(format!("photo{i}.png"))).unwrap();
+        image::RgbImage::from_fn(16, 16, |x, y| {
+            if (x / 4 + y / 4) % 2 == 0 {
+                image::Rgb(*c)
+            } else {
+                image::Rgb([250, 250, 250])
+            }
+        })
+        .save(textures.join(format!("photo{i}.png")))
+        .unwrap();
     }
-    write(&textures.join("corrupt.jpg"), b"\xff\xd8\xff\xe0 truncated jpeg");
+    write(
+        &textures.join("corrupt.jpg"),
+        b"\xff\xd8\xff\xe0 truncated jpeg",
+    );
 
     let mut recipe = tiny_recipe("shapenet");
     recipe.categories[0].shapes = BTreeMap::from([(ShapeSource::Shapenet, 1.0)]);
@@ -109,26 +198,60 @@ fn shapenet_layouts_and_a_texture_folder_with_broken_files() {
     let recipe_path = dir.path().join("recipe.toml");
     std::fs::write(&recipe_path, toml::to_string(&recipe).unwrap()).unwrap();
     let out = dir.path().join("data");
-    let o = generate(&recipe_path, &out, &["--shapenet", shapenet.to_str().unwrap(), "--textures", textures.to_str().unwrap()]);
+    let o = generate(
+        &recipe_path,
+        &out,
+        &[
+            "--shapenet",
+            shapenet.to_str().unwrap(),
+            "--textures",
+            textures.to_str().unwrap(),
+        ],
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
 
     let skipped = std::fs::read_to_string(out.join("skipped_assets.jsonl")).unwrap();
     println!("{skipped}");
-    assert!(skipped.contains("table01") && skipped.contains("empty file"), "zero-byte model listed: {skipped}");
-    assert!(skipped.contains("corrupt.jpg"), "corrupt photo listed: {skipped}");
-    assert!(skipped.contains("chair02"), "the corrupt model was drawn and listed: {skipped}");
+    assert!(
+        skipped.contains("table01") && skipped.contains("empty file"),
+        "zero-byte model listed: {skipped}"
+    );
+    assert!(
+        skipped.contains("corrupt.jpg"),
+        "corrupt photo listed: {skipped}"
+    );
+    assert!(
+        skipped.contains("chair02"),
+        "the corrupt model was drawn and listed: {skipped}"
+    );
 
     let specs = scenes(&out);
     assert_eq!(specs.len(), 3);
-    let meshes: Vec<&Shape> = specs.iter().flat_map(|s| s.objects.iter()).filter(|o| o.source == "shapenet").map(|o| &o.shape).collect();
+    let meshes: Vec<&Shape> = specs
+        .iter()
+        .flat_map(|s| s.objects.iter())
+        .filter(|o| o.source == "shapenet")
+        .map(|o| &o.shape)
+        .collect();
     assert!(meshes.len() >= 12);
     let drawn: String = meshes.iter().map(|s| format!("{s:?}")).collect();
-    assert!(drawn.contains("plane01") && drawn.contains("chair01"), "both layouts drawn");
+    assert!(
+        drawn.contains("plane01") && drawn.contains("chair01"),
+        "both layouts drawn"
+    );
     assert!(!drawn.contains("table01"), "empty files are never drawn");
-    let photos = specs.iter().flat_map(|s| s.objects.iter()).filter(|o| matches!(&o.material.base, BaseColor::Image { .. })).count();
+    let photos = specs
+        .iter()
+        .flat_map(|s| s.objects.iter())
+        .filter(|o| matches!(&o.material.base, BaseColor::Image { .. }))
+        .count();
     assert!(photos > 0, "photo textures used");
-    let notes: Vec<String> = Manifest::read(&out.join("manifest.jsonl")).unwrap().into_iter().flat_map(|e| e.notes).collect();
+    let notes: Vec<String> = Manifest::read(&out.join("manifest.jsonl"))
+        .unwrap()
+        .into_iter()
+        .flat_map(|e| e.notes)
+        .collect();
     assert!(notes.iter().any(|n| n.contains("uses")), "{notes:?}");
 }
 
@@ -136,9 +259,16 @@ fn shapenet_layouts_and_a_texture_folder_with_broken_files() {
 fn a_missing_asset_folder_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let recipe = stereogen_e2e::write_tiny_recipe(dir.path(), "shapenet");
-    let o = generate(&recipe, &dir.path().join("data"), &["--textures", "/no/such/photos"]);
+    let o = generate(
+        &recipe,
+        &dir.path().join("data"),
+        &["--textures", "/no/such/photos"],
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert_eq!(err.lines().count(), 1, "{err}");
-    assert!(err.contains("texture folder /no/such/photos does not exist"), "{err}");
+    assert!(
+        err.contains("texture folder /no/such/photos does not exist"),
+        "{err}"
+    );
 }

@@ -21,7 +21,17 @@ fn generate(dir: &Path, preset: &str, count: u64, seed: u64) -> PathBuf {
     let recipe = write_tiny_recipe(dir, preset);
     let out = dir.join(preset);
     let o = Command::new(stereogen_bin())
-        .args(["generate", "--no-progress", "--threads", "1", "--seed", &seed.to_string(), "--count", &count.to_string(), "--recipe"])
+        .args([
+            "generate",
+            "--no-progress",
+            "--threads",
+            "1",
+            "--seed",
+            &seed.to_string(),
+            "--count",
+            &count.to_string(),
+            "--recipe",
+        ])
         .arg(&recipe)
         .arg("--out")
         .arg(&out)
@@ -29,13 +39,28 @@ fn generate(dir: &Path, preset: &str, count: u64, seed: u64) -> PathBuf {
         .stdin(Stdio::null())
         .output()
         .expect("run stereogen");
-    assert!(o.status.success(), "generate {preset} failed: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "generate {preset} failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     out
 }
 
 fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
-    let o = Command::new(stereogen_bin()).arg("audit").arg(data).args(["--all", "--every-pixel", "--check", "--threads", "1"]).args(extra).stdin(Stdio::null()).output().unwrap();
-    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    let o = Command::new(stereogen_bin())
+        .arg("audit")
+        .arg(data)
+        .args(["--all", "--every-pixel", "--check", "--threads", "1"])
+        .args(extra)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
     println!("{text}");
     (o, text)
 }
@@ -46,8 +71,16 @@ fn audit_json(data: &Path) -> Value {
 
 /// Checksums are recomputed with coreutils' sha256sum, independently of the generator.
 fn sha256_hex(path: &Path) -> String {
-    let out = Command::new("sha256sum").arg(path).output().expect("sha256sum");
-    String::from_utf8(out.stdout).unwrap().split_whitespace().next().unwrap().to_string()
+    let out = Command::new("sha256sum")
+        .arg(path)
+        .output()
+        .expect("sha256sum");
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_string()
 }
 
 fn copy_dir(from: &Path, to: &Path) {
@@ -89,7 +122,13 @@ fn read_map(path: &Path) -> (DisparityMap, stereo_io::DisparityMeta) {
 /// content range): a ground truth slightly off on one object.
 fn shift_object(path: &Path) -> usize {
     let (mut map, meta) = read_map(path);
-    let max = map.data.iter().zip(&map.valid).filter(|(_, v)| **v).map(|(d, _)| *d).fold(0.0f32, f32::max);
+    let max = map
+        .data
+        .iter()
+        .zip(&map.valid)
+        .filter(|(_, v)| **v)
+        .map(|(d, _)| *d)
+        .fold(0.0f32, f32::max);
     let threshold = 0.5 * (max + 3.0);
     let mut n = 0;
     for (d, v) in map.data.iter_mut().zip(&map.valid) {
@@ -122,31 +161,58 @@ fn blur_edges(path: &Path) -> usize {
 }
 
 fn by_id(report: &Value) -> BTreeMap<String, Value> {
-    report["samples"].as_array().unwrap().iter().map(|s| (s["id"].as_str().unwrap().to_string(), s.clone())).collect()
+    report["samples"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["id"].as_str().unwrap().to_string(), s.clone()))
+        .collect()
 }
 
 #[test]
 fn audit_check_passes_on_every_preset() {
     let tmp = tempfile::tempdir().unwrap();
     for (preset, _) in PRESETS {
-        let (count, seed) = if *preset == "crestereo" { (MIX_SCENES, MIX_SEED) } else { (1, 1) };
+        let (count, seed) = if *preset == "crestereo" {
+            (MIX_SCENES, MIX_SEED)
+        } else {
+            (1, 1)
+        };
         let data = generate(tmp.path(), preset, count, seed);
         let (o, text) = audit(&data, &[]);
-        assert!(o.status.success(), "audit --check failed on a correct {preset} dataset:\n{text}");
+        assert!(
+            o.status.success(),
+            "audit --check failed on a correct {preset} dataset:\n{text}"
+        );
         assert!(text.contains("verdict: PASS"), "{text}");
         let report = audit_json(&data);
         let entries = Manifest::read(&data.join("manifest.jsonl")).unwrap();
         assert_eq!(report["samples"].as_array().unwrap().len(), entries.len());
         // Every pixel of both views was audited, and nearly all of them are interior pixels.
         let all = &report["overall"]["tally"];
-        assert_eq!(all["pixels"].as_u64().unwrap(), 2 * 64 * 48 * entries.len() as u64);
-        assert!(all["interior"].as_u64().unwrap() as f64 >= 0.85 * all["pixels"].as_f64().unwrap(), "{all}");
+        assert_eq!(
+            all["pixels"].as_u64().unwrap(),
+            2 * 64 * 48 * entries.len() as u64
+        );
+        assert!(
+            all["interior"].as_u64().unwrap() as f64 >= 0.85 * all["pixels"].as_f64().unwrap(),
+            "{all}"
+        );
         assert_eq!(all["flying"], 0);
         assert!(all["max_error"].as_f64().unwrap() < 0.01, "{all}");
         if *preset == "crestereo" {
-            let mut cats: Vec<&str> = report["categories"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
+            let mut cats: Vec<&str> = report["categories"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|c| c["name"].as_str().unwrap())
+                .collect();
             cats.sort();
-            assert_eq!(cats, ["hole", "reflective", "shapenet", "tree"], "the mix covers every category");
+            assert_eq!(
+                cats,
+                ["hole", "reflective", "shapenet", "tree"],
+                "the mix covers every category"
+            );
         }
     }
 }
@@ -159,13 +225,18 @@ fn audit_check_fails_on_corrupted_ground_truth_and_names_the_samples() {
     copy_dir(&clean, &data);
     let layout = DatasetLayout::new(&data);
     let entries: Vec<ManifestEntry> = Manifest::read(&layout.manifest()).unwrap();
-    let [shifted, blurred, swapped, edited, unreadable, no_scene, ..] = &entries[..] else { panic!("8 samples") };
+    let [shifted, blurred, swapped, edited, unreadable, no_scene, ..] = &entries[..] else {
+        panic!("8 samples")
+    };
 
     assert!(shift_object(&layout.abs(&shifted.files.disp_left)) > 20);
     resign(&data, &shifted.id, "disp_left");
     assert!(blur_edges(&layout.abs(&blurred.files.disp_right)) > 0);
     resign(&data, &blurred.id, "disp_right");
-    let (l, r) = (layout.abs(&swapped.files.disp_left), layout.abs(&swapped.files.disp_right));
+    let (l, r) = (
+        layout.abs(&swapped.files.disp_left),
+        layout.abs(&swapped.files.disp_right),
+    );
     let tmp_swap = data.join("swap.exr");
     std::fs::rename(&l, &tmp_swap).unwrap();
     std::fs::rename(&r, &l).unwrap();
@@ -182,28 +253,72 @@ fn audit_check_fails_on_corrupted_ground_truth_and_names_the_samples() {
     resign(&data, &unreadable.id, "disp_right");
     std::fs::remove_file(layout.abs(&no_scene.files.scene)).unwrap();
     // A run still appending: its unfinished last line is left out, with a note.
-    std::fs::OpenOptions::new().append(true).open(layout.manifest()).and_then(|mut f| std::io::Write::write_all(&mut f, b"{\"id\":\"000")).unwrap();
+    std::fs::OpenOptions::new()
+        .append(true)
+        .open(layout.manifest())
+        .and_then(|mut f| std::io::Write::write_all(&mut f, b"{\"id\":\"000"))
+        .unwrap();
 
     let (o, text) = audit(&data, &[]);
-    assert!(!o.status.success(), "audit --check passed a corrupted dataset:\n{text}");
+    assert!(
+        !o.status.success(),
+        "audit --check passed a corrupted dataset:\n{text}"
+    );
     assert!(text.contains("verdict: FAIL"), "{text}");
     assert!(text.contains("unfinished last line was left out"), "{text}");
-    let fail_line = |id: &str| text.lines().find(|l| l.starts_with(&format!("FAIL sample {id} "))).unwrap_or_else(|| panic!("no FAIL line for {id}:\n{text}")).to_string();
-    assert!(fail_line(&shifted.id).contains("off by more than 0.01 px"), "{}", fail_line(&shifted.id));
-    assert!(fail_line(&blurred.id).contains("flying pixel"), "{}", fail_line(&blurred.id));
-    assert!(fail_line(&swapped.id).contains("off by more than 0.01 px"), "{}", fail_line(&swapped.id));
-    assert!(fail_line(&edited.id).contains("left") && fail_line(&edited.id).contains("changed since the manifest"), "{}", fail_line(&edited.id));
-    assert!(fail_line(&unreadable.id).contains(&*exr.to_string_lossy()), "{}", fail_line(&unreadable.id));
-    assert!(fail_line(&no_scene.id).contains("scene.json"), "{}", fail_line(&no_scene.id));
+    let fail_line = |id: &str| {
+        text.lines()
+            .find(|l| l.starts_with(&format!("FAIL sample {id} ")))
+            .unwrap_or_else(|| panic!("no FAIL line for {id}:\n{text}"))
+            .to_string()
+    };
+    assert!(
+        fail_line(&shifted.id).contains("off by more than 0.01 px"),
+        "{}",
+        fail_line(&shifted.id)
+    );
+    assert!(
+        fail_line(&blurred.id).contains("flying pixel"),
+        "{}",
+        fail_line(&blurred.id)
+    );
+    assert!(
+        fail_line(&swapped.id).contains("off by more than 0.01 px"),
+        "{}",
+        fail_line(&swapped.id)
+    );
+    assert!(
+        fail_line(&edited.id).contains("left")
+            && fail_line(&edited.id).contains("changed since the manifest"),
+        "{}",
+        fail_line(&edited.id)
+    );
+    assert!(
+        fail_line(&unreadable.id).contains(&*exr.to_string_lossy()),
+        "{}",
+        fail_line(&unreadable.id)
+    );
+    assert!(
+        fail_line(&no_scene.id).contains("scene.json"),
+        "{}",
+        fail_line(&no_scene.id)
+    );
 
     let report = audit_json(&data);
     let samples = by_id(&report);
     for e in &entries[6..] {
-        assert_eq!(samples[&e.id]["pass"], true, "untouched sample {} fails: {}", e.id, samples[&e.id]);
+        assert_eq!(
+            samples[&e.id]["pass"], true,
+            "untouched sample {} fails: {}",
+            e.id, samples[&e.id]
+        );
     }
     // The shifted object's pixels are off by 0.05 px, and reported as the worst.
     let worst = &samples[&shifted.id]["worst"][0];
-    assert!((worst["error"].as_f64().unwrap() - 0.05).abs() < 1e-3, "{worst}");
+    assert!(
+        (worst["error"].as_f64().unwrap() - 0.05).abs() < 1e-3,
+        "{worst}"
+    );
     assert_eq!(worst["view"], "left");
     assert_eq!(report["overall"]["checksum_mismatches"], 1);
     assert_eq!(report["unfinished_manifest_line"], true);
@@ -218,7 +333,15 @@ fn audit_explains_datasets_it_cannot_audit() {
     // An empty dataset: the generator made its directory, then every sample failed.
     let data = tmp.path().join("only-failures");
     let o = Command::new(stereogen_bin())
-        .args(["generate", "--no-progress", "--threads", "1", "--count", "1", "--recipe"])
+        .args([
+            "generate",
+            "--no-progress",
+            "--threads",
+            "1",
+            "--count",
+            "1",
+            "--recipe",
+        ])
         .arg(&recipe)
         .arg("--out")
         .arg(&data)
@@ -229,10 +352,18 @@ fn audit_explains_datasets_it_cannot_audit() {
     assert!(!o.status.success());
     let (o, text) = audit(&data, &[]);
     assert!(!o.status.success());
-    assert!(text.contains("no finished samples") && text.contains("1 sample(s) failed") && text.contains("failures.jsonl"), "{text}");
+    assert!(
+        text.contains("no finished samples")
+            && text.contains("1 sample(s) failed")
+            && text.contains("failures.jsonl"),
+        "{text}"
+    );
     std::fs::remove_file(data.join("failures.jsonl")).unwrap();
     let (o, text) = audit(&data, &[]);
-    assert!(!o.status.success() && text.contains("no finished samples"), "{text}");
+    assert!(
+        !o.status.success() && text.contains("no finished samples"),
+        "{text}"
+    );
     let (o, text) = audit(&tmp.path().join("nowhere"), &[]);
     assert!(!o.status.success() && text.contains("nowhere"), "{text}");
 }

@@ -9,7 +9,13 @@ use std::time::{Duration, Instant};
 use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
 
 fn stereogen<S: AsRef<std::ffi::OsStr>>(args: &[S], dir: &Path) -> Output {
-    Command::new(stereogen_bin()).args(args).current_dir(dir).env_remove("STEREOGEN_FAULT").stdin(Stdio::null()).output().expect("run stereogen")
+    Command::new(stereogen_bin())
+        .args(args)
+        .current_dir(dir)
+        .env_remove("STEREOGEN_FAULT")
+        .stdin(Stdio::null())
+        .output()
+        .expect("run stereogen")
 }
 
 fn stderr(o: &Output) -> String {
@@ -17,13 +23,21 @@ fn stderr(o: &Output) -> String {
 }
 
 /// Fails at once (no Blender started) with one line naming `expect`.
-fn assert_refused_at_once<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(args: &[S], dir: &Path, expect: &str) {
+fn assert_refused_at_once<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(
+    args: &[S],
+    dir: &Path,
+    expect: &str,
+) {
     let t0 = Instant::now();
     let o = stereogen(args, dir);
     let err = stderr(&o);
     assert!(!o.status.success(), "{args:?} was accepted: {err}");
     assert!(err.contains(expect), "expected {expect:?} in: {err}");
-    assert!(t0.elapsed() < Duration::from_secs(10), "{args:?} was refused only after {:?}", t0.elapsed());
+    assert!(
+        t0.elapsed() < Duration::from_secs(10),
+        "{args:?} was refused only after {:?}",
+        t0.elapsed()
+    );
 }
 
 #[test]
@@ -31,20 +45,51 @@ fn impossible_arguments_are_refused_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let recipe = recipe.to_str().unwrap();
-    let generate = |extra: &[&'static str]| -> Vec<String> { ["generate", "--no-progress", "--recipe", recipe, "--out", "data"].iter().chain(extra).map(|s| s.to_string()).collect() };
-    assert_refused_at_once(&generate(&["--start", "18446744073709551613", "--count", "3"]), dir.path(), "the range ends past the largest index");
-    assert_refused_at_once(&generate(&["--count", "1", "--timeout", "0"]), dir.path(), "--timeout");
+    let generate = |extra: &[&'static str]| -> Vec<String> {
+        [
+            "generate",
+            "--no-progress",
+            "--recipe",
+            recipe,
+            "--out",
+            "data",
+        ]
+        .iter()
+        .chain(extra)
+        .map(|s| s.to_string())
+        .collect()
+    };
+    assert_refused_at_once(
+        &generate(&["--start", "18446744073709551613", "--count", "3"]),
+        dir.path(),
+        "the range ends past the largest index",
+    );
+    assert_refused_at_once(
+        &generate(&["--count", "1", "--timeout", "0"]),
+        dir.path(),
+        "--timeout",
+    );
 
     let spec = stereogen(&["plan", "--seed", "1", "--index", "0"], dir.path());
     assert!(spec.status.success());
     let spec: serde_json::Value = serde_json::from_slice(&spec.stdout).unwrap();
-    for (key, value, named) in [("width", serde_json::json!(0), "rig.width"), ("baseline_m", serde_json::json!(1e308), "rig.baseline_m")] {
+    for (key, value, named) in [
+        ("width", serde_json::json!(0), "rig.width"),
+        ("baseline_m", serde_json::json!(1e308), "rig.baseline_m"),
+    ] {
         let mut bad = spec.clone();
         bad["rig"][key] = value;
         bad.as_object_mut().unwrap().remove("cameras");
         std::fs::write(dir.path().join("bad.json"), bad.to_string()).unwrap();
-        assert_refused_at_once(&["render", "--spec", "bad.json", "--out", "one"], dir.path(), named);
-        assert!(!dir.path().join("one").exists(), "a refused spec created its output folder");
+        assert_refused_at_once(
+            &["render", "--spec", "bad.json", "--out", "one"],
+            dir.path(),
+            named,
+        );
+        assert!(
+            !dir.path().join("one").exists(),
+            "a refused spec created its output folder"
+        );
     }
 }
 
@@ -54,7 +99,22 @@ fn failures_are_forgotten_once_rendered_and_broken_files_fail_stats() {
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let generate = |fault: Option<&str>| {
         let mut c = Command::new(stereogen_bin());
-        c.args(["generate", "--no-progress", "--threads", "1", "--seed", "4", "--count", "3", "--retries", "0", "--recipe"]).arg(&recipe).args(["--out", "data"]).current_dir(dir.path());
+        c.args([
+            "generate",
+            "--no-progress",
+            "--threads",
+            "1",
+            "--seed",
+            "4",
+            "--count",
+            "3",
+            "--retries",
+            "0",
+            "--recipe",
+        ])
+        .arg(&recipe)
+        .args(["--out", "data"])
+        .current_dir(dir.path());
         c.env_remove("STEREOGEN_FAULT");
         if let Some(f) = fault {
             c.env("STEREOGEN_FAULT", f);
@@ -64,14 +124,26 @@ fn failures_are_forgotten_once_rendered_and_broken_files_fail_stats() {
     let o = generate(Some("crash-always@1"));
     assert!(!o.status.success());
     let failures = dir.path().join("data/failures.jsonl");
-    assert!(std::fs::read_to_string(&failures).unwrap().contains("\"index\":1"));
+    assert!(
+        std::fs::read_to_string(&failures)
+            .unwrap()
+            .contains("\"index\":1")
+    );
     let o = generate(None);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(!failures.exists(), "failures.jsonl still lists a sample the re-run rendered: {}", std::fs::read_to_string(&failures).unwrap_or_default());
+    assert!(
+        !failures.exists(),
+        "failures.jsonl still lists a sample the re-run rendered: {}",
+        std::fs::read_to_string(&failures).unwrap_or_default()
+    );
 
     let data = dir.path().join("data");
     let entries = stereogen::dataset::Manifest::read(&data.join("manifest.jsonl")).unwrap();
-    assert!(stereogen(&["stats", "data", "--verify"], dir.path()).status.success());
+    assert!(
+        stereogen(&["stats", "data", "--verify"], dir.path())
+            .status
+            .success()
+    );
     // A PNG changed behind the manifest's back: only a verification reads it.
     let png = data.join(&entries[0].files.left);
     let mut bytes = std::fs::read(&png).unwrap();
@@ -80,12 +152,21 @@ fn failures_are_forgotten_once_rendered_and_broken_files_fail_stats() {
     std::fs::write(&png, &bytes).unwrap();
     let o = stereogen(&["stats", "data", "--verify"], dir.path());
     let said = format!("{}{}", String::from_utf8_lossy(&o.stdout), stderr(&o));
-    assert!(!o.status.success() && said.contains(&*entries[0].files.left.to_string_lossy()) && said.contains("differs from the manifest"), "stats --verify: {said}");
+    assert!(
+        !o.status.success()
+            && said.contains(&*entries[0].files.left.to_string_lossy())
+            && said.contains("differs from the manifest"),
+        "stats --verify: {said}"
+    );
     // A cut disparity EXR fails `stats` even without --check.
     let exr = data.join(&entries[1].files.disp_left);
     let bytes = std::fs::read(&exr).unwrap();
     std::fs::write(&exr, &bytes[..bytes.len() / 2]).unwrap();
     let o = stereogen(&["stats", "data"], dir.path());
-    assert!(!o.status.success(), "stats exited 0 on an unreadable file: {}", stderr(&o));
+    assert!(
+        !o.status.success(),
+        "stats exited 0 on an unreadable file: {}",
+        stderr(&o)
+    );
     assert!(stderr(&o).contains("unreadable"), "{}", stderr(&o));
 }

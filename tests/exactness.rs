@@ -15,20 +15,26 @@ const GRAZING_GRADIENT: f64 = 10.0;
 /// pixels with the wrong validity). A pixel is "grazing" when rays 0.02 px around its centre hit
 /// different objects (or none), or see the surface so obliquely that the disparity gradient
 /// exceeds [`GRAZING_GRADIENT`].
-fn compare(map: &DisparityMap, rig: &stereogen::plan::StereoRig, tris: &[Triangle], view: View) -> (f64, usize, usize) {
+fn compare(
+    map: &DisparityMap,
+    rig: &stereogen::plan::StereoRig,
+    tris: &[Triangle],
+    view: View,
+) -> (f64, usize, usize) {
     let (mut max_err, mut grazing, mut wrong_validity) = (0f64, 0usize, 0usize);
     for y in 0..map.height {
         for x in 0..map.width {
             let (u, v) = (x as f64 + 0.5, y as f64 + 0.5);
             let centre = disparity_at(rig, tris, view, u, v);
-            let around: Vec<Option<(f64, usize)>> = [(-0.02, 0.0), (0.02, 0.0), (0.0, -0.02), (0.0, 0.02)]
-                .iter()
-                .map(|(du, dv)| disparity_at(rig, tris, view, u + du, v + dv))
-                .collect();
+            let around: Vec<Option<(f64, usize)>> =
+                [(-0.02, 0.0), (0.02, 0.0), (0.0, -0.02), (0.0, 0.02)]
+                    .iter()
+                    .map(|(du, dv)| disparity_at(rig, tris, view, u + du, v + dv))
+                    .collect();
             let steep = around.iter().any(|h| match (h, centre) {
-                    (Some((d, _)), Some((dc, _))) => (d - dc).abs() / 0.02 > GRAZING_GRADIENT,
-                    _ => false,
-                });
+                (Some((d, _)), Some((dc, _))) => (d - dc).abs() / 0.02 > GRAZING_GRADIENT,
+                _ => false,
+            });
             if steep || around.iter().any(|h| h.map(|h| h.1) != centre.map(|h| h.1)) {
                 grazing += 1;
                 continue;
@@ -61,8 +67,14 @@ fn fronto_parallel_plane_is_exact_everywhere() {
         let expected = spec.rig.f_px() * spec.rig.baseline_m / z;
         for map in [&pair.left, &pair.right] {
             assert!(map.valid.iter().all(|&v| v), "every pixel sees the plane");
-            let worst = map.data.iter().map(|&d| ((f64::from(d) - expected) / expected).abs()).fold(0.0, f64::max);
-            println!("fronto-parallel z={z}: expected {expected:.6} px, worst relative error {worst:.2e}");
+            let worst = map
+                .data
+                .iter()
+                .map(|&d| ((f64::from(d) - expected) / expected).abs())
+                .fold(0.0, f64::max);
+            println!(
+                "fronto-parallel z={z}: expected {expected:.6} px, worst relative error {worst:.2e}"
+            );
             assert!(worst <= 1e-5, "relative error {worst} at z={z}");
         }
     }
@@ -71,16 +83,36 @@ fn fronto_parallel_plane_is_exact_everywhere() {
 #[test]
 fn tilted_plane_and_sphere_match_ray_casting() {
     let mut service = RenderService::new(worker_config());
-    for spec in [scenes::tilted_plane(), scenes::sphere_before_wall(), scenes::sphere_alone()] {
+    for spec in [
+        scenes::tilted_plane(),
+        scenes::sphere_before_wall(),
+        scenes::sphere_alone(),
+    ] {
         let pair = render(&mut service, &spec);
         let tris = scene_triangles(&spec);
         let n = spec.rig.width as usize * spec.rig.height as usize;
         for (map, view) in [(&pair.left, View::Left), (&pair.right, View::Right)] {
             let (max_err, grazing, wrong_validity) = compare(map, &spec.rig, &tris, view);
-            println!("{} {view:?}: max |error| {max_err:.2e} px, {grazing} grazing pixels ({:.3}%), {wrong_validity} with wrong validity", spec.id, 100.0 * grazing as f64 / n as f64);
-            assert!(max_err <= 1e-3, "{} {view:?}: max error {max_err} px", spec.id);
-            assert!(grazing as f64 <= 0.001 * n as f64, "{} {view:?}: {grazing} grazing pixels", spec.id);
-            assert_eq!(wrong_validity, 0, "{} {view:?}: pixels whose validity disagrees with ray casting", spec.id);
+            println!(
+                "{} {view:?}: max |error| {max_err:.2e} px, {grazing} grazing pixels ({:.3}%), {wrong_validity} with wrong validity",
+                spec.id,
+                100.0 * grazing as f64 / n as f64
+            );
+            assert!(
+                max_err <= 1e-3,
+                "{} {view:?}: max error {max_err} px",
+                spec.id
+            );
+            assert!(
+                grazing as f64 <= 0.001 * n as f64,
+                "{} {view:?}: {grazing} grazing pixels",
+                spec.id
+            );
+            assert_eq!(
+                wrong_validity, 0,
+                "{} {view:?}: pixels whose validity disagrees with ray casting",
+                spec.id
+            );
         }
         if spec.id == "sphere_alone" {
             let background = pair.left.valid.iter().filter(|v| !**v).count();
@@ -99,12 +131,29 @@ fn sphere_silhouette_has_no_flying_pixels() {
     let nearest = -sphere.location[2] - sphere.scale[0];
     let farthest = -sphere.location[2] + sphere.scale[0];
     let wall = rig.disparity_at_depth(-spec.objects[0].location[2]);
-    let (sphere_min, sphere_max) = (rig.disparity_at_depth(farthest), rig.disparity_at_depth(nearest));
+    let (sphere_min, sphere_max) = (
+        rig.disparity_at_depth(farthest),
+        rig.disparity_at_depth(nearest),
+    );
     for map in [&pair.left, &pair.right] {
-        let flying = map.data.iter().filter(|&&d| f64::from(d) > wall + 1e-3 && f64::from(d) < sphere_min - 1e-3).count();
-        let beyond = map.data.iter().filter(|&&d| f64::from(d) > sphere_max + 1e-3).count();
-        let on_sphere = map.data.iter().filter(|&&d| f64::from(d) >= sphere_min - 1e-3).count();
-        println!("wall {wall:.4} px, sphere {sphere_min:.4}..{sphere_max:.4} px: {on_sphere} sphere pixels, {flying} flying, {beyond} beyond");
+        let flying = map
+            .data
+            .iter()
+            .filter(|&&d| f64::from(d) > wall + 1e-3 && f64::from(d) < sphere_min - 1e-3)
+            .count();
+        let beyond = map
+            .data
+            .iter()
+            .filter(|&&d| f64::from(d) > sphere_max + 1e-3)
+            .count();
+        let on_sphere = map
+            .data
+            .iter()
+            .filter(|&&d| f64::from(d) >= sphere_min - 1e-3)
+            .count();
+        println!(
+            "wall {wall:.4} px, sphere {sphere_min:.4}..{sphere_max:.4} px: {on_sphere} sphere pixels, {flying} flying, {beyond} beyond"
+        );
         assert!(on_sphere > 500);
         assert_eq!(flying, 0, "pixels between the wall and the sphere");
         assert_eq!(beyond, 0);
@@ -119,7 +168,11 @@ fn bilinear_row(map: &DisparityMap, x: f64, y: usize) -> Option<(f64, usize, usi
     let x0 = x.floor() as usize;
     let x1 = (x0 + 1).min(map.width - 1);
     let t = x - x0 as f64;
-    Some((f64::from(map.get(x0, y)) * (1.0 - t) + f64::from(map.get(x1, y)) * t, x0, x1))
+    Some((
+        f64::from(map.get(x0, y)) * (1.0 - t) + f64::from(map.get(x1, y)) * t,
+        x0,
+        x1,
+    ))
 }
 
 #[test]
@@ -140,10 +193,14 @@ fn left_and_right_views_agree() {
                 if !visible_in_right(rig, &tris, u, v, d) {
                     continue;
                 }
-                let Some((dr, x0, x1)) = bilinear_row(&pair.right, x as f64 - d, y) else { continue };
+                let Some((dr, x0, x1)) = bilinear_row(&pair.right, x as f64 - d, y) else {
+                    continue;
+                };
                 // Both right neighbours must show the same surface as the left pixel.
                 let own = disparity_at(rig, &tris, View::Left, u, v).map(|h| h.1);
-                let same = [x0, x1].iter().all(|&xr| disparity_at(rig, &tris, View::Right, xr as f64 + 0.5, v).map(|h| h.1) == own);
+                let same = [x0, x1].iter().all(|&xr| {
+                    disparity_at(rig, &tris, View::Right, xr as f64 + 0.5, v).map(|h| h.1) == own
+                });
                 if !same {
                     continue;
                 }
@@ -151,8 +208,15 @@ fn left_and_right_views_agree() {
                 checked += 1;
             }
         }
-        println!("{}: {checked} non-occluded pixels, max |d_L - d_R(x - d_L)| = {worst:.2e} px", spec.id);
+        println!(
+            "{}: {checked} non-occluded pixels, max |d_L - d_R(x - d_L)| = {worst:.2e} px",
+            spec.id
+        );
         assert!(checked > pair.left.data.len() / 2);
-        assert!(worst <= 0.05, "{}: left/right disagree by {worst} px", spec.id);
+        assert!(
+            worst <= 0.05,
+            "{}: left/right disagree by {worst} px",
+            spec.id
+        );
     }
 }

@@ -26,15 +26,31 @@ fn tools() -> Result<PathBuf, String> {
         let home = std::env::var_os("HOME").ok_or("HOME is not set")?;
         let venv = Path::new(&home).join(".cache/stereogen/farm-venv");
         let bin = venv.join("bin");
-        let ready = |b: &Path| b.join("openjd").is_file() && b.join("kubernetes-validate").is_file();
+        let ready =
+            |b: &Path| b.join("openjd").is_file() && b.join("kubernetes-validate").is_file();
         if !ready(&bin) {
-            let o = Command::new("python3").args(["-m", "venv"]).arg(&venv).output().map_err(|e| format!("python3 -m venv: {e}"))?;
+            let o = Command::new("python3")
+                .args(["-m", "venv"])
+                .arg(&venv)
+                .output()
+                .map_err(|e| format!("python3 -m venv: {e}"))?;
             if !o.status.success() {
-                return Err(format!("python3 -m venv failed: {}", String::from_utf8_lossy(&o.stderr)));
+                return Err(format!(
+                    "python3 -m venv failed: {}",
+                    String::from_utf8_lossy(&o.stderr)
+                ));
             }
-            let o = Command::new(bin.join("pip")).args(["install", "--quiet"]).args(TOOLS).output().map_err(|e| format!("pip: {e}"))?;
+            let o = Command::new(bin.join("pip"))
+                .args(["install", "--quiet"])
+                .args(TOOLS)
+                .output()
+                .map_err(|e| format!("pip: {e}"))?;
             if !o.status.success() {
-                return Err(format!("pip install {} failed: {}", TOOLS.join(" "), String::from_utf8_lossy(&o.stderr).trim()));
+                return Err(format!(
+                    "pip install {} failed: {}",
+                    TOOLS.join(" "),
+                    String::from_utf8_lossy(&o.stderr).trim()
+                ));
             }
         }
         Ok(bin)
@@ -45,7 +61,10 @@ fn tools() -> Result<PathBuf, String> {
 fn tools_or_skip(test: &str) -> Option<PathBuf> {
     match tools() {
         Ok(bin) => Some(bin),
-        Err(why) if std::env::var_os("CI").is_some() || std::env::var_os("STEREOGEN_REQUIRE_FARM_TOOLS").is_some() => {
+        Err(why)
+            if std::env::var_os("CI").is_some()
+                || std::env::var_os("STEREOGEN_REQUIRE_FARM_TOOLS").is_some() =>
+        {
             panic!("{test}: the farm tools are required here but: {why}")
         }
         Err(why) => {
@@ -56,12 +75,28 @@ fn tools_or_skip(test: &str) -> Option<PathBuf> {
 }
 
 fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
 }
 
 fn farm(scheduler: &str, recipe: &Path, out: &Path) {
     let o = Command::new(stereogen_bin())
-        .args(["farm", scheduler, "--count", "4", "--tasks", "2", "--threads", "1", "--seed", "4", "--recipe"])
+        .args([
+            "farm",
+            scheduler,
+            "--count",
+            "4",
+            "--tasks",
+            "2",
+            "--threads",
+            "1",
+            "--seed",
+            "4",
+            "--recipe",
+        ])
         .arg(recipe)
         .arg("--out")
         .arg(out)
@@ -74,31 +109,61 @@ fn farm(scheduler: &str, recipe: &Path, out: &Path) {
 
 fn assert_merged(out: &Path) {
     let entries = Manifest::read(&out.join("manifest.jsonl")).expect("a merged manifest");
-    assert_eq!(entries.iter().map(|e| e.index).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
+    assert_eq!(
+        entries.iter().map(|e| e.index).collect::<Vec<_>>(),
+        vec![0, 1, 2, 3]
+    );
     assert!(out.join("merge.json").is_file());
 }
 
 #[test]
 fn openjd_checks_and_runs_the_template() {
-    let Some(bin) = tools_or_skip("openjd_checks_and_runs_the_template") else { return };
+    let Some(bin) = tools_or_skip("openjd_checks_and_runs_the_template") else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let out = dir.path().join("farm");
     farm("openjd", &recipe, &out);
     let template = out.join("jobs/openjd-template.yaml");
-    let o = Command::new(bin.join("openjd")).arg("check").arg(&template).output().unwrap();
-    assert!(o.status.success() && text(&o).contains("passes validation checks"), "{}", text(&o));
+    let o = Command::new(bin.join("openjd"))
+        .arg("check")
+        .arg(&template)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success() && text(&o).contains("passes validation checks"),
+        "{}",
+        text(&o)
+    );
     // Check depends on Merge, which depends on Render's 2 tasks: all of them run.
-    let o = Command::new(bin.join("openjd")).arg("run").arg(&template).args(["--step", "Check", "--run-dependencies"]).stdin(Stdio::null()).output().unwrap();
-    assert!(o.status.success() && text(&o).contains("Session ended successfully"), "{}", text(&o));
-    assert!(text(&o).contains("Chunks run: 4"), "2 render tasks, merge and check: {}", text(&o));
+    let o = Command::new(bin.join("openjd"))
+        .arg("run")
+        .arg(&template)
+        .args(["--step", "Check", "--run-dependencies"])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success() && text(&o).contains("Session ended successfully"),
+        "{}",
+        text(&o)
+    );
+    assert!(
+        text(&o).contains("Chunks run: 4"),
+        "2 render tasks, merge and check: {}",
+        text(&o)
+    );
     assert_merged(&out);
 }
 
 /// A YAML file as JSON, through the venv's PyYAML (a dependency of kubernetes-validate).
 fn yaml(bin: &Path, file: &Path) -> serde_json::Value {
     let o = Command::new(bin.join("python"))
-        .args(["-c", "import json, sys, yaml; print(json.dumps(yaml.safe_load(open(sys.argv[1]))))"])
+        .args([
+            "-c",
+            "import json, sys, yaml; print(json.dumps(yaml.safe_load(open(sys.argv[1]))))",
+        ])
         .arg(file)
         .output()
         .unwrap();
@@ -108,11 +173,21 @@ fn yaml(bin: &Path, file: &Path) -> serde_json::Value {
 
 /// A container's command run here with its environment and `extra` variables.
 fn run_container(container: &serde_json::Value, extra: &[(&str, &str)]) -> Output {
-    let argv: Vec<&str> = container["command"].as_array().unwrap().iter().map(|a| a.as_str().unwrap()).collect();
+    let argv: Vec<&str> = container["command"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a.as_str().unwrap())
+        .collect();
     let mut c = Command::new(argv[0]);
-    c.args(&argv[1..]).stdin(Stdio::null()).env_remove("STEREOGEN_SHARD");
+    c.args(&argv[1..])
+        .stdin(Stdio::null())
+        .env_remove("STEREOGEN_SHARD");
     for var in container["env"].as_array().into_iter().flatten() {
-        c.env(var["name"].as_str().unwrap(), var["value"].as_str().unwrap());
+        c.env(
+            var["name"].as_str().unwrap(),
+            var["value"].as_str().unwrap(),
+        );
     }
     c.envs(extra.iter().copied());
     c.output().unwrap()
@@ -120,31 +195,60 @@ fn run_container(container: &serde_json::Value, extra: &[(&str, &str)]) -> Outpu
 
 #[test]
 fn kubernetes_jobs_validate_and_their_commands_render_and_merge() {
-    let Some(bin) = tools_or_skip("kubernetes_jobs_validate_and_their_commands_render_and_merge") else { return };
+    let Some(bin) = tools_or_skip("kubernetes_jobs_validate_and_their_commands_render_and_merge")
+    else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let out = dir.path().join("farm");
     farm("k8s", &recipe, &out);
     let render = out.join("jobs/k8s-render.yaml");
     let merge = out.join("jobs/k8s-merge.yaml");
-    let o = Command::new(bin.join("kubernetes-validate")).arg("--strict").arg(&render).arg(&merge).output().unwrap();
-    assert!(o.status.success() && text(&o).matches("passed for resource job/").count() == 2, "{}", text(&o));
+    let o = Command::new(bin.join("kubernetes-validate"))
+        .arg("--strict")
+        .arg(&render)
+        .arg(&merge)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success() && text(&o).matches("passed for resource job/").count() == 2,
+        "{}",
+        text(&o)
+    );
     // The validator does reject a Job with a misspelt field.
     let bad = dir.path().join("bad.yaml");
-    std::fs::write(&bad, std::fs::read_to_string(&render).unwrap().replace("completionMode:", "completionMod:")).unwrap();
-    let o = Command::new(bin.join("kubernetes-validate")).arg("--strict").arg(&bad).output().unwrap();
+    std::fs::write(
+        &bad,
+        std::fs::read_to_string(&render)
+            .unwrap()
+            .replace("completionMode:", "completionMod:"),
+    )
+    .unwrap();
+    let o = Command::new(bin.join("kubernetes-validate"))
+        .arg("--strict")
+        .arg(&bad)
+        .output()
+        .unwrap();
     assert!(!o.status.success(), "a misspelt field fails: {}", text(&o));
 
     let job = yaml(&bin, &render);
     assert_eq!(job["spec"]["completionMode"], "Indexed");
     assert_eq!(job["spec"]["completions"], 2);
     let pod = &job["spec"]["template"]["spec"];
-    assert_eq!(pod["volumes"][0]["persistentVolumeClaim"]["claimName"], "stereogen-data");
+    assert_eq!(
+        pod["volumes"][0]["persistentVolumeClaim"]["claimName"],
+        "stereogen-data"
+    );
     for index in ["1", "0"] {
         let o = run_container(&pod["containers"][0], &[("JOB_COMPLETION_INDEX", index)]);
         assert!(o.status.success(), "render pod {index}: {}", text(&o));
     }
-    let own: Vec<u64> = Manifest::read(&out.join("shards/0001-of-0002/manifest.jsonl")).unwrap().iter().map(|e| e.index).collect();
+    let own: Vec<u64> = Manifest::read(&out.join("shards/0001-of-0002/manifest.jsonl"))
+        .unwrap()
+        .iter()
+        .map(|e| e.index)
+        .collect();
     assert_eq!(own, vec![1, 3], "index 1 renders shard 1");
     let merge_job = yaml(&bin, &merge);
     let merge_pod = &merge_job["spec"]["template"]["spec"];

@@ -13,12 +13,26 @@ use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
 
 fn stereogen(args: &[&str]) -> Command {
     let mut c = Command::new(stereogen_bin());
-    c.args(args).stdin(Stdio::null()).env_remove("STEREOGEN_FAULT").env_remove("STEREOGEN_SHARD");
+    c.args(args)
+        .stdin(Stdio::null())
+        .env_remove("STEREOGEN_FAULT")
+        .env_remove("STEREOGEN_SHARD");
     c
 }
 
 fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {
-    let mut c = stereogen(&["generate", "--no-progress", "--threads", "1", "--seed", "9", "--count", &count.to_string(), "--shard", shard]);
+    let mut c = stereogen(&[
+        "generate",
+        "--no-progress",
+        "--threads",
+        "1",
+        "--seed",
+        "9",
+        "--count",
+        &count.to_string(),
+        "--shard",
+        shard,
+    ]);
     c.arg("--recipe").arg(recipe).arg("--out").arg(out);
     c
 }
@@ -28,7 +42,11 @@ fn run(mut c: Command) -> Output {
 }
 
 fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
 }
 
 /// A farm output of `count` samples in two shards, each rendered by its own process.
@@ -43,7 +61,12 @@ fn two_shard_farm(dir: &Path, count: u64) -> PathBuf {
 }
 
 fn copy_tree(from: &Path, to: &Path) {
-    let o = Command::new("cp").arg("-a").arg(from).arg(to).output().unwrap();
+    let o = Command::new("cp")
+        .arg("-a")
+        .arg(from)
+        .arg(to)
+        .output()
+        .unwrap();
     assert!(o.status.success(), "cp: {}", text(&o));
 }
 
@@ -58,7 +81,11 @@ fn merge(out: &Path, verify: bool) -> Output {
 
 /// The `problem:` lines merge printed.
 fn problems(o: &Output) -> Vec<String> {
-    String::from_utf8_lossy(&o.stdout).lines().filter_map(|l| l.strip_prefix("problem: ")).map(str::to_string).collect()
+    String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .filter_map(|l| l.strip_prefix("problem: "))
+        .map(str::to_string)
+        .collect()
 }
 
 #[test]
@@ -66,7 +93,11 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     let dir = tempfile::tempdir().unwrap();
     let out = two_shard_farm(dir.path(), 4);
     for (shard, indices) in [("0000-of-0002", vec![0, 2]), ("0001-of-0002", vec![1, 3])] {
-        let own: Vec<u64> = Manifest::read(&out.join("shards").join(shard).join("manifest.jsonl")).unwrap().iter().map(|e| e.index).collect();
+        let own: Vec<u64> = Manifest::read(&out.join("shards").join(shard).join("manifest.jsonl"))
+            .unwrap()
+            .iter()
+            .map(|e| e.index)
+            .collect();
         assert_eq!(own, indices, "{shard} holds its own indices");
     }
 
@@ -76,14 +107,26 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
         c.arg(&out);
         c
     });
-    assert!(!o.status.success() && text(&o).contains("not merged yet") && text(&o).contains("stereogen merge"), "{}", text(&o));
+    assert!(
+        !o.status.success()
+            && text(&o).contains("not merged yet")
+            && text(&o).contains("stereogen merge"),
+        "{}",
+        text(&o)
+    );
     let status = run({
         let mut c = stereogen(&["status"]);
         c.arg(&out);
         c
     });
     let status_text = text(&status);
-    assert!(status.status.success() && status_text.contains("0000-of-0002") && status_text.contains("finished") && status_text.contains("not merged yet"), "{status_text}");
+    assert!(
+        status.status.success()
+            && status_text.contains("0000-of-0002")
+            && status_text.contains("finished")
+            && status_text.contains("not merged yet"),
+        "{status_text}"
+    );
 
     // The broken copies are made before the good one is merged (merge writes into OUT).
     let broken = dir.path().join("broken");
@@ -93,24 +136,43 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     let o = merge(&out, true);
     let verify_time = t0.elapsed();
     assert!(o.status.success(), "{}", text(&o));
-    assert!(text(&o).contains("merged 4 samples of 2 shards"), "{}", text(&o));
+    assert!(
+        text(&o).contains("merged 4 samples of 2 shards"),
+        "{}",
+        text(&o)
+    );
     let merged = Manifest::read(&out.join("manifest.jsonl")).unwrap();
-    assert_eq!(merged.iter().map(|e| e.index).collect::<Vec<_>>(), vec![0, 1, 2, 3]);
-    assert!(merged[1].files.left.starts_with("shards/0001-of-0002"), "paths point into the shards: {:?}", merged[1].files.left);
+    assert_eq!(
+        merged.iter().map(|e| e.index).collect::<Vec<_>>(),
+        vec![0, 1, 2, 3]
+    );
+    assert!(
+        merged[1].files.left.starts_with("shards/0001-of-0002"),
+        "paths point into the shards: {:?}",
+        merged[1].files.left
+    );
     // The merged dataset reads like any other: stats --check, export, the stereo-io reader.
     let o = run({
         let mut c = stereogen(&["stats", "--check"]);
         c.arg(&out);
         c
     });
-    assert!(o.status.success(), "stats --check on the merged dataset: {}", text(&o));
+    assert!(
+        o.status.success(),
+        "stats --check on the merged dataset: {}",
+        text(&o)
+    );
     let exported = dir.path().join("middlebury");
     let o = run({
         let mut c = stereogen(&["export", "--format", "middlebury", "--out"]);
         c.arg(&exported).arg(&out);
         c
     });
-    assert!(o.status.success(), "export of the merged dataset: {}", text(&o));
+    assert!(
+        o.status.success(),
+        "export of the merged dataset: {}",
+        text(&o)
+    );
     assert_eq!(stereo_io::open_dataset(&out, None).unwrap().len(), 4);
     // The audit and the report take the merged dataset too (paths into the shards).
     let o = run({
@@ -118,16 +180,27 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
         c.arg(&out);
         c
     });
-    assert!(o.status.success(), "audit --check on the merged dataset: {}", text(&o));
+    assert!(
+        o.status.success(),
+        "audit --check on the merged dataset: {}",
+        text(&o)
+    );
     let report = dir.path().join("merged-report.html");
     let o = run({
         let mut c = stereogen(&["report", "--out"]);
         c.arg(&report).arg(&out);
         c
     });
-    assert!(o.status.success(), "report of the merged dataset: {}", text(&o));
+    assert!(
+        o.status.success(),
+        "report of the merged dataset: {}",
+        text(&o)
+    );
     let html = std::fs::read_to_string(&report).unwrap();
-    assert!(html.contains("data:image/"), "the merged report embeds the gallery's pictures");
+    assert!(
+        html.contains("data:image/"),
+        "the merged report embeds the gallery's pictures"
+    );
 
     // One set with four problems: a missing index, a duplicated one, another recipe, a live lock.
     let shard1 = DatasetLayout::new(broken.join("shards/0001-of-0002"));
@@ -136,7 +209,11 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     let lines1 = std::fs::read_to_string(shard1.manifest()).unwrap();
     let first1 = lines1.lines().next().unwrap();
     // Shard 1 loses index 3 and gains shard 0's index 0.
-    std::fs::write(shard1.manifest(), format!("{first1}\n{}\n", lines0.lines().next().unwrap())).unwrap();
+    std::fs::write(
+        shard1.manifest(),
+        format!("{first1}\n{}\n", lines0.lines().next().unwrap()),
+    )
+    .unwrap();
     let info = std::fs::read_to_string(shard1.info()).unwrap();
     let mut json: serde_json::Value = serde_json::from_str(&info).unwrap();
     json["recipe_fingerprint"] = serde_json::Value::String("0000000000000000".into());
@@ -152,11 +229,33 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     let lines = problems(&o);
     let has = |needle: &str| lines.iter().filter(|l| l.contains(needle)).count();
     assert_eq!(has("1 of 4 indices are missing: 3"), 1, "{lines:#?}");
-    assert_eq!(has("index 0 is duplicated: 2 entries (shards/0000-of-0002, shards/0001-of-0002)"), 1, "{lines:#?}");
-    assert_eq!(has("shards/0001-of-0002 was made with another recipe"), 1, "{lines:#?}");
-    assert_eq!(has(&format!("shards/0000-of-0002 is still locked: being written by pid {}", holder.id())), 1, "{lines:#?}");
-    assert!(!broken.join("manifest.jsonl").exists(), "nothing is written when anything is wrong");
-    assert!(text(&o).lines().last().unwrap().contains("problem(s)"), "{}", text(&o));
+    assert_eq!(
+        has("index 0 is duplicated: 2 entries (shards/0000-of-0002, shards/0001-of-0002)"),
+        1,
+        "{lines:#?}"
+    );
+    assert_eq!(
+        has("shards/0001-of-0002 was made with another recipe"),
+        1,
+        "{lines:#?}"
+    );
+    assert_eq!(
+        has(&format!(
+            "shards/0000-of-0002 is still locked: being written by pid {}",
+            holder.id()
+        )),
+        1,
+        "{lines:#?}"
+    );
+    assert!(
+        !broken.join("manifest.jsonl").exists(),
+        "nothing is written when anything is wrong"
+    );
+    assert!(
+        text(&o).lines().last().unwrap().contains("problem(s)"),
+        "{}",
+        text(&o)
+    );
 
     // A damaged file: found by --verify, named with its shard.
     let damaged = dir.path().join("damaged");
@@ -168,8 +267,19 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     std::fs::write(&png, bytes).unwrap();
     let o = merge(&damaged, true);
     assert!(!o.status.success());
-    assert_eq!(problems(&o).iter().filter(|l| l.contains("SHA-256 differs")).count(), 1, "{}", text(&o));
-    eprintln!("farm_merge: merge --verify of 4 samples took {:.3} s", verify_time.as_secs_f64());
+    assert_eq!(
+        problems(&o)
+            .iter()
+            .filter(|l| l.contains("SHA-256 differs"))
+            .count(),
+        1,
+        "{}",
+        text(&o)
+    );
+    eprintln!(
+        "farm_merge: merge --verify of 4 samples took {:.3} s",
+        verify_time.as_secs_f64()
+    );
 }
 
 #[test]
@@ -178,11 +288,21 @@ fn a_second_generate_fails_naming_the_holder_and_a_killed_holder_is_stale() {
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let out = dir.path().join("farm");
     let lock = out.join("shards/0000-of-0002/.stereogen.lock");
-    let mut first = generate(&recipe, &out, 400, "0/2").stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+    let mut first = generate(&recipe, &out, 400, "0/2")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
     let t0 = Instant::now();
     while !lock.exists() {
-        assert!(t0.elapsed() < Duration::from_secs(120), "the first generate never took the lock");
-        assert!(first.try_wait().unwrap().is_none(), "the first generate ended early");
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "the first generate never took the lock"
+        );
+        assert!(
+            first.try_wait().unwrap().is_none(),
+            "the first generate ended early"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
     let t1 = Instant::now();
@@ -190,8 +310,18 @@ fn a_second_generate_fails_naming_the_holder_and_a_killed_holder_is_stale() {
     let second_took = t1.elapsed();
     let err = text(&o);
     assert!(!o.status.success(), "{err}");
-    assert!(err.contains(&format!("pid {} on host {}", first.id(), stereogen::dataset::lock::hostname())) && err.contains("--break-lock"), "{err}");
-    assert!(second_took < Duration::from_secs(5), "the second fails at once, not after {second_took:?}");
+    assert!(
+        err.contains(&format!(
+            "pid {} on host {}",
+            first.id(),
+            stereogen::dataset::lock::hostname()
+        )) && err.contains("--break-lock"),
+        "{err}"
+    );
+    assert!(
+        second_took < Duration::from_secs(5),
+        "the second fails at once, not after {second_took:?}"
+    );
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
 
     // SIGKILL leaves the lock behind: status and merge call it killed, the next run breaks it.
@@ -203,9 +333,17 @@ fn a_second_generate_fails_naming_the_holder_and_a_killed_holder_is_stale() {
         c.arg(&out);
         c
     }));
-    assert!(status.contains(&format!("killed (pid {}", first.id())) && status.contains("is not running"), "{status}");
+    assert!(
+        status.contains(&format!("killed (pid {}", first.id()))
+            && status.contains("is not running"),
+        "{status}"
+    );
     let o = run(generate(&recipe, &out, 2, "0/2"));
     assert!(o.status.success(), "{}", text(&o));
-    assert!(text(&o).contains("breaking the lock") && text(&o).contains(&format!("pid {}", first.id())), "{}", text(&o));
+    assert!(
+        text(&o).contains("breaking the lock") && text(&o).contains(&format!("pid {}", first.id())),
+        "{}",
+        text(&o)
+    );
     assert!(!lock.exists(), "the new run's lock goes with it");
 }

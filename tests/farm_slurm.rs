@@ -37,9 +37,16 @@ impl Cluster {
             .stdin(Stdio::null())
             .output()
             .map_err(|e| format!("cannot run {SCRIPT}: {e}"))?;
-        let cluster = Self { dir: dir.to_path_buf(), conf: dir.join("slurm.conf") };
+        let cluster = Self {
+            dir: dir.to_path_buf(),
+            conf: dir.join("slurm.conf"),
+        };
         if !o.status.success() {
-            return Err(format!("{SCRIPT} start failed ({}): {}", o.status, String::from_utf8_lossy(&o.stderr).trim()));
+            return Err(format!(
+                "{SCRIPT} start failed ({}): {}",
+                o.status,
+                String::from_utf8_lossy(&o.stderr).trim()
+            ));
         }
         Ok(cluster)
     }
@@ -51,14 +58,23 @@ impl Cluster {
     }
 
     fn run(&self, program: &str, args: &[&str]) -> Output {
-        self.cmd(program).args(args).output().unwrap_or_else(|e| panic!("{program}: {e}"))
+        self.cmd(program)
+            .args(args)
+            .output()
+            .unwrap_or_else(|e| panic!("{program}: {e}"))
     }
 
     /// Fields of `scontrol show job ID` (for an array: its first task), e.g. `JobState`.
     fn job(&self, id: &str) -> BTreeMap<String, String> {
         let o = self.run("scontrol", &["show", "job", "--oneliner", id]);
         let text = String::from_utf8_lossy(&o.stdout);
-        text.lines().next().unwrap_or("").split_whitespace().filter_map(|kv| kv.split_once('=')).map(|(k, v)| (k.to_string(), v.to_string())).collect()
+        text.lines()
+            .next()
+            .unwrap_or("")
+            .split_whitespace()
+            .filter_map(|kv| kv.split_once('='))
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect()
     }
 
     /// Every job's `id state` as squeue sees them (pending, running, ...).
@@ -69,29 +85,53 @@ impl Cluster {
     fn wait_for_empty_queue(&self, what: &str) {
         let t0 = Instant::now();
         while !self.queue().trim().is_empty() {
-            assert!(t0.elapsed() < ROUND_TIMEOUT, "{what}: jobs still queued after {ROUND_TIMEOUT:?}:\n{}\n{}", self.queue(), self.logs());
+            assert!(
+                t0.elapsed() < ROUND_TIMEOUT,
+                "{what}: jobs still queued after {ROUND_TIMEOUT:?}:\n{}\n{}",
+                self.queue(),
+                self.logs()
+            );
             std::thread::sleep(Duration::from_millis(500));
         }
     }
 
     fn logs(&self) -> String {
-        let tail = |name: &str| std::fs::read_to_string(self.dir.join("log").join(name)).unwrap_or_default().lines().rev().take(15).collect::<Vec<_>>().join("\n");
-        format!("slurmctld.log (last lines, reversed):\n{}\nslurmd.log:\n{}", tail("slurmctld.log"), tail("slurmd.log"))
+        let tail = |name: &str| {
+            std::fs::read_to_string(self.dir.join("log").join(name))
+                .unwrap_or_default()
+                .lines()
+                .rev()
+                .take(15)
+                .collect::<Vec<_>>()
+                .join("\n")
+        };
+        format!(
+            "slurmctld.log (last lines, reversed):\n{}\nslurmd.log:\n{}",
+            tail("slurmctld.log"),
+            tail("slurmd.log")
+        )
     }
 }
 
 impl Drop for Cluster {
     fn drop(&mut self) {
-        let _ = Command::new("bash").args([SCRIPT, "stop"]).arg(&self.dir).stdin(Stdio::null()).output();
+        let _ = Command::new("bash")
+            .args([SCRIPT, "stop"])
+            .arg(&self.dir)
+            .stdin(Stdio::null())
+            .output();
     }
 }
 
 /// The cluster, or `None` after printing why not (a failure where Slurm is required).
 fn cluster_or_skip(dir: &Path) -> Option<Cluster> {
-    let required = std::env::var_os("CI").is_some() || std::env::var_os("STEREOGEN_REQUIRE_SLURM").is_some();
+    let required =
+        std::env::var_os("CI").is_some() || std::env::var_os("STEREOGEN_REQUIRE_SLURM").is_some();
     match Cluster::start(dir) {
         Ok(c) => Some(c),
-        Err(why) if required => panic!("a Slurm cluster is required here (CI or STEREOGEN_REQUIRE_SLURM is set) but: {why}"),
+        Err(why) if required => panic!(
+            "a Slurm cluster is required here (CI or STEREOGEN_REQUIRE_SLURM is set) but: {why}"
+        ),
         Err(why) => {
             eprintln!("SKIPPED farm_slurm: no local Slurm cluster: {why}");
             None
@@ -102,8 +142,23 @@ fn cluster_or_skip(dir: &Path) -> Option<Cluster> {
 /// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once.
 fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64) {
     let o = Command::new(stereogen_bin())
-        .args(["farm", "slurm", "--threads", "1", "--max-parallel", "2", "--seed", "3"])
-        .args(["--count", &count.to_string(), "--tasks", &tasks.to_string(), "--recipe"])
+        .args([
+            "farm",
+            "slurm",
+            "--threads",
+            "1",
+            "--max-parallel",
+            "2",
+            "--seed",
+            "3",
+        ])
+        .args([
+            "--count",
+            &count.to_string(),
+            "--tasks",
+            &tasks.to_string(),
+            "--recipe",
+        ])
         .arg(recipe)
         .arg("--out")
         .arg(out)
@@ -111,22 +166,41 @@ fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64) {
         .arg(stereogen_bin())
         .output()
         .unwrap();
-    assert!(o.status.success(), "farm slurm: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "farm slurm: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }
 
 /// Runs `submit.sh`; returns the render array's and the merge job's ids.
 fn submit(cluster: &Cluster, out: &Path) -> (String, String) {
-    let o = cluster.cmd("bash").arg(out.join("jobs/submit.sh")).output().unwrap();
+    let o = cluster
+        .cmd("bash")
+        .arg(out.join("jobs/submit.sh"))
+        .output()
+        .unwrap();
     let text = String::from_utf8_lossy(&o.stdout).into_owned();
-    assert!(o.status.success(), "submit.sh: {text}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "submit.sh: {text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     // "render array: 12  merge and check: 13"
     let words: Vec<&str> = text.split_whitespace().collect();
-    let after = |w: &str| words.iter().position(|x| *x == w).map(|i| words[i + 1].to_string()).unwrap_or_else(|| panic!("no {w} in {text}"));
+    let after = |w: &str| {
+        words
+            .iter()
+            .position(|x| *x == w)
+            .map(|i| words[i + 1].to_string())
+            .unwrap_or_else(|| panic!("no {w} in {text}"))
+    };
     (after("array:"), after("check:"))
 }
 
 fn merge_log(out: &Path, merge_job: &str) -> String {
-    std::fs::read_to_string(out.join(format!("jobs/logs/merge-{merge_job}.out"))).unwrap_or_default()
+    std::fs::read_to_string(out.join(format!("jobs/logs/merge-{merge_job}.out")))
+        .unwrap_or_default()
 }
 
 /// One dataset over the shards: every index once, each in its own shard, every file there with
@@ -134,31 +208,63 @@ fn merge_log(out: &Path, merge_job: &str) -> String {
 fn assert_complete_farm(out: &Path, count: u64, tasks: u64) {
     let entries = Manifest::read(&out.join("manifest.jsonl")).expect("the merged manifest reads");
     let indices: Vec<u64> = entries.iter().map(|e| e.index).collect();
-    assert_eq!(indices, (0..count).collect::<Vec<_>>(), "every index exactly once, in order");
+    assert_eq!(
+        indices,
+        (0..count).collect::<Vec<_>>(),
+        "every index exactly once, in order"
+    );
     let layout = DatasetLayout::new(out);
     for e in &entries {
         let shard = format!("shards/{:04}-of-{:04}/", e.index % tasks, tasks);
         for (key, rel) in e.files.all() {
-            assert!(rel.to_string_lossy().starts_with(&shard), "sample {} file {} is in its shard {shard}", e.index, rel.display());
+            assert!(
+                rel.to_string_lossy().starts_with(&shard),
+                "sample {} file {} is in its shard {shard}",
+                e.index,
+                rel.display()
+            );
             let path = layout.abs(rel);
             let sum = Command::new("sha256sum").arg(&path).output().unwrap();
-            let sum = String::from_utf8_lossy(&sum.stdout).split_whitespace().next().unwrap_or("").to_string();
-            assert_eq!(sum, e.sha256[key], "{} matches its checksum", path.display());
+            let sum = String::from_utf8_lossy(&sum.stdout)
+                .split_whitespace()
+                .next()
+                .unwrap_or("")
+                .to_string();
+            assert_eq!(
+                sum,
+                e.sha256[key],
+                "{} matches its checksum",
+                path.display()
+            );
         }
     }
     for k in 0..tasks {
         let shard = out.join(format!("shards/{k:04}-of-{tasks:04}"));
         let own = Manifest::read(&shard.join("manifest.jsonl")).unwrap();
-        assert_eq!(own.len() as u64, (0..count).filter(|i| i % tasks == k).count() as u64, "{}", shard.display());
+        assert_eq!(
+            own.len() as u64,
+            (0..count).filter(|i| i % tasks == k).count() as u64,
+            "{}",
+            shard.display()
+        );
         let mut files = 0;
         for entry in walk(&shard) {
             let name = entry.file_name().unwrap().to_string_lossy().into_owned();
-            assert!(!stereo_io::is_temp_name(&name) && !name.starts_with(".stereogen.lock"), "partial or lock file left: {}", entry.display());
+            assert!(
+                !stereo_io::is_temp_name(&name) && !name.starts_with(".stereogen.lock"),
+                "partial or lock file left: {}",
+                entry.display()
+            );
             if entry.parent() != Some(shard.as_path()) {
                 files += 1;
             }
         }
-        assert_eq!(files, 5 * own.len(), "{}: five files per sample, nothing else", shard.display());
+        assert_eq!(
+            files,
+            5 * own.len(),
+            "{}: five files per sample, nothing else",
+            shard.display()
+        );
     }
 }
 
@@ -176,14 +282,22 @@ fn walk(dir: &Path) -> Vec<PathBuf> {
 }
 
 fn stats_check(out: &Path) -> Output {
-    Command::new(stereogen_bin()).args(["stats", "--check"]).arg(out).arg("--out").arg(out.join("stats-test")).output().unwrap()
+    Command::new(stereogen_bin())
+        .args(["stats", "--check"])
+        .arg(out)
+        .arg("--out")
+        .arg(out.join("stats-test"))
+        .output()
+        .unwrap()
 }
 
 #[test]
 fn a_slurm_array_renders_merges_and_survives_preemption() {
     let t0 = Instant::now();
     let dir = tempfile::tempdir().unwrap();
-    let Some(cluster) = cluster_or_skip(&dir.path().join("slurm")) else { return };
+    let Some(cluster) = cluster_or_skip(&dir.path().join("slurm")) else {
+        return;
+    };
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let (count, tasks) = (8, 4);
 
@@ -193,15 +307,32 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     let (render, merge) = submit(&cluster, &out);
     cluster.wait_for_empty_queue("first farm");
     let merge_job = cluster.job(&merge);
-    assert_eq!(merge_job.get("JobState").map(String::as_str), Some("COMPLETED"), "merge job: {merge_job:?}\n{}", merge_log(&out, &merge));
-    assert!(merge_log(&out, &merge).contains("stereogen farm: merge and check passed"), "{}", merge_log(&out, &merge));
+    assert_eq!(
+        merge_job.get("JobState").map(String::as_str),
+        Some("COMPLETED"),
+        "merge job: {merge_job:?}\n{}",
+        merge_log(&out, &merge)
+    );
+    assert!(
+        merge_log(&out, &merge).contains("stereogen farm: merge and check passed"),
+        "{}",
+        merge_log(&out, &merge)
+    );
     for k in 0..tasks {
         let task = cluster.job(&format!("{render}_{k}"));
-        assert_eq!(task.get("JobState").map(String::as_str), Some("COMPLETED"), "render task {k}: {task:?}");
+        assert_eq!(
+            task.get("JobState").map(String::as_str),
+            Some("COMPLETED"),
+            "render task {k}: {task:?}"
+        );
     }
     assert_complete_farm(&out, count, tasks);
     let stats = stats_check(&out);
-    assert!(stats.status.success(), "stats --check on the merged dataset: {}", String::from_utf8_lossy(&stats.stdout));
+    assert!(
+        stats.status.success(),
+        "stats --check on the merged dataset: {}",
+        String::from_utf8_lossy(&stats.stdout)
+    );
     let first_round = t0.elapsed();
 
     // Preemption: SIGTERM to a task while it renders, then the same file again.
@@ -211,7 +342,11 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     let lock = out.join(format!("shards/0001-of-{tasks:04}/.stereogen.lock"));
     let t_wait = Instant::now();
     while !lock.exists() {
-        assert!(t_wait.elapsed() < ROUND_TIMEOUT, "task 1 never started: {}", cluster.queue());
+        assert!(
+            t_wait.elapsed() < ROUND_TIMEOUT,
+            "task 1 never started: {}",
+            cluster.queue()
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
     let task = format!("{render}_1");
@@ -220,9 +355,20 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     // retries ("already completing"). What counts is that the task stops, checked below.
     let o = cluster.run("scancel", &["--verbose", "--signal=TERM", &task]);
     let said = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(said.contains("Signal 15 to job"), "scancel did not signal {task}: {said}");
-    while cluster.job(&task).get("JobState").is_some_and(|s| s == "RUNNING") && lock.exists() {
-        assert!(t_term.elapsed() < Duration::from_secs(120), "task 1 ignored SIGTERM");
+    assert!(
+        said.contains("Signal 15 to job"),
+        "scancel did not signal {task}: {said}"
+    );
+    while cluster
+        .job(&task)
+        .get("JobState")
+        .is_some_and(|s| s == "RUNNING")
+        && lock.exists()
+    {
+        assert!(
+            t_term.elapsed() < Duration::from_secs(120),
+            "task 1 ignored SIGTERM"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
     let stop_time = t_term.elapsed();
@@ -230,7 +376,12 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     let (_, merge) = submit(&cluster, &out);
     cluster.wait_for_empty_queue("re-submitted farm");
     let merge_job = cluster.job(&merge);
-    assert_eq!(merge_job.get("JobState").map(String::as_str), Some("COMPLETED"), "merge after re-submission: {merge_job:?}\n{}", merge_log(&out, &merge));
+    assert_eq!(
+        merge_job.get("JobState").map(String::as_str),
+        Some("COMPLETED"),
+        "merge after re-submission: {merge_job:?}\n{}",
+        merge_log(&out, &merge)
+    );
     assert_complete_farm(&out, count, tasks);
     assert!(stats_check(&out).status.success());
     eprintln!(

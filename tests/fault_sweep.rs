@@ -30,7 +30,10 @@ struct Moments(u64);
 
 impl Moments {
     fn from_env() -> Self {
-        let seed = std::env::var("STEREOGEN_SWEEP_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(0x5eed_u64);
+        let seed = std::env::var("STEREOGEN_SWEEP_SEED")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0x5eed_u64);
         println!("kill moments from STEREOGEN_SWEEP_SEED={seed}");
         Self(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
     }
@@ -53,11 +56,17 @@ struct Seen {
 
 /// The direct children of `pid` (over all its threads: each worker is started by one).
 fn children(pid: u32) -> Vec<u32> {
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return Vec::new() };
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return Vec::new();
+    };
     tasks
         .flatten()
         .filter_map(|t| std::fs::read_to_string(t.path().join("children")).ok())
-        .flat_map(|s| s.split_whitespace().filter_map(|p| p.parse().ok()).collect::<Vec<u32>>())
+        .flat_map(|s| {
+            s.split_whitespace()
+                .filter_map(|p| p.parse().ok())
+                .collect::<Vec<u32>>()
+        })
         .collect()
 }
 
@@ -67,7 +76,14 @@ fn cmdline(pid: u32) -> Option<Vec<u8>> {
 
 /// Whether `pid` is still a live (not zombie) process with command line `cmd`.
 fn still_running(pid: u32, cmd: &[u8]) -> bool {
-    let state = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok().and_then(|s| s.rsplit(')').next().and_then(|r| r.split_whitespace().next()).map(str::to_string));
+    let state = std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| {
+            s.rsplit(')')
+                .next()
+                .and_then(|r| r.split_whitespace().next())
+                .map(str::to_string)
+        });
     state.is_some_and(|s| s != "Z" && s != "X") && cmdline(pid).is_some_and(|c| c == cmd)
 }
 
@@ -88,13 +104,31 @@ impl Sweep {
     fn new() -> Self {
         let dir = tempfile::tempdir().unwrap();
         let recipe = write_tiny_recipe(dir.path(), "crestereo");
-        Self { dir, recipe, seen: Seen::default(), moments: Moments::from_env() }
+        Self {
+            dir,
+            recipe,
+            seen: Seen::default(),
+            moments: Moments::from_env(),
+        }
     }
 
     fn start(&mut self, out: &Path, count: u64, extra: &[&str]) -> Run {
-        let stderr = self.dir.path().join(format!("stderr-{}.txt", self.seen.runs.len()));
+        let stderr = self
+            .dir
+            .path()
+            .join(format!("stderr-{}.txt", self.seen.runs.len()));
         let child = Command::new(stereogen_bin())
-            .args(["generate", "--no-progress", "--threads", "1", "--seed", "3", "--count", &count.to_string(), "--recipe"])
+            .args([
+                "generate",
+                "--no-progress",
+                "--threads",
+                "1",
+                "--seed",
+                "3",
+                "--count",
+                &count.to_string(),
+                "--recipe",
+            ])
             .arg(&self.recipe)
             .arg("--out")
             .arg(out)
@@ -112,7 +146,12 @@ impl Sweep {
 
     /// Polls `run` (noting its workers) until `until` holds or it exits; returns its exit status
     /// if it exited.
-    fn watch(&mut self, run: &mut Run, limit: Duration, until: &dyn Fn() -> bool) -> Option<ExitStatus> {
+    fn watch(
+        &mut self,
+        run: &mut Run,
+        limit: Duration,
+        until: &dyn Fn() -> bool,
+    ) -> Option<ExitStatus> {
         let t0 = Instant::now();
         loop {
             for w in children(run.child.id()) {
@@ -128,13 +167,19 @@ impl Sweep {
             if until() {
                 return None;
             }
-            assert!(t0.elapsed() < limit, "generate made no progress in {limit:?}: {}", read(&run.stderr));
+            assert!(
+                t0.elapsed() < limit,
+                "generate made no progress in {limit:?}: {}",
+                read(&run.stderr)
+            );
             std::thread::sleep(Duration::from_millis(10));
         }
     }
 
     fn finish(&mut self, mut run: Run) -> (ExitStatus, String) {
-        let status = self.watch(&mut run, Duration::from_secs(600), &|| false).unwrap();
+        let status = self
+            .watch(&mut run, Duration::from_secs(600), &|| false)
+            .unwrap();
         (status, read(&run.stderr))
     }
 
@@ -148,13 +193,26 @@ impl Sweep {
 
     /// No run of the sweep left a scratch folder, a worker, or (in `datasets`) a temp file.
     fn assert_nothing_left(&self, datasets: &[&Path]) {
-        let owners: BTreeSet<String> = self.seen.runs.iter().map(|p| format!("stereogen-{p}-")).collect();
+        let owners: BTreeSet<String> = self
+            .seen
+            .runs
+            .iter()
+            .map(|p| format!("stereogen-{p}-"))
+            .collect();
         let mut bases = scratch::candidate_bases(None);
-        bases.extend(datasets.iter().map(|d| d.join(scratch::DATASET_SCRATCH_DIR)));
+        bases.extend(
+            datasets
+                .iter()
+                .map(|d| d.join(scratch::DATASET_SCRATCH_DIR)),
+        );
         for base in bases {
             for e in std::fs::read_dir(&base).into_iter().flatten().flatten() {
                 let name = e.file_name().to_string_lossy().into_owned();
-                assert!(!owners.iter().any(|o| name.starts_with(o)), "scratch folder {} left behind", e.path().display());
+                assert!(
+                    !owners.iter().any(|o| name.starts_with(o)),
+                    "scratch folder {} left behind",
+                    e.path().display()
+                );
             }
         }
         for (pid, cmd) in &self.seen.workers {
@@ -163,10 +221,18 @@ impl Sweep {
         for d in datasets {
             for f in files_under(d) {
                 let name = f.file_name().unwrap_or_default().to_string_lossy();
-                assert!(!stereo_io::is_temp_name(&name), "temp file {} left in the dataset", f.display());
+                assert!(
+                    !stereo_io::is_temp_name(&name),
+                    "temp file {} left in the dataset",
+                    f.display()
+                );
             }
         }
-        println!("checked: no scratch folder of {} runs, none of {} workers alive, no temp file", self.seen.runs.len(), self.seen.workers.len());
+        println!(
+            "checked: no scratch folder of {} runs, none of {} workers alive, no temp file",
+            self.seen.runs.len(),
+            self.seen.workers.len()
+        );
     }
 }
 
@@ -175,13 +241,23 @@ fn read(p: &Path) -> String {
 }
 
 fn manifest_lines(out: &Path) -> usize {
-    std::fs::read_to_string(out.join("manifest.jsonl")).map(|t| t.lines().count()).unwrap_or(0)
+    std::fs::read_to_string(out.join("manifest.jsonl"))
+        .map(|t| t.lines().count())
+        .unwrap_or(0)
 }
 
 /// Checksums are recomputed with coreutils' sha256sum, independently of the generator.
 fn sha256_hex(path: &Path) -> String {
-    let out = Command::new("sha256sum").arg(path).output().expect("sha256sum");
-    String::from_utf8(out.stdout).unwrap().split_whitespace().next().unwrap().to_string()
+    let out = Command::new("sha256sum")
+        .arg(path)
+        .output()
+        .expect("sha256sum");
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_string()
 }
 
 /// Every file under `dir`, recursively.
@@ -208,11 +284,19 @@ fn assert_manifest_sound(out: &Path) -> BTreeSet<u64> {
         for (key, rel) in e.files.all() {
             let path = layout.abs(rel);
             assert!(path.is_file(), "{} is listed but missing", path.display());
-            assert_eq!(sha256_hex(&path), e.sha256[key], "{} does not match its manifest checksum", path.display());
+            assert_eq!(
+                sha256_hex(&path),
+                e.sha256[key],
+                "{} does not match its manifest checksum",
+                path.display()
+            );
             match key {
                 "left" | "right" => {
                     let img = stereo_io::read_rgb(&path).unwrap_or_else(|err| panic!("{err}"));
-                    assert_eq!((img.width, img.height), (e.width as usize, e.height as usize));
+                    assert_eq!(
+                        (img.width, img.height),
+                        (e.width as usize, e.height as usize)
+                    );
                 }
                 "disp_left" | "disp_right" => {
                     stereo_io::read_disparity_exr(&path).unwrap_or_else(|err| panic!("{err}"));
@@ -231,18 +315,43 @@ fn assert_complete(out: &Path, count: u64) {
     let indices = assert_manifest_sound(out);
     assert_eq!(indices, (0..count).collect(), "each sample exactly once");
     let entries = Manifest::read(&out.join("manifest.jsonl")).unwrap();
-    let listed: BTreeSet<PathBuf> = entries.iter().flat_map(|e| e.files.all().into_iter().map(|(_, rel)| out.join(rel)).collect::<Vec<_>>()).collect();
-    for category in entries.iter().map(|e| e.category.clone()).collect::<BTreeSet<_>>() {
+    let listed: BTreeSet<PathBuf> = entries
+        .iter()
+        .flat_map(|e| {
+            e.files
+                .all()
+                .into_iter()
+                .map(|(_, rel)| out.join(rel))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    for category in entries
+        .iter()
+        .map(|e| e.category.clone())
+        .collect::<BTreeSet<_>>()
+    {
         for f in std::fs::read_dir(out.join(&category)).unwrap().flatten() {
-            assert!(listed.contains(&f.path()), "{} is in the dataset but not in the manifest", f.path().display());
+            assert!(
+                listed.contains(&f.path()),
+                "{} is in the dataset but not in the manifest",
+                f.path().display()
+            );
         }
     }
     let failures = out.join("failures.jsonl");
-    assert!(!failures.exists(), "failures.jsonl still lists rendered samples: {}", read(&failures));
+    assert!(
+        !failures.exists(),
+        "failures.jsonl still lists rendered samples: {}",
+        read(&failures)
+    );
 }
 
 fn send(pid: u32, signal: i32) {
-    assert_eq!(unsafe { libc::kill(pid as i32, signal) }, 0, "cannot signal {pid}");
+    assert_eq!(
+        unsafe { libc::kill(pid as i32, signal) },
+        0,
+        "cannot signal {pid}"
+    );
 }
 
 /// kill -9 of `generate` at `kills` moments: every other one a random time after the start
@@ -254,19 +363,39 @@ fn kill_generate(sweep: &mut Sweep, out: &Path, count: u64, kills: usize) {
         let mut run = sweep.start(out, count, &[]);
         let lines = manifest_lines(out);
         let (delay, after) = if k % 2 == 1 {
-            (Duration::from_millis(sweep.moments.millis(4000)), "the start".to_string())
+            (
+                Duration::from_millis(sweep.moments.millis(4000)),
+                "the start".to_string(),
+            )
         } else {
-            let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| manifest_lines(out) > lines);
-            assert!(exited.is_none(), "the run finished before kill #{k}: raise the sample count");
-            (Duration::from_millis(sweep.moments.millis(700)), format!("sample {} was listed", lines + 1))
+            let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| {
+                manifest_lines(out) > lines
+            });
+            assert!(
+                exited.is_none(),
+                "the run finished before kill #{k}: raise the sample count"
+            );
+            (
+                Duration::from_millis(sweep.moments.millis(700)),
+                format!("sample {} was listed", lines + 1),
+            )
         };
         let since = Instant::now();
-        let exited = sweep.watch(&mut run, delay + Duration::from_secs(60), &|| since.elapsed() >= delay);
-        assert!(exited.is_none(), "the run finished before kill #{k}: raise the sample count");
+        let exited = sweep.watch(&mut run, delay + Duration::from_secs(60), &|| {
+            since.elapsed() >= delay
+        });
+        assert!(
+            exited.is_none(),
+            "the run finished before kill #{k}: raise the sample count"
+        );
         send(run.child.id(), libc::SIGKILL);
         run.child.wait().unwrap();
         let sound = assert_manifest_sound(out);
-        println!("kill -9 #{k} of generate {} ms after {after}: {} samples listed, all sound", delay.as_millis(), sound.len());
+        println!(
+            "kill -9 #{k} of generate {} ms after {after}: {} samples listed, all sound",
+            delay.as_millis(),
+            sound.len()
+        );
     }
 }
 
@@ -276,14 +405,22 @@ fn kill_worker(sweep: &mut Sweep, out: &Path, count: u64) {
     let pid = run.child.id();
     // Past its start-up: it has finished a sample of this run.
     let lines = manifest_lines(out);
-    let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| !children(pid).is_empty() && manifest_lines(out) > lines);
-    assert!(exited.is_none(), "the run ended before its worker could be killed");
+    let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| {
+        !children(pid).is_empty() && manifest_lines(out) > lines
+    });
+    assert!(
+        exited.is_none(),
+        "the run ended before its worker could be killed"
+    );
     std::thread::sleep(Duration::from_millis(sweep.moments.millis(400)));
     for w in children(pid) {
         send(w, libc::SIGKILL);
     }
     let (status, err) = sweep.finish(run);
-    assert!(status.success() && err.contains("worker restart"), "a killed worker is restarted: {err}");
+    assert!(
+        status.success() && err.contains("worker restart"),
+        "a killed worker is restarted: {err}"
+    );
     println!("kill -9 of the worker: restarted, run completed");
 }
 
@@ -292,7 +429,9 @@ fn interrupt(sweep: &mut Sweep, out: &Path, count: u64, signal: i32, name: &str)
     let mut run = sweep.start(out, count, &[]);
     let pid = run.child.id();
     let lines = manifest_lines(out);
-    let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| !children(pid).is_empty() && manifest_lines(out) > lines);
+    let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| {
+        !children(pid).is_empty() && manifest_lines(out) > lines
+    });
     assert!(exited.is_none(), "the run ended before it could be stopped");
     std::thread::sleep(Duration::from_millis(sweep.moments.millis(600)));
     let t0 = Instant::now();
@@ -301,10 +440,16 @@ fn interrupt(sweep: &mut Sweep, out: &Path, count: u64, signal: i32, name: &str)
     let stopped_in = t0.elapsed();
     assert_eq!(status.code(), Some(EXIT_INTERRUPTED), "{name}: {err}");
     assert!(err.contains(&format!("stopped by {name}")), "{err}");
-    assert!(stopped_in < Duration::from_secs(15), "{name} took {stopped_in:?} to stop the run");
+    assert!(
+        stopped_in < Duration::from_secs(15),
+        "{name} took {stopped_in:?} to stop the run"
+    );
     assert_manifest_sound(out);
     sweep.assert_nothing_left(&[out]);
-    println!("{name}: stopped in {:.2} s, exit {EXIT_INTERRUPTED}, nothing left", stopped_in.as_secs_f64());
+    println!(
+        "{name}: stopped in {:.2} s, exit {EXIT_INTERRUPTED}, nothing left",
+        stopped_in.as_secs_f64()
+    );
 }
 
 /// A dataset on a small filesystem filled to `levels` (bytes left) before a run: the run fails
@@ -323,19 +468,38 @@ fn fill_disk(sweep: &mut Sweep, levels: &[u64]) {
         let (status, err) = sweep.finish(run);
         let sound = assert_manifest_sound(&out);
         if status.success() {
-            assert!(sound.contains(&(count - 1)), "exit 0 without the sample: {err}");
+            assert!(
+                sound.contains(&(count - 1)),
+                "exit 0 without the sample: {err}"
+            );
         } else {
             failed += 1;
             let last = err.lines().last().unwrap_or_default();
-            assert!(last.starts_with("error: ") && last.contains("No space left on device"), "{last}");
+            assert!(
+                last.starts_with("error: ") && last.contains("No space left on device"),
+                "{last}"
+            );
             assert_eq!(last.matches("os error 28").count(), 1, "{last}");
-            assert!(!sound.contains(&(count - 1)), "a sample whose write failed is in the manifest: {err}");
+            assert!(
+                !sound.contains(&(count - 1)),
+                "a sample whose write failed is in the manifest: {err}"
+            );
         }
         sweep.assert_nothing_left(&[&out]);
         std::fs::remove_file(filler).unwrap();
-        println!("disk full with {leave} bytes left: {}", if status.success() { "sample fit".to_string() } else { format!("failed cleanly: {}", err.lines().last().unwrap()) });
+        println!(
+            "disk full with {leave} bytes left: {}",
+            if status.success() {
+                "sample fit".to_string()
+            } else {
+                format!("failed cleanly: {}", err.lines().last().unwrap())
+            }
+        );
     }
-    assert!(failed >= levels.len() / 2, "the disk never filled up: only {failed} runs failed");
+    assert!(
+        failed >= levels.len() / 2,
+        "the disk never filled up: only {failed} runs failed"
+    );
     sweep.complete(&out, count);
     assert_complete(&out, count);
     sweep.assert_nothing_left(&[&out]);
@@ -347,9 +511,15 @@ fn two_writers(sweep: &mut Sweep, out: &Path, count: u64) {
     let b = sweep.start(out, count, &[]);
     let (sa, ea) = sweep.finish(a);
     let (sb, eb) = sweep.finish(b);
-    assert!(sa.success() != sb.success(), "exactly one writer runs: {ea} / {eb}");
+    assert!(
+        sa.success() != sb.success(),
+        "exactly one writer runs: {ea} / {eb}"
+    );
     let refused = if sa.success() { eb } else { ea };
-    assert!(refused.contains("another stereogen process is writing to"), "{refused}");
+    assert!(
+        refused.contains("another stereogen process is writing to"),
+        "{refused}"
+    );
     println!("two writers: one refused");
 }
 

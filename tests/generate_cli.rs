@@ -11,8 +11,16 @@ use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
 
 /// Checksums are recomputed with coreutils' sha256sum, independently of the generator.
 fn sha256_hex(path: &Path) -> String {
-    let out = Command::new("sha256sum").arg(path).output().expect("sha256sum");
-    String::from_utf8(out.stdout).unwrap().split_whitespace().next().unwrap().to_string()
+    let out = Command::new("sha256sum")
+        .arg(path)
+        .output()
+        .expect("sha256sum");
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_string()
 }
 
 /// The default preset shrunk so a sample renders in about a second.
@@ -28,11 +36,21 @@ fn generate_cmd(recipe: &Path, out: &Path, count: u64) -> Command {
 
 fn generate_with_seed(recipe: &Path, out: &Path, count: u64, seed: u64) -> Command {
     let mut c = Command::new(stereogen_bin());
-    c.args(["generate", "--no-progress", "--threads", "1", "--seed", &seed.to_string(), "--count", &count.to_string(), "--recipe"])
-        .arg(recipe)
-        .arg("--out")
-        .arg(out)
-        .env_remove("STEREOGEN_FAULT");
+    c.args([
+        "generate",
+        "--no-progress",
+        "--threads",
+        "1",
+        "--seed",
+        &seed.to_string(),
+        "--count",
+        &count.to_string(),
+        "--recipe",
+    ])
+    .arg(recipe)
+    .arg("--out")
+    .arg(out)
+    .env_remove("STEREOGEN_FAULT");
     c
 }
 
@@ -50,18 +68,35 @@ fn assert_complete_dataset(out: &Path, count: u64) {
     let entries = Manifest::read(&layout.manifest()).expect("every manifest line parses");
     let mut indices: Vec<u64> = entries.iter().map(|e| e.index).collect();
     indices.sort();
-    assert_eq!(indices, (0..count).collect::<Vec<_>>(), "each sample exactly once");
+    assert_eq!(
+        indices,
+        (0..count).collect::<Vec<_>>(),
+        "each sample exactly once"
+    );
     for e in &entries {
         for (key, rel) in e.files.all() {
             let path = layout.abs(rel);
             assert!(path.is_file(), "{} missing", path.display());
-            assert_eq!(sha256_hex(&path), e.sha256[key], "{} does not match its manifest checksum", path.display());
+            assert_eq!(
+                sha256_hex(&path),
+                e.sha256[key],
+                "{} does not match its manifest checksum",
+                path.display()
+            );
         }
         stereo_io::read_disparity_exr(&layout.abs(&e.files.disp_left)).expect("readable disparity");
     }
     let mut files = Vec::new();
-    for category in entries.iter().map(|e| e.category.clone()).collect::<std::collections::BTreeSet<_>>() {
-        files.extend(std::fs::read_dir(out.join(&category)).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()));
+    for category in entries
+        .iter()
+        .map(|e| e.category.clone())
+        .collect::<std::collections::BTreeSet<_>>()
+    {
+        files.extend(
+            std::fs::read_dir(out.join(&category))
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned()),
+        );
     }
     assert_eq!(files.len() as u64, 5 * count, "no stray files: {files:?}");
 }
@@ -72,31 +107,50 @@ fn killed_run_resumes_to_a_complete_dataset() {
     let recipe = tiny_recipe(dir.path());
     let out = dir.path().join("data");
     let count = 6;
-    let mut child = generate_cmd(&recipe, &out, count).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+    let mut child = generate_cmd(&recipe, &out, count)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
     let manifest = out.join("manifest.jsonl");
     let t0 = Instant::now();
     loop {
-        let lines = std::fs::read_to_string(&manifest).map(|t| t.lines().count()).unwrap_or(0);
+        let lines = std::fs::read_to_string(&manifest)
+            .map(|t| t.lines().count())
+            .unwrap_or(0);
         if lines >= 2 {
             break;
         }
         assert!(t0.elapsed() < Duration::from_secs(300), "no progress");
-        assert!(child.try_wait().unwrap().is_none(), "generate ended before it could be killed");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "generate ended before it could be killed"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
     child.kill().unwrap(); // SIGKILL, in the middle of the next sample
     child.wait().unwrap();
-    let done_before = Manifest::read(&manifest).expect("manifest lines stay valid after SIGKILL").len();
+    let done_before = Manifest::read(&manifest)
+        .expect("manifest lines stay valid after SIGKILL")
+        .len();
     assert!(done_before < count as usize);
 
     let o = run(generate_cmd(&recipe, &out, count));
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains(&format!("{done_before} already done")), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(&format!("{done_before} already done")),
+        "{}",
+        stderr(&o)
+    );
     assert_complete_dataset(&out, count);
 
     // A third run has nothing left to do.
     let o = run(generate_cmd(&recipe, &out, count));
-    assert!(stderr(&o).contains(&format!("0 rendered, {count} already done")), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(&format!("0 rendered, {count} already done")),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
@@ -105,12 +159,19 @@ fn crashed_and_hung_workers_are_restarted_and_the_run_completes() {
     let recipe = tiny_recipe(dir.path());
     let out = dir.path().join("data");
     let mut c = generate_cmd(&recipe, &out, 4);
-    c.env("STEREOGEN_FAULT", "crash@1,hang@2").args(["--timeout", "20"]);
+    c.env("STEREOGEN_FAULT", "crash@1,hang@2")
+        .args(["--timeout", "20"]);
     let o = run(c);
     let err = stderr(&o);
     assert!(o.status.success(), "{err}");
-    assert!(err.contains("killed by signal 11"), "the crash is reported: {err}");
-    assert!(err.contains("gave no answer within 20s"), "the hang is reported: {err}");
+    assert!(
+        err.contains("killed by signal 11"),
+        "the crash is reported: {err}"
+    );
+    assert!(
+        err.contains("gave no answer within 20s"),
+        "the hang is reported: {err}"
+    );
     assert!(err.contains("2 worker restart(s)"), "{err}");
     assert_complete_dataset(&out, 4);
 }
@@ -121,14 +182,25 @@ fn a_sample_that_always_crashes_is_recorded_and_the_rest_finish() {
     let recipe = tiny_recipe(dir.path());
     let out = dir.path().join("data");
     let mut c = generate_cmd(&recipe, &out, 3);
-    c.env("STEREOGEN_FAULT", "crash-always@1").args(["--retries", "1"]);
+    c.env("STEREOGEN_FAULT", "crash-always@1")
+        .args(["--retries", "1"]);
     let o = run(c);
     let err = stderr(&o);
     assert!(!o.status.success());
-    assert!(err.lines().last().unwrap().starts_with("error: 1 sample(s) failed"), "{err}");
+    assert!(
+        err.lines()
+            .last()
+            .unwrap()
+            .starts_with("error: 1 sample(s) failed"),
+        "{err}"
+    );
     let failures = std::fs::read_to_string(out.join("failures.jsonl")).unwrap();
     assert!(failures.contains("\"index\":1"), "{failures}");
-    let mut done: Vec<u64> = Manifest::read(&out.join("manifest.jsonl")).unwrap().iter().map(|e| e.index).collect();
+    let mut done: Vec<u64> = Manifest::read(&out.join("manifest.jsonl"))
+        .unwrap()
+        .iter()
+        .map(|e| e.index)
+        .collect();
     done.sort();
     assert_eq!(done, vec![0, 2]);
 }
@@ -140,7 +212,10 @@ fn assert_one_line_error(c: Command, expect: &str) {
     let err = stderr(&o);
     let lines: Vec<&str> = err.lines().collect();
     assert_eq!(lines.len(), 1, "one line expected, got: {err}");
-    assert!(lines[0].starts_with("error: ") && lines[0].contains(expect), "expected {expect:?} in {err}");
+    assert!(
+        lines[0].starts_with("error: ") && lines[0].contains(expect),
+        "expected {expect:?} in {err}"
+    );
 }
 
 #[test]
@@ -149,23 +224,44 @@ fn bad_input_gives_one_clear_line() {
     let out = dir.path().join("data");
 
     let unknown = dir.path().join("unknown.toml");
-    std::fs::write(&unknown, DEFAULT_RECIPE_TOML.replace("[render]", "[render]\nspp = 8")).unwrap();
+    std::fs::write(
+        &unknown,
+        DEFAULT_RECIPE_TOML.replace("[render]", "[render]\nspp = 8"),
+    )
+    .unwrap();
     assert_one_line_error(generate_cmd(&unknown, &out, 1), "unknown field `spp`");
 
     let missing = dir.path().join("missing.toml");
-    std::fs::write(&missing, DEFAULT_RECIPE_TOML.replace("baseline_m = ", "# baseline_m = ")).unwrap();
-    assert_one_line_error(generate_cmd(&missing, &out, 1), "missing field `baseline_m`");
+    std::fs::write(
+        &missing,
+        DEFAULT_RECIPE_TOML.replace("baseline_m = ", "# baseline_m = "),
+    )
+    .unwrap();
+    assert_one_line_error(
+        generate_cmd(&missing, &out, 1),
+        "missing field `baseline_m`",
+    );
 
     let range = dir.path().join("range.toml");
-    std::fs::write(&range, DEFAULT_RECIPE_TOML.replace("samples = 32", "samples = 0")).unwrap();
+    std::fs::write(
+        &range,
+        DEFAULT_RECIPE_TOML.replace("samples = 32", "samples = 0"),
+    )
+    .unwrap();
     assert_one_line_error(generate_cmd(&range, &out, 1), "`render.samples` is invalid");
 
-    assert_one_line_error(generate_cmd(&dir.path().join("nope.toml"), &out, 1), "cannot read recipe");
+    assert_one_line_error(
+        generate_cmd(&dir.path().join("nope.toml"), &out, 1),
+        "cannot read recipe",
+    );
 
     let recipe = tiny_recipe(dir.path());
     let a_file = dir.path().join("a_file");
     std::fs::write(&a_file, b"x").unwrap();
-    assert_one_line_error(generate_cmd(&recipe, &a_file.join("data"), 1), "cannot create output directory");
+    assert_one_line_error(
+        generate_cmd(&recipe, &a_file.join("data"), 1),
+        "cannot create output directory",
+    );
 
     let mut c = generate_cmd(&recipe, &dir.path().join("d1"), 1);
     c.args(["--blender", "/no/such/blender"]);
@@ -186,19 +282,33 @@ fn a_dataset_refuses_another_seed_or_recipe() {
     let recipe = tiny_recipe(dir.path());
     let out = dir.path().join("data");
     assert!(run(generate_cmd(&recipe, &out, 1)).status.success());
-    assert_one_line_error(generate_with_seed(&recipe, &out, 1, 6), "was generated with --seed 5");
+    assert_one_line_error(
+        generate_with_seed(&recipe, &out, 1, 6),
+        "was generated with --seed 5",
+    );
     let other = dir.path().join("other.toml");
-    std::fs::write(&other, std::fs::read_to_string(&recipe).unwrap().replace("samples = 2\n", "samples = 3\n")).unwrap();
-    assert_one_line_error(generate_cmd(&other, &out, 1), "was generated with another recipe");
+    std::fs::write(
+        &other,
+        std::fs::read_to_string(&recipe)
+            .unwrap()
+            .replace("samples = 2\n", "samples = 3\n"),
+    )
+    .unwrap();
+    assert_one_line_error(
+        generate_cmd(&other, &out, 1),
+        "was generated with another recipe",
+    );
 }
 
 #[test]
 fn plan_is_byte_identical_across_processes() {
-    let plan = || run({
-        let mut c = Command::new(stereogen_bin());
-        c.args(["plan", "--seed", "9", "--index", "41"]);
-        c
-    });
+    let plan = || {
+        run({
+            let mut c = Command::new(stereogen_bin());
+            c.args(["plan", "--seed", "9", "--index", "41"]);
+            c
+        })
+    };
     let (a, b) = (plan(), plan());
     assert!(a.status.success());
     assert!(!a.stdout.is_empty());

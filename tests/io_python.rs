@@ -14,8 +14,16 @@ use stereo_io::*;
 const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
 
 fn run(cmd: &mut Command, what: &str) {
-    let out = cmd.output().unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
-    assert!(out.status.success(), "{what} failed ({}):\n{}\n{}", out.status, String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
+    assert!(
+        out.status.success(),
+        "{what} failed ({}):\n{}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 /// A venv with the pinned packages, made once (under a file lock) and reused.
@@ -24,13 +32,31 @@ pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
     std::fs::create_dir_all(&base).unwrap();
     let lock = std::fs::File::create(base.join(".lock")).unwrap();
     // SAFETY: flock on an open descriptor; released when `lock` is dropped.
-    assert_eq!(unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX) }, 0);
+    assert_eq!(
+        unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX) },
+        0
+    );
     let venv = base.join(format!("{name}-{}", pins.join("-").replace("==", "")));
     if !venv.join(".complete").is_file() {
         let _ = std::fs::remove_dir_all(&venv);
-        let python = std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").unwrap_or_else(|_| "python3".into());
-        run(Command::new(&python).args(["-m", "venv"]).arg(&venv), "python3 -m venv");
-        run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"]).args(pins), "pip install");
+        let python =
+            std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").unwrap_or_else(|_| "python3".into());
+        run(
+            Command::new(&python).args(["-m", "venv"]).arg(&venv),
+            "python3 -m venv",
+        );
+        run(
+            Command::new(venv.join("bin/python"))
+                .args([
+                    "-m",
+                    "pip",
+                    "install",
+                    "--quiet",
+                    "--disable-pip-version-check",
+                ])
+                .args(pins),
+            "pip install",
+        );
         std::fs::write(venv.join(".complete"), pins.join("\n")).unwrap();
     }
     venv
@@ -38,7 +64,10 @@ pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
 
 fn target_dir() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
-    exe.ancestors().nth(3).expect("<target>/<profile>/deps/<test>").to_path_buf()
+    exe.ancestors()
+        .nth(3)
+        .expect("<target>/<profile>/deps/<test>")
+        .to_path_buf()
 }
 
 /// Builds the module with maturin and installs the wheel into `venv`.
@@ -47,7 +76,13 @@ pub fn install_module(venv: &Path) {
     let wheels = tempfile::tempdir().unwrap();
     run(
         Command::new(venv.join("bin/maturin"))
-            .args(["build", "--release", "--auditwheel", "skip", "--manifest-path"])
+            .args([
+                "build",
+                "--release",
+                "--auditwheel",
+                "skip",
+                "--manifest-path",
+            ])
             .arg(root.join("crates/stereogen-py/Cargo.toml"))
             .arg("--interpreter")
             .arg(venv.join("bin/python"))
@@ -56,12 +91,35 @@ pub fn install_module(venv: &Path) {
             .env("CARGO_TARGET_DIR", target_dir().join("python-ext")),
         "maturin build",
     );
-    let wheel = std::fs::read_dir(wheels.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|x| x == "whl")).expect("a wheel");
-    run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check", "--no-deps", "--force-reinstall"]).arg(&wheel), "pip install wheel");
+    let wheel = std::fs::read_dir(wheels.path())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "whl"))
+        .expect("a wheel");
+    run(
+        Command::new(venv.join("bin/python"))
+            .args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--disable-pip-version-check",
+                "--no-deps",
+                "--force-reinstall",
+            ])
+            .arg(&wheel),
+        "pip install wheel",
+    );
 }
 
 fn rgb(w: usize, h: usize, seed: u8) -> RgbImage {
-    RgbImage { width: w, height: h, data: (0..w * h * 3).map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed)).collect() }
+    RgbImage {
+        width: w,
+        height: h,
+        data: (0..w * h * 3)
+            .map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed))
+            .collect(),
+    }
 }
 
 fn disp(w: usize, h: usize, seed: f32) -> DisparityMap {
@@ -74,7 +132,14 @@ fn disp(w: usize, h: usize, seed: f32) -> DisparityMap {
 }
 
 fn npy(path: PathBuf, h: usize, w: usize, c: usize, data: Vec<f32>) {
-    write_npy(&path, &NpyArray { shape: if c == 1 { vec![h, w] } else { vec![h, w, c] }, data }).unwrap();
+    write_npy(
+        &path,
+        &NpyArray {
+            shape: if c == 1 { vec![h, w] } else { vec![h, w, c] },
+            data,
+        },
+    )
+    .unwrap();
 }
 
 /// Writes the fixture datasets and the Rust readers' results; returns the expectations.
@@ -87,10 +152,28 @@ fn fixtures(dir: &Path) -> serde_json::Value {
     let mut manifest = String::new();
     for (i, id) in ["0000000", "0000001"].iter().enumerate() {
         write_png_rgb(&cat.join(format!("{id}_left.png")), &rgb(w, h, i as u8)).unwrap();
-        write_png_rgb(&cat.join(format!("{id}_right.png")), &rgb(w, h, 50 + i as u8)).unwrap();
-        let meta = DisparityMeta { f_px: Some(80.0), baseline_m: Some(0.12), view: Some("left".into()) };
-        write_disparity_exr(&cat.join(format!("{id}_left.disp.exr")), &disp(w, h, 1.0 + i as f32), &meta).unwrap();
-        write_disparity_exr(&cat.join(format!("{id}_right.disp.exr")), &disp(w, h, 2.0), &meta).unwrap();
+        write_png_rgb(
+            &cat.join(format!("{id}_right.png")),
+            &rgb(w, h, 50 + i as u8),
+        )
+        .unwrap();
+        let meta = DisparityMeta {
+            f_px: Some(80.0),
+            baseline_m: Some(0.12),
+            view: Some("left".into()),
+        };
+        write_disparity_exr(
+            &cat.join(format!("{id}_left.disp.exr")),
+            &disp(w, h, 1.0 + i as f32),
+            &meta,
+        )
+        .unwrap();
+        write_disparity_exr(
+            &cat.join(format!("{id}_right.disp.exr")),
+            &disp(w, h, 2.0),
+            &meta,
+        )
+        .unwrap();
         let files = json!({"left": format!("primitives/{id}_left.png"), "right": format!("primitives/{id}_right.png"), "disp_left": format!("primitives/{id}_left.disp.exr"), "disp_right": format!("primitives/{id}_right.disp.exr"), "scene": format!("primitives/{id}.scene.json")});
         manifest += &(json!({"id": id, "category": "primitives", "index": i, "files": files, "width": w, "height": h, "f_px": 80.0, "baseline_m": 0.12, "cx": 2.5, "cy": 2.0}).to_string() + "\n");
     }
@@ -109,7 +192,12 @@ fn fixtures(dir: &Path) -> serde_json::Value {
     }
     write_png_rgb(&kt.join("image_2/000000_10.png"), &rgb(w, h, 9)).unwrap();
     write_png_rgb(&kt.join("image_3/000000_10.png"), &rgb(w, h, 10)).unwrap();
-    write_disparity_png16(&kt.join("disp_occ_0/000000_10.png"), &disp(w, h, 4.0), 256.0).unwrap();
+    write_disparity_png16(
+        &kt.join("disp_occ_0/000000_10.png"),
+        &disp(w, h, 4.0),
+        256.0,
+    )
+    .unwrap();
     let mut noc = disp(w, h, 4.0);
     noc.valid[0] = false;
     write_disparity_png16(&kt.join("disp_noc_0/000000_10.png"), &noc, 256.0).unwrap();
@@ -126,11 +214,39 @@ fn fixtures(dir: &Path) -> serde_json::Value {
             let s = ds.sample(i).unwrap();
             ids.push(s.meta.id.clone());
             let f = |v: &[u8]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-            npy(refs.join(format!("{name}_{i}_left.npy")), h, w, 3, f(&s.left.data));
-            npy(refs.join(format!("{name}_{i}_right.npy")), h, w, 3, f(&s.right.data));
-            npy(refs.join(format!("{name}_{i}_disp_left.npy")), h, w, 1, s.disp_left.data.clone());
-            npy(refs.join(format!("{name}_{i}_valid_left.npy")), h, w, 1, s.valid_mask().iter().map(|&v| v as u8 as f32).collect());
-            for (k, v) in [("f_px", s.meta.f_px), ("baseline_m", s.meta.baseline_m), ("cx", s.meta.cx)] {
+            npy(
+                refs.join(format!("{name}_{i}_left.npy")),
+                h,
+                w,
+                3,
+                f(&s.left.data),
+            );
+            npy(
+                refs.join(format!("{name}_{i}_right.npy")),
+                h,
+                w,
+                3,
+                f(&s.right.data),
+            );
+            npy(
+                refs.join(format!("{name}_{i}_disp_left.npy")),
+                h,
+                w,
+                1,
+                s.disp_left.data.clone(),
+            );
+            npy(
+                refs.join(format!("{name}_{i}_valid_left.npy")),
+                h,
+                w,
+                1,
+                s.valid_mask().iter().map(|&v| v as u8 as f32).collect(),
+            );
+            for (k, v) in [
+                ("f_px", s.meta.f_px),
+                ("baseline_m", s.meta.baseline_m),
+                ("cx", s.meta.cx),
+            ] {
                 if let Some(v) = v {
                     meta.insert(k.into(), json!(v));
                 }
@@ -139,12 +255,21 @@ fn fixtures(dir: &Path) -> serde_json::Value {
                 meta.insert("ndisp".into(), json!(n));
             }
         }
-        datasets.insert(name.into(), json!({"format": ds.format().name(), "len": ds.len(), "ids": ids, "meta": meta}));
+        datasets.insert(
+            name.into(),
+            json!({"format": ds.format().name(), "len": ds.len(), "ids": ids, "meta": meta}),
+        );
     }
     let exr = "primitives/0000001_left.disp.exr";
     let (m, em) = read_disparity(&ours.join(exr), None).unwrap();
     npy(refs.join("exr_disp.npy"), h, w, 1, m.data.clone());
-    npy(refs.join("exr_valid.npy"), h, w, 1, m.valid.iter().map(|&v| v as u8 as f32).collect());
+    npy(
+        refs.join("exr_valid.npy"),
+        h,
+        w,
+        1,
+        m.valid.iter().map(|&v| v as u8 as f32).collect(),
+    );
 
     // Broken inputs and the messages Rust gives for them.
     let bad = dir.join("bad");
@@ -152,15 +277,29 @@ fn fixtures(dir: &Path) -> serde_json::Value {
     std::fs::write(bad.join("cut.pfm"), b"Pf\n4 4\n-1.0\n\0\0").unwrap();
     std::fs::write(bad.join("noise.exr"), b"\x76\x2f\x31\x01garbage").unwrap();
     let mut errors = vec![];
-    for p in [bad.join("cut.pfm"), bad.join("noise.exr"), bad.join("missing.pfm")] {
+    for p in [
+        bad.join("cut.pfm"),
+        bad.join("noise.exr"),
+        bad.join("missing.pfm"),
+    ] {
         let e = read_disparity(&p, None).unwrap_err();
-        let ty = if matches!(e, Error::Io { .. }) { "OSError" } else { "ValueError" };
-        errors.push(json!({"call": "read_disparity", "path": p, "type": ty, "message": e.to_string()}));
+        let ty = if matches!(e, Error::Io { .. }) {
+            "OSError"
+        } else {
+            "ValueError"
+        };
+        errors.push(
+            json!({"call": "read_disparity", "path": p, "type": ty, "message": e.to_string()}),
+        );
     }
     let broken = dir.join("broken_ours");
     std::fs::create_dir_all(broken.join("primitives")).unwrap();
     std::fs::copy(ours.join("manifest.jsonl"), broken.join("manifest.jsonl")).unwrap();
-    std::fs::write(broken.join("primitives/0000000_left.png"), b"\x89PNG\r\n\x1a\nbroken").unwrap();
+    std::fs::write(
+        broken.join("primitives/0000000_left.png"),
+        b"\x89PNG\r\n\x1a\nbroken",
+    )
+    .unwrap();
     let e = open_dataset(&broken, None).unwrap().sample(0).unwrap_err();
     errors.push(json!({"call": "open_dataset", "path": broken, "type": "ValueError", "message": e.to_string()}));
 
@@ -173,7 +312,11 @@ fn python_module_matches_the_rust_readers() {
     install_module(&venv);
     let dir = tempfile::tempdir().unwrap();
     let expect = fixtures(dir.path());
-    std::fs::write(dir.path().join("expect.json"), serde_json::to_string_pretty(&expect).unwrap()).unwrap();
+    std::fs::write(
+        dir.path().join("expect.json"),
+        serde_json::to_string_pretty(&expect).unwrap(),
+    )
+    .unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     run(
         Command::new(venv.join("bin/python"))

@@ -18,41 +18,87 @@ const THUMBNAILS: usize = 6;
 
 fn run(args: &[&str], paths: &[&Path]) -> (Output, String) {
     let mut c = Command::new(stereogen_bin());
-    c.args(args).args(paths).env_remove("STEREOGEN_FAULT").stdin(Stdio::null());
+    c.args(args)
+        .args(paths)
+        .env_remove("STEREOGEN_FAULT")
+        .stdin(Stdio::null());
     let o = c.output().unwrap();
-    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
     println!("{text}");
     (o, text)
 }
 
 fn report(data: &Path, out: &Path, thumbnails: usize) -> String {
-    let (o, text) = run(&["report", "--thumbnails", &thumbnails.to_string(), "--out", &out.to_string_lossy()], &[data]);
+    let (o, text) = run(
+        &[
+            "report",
+            "--thumbnails",
+            &thumbnails.to_string(),
+            "--out",
+            &out.to_string_lossy(),
+        ],
+        &[data],
+    );
     assert!(o.status.success(), "report failed: {text}");
     let html = std::fs::read_to_string(out).unwrap();
     // Well-formed markup (an XML parser accepts it), and nothing fetched from elsewhere.
-    roxmltree::Document::parse_with_options(&html, roxmltree::ParsingOptions { allow_dtd: true, ..Default::default() }).unwrap_or_else(|e| panic!("{}: not well-formed: {e}", out.display()));
+    roxmltree::Document::parse_with_options(
+        &html,
+        roxmltree::ParsingOptions {
+            allow_dtd: true,
+            ..Default::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{}: not well-formed: {e}", out.display()));
     // (The one URL allowed is the SVG namespace, a name rather than an address.)
     let without_namespace = html.replace("xmlns=\"http://www.w3.org/2000/svg\"", "");
-    for needle in ["http:", "https:", "<script", "src=\"file:", "href=", "@import", "url("] {
-        assert!(!without_namespace.contains(needle), "{} refers to {needle}", out.display());
+    for needle in [
+        "http:",
+        "https:",
+        "<script",
+        "src=\"file:",
+        "href=",
+        "@import",
+        "url(",
+    ] {
+        assert!(
+            !without_namespace.contains(needle),
+            "{} refers to {needle}",
+            out.display()
+        );
     }
     html
 }
 
 fn which(name: &str) -> Option<PathBuf> {
-    std::env::var_os("PATH").and_then(|p| std::env::split_paths(&p).map(|d| d.join(name)).find(|f| f.is_file()))
+    std::env::var_os("PATH").and_then(|p| {
+        std::env::split_paths(&p)
+            .map(|d| d.join(name))
+            .find(|f| f.is_file())
+    })
 }
 
 /// A Chromium executable, installing Debian's package when missing and allowed.
 fn chromium() -> Option<PathBuf> {
-    let find = || ["chromium", "chromium-browser", "google-chrome"].iter().find_map(|n| which(n));
+    let find = || {
+        ["chromium", "chromium-browser", "google-chrome"]
+            .iter()
+            .find_map(|n| which(n))
+    };
     if let Some(c) = find() {
         return Some(c);
     }
     let root = unsafe { libc::geteuid() } == 0;
     if root && which("apt-get").is_some() {
         eprintln!("report_browser: installing chromium with apt-get");
-        let _ = Command::new("apt-get").args(["install", "-y", "--no-install-recommends", "chromium"]).env("DEBIAN_FRONTEND", "noninteractive").status();
+        let _ = Command::new("apt-get")
+            .args(["install", "-y", "--no-install-recommends", "chromium"])
+            .env("DEBIAN_FRONTEND", "noninteractive")
+            .status();
     }
     find()
 }
@@ -102,17 +148,44 @@ f.addEventListener('load', () => {{
         ),
     )
     .unwrap();
-    let o = headless(chromium).arg("--allow-file-access-from-files").arg("--dump-dom").arg(format!("file://{}", harness.display())).output().unwrap();
+    let o = headless(chromium)
+        .arg("--allow-file-access-from-files")
+        .arg("--dump-dom")
+        .arg(format!("file://{}", harness.display()))
+        .output()
+        .unwrap();
     let dom = String::from_utf8_lossy(&o.stdout);
-    let json = dom.split("RESULT ").nth(1).and_then(|s| s.split("</pre>").next()).unwrap_or_else(|| panic!("the harness did not report: {dom}\n{}", String::from_utf8_lossy(&o.stderr)));
+    let json = dom
+        .split("RESULT ")
+        .nth(1)
+        .and_then(|s| s.split("</pre>").next())
+        .unwrap_or_else(|| {
+            panic!(
+                "the harness did not report: {dom}\n{}",
+                String::from_utf8_lossy(&o.stderr)
+            )
+        });
     serde_json::from_str(&json.replace("&quot;", "\"").replace("&amp;", "&")).unwrap()
 }
 
 /// Opens the report itself, screenshots it and returns the console messages of the page.
 fn screenshot(chromium: &Path, page: &Path, png: &Path) -> Vec<String> {
-    let o = headless(chromium).arg("--window-size=1280,2600").arg(format!("--screenshot={}", png.display())).arg(format!("file://{}", page.display())).output().unwrap();
-    assert!(png.is_file(), "no screenshot: {}", String::from_utf8_lossy(&o.stderr));
-    String::from_utf8_lossy(&o.stderr).lines().filter(|l| l.contains("CONSOLE") || l.contains("Refused to")).map(str::to_string).collect()
+    let o = headless(chromium)
+        .arg("--window-size=1280,2600")
+        .arg(format!("--screenshot={}", png.display()))
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .unwrap();
+    assert!(
+        png.is_file(),
+        "no screenshot: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stderr)
+        .lines()
+        .filter(|l| l.contains("CONSOLE") || l.contains("Refused to"))
+        .map(str::to_string)
+        .collect()
 }
 
 fn out_dir() -> PathBuf {
@@ -125,30 +198,69 @@ fn out_dir() -> PathBuf {
 fn report_of_a_generated_dataset_loads_in_a_real_browser() {
     let tmp = tempfile::tempdir().unwrap();
     let data = generate_tiny_dataset(tmp.path(), "data", SCENES, 3);
-    let (o, text) = run(&["audit", "--samples", "4", "--pixels", "1000", "--threads", "1"], &[&data]);
+    let (o, text) = run(
+        &[
+            "audit",
+            "--samples",
+            "4",
+            "--pixels",
+            "1000",
+            "--threads",
+            "1",
+        ],
+        &[&data],
+    );
     assert!(o.status.success(), "{text}");
     let dir = out_dir();
     let page = dir.join("report.html");
     let html = report(&data, &page, THUMBNAILS);
-    for section in ["id=\"recipe\"", "id=\"counts\"", "id=\"timing\"", "id=\"distribution\"", "id=\"coverage\"", "id=\"audit\"", "id=\"gallery\"", "id=\"outliers\""] {
+    for section in [
+        "id=\"recipe\"",
+        "id=\"counts\"",
+        "id=\"timing\"",
+        "id=\"distribution\"",
+        "id=\"coverage\"",
+        "id=\"audit\"",
+        "id=\"gallery\"",
+        "id=\"outliers\"",
+    ] {
         assert!(html.contains(section), "no {section}");
     }
     let info: stereogen::dataset::DatasetInfo = DatasetLayout::new(&data).read_info().unwrap();
-    assert!(html.contains(&info.recipe_fingerprint), "the recipe's fingerprint is shown");
-    assert!(html.contains("Verdict of <code>stereogen audit --check</code>"), "the audit's results are shown");
-    assert!(!html.contains("id=\"problems\""), "a sound dataset lists no problems");
+    assert!(
+        html.contains(&info.recipe_fingerprint),
+        "the recipe's fingerprint is shown"
+    );
+    assert!(
+        html.contains("Verdict of <code>stereogen audit --check</code>"),
+        "the audit's results are shown"
+    );
+    assert!(
+        !html.contains("id=\"problems\""),
+        "a sound dataset lists no problems"
+    );
     assert!(html.len() < 2_000_000, "{} bytes", html.len());
 
     let Some(chromium) = chromium() else {
-        eprintln!("report_browser: SKIPPED the browser checks: no chromium on PATH and none could be installed");
+        eprintln!(
+            "report_browser: SKIPPED the browser checks: no chromium on PATH and none could be installed"
+        );
         return;
     };
     let found = inspect(&chromium, &page);
     println!("browser: {found}");
     assert!(found.get("error").is_none(), "{found}");
     assert_eq!(found["gallery_tiles"], THUMBNAILS, "{found}");
-    assert_eq!(found["gallery_images"], 3 * THUMBNAILS, "left, disparity and right per sample: {found}");
-    assert_eq!(found["broken"].as_array().unwrap().len(), 0, "pictures that did not decode: {found}");
+    assert_eq!(
+        found["gallery_images"],
+        3 * THUMBNAILS,
+        "left, disparity and right per sample: {found}"
+    );
+    assert_eq!(
+        found["broken"].as_array().unwrap().len(),
+        0,
+        "pictures that did not decode: {found}"
+    );
     // Object and pixel charts per category present plus overall (4 + 1) and the two coverage charts.
     assert!(found["plots"].as_u64().unwrap() >= 2 * 5 + 2, "{found}");
     assert!(found["plot_bars"].as_u64().unwrap() > 100, "{found}");
@@ -158,7 +270,8 @@ fn report_of_a_generated_dataset_loads_in_a_real_browser() {
     let shot = image::open(&png).unwrap().to_rgb8();
     assert_eq!(shot.width(), 1280);
     // Not a blank page: the charts and thumbnails put many colours on it.
-    let distinct: std::collections::HashSet<[u8; 3]> = shot.pixels().step_by(7).map(|p| p.0).collect();
+    let distinct: std::collections::HashSet<[u8; 3]> =
+        shot.pixels().step_by(7).map(|p| p.0).collect();
     assert!(distinct.len() > 500, "{} colours", distinct.len());
     println!("report_browser: screenshot at {}", png.display());
 }
@@ -170,7 +283,15 @@ fn report_lists_what_is_wrong_and_renders_the_rest() {
     let recipe = write_tiny_recipe(tmp.path(), "crestereo");
     let failed = tmp.path().join("failed");
     let o = Command::new(stereogen_bin())
-        .args(["generate", "--no-progress", "--threads", "1", "--count", "1", "--recipe"])
+        .args([
+            "generate",
+            "--no-progress",
+            "--threads",
+            "1",
+            "--count",
+            "1",
+            "--recipe",
+        ])
         .arg(&recipe)
         .arg("--out")
         .arg(&failed)
@@ -180,7 +301,10 @@ fn report_lists_what_is_wrong_and_renders_the_rest() {
         .unwrap();
     assert!(!o.status.success());
     let html = report(&failed, &tmp.path().join("failed.html"), 4);
-    assert!(html.contains("id=\"problems\"") && html.contains("no finished samples"), "{html}");
+    assert!(
+        html.contains("id=\"problems\"") && html.contains("no finished samples"),
+        "{html}"
+    );
     assert!(html.contains("Failed samples: 1."), "the failure is listed");
 
     // Two good samples, then one with an unreadable map and one without its scene.json.
@@ -192,14 +316,37 @@ fn report_lists_what_is_wrong_and_renders_the_rest() {
     let scene = layout.abs(&entries[1].files.scene);
     std::fs::remove_file(&scene).unwrap();
     // And a run still writing: an unfinished last manifest line.
-    std::fs::OpenOptions::new().append(true).open(layout.manifest()).and_then(|mut f| std::io::Write::write_all(&mut f, b"{\"id\":\"00000")).unwrap();
+    std::fs::OpenOptions::new()
+        .append(true)
+        .open(layout.manifest())
+        .and_then(|mut f| std::io::Write::write_all(&mut f, b"{\"id\":\"00000"))
+        .unwrap();
     let html = report(&data, &tmp.path().join("damaged.html"), 3);
-    let problems = html.split("id=\"problems\"").nth(1).expect("a problems section").split("</div>").next().unwrap();
-    assert!(problems.contains(&*exr.to_string_lossy()), "the unreadable map is named: {problems}");
-    assert!(problems.contains("scene.json"), "the missing scene.json is named: {problems}");
+    let problems = html
+        .split("id=\"problems\"")
+        .nth(1)
+        .expect("a problems section")
+        .split("</div>")
+        .next()
+        .unwrap();
+    assert!(
+        problems.contains(&*exr.to_string_lossy()),
+        "the unreadable map is named: {problems}"
+    );
+    assert!(
+        problems.contains("scene.json"),
+        "the missing scene.json is named: {problems}"
+    );
     assert!(problems.contains("unfinished last line"), "{problems}");
-    assert_eq!(html.matches("class=\"tile gallery-tile\"").count(), 3, "every sample still gets its tile");
+    assert_eq!(
+        html.matches("class=\"tile gallery-tile\"").count(),
+        3,
+        "every sample still gets its tile"
+    );
 
     let (o, text) = run(&["report"], &[&tmp.path().join("nowhere")]);
-    assert!(!o.status.success() && text.contains("nowhere") && text.lines().count() <= 2, "{text}");
+    assert!(
+        !o.status.success() && text.contains("nowhere") && text.lines().count() <= 2,
+        "{text}"
+    );
 }

@@ -39,19 +39,47 @@ for ob in sorted(scene.objects, key=lambda o: o.name):
 /// The default preset's sample 2 of seed 0 (960×540, reflective): six primitives cut by the
 /// exact boolean solver, some then subdivided and displaced; the reproduction.
 fn boolean_heavy_spec() -> SceneSpec {
-    let spec = plan_scene(&Recipe::preset(DEFAULT_PRESET).unwrap(), &AssetIndex::default(), 0, 2);
-    let cuts = spec.objects.iter().filter(|o| o.modifiers.iter().any(|m| matches!(m, Modifier::BooleanCut { .. }))).count();
-    assert!(cuts >= 4, "the spec should exercise the boolean solver: {cuts} cut objects");
+    let spec = plan_scene(
+        &Recipe::preset(DEFAULT_PRESET).unwrap(),
+        &AssetIndex::default(),
+        0,
+        2,
+    );
+    let cuts = spec
+        .objects
+        .iter()
+        .filter(|o| {
+            o.modifiers
+                .iter()
+                .any(|m| matches!(m, Modifier::BooleanCut { .. }))
+        })
+        .count();
+    assert!(
+        cuts >= 4,
+        "the spec should exercise the boolean solver: {cuts} cut objects"
+    );
     spec
 }
 
 fn mesh_hashes(spec_path: &Path, probe: &Path) -> Vec<String> {
     let cfg = worker_config();
     let scripts = cfg.script.parent().unwrap().to_string_lossy().into_owned();
-    let out = cfg.runtime.command(probe, &[scripts, spec_path.to_string_lossy().into_owned()]).output().expect("run the mesh probe");
+    let out = cfg
+        .runtime
+        .command(probe, &[scripts, spec_path.to_string_lossy().into_owned()])
+        .output()
+        .expect("run the mesh probe");
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(out.status.success(), "mesh probe failed: {}", String::from_utf8_lossy(&out.stderr));
-    let lines: Vec<String> = text.lines().filter(|l| l.starts_with("MESH ")).map(str::to_string).collect();
+    assert!(
+        out.status.success(),
+        "mesh probe failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<String> = text
+        .lines()
+        .filter(|l| l.starts_with("MESH "))
+        .map(str::to_string)
+        .collect();
     assert!(!lines.is_empty(), "the probe printed no mesh: {text}");
     lines
 }
@@ -66,7 +94,11 @@ fn boolean_cut_meshes_come_out_in_the_same_order_in_every_process() {
     // Without canonical order, four of the six cut objects differed between any two processes.
     let first = mesh_hashes(&spec_path, &probe);
     for _ in 0..2 {
-        assert_eq!(mesh_hashes(&spec_path, &probe), first, "an evaluated mesh differs between two builds of one spec");
+        assert_eq!(
+            mesh_hashes(&spec_path, &probe),
+            first,
+            "an evaluated mesh differs between two builds of one spec"
+        );
     }
 }
 
@@ -77,8 +109,16 @@ const DISPARITY_BOUND_PX: f32 = 1e-4;
 
 /// Compares two 8-bit images: (pixels differing, largest difference in levels).
 fn image_difference(a: &stereo_io::RgbImage, b: &stereo_io::RgbImage) -> (usize, u8) {
-    let diffs: Vec<u8> = a.data.chunks(3).zip(b.data.chunks(3)).map(|(p, q)| p.iter().zip(q).map(|(x, y)| x.abs_diff(*y)).max().unwrap()).collect();
-    (diffs.iter().filter(|d| **d > 0).count(), diffs.into_iter().max().unwrap_or(0))
+    let diffs: Vec<u8> = a
+        .data
+        .chunks(3)
+        .zip(b.data.chunks(3))
+        .map(|(p, q)| p.iter().zip(q).map(|(x, y)| x.abs_diff(*y)).max().unwrap())
+        .collect();
+    (
+        diffs.iter().filter(|d| **d > 0).count(),
+        diffs.into_iter().max().unwrap_or(0),
+    )
 }
 
 #[test]
@@ -95,15 +135,36 @@ fn re_rendering_a_boolean_heavy_spec_stays_within_the_stated_bound() {
     let b = render(&mut RenderService::new(cfg), &spec);
     assert_eq!(a.entry.sha256["scene"], b.entry.sha256["scene"]);
     for (x, y, view) in [(&a.left, &b.left, "left"), (&a.right, &b.right, "right")] {
-        assert_eq!(x.valid, y.valid, "{view}: the valid pixels differ between two renders");
-        let worst = x.data.iter().zip(&y.data).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+        assert_eq!(
+            x.valid, y.valid,
+            "{view}: the valid pixels differ between two renders"
+        );
+        let worst = x
+            .data
+            .iter()
+            .zip(&y.data)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0f32, f32::max);
         println!("{view} disparity: largest difference between two renders {worst:e} px");
-        assert!(worst <= DISPARITY_BOUND_PX, "{view}: disparity differs by {worst} px between two renders");
+        assert!(
+            worst <= DISPARITY_BOUND_PX,
+            "{view}: disparity differs by {worst} px between two renders"
+        );
     }
     for key in ["left", "right"] {
-        let read = |r: &stereogen_e2e::RenderedPair| stereo_io::read_rgb(&r.layout.abs(if key == "left" { &r.entry.files.left } else { &r.entry.files.right })).unwrap();
+        let read = |r: &stereogen_e2e::RenderedPair| {
+            stereo_io::read_rgb(&r.layout.abs(if key == "left" {
+                &r.entry.files.left
+            } else {
+                &r.entry.files.right
+            }))
+            .unwrap()
+        };
         let (n, worst) = image_difference(&read(&a), &read(&b));
         println!("{key} image: {n} pixels differ, by up to {worst} levels");
-        assert!(worst <= 4 && n * 100 <= (spec.rig.width * spec.rig.height) as usize, "{key} image: {n} pixels differ by up to {worst} levels");
+        assert!(
+            worst <= 4 && n * 100 <= (spec.rig.width * spec.rig.height) as usize,
+            "{key} image: {n} pixels differ by up to {worst} levels"
+        );
     }
 }

@@ -19,21 +19,44 @@ fn one_scene_of_every_preset_renders() {
         let spec = plan_scene(&recipe, &AssetIndex::default(), 5, 0);
         let pair = render(&mut service, &spec);
         let s = pair.entry.disparity_left.expect("valid pixels");
-        println!("{preset}: category {}, {} objects, disparity {:.2}..{:.2}", spec.category, spec.objects.len(), s.min, s.max);
+        println!(
+            "{preset}: category {}, {} objects, disparity {:.2}..{:.2}",
+            spec.category,
+            spec.objects.len(),
+            s.min,
+            s.max
+        );
         // The wall fills the view, so every pixel has ground truth.
         assert_eq!(s.valid_fraction, 1.0, "{preset}");
-        assert!(f64::from(s.max) > f64::from(s.min) + 1.0, "{preset}: objects in front of the wall");
+        assert!(
+            f64::from(s.max) > f64::from(s.min) + 1.0,
+            "{preset}: objects in front of the wall"
+        );
     }
 }
 
 #[test]
 fn tree_scenes_have_leaves_and_branch_levels() {
     let recipe = tiny_recipe("tree");
-    let spec = (0..20).map(|i| plan_scene(&recipe, &AssetIndex::default(), 9, i)).find(|s| s.objects.iter().any(|o| o.source == "tree")).expect("a tree");
+    let spec = (0..20)
+        .map(|i| plan_scene(&recipe, &AssetIndex::default(), 9, i))
+        .find(|s| s.objects.iter().any(|o| o.source == "tree"))
+        .expect("a tree");
     let tree = spec.objects.iter().find(|o| o.source == "tree").unwrap();
-    let Shape::Skeleton { leaves, strand_levels, leaf_material, .. } = &tree.shape else { panic!("a tree is a skeleton") };
+    let Shape::Skeleton {
+        leaves,
+        strand_levels,
+        leaf_material,
+        ..
+    } = &tree.shape
+    else {
+        panic!("a tree is a skeleton")
+    };
     assert!(!leaves.is_empty() && leaf_material.is_some());
-    assert!(*strand_levels.iter().max().unwrap() >= 2, "levels {strand_levels:?}");
+    assert!(
+        *strand_levels.iter().max().unwrap() >= 2,
+        "levels {strand_levels:?}"
+    );
     let pair = render(&mut RenderService::new(worker_config()), &spec);
     assert_eq!(pair.entry.disparity_left.unwrap().valid_fraction, 1.0);
 }
@@ -46,11 +69,25 @@ fn leaf_cutouts_show_what_is_behind_them() {
         strands: Vec::new(),
         strand_levels: Vec::new(),
         sides: 6,
-        leaves: vec![Leaf { center: [0.0, 0.0, 0.0], u: [0.5, 0.0, 0.0], v: [0.0, 0.8, 0.0] }],
+        leaves: vec![Leaf {
+            center: [0.0, 0.0, 0.0],
+            u: [0.5, 0.0, 0.0],
+            v: [0.0, 0.8, 0.0],
+        }],
         leaf_material: Some(Box::new(leaf_mat)),
     };
-    let leaf = object("leaf", shape, [0.02, -0.01, -2.0], [0.0; 3], [0.5; 3], MaterialSpec::flat([0.4, 0.3, 0.2], 0.5));
-    let spec = base("leaf", vec![plane("wall", [0.0, 0.0, -4.0], [0.0; 3], 40.0), leaf]);
+    let leaf = object(
+        "leaf",
+        shape,
+        [0.02, -0.01, -2.0],
+        [0.0; 3],
+        [0.5; 3],
+        MaterialSpec::flat([0.4, 0.3, 0.2], 0.5),
+    );
+    let spec = base(
+        "leaf",
+        vec![plane("wall", [0.0, 0.0, -4.0], [0.0; 3], 40.0), leaf],
+    );
     let pair = render(&mut RenderService::new(worker_config()), &spec);
     let rig = &spec.rig;
     let (d_leaf, d_wall) = (rig.disparity_at_depth(2.0), rig.disparity_at_depth(4.0));
@@ -67,13 +104,19 @@ fn leaf_cutouts_show_what_is_behind_them() {
                 continue; // the mask's edge
             }
             let expected = if r2 < 1.0 { d_leaf } else { d_wall };
-            if r2 < 1.0 { inside += 1 } else { outside += 1 }
+            if r2 < 1.0 {
+                inside += 1
+            } else {
+                outside += 1
+            }
             if (f64::from(pair.left.get(x, y)) - expected).abs() > 1e-3 {
                 wrong += 1;
             }
         }
     }
-    println!("leaf: {inside} pixels on the leaf, {outside} through the cut-out or beside it, {wrong} wrong");
+    println!(
+        "leaf: {inside} pixels on the leaf, {outside} through the cut-out or beside it, {wrong} wrong"
+    );
     assert!(inside > 300);
     assert_eq!(wrong, 0);
 }
@@ -81,9 +124,19 @@ fn leaf_cutouts_show_what_is_behind_them() {
 #[test]
 fn wireframe_objects_let_the_background_through() {
     // A wireframe cube alone in front of the wall: inside its outline both appear.
-    let mut cube = object("cube", Shape::Cube, [0.0, 0.0, -2.0], [0.4, 0.5, 0.1], [0.6; 3], MaterialSpec::flat([0.8, 0.8, 0.2], 0.4));
+    let mut cube = object(
+        "cube",
+        Shape::Cube,
+        [0.0, 0.0, -2.0],
+        [0.4, 0.5, 0.1],
+        [0.6; 3],
+        MaterialSpec::flat([0.8, 0.8, 0.2], 0.4),
+    );
     cube.modifiers.push(Modifier::Wireframe { thickness: 0.04 });
-    let spec = base("wire", vec![plane("wall", [0.0, 0.0, -4.0], [0.0; 3], 40.0), cube]);
+    let spec = base(
+        "wire",
+        vec![plane("wall", [0.0, 0.0, -4.0], [0.0; 3], 40.0), cube],
+    );
     let pair = render(&mut RenderService::new(worker_config()), &spec);
     let d_wall = spec.rig.disparity_at_depth(4.0) as f32;
     // The cube's outline lies within its bounding circle; count inside the circle.
@@ -95,19 +148,34 @@ fn wireframe_objects_let_the_background_through() {
             if ((x as f64 + 0.5 - cu).powi(2) + (y as f64 + 0.5 - cv).powi(2)).sqrt() > r_px {
                 continue;
             }
-            if (pair.left.get(x, y) - d_wall).abs() < 1e-3 { wall += 1 } else { wire += 1 }
+            if (pair.left.get(x, y) - d_wall).abs() < 1e-3 {
+                wall += 1
+            } else {
+                wire += 1
+            }
         }
     }
-    println!("wireframe cube: {wire} pixels on wires, {wall} see-through pixels inside its outline");
+    println!(
+        "wireframe cube: {wire} pixels on wires, {wall} see-through pixels inside its outline"
+    );
     assert!(wire > 50 && wall > 50, "wire {wire}, see-through {wall}");
 
     // And in a generated hole scene, the wall shows between objects' strands.
     let recipe = tiny_recipe("hole");
     let spec = plan_scene(&recipe, &AssetIndex::default(), 2, 1);
-    assert!(spec.objects.iter().any(|o| o.source == "wireframe" || o.source == "net"));
+    assert!(
+        spec.objects
+            .iter()
+            .any(|o| o.source == "wireframe" || o.source == "net")
+    );
     let pair = render(&mut RenderService::new(worker_config()), &spec);
     let wall_d = spec.rig.disparity_at_depth(-spec.objects[0].location[2]) as f32;
-    let see_through = pair.left.data.iter().filter(|d| (**d - wall_d).abs() < 1e-3).count();
+    let see_through = pair
+        .left
+        .data
+        .iter()
+        .filter(|d| (**d - wall_d).abs() < 1e-3)
+        .count();
     assert!(see_through > 0);
 }
 
@@ -117,17 +185,56 @@ fn reflective_scenes_hold_metal_and_glass_with_first_surface_ground_truth() {
     let mut classes = std::collections::BTreeSet::new();
     for i in 0..10 {
         let spec = plan_scene(&recipe, &AssetIndex::default(), 4, i);
-        classes.extend(spec.objects.iter().filter(|o| o.role == ObjectRole::Content).map(|o| o.material.class));
+        classes.extend(
+            spec.objects
+                .iter()
+                .filter(|o| o.role == ObjectRole::Content)
+                .map(|o| o.material.class),
+        );
     }
-    assert!(classes.contains(&MaterialClass::Metallic) && classes.contains(&MaterialClass::Glass), "{classes:?}");
+    assert!(
+        classes.contains(&MaterialClass::Metallic) && classes.contains(&MaterialClass::Glass),
+        "{classes:?}"
+    );
 
     // A glass pane and a mirror, each half of the view, in front of a textured wall: the ground
     // truth is the first surface the ray meets, not what is seen through or in it.
-    let glass = MaterialSpec { class: MaterialClass::Glass, base: BaseColor::Flat { color: [0.95; 3] }, roughness: 0.0, metallic: 0.0, transmission: 1.0, ior: 1.5 };
-    let mirror = MaterialSpec { class: MaterialClass::Metallic, base: BaseColor::Flat { color: [0.9; 3] }, roughness: 0.0, metallic: 1.0, transmission: 0.0, ior: 1.5 };
-    let pane = object("glass", Shape::Plane, [-0.6, 0.0, -2.0], [0.0; 3], [0.6, 2.0, 1.0], glass);
-    let metal = object("mirror", Shape::Plane, [0.6, 0.0, -2.5], [0.0; 3], [0.6, 2.0, 1.0], mirror);
-    let spec = base("glass_mirror", vec![plane("wall", [0.0, 0.0, -4.0], [0.0; 3], 40.0), pane, metal]);
+    let glass = MaterialSpec {
+        class: MaterialClass::Glass,
+        base: BaseColor::Flat { color: [0.95; 3] },
+        roughness: 0.0,
+        metallic: 0.0,
+        transmission: 1.0,
+        ior: 1.5,
+    };
+    let mirror = MaterialSpec {
+        class: MaterialClass::Metallic,
+        base: BaseColor::Flat { color: [0.9; 3] },
+        roughness: 0.0,
+        metallic: 1.0,
+        transmission: 0.0,
+        ior: 1.5,
+    };
+    let pane = object(
+        "glass",
+        Shape::Plane,
+        [-0.6, 0.0, -2.0],
+        [0.0; 3],
+        [0.6, 2.0, 1.0],
+        glass,
+    );
+    let metal = object(
+        "mirror",
+        Shape::Plane,
+        [0.6, 0.0, -2.5],
+        [0.0; 3],
+        [0.6, 2.0, 1.0],
+        mirror,
+    );
+    let spec = base(
+        "glass_mirror",
+        vec![plane("wall", [0.0, 0.0, -4.0], [0.0; 3], 40.0), pane, metal],
+    );
     let mut service = RenderService::new(worker_config());
     let pair = render(&mut service, &spec);
     let rig = &spec.rig;
@@ -136,10 +243,22 @@ fn reflective_scenes_hold_metal_and_glass_with_first_surface_ground_truth() {
         for x in 0..pair.left.width {
             let dir = rig.ray_direction(x as f64 + 0.5, y as f64 + 0.5);
             let cam = rig.camera_x(View::Left);
-            let hit_glass = (cam + dir[0] * 2.0 - -0.6).abs() < 0.6 - 0.01 && (dir[1] * 2.0).abs() < 1.99;
-            let hit_metal = (cam + dir[0] * 2.5 - 0.6).abs() < 0.6 - 0.01 && (dir[1] * 2.5).abs() < 1.99;
-            let expected = if hit_glass { rig.disparity_at_depth(2.0) } else if hit_metal { rig.disparity_at_depth(2.5) } else { continue };
-            assert!((f64::from(pair.left.get(x, y)) - expected).abs() < 1e-3, "pixel ({x},{y}): {} vs first surface {expected}", pair.left.get(x, y));
+            let hit_glass =
+                (cam + dir[0] * 2.0 - -0.6).abs() < 0.6 - 0.01 && (dir[1] * 2.0).abs() < 1.99;
+            let hit_metal =
+                (cam + dir[0] * 2.5 - 0.6).abs() < 0.6 - 0.01 && (dir[1] * 2.5).abs() < 1.99;
+            let expected = if hit_glass {
+                rig.disparity_at_depth(2.0)
+            } else if hit_metal {
+                rig.disparity_at_depth(2.5)
+            } else {
+                continue;
+            };
+            assert!(
+                (f64::from(pair.left.get(x, y)) - expected).abs() < 1e-3,
+                "pixel ({x},{y}): {} vs first surface {expected}",
+                pair.left.get(x, y)
+            );
             checked += 1;
         }
     }

@@ -8,7 +8,13 @@ use stereogen::plan::{Dist, ObjectRole, Recipe, Shape, plan_scene};
 
 fn object_disparities(recipe: &Recipe, scenes: u64) -> Vec<f64> {
     let assets = AssetIndex::default();
-    (0..scenes).flat_map(|i| plan_scene(recipe, &assets, 42, i).target_disparities().collect::<Vec<_>>()).collect()
+    (0..scenes)
+        .flat_map(|i| {
+            plan_scene(recipe, &assets, 42, i)
+                .target_disparities()
+                .collect::<Vec<_>>()
+        })
+        .collect()
 }
 
 #[test]
@@ -16,8 +22,16 @@ fn object_disparities_follow_every_law() {
     let laws = [
         Dist::uniform(2.0, 240.0),
         Dist::log_uniform(1.0, 300.0),
-        Dist::Shaped(Shaped::Normal { mean: 60.0, std: 40.0, min: 2.0, max: 200.0 }),
-        Dist::Shaped(Shaped::Histogram { edges: vec![2.0, 20.0, 80.0, 250.0], weights: vec![1.0, 2.0, 1.0] }),
+        Dist::Shaped(Shaped::Normal {
+            mean: 60.0,
+            std: 40.0,
+            min: 2.0,
+            max: 200.0,
+        }),
+        Dist::Shaped(Shaped::Histogram {
+            edges: vec![2.0, 20.0, 80.0, 250.0],
+            weights: vec![1.0, 2.0, 1.0],
+        }),
     ];
     for law in laws {
         let mut recipe = Recipe::builtin_default();
@@ -25,7 +39,10 @@ fn object_disparities_follow_every_law() {
         recipe.placement.background_disparity_px = Dist::uniform(0.3, 0.9);
         let xs = object_disparities(&recipe, 400);
         let (d, crit) = (ks_distance(&xs, &law), ks_critical(xs.len(), 0.01));
-        println!("{law:?}: {} objects, KS {d:.4} (1% critical {crit:.4})", xs.len());
+        println!(
+            "{law:?}: {} objects, KS {d:.4} (1% critical {crit:.4})",
+            xs.len()
+        );
         assert!(xs.len() > 3000);
         assert!(d < crit, "KS {d} >= {crit} for {law:?}");
     }
@@ -40,21 +57,35 @@ fn objects_sit_in_both_views_and_scale_with_depth() {
             let spec = plan_scene(&recipe, &AssetIndex::default(), 7, index);
             let rig = &spec.rig;
             assert!(recipe.category(&spec.category).is_some());
-            for o in spec.objects.iter().filter(|o| o.role == ObjectRole::Content) {
+            for o in spec
+                .objects
+                .iter()
+                .filter(|o| o.role == ObjectRole::Content)
+            {
                 let d = o.target_disparity.unwrap();
                 let (ul, vl) = rig.project(View::Left, o.location).unwrap();
                 let (ur, vr) = rig.project(View::Right, o.location).unwrap();
-                assert!((ul - ur - d).abs() < 1e-9, "projected disparity {} != target {d}", ul - ur);
+                assert!(
+                    (ul - ur - d).abs() < 1e-9,
+                    "projected disparity {} != target {d}",
+                    ul - ur
+                );
                 assert!((vl - vr).abs() < 1e-12);
                 for u in [ul, ur] {
-                    assert!((0.0..=f64::from(rig.width)).contains(&u), "centre outside a view: {u}");
+                    assert!(
+                        (0.0..=f64::from(rig.width)).contains(&u),
+                        "centre outside a view: {u}"
+                    );
                 }
                 assert!((0.0..=f64::from(rig.height)).contains(&vl));
                 // Image size is depth-independent: the largest axis, over depth, is the angular size.
                 let z = -o.location[2];
                 let largest = o.scale.iter().copied().fold(0.0, f64::max);
                 let angular = 2.0 * largest * rig.f_px() / z / f64::from(rig.width);
-                assert!(angular >= amin * (1.0 - 1e-9) && angular <= amax * (1.0 + 1e-9), "{preset}: angular size {angular}");
+                assert!(
+                    angular >= amin * (1.0 - 1e-9) && angular <= amax * (1.0 + 1e-9),
+                    "{preset}: angular size {angular}"
+                );
             }
         }
     }
@@ -91,7 +122,16 @@ fn categories_and_sources_appear_as_weighted() {
 fn planning_is_a_pure_function_of_seed_and_index() {
     let r = Recipe::builtin_default();
     let a = AssetIndex::default();
-    assert_eq!(plan_scene(&r, &a, 7, 11).to_json(), plan_scene(&r, &a, 7, 11).to_json());
-    assert_ne!(plan_scene(&r, &a, 7, 11).to_json(), plan_scene(&r, &a, 7, 12).to_json());
-    assert_ne!(plan_scene(&r, &a, 7, 11).to_json(), plan_scene(&r, &a, 8, 11).to_json());
+    assert_eq!(
+        plan_scene(&r, &a, 7, 11).to_json(),
+        plan_scene(&r, &a, 7, 11).to_json()
+    );
+    assert_ne!(
+        plan_scene(&r, &a, 7, 11).to_json(),
+        plan_scene(&r, &a, 7, 12).to_json()
+    );
+    assert_ne!(
+        plan_scene(&r, &a, 7, 11).to_json(),
+        plan_scene(&r, &a, 8, 11).to_json()
+    );
 }

@@ -44,13 +44,21 @@ fn target(mode: Mode, j: u64) -> f64 {
         Mode::Follows | Mode::PixelGap => 2.0 + 238.0 * u,
         Mode::GapEverywhere => {
             let x = u * 128.0; // 38 px of [2, 40] + 90 px of [150, 240]
-            if x < 38.0 { 2.0 + x } else { 150.0 + (x - 38.0) }
+            if x < 38.0 {
+                2.0 + x
+            } else {
+                150.0 + (x - 38.0)
+            }
         }
     }
 }
 
 fn painted(mode: Mode, t: f64) -> f64 {
-    if mode == Mode::PixelGap && t > 40.0 && t < 150.0 { 2.0 + (t - 40.0) / 110.0 * 38.0 } else { t }
+    if mode == Mode::PixelGap && t > 40.0 && t < 150.0 {
+        2.0 + (t - 40.0) / 110.0 * 38.0
+    } else {
+        t
+    }
 }
 
 fn paint(discs: &[(f64, f64, f64)]) -> DisparityMap {
@@ -66,7 +74,8 @@ fn paint(discs: &[(f64, f64, f64)]) -> DisparityMap {
     for &&(cx, cy, d) in &order {
         for y in INVALID_ROWS..H {
             for x in 0..W {
-                let r2 = ((x as f64 + 0.5 - cx).powi(2) + (y as f64 + 0.5 - cy).powi(2)) / (RADIUS * RADIUS);
+                let r2 = ((x as f64 + 0.5 - cx).powi(2) + (y as f64 + 0.5 - cy).powi(2))
+                    / (RADIUS * RADIUS);
                 if r2 <= 1.0 {
                     m.data[y * W + x] = (d * (1.0 + 0.08 * (1.0 - r2))) as f32;
                 }
@@ -77,15 +86,29 @@ fn paint(discs: &[(f64, f64, f64)]) -> DisparityMap {
 }
 
 fn summary(m: &DisparityMap) -> Option<DisparitySummary> {
-    m.stats().map(|s| DisparitySummary { min: s.min, max: s.max, mean: s.mean, valid_fraction: s.valid_pixels as f64 / m.data.len() as f64 })
+    m.stats().map(|s| DisparitySummary {
+        min: s.min,
+        max: s.max,
+        mean: s.mean,
+        valid_fraction: s.valid_pixels as f64 / m.data.len() as f64,
+    })
 }
 
 /// Writes a dataset and returns the number of content objects per category.
 fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
     let recipe = Recipe::preset("crestereo").unwrap();
-    assert_eq!(recipe.placement.disparity_px, stereogen::plan::Dist::uniform(2.0, 240.0));
+    assert_eq!(
+        recipe.placement.disparity_px,
+        stereogen::plan::Dist::uniform(2.0, 240.0)
+    );
     let layout = DatasetLayout::new(root);
-    let info = DatasetInfo { stereogen_version: "test".into(), seed: 7, recipe_fingerprint: recipe.fingerprint(), recipe: recipe.clone(), assets_fingerprint: None };
+    let info = DatasetInfo {
+        stereogen_version: "test".into(),
+        seed: 7,
+        recipe_fingerprint: recipe.fingerprint(),
+        recipe: recipe.clone(),
+        assets_fingerprint: None,
+    };
     std::fs::create_dir_all(root).unwrap();
     std::fs::write(layout.info(), serde_json::to_string_pretty(&info).unwrap()).unwrap();
     let assets = AssetIndex::default();
@@ -93,16 +116,25 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
     let mut objects = BTreeMap::new();
     let mut j = 0u64;
     for index in 0..SCENES {
-        let category = recipe.categories[index as usize % recipe.categories.len()].name.clone();
+        let category = recipe.categories[index as usize % recipe.categories.len()]
+            .name
+            .clone();
         let mut spec = plan_scene(&recipe, &assets, 7, index);
         spec.id = format!("{index:07}");
         spec.category = category.clone();
         let mut discs = Vec::new();
-        for (k, o) in spec.objects.iter_mut().filter(|o| o.role == ObjectRole::Content).enumerate() {
+        for (k, o) in spec
+            .objects
+            .iter_mut()
+            .filter(|o| o.role == ObjectRole::Content)
+            .enumerate()
+        {
             let t = target(mode, j);
             o.target_disparity = Some(t);
             let cx = RADIUS + golden(j * 7 + 3) * (W as f64 - 2.0 * RADIUS);
-            let cy = INVALID_ROWS as f64 + RADIUS + golden(j * 11 + k as u64) * (H as f64 - INVALID_ROWS as f64 - 2.0 * RADIUS);
+            let cy = INVALID_ROWS as f64
+                + RADIUS
+                + golden(j * 11 + k as u64) * (H as f64 - INVALID_ROWS as f64 - 2.0 * RADIUS);
             discs.push((cx, cy, painted(mode, t)));
             j += 1;
         }
@@ -113,9 +145,21 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
         std::fs::write(root.join(&files.scene), spec.to_json()).unwrap();
         let left = paint(&discs);
         // The right view sees every disc shifted left by its disparity.
-        let right = paint(&discs.iter().map(|&(x, y, d)| (x - d * W as f64 / 960.0, y, d)).collect::<Vec<_>>());
-        for (map, rel, view) in [(&left, &files.disp_left, "left"), (&right, &files.disp_right, "right")] {
-            let meta = DisparityMeta { f_px: Some(500.0), baseline_m: Some(0.1), view: Some(view.into()) };
+        let right = paint(
+            &discs
+                .iter()
+                .map(|&(x, y, d)| (x - d * W as f64 / 960.0, y, d))
+                .collect::<Vec<_>>(),
+        );
+        for (map, rel, view) in [
+            (&left, &files.disp_left, "left"),
+            (&right, &files.disp_right, "right"),
+        ] {
+            let meta = DisparityMeta {
+                f_px: Some(500.0),
+                baseline_m: Some(0.1),
+                view: Some(view.into()),
+            };
             stereo_io::write_disparity_exr(&root.join(rel), map, &meta).unwrap();
         }
         let entry = ManifestEntry {
@@ -147,15 +191,29 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
 
 fn stats(root: &Path, extra: &[&str]) -> (Output, String, Value) {
     let out = root.join("stats-out");
-    let o = Command::new(env!("CARGO_BIN_EXE_stereogen")).arg("stats").arg(root).arg("--out").arg(&out).args(extra).output().unwrap();
-    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    let o = Command::new(env!("CARGO_BIN_EXE_stereogen"))
+        .arg("stats")
+        .arg(root)
+        .arg("--out")
+        .arg(&out)
+        .args(extra)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
     println!("{text}");
-    let report = serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    let report =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
     (o, text, report)
 }
 
 fn category_lines(text: &str) -> Vec<&str> {
-    text.lines().filter(|l| ["OK", "FAIL", "SKIP"].iter().any(|t| l.starts_with(t))).collect()
+    text.lines()
+        .filter(|l| ["OK", "FAIL", "SKIP"].iter().any(|t| l.starts_with(t)))
+        .collect()
 }
 
 #[test]
@@ -175,18 +233,37 @@ fn check_passes_on_a_hand_made_dataset_that_follows_the_law() {
         assert_eq!(c["objects"]["count"], objects[name]);
         let p = &c["pixels"];
         assert_eq!(p["pixels"], SCENES / 4 * 2 * (W * H) as u64);
-        assert_eq!(p["invalid_fraction"].as_f64().unwrap(), INVALID_ROWS as f64 / H as f64);
+        assert_eq!(
+            p["invalid_fraction"].as_f64().unwrap(),
+            INVALID_ROWS as f64 / H as f64
+        );
         assert_eq!(p["nonfinite_valid"], 0);
         // Bins by the documented rule; enough objects per category for a fine check.
         assert_eq!(p["gap_check"]["bins"], gap_bins_for(objects[name], 0.01));
-        assert!(p["gap_check"]["bins"].as_u64().unwrap() >= 6, "{name}: {}", p["gap_check"]);
+        assert!(
+            p["gap_check"]["bins"].as_u64().unwrap() >= 6,
+            "{name}: {}",
+            p["gap_check"]
+        );
         // The invalid rows show up as a zero valid fraction in the first row band.
         assert_eq!(p["rows"][0]["valid_fraction"].as_f64().unwrap(), 0.0);
-        assert_eq!(p["rows"][report["overall"]["pixels"]["rows"].as_array().unwrap().len() - 1]["valid_fraction"].as_f64().unwrap(), 1.0);
+        assert_eq!(
+            p["rows"][report["overall"]["pixels"]["rows"]
+                .as_array()
+                .unwrap()
+                .len()
+                - 1]["valid_fraction"]
+                .as_f64()
+                .unwrap(),
+            1.0
+        );
     }
     let all = &report["overall"];
     assert_eq!(all["objects"]["count"], objects.values().sum::<usize>());
-    assert_eq!(all["pixels"]["gap_check"]["bins"], gap_bins_for(objects.values().sum(), 0.01));
+    assert_eq!(
+        all["pixels"]["gap_check"]["bins"],
+        gap_bins_for(objects.values().sum(), 0.01)
+    );
     assert!(all["pixels"]["gap_check"]["bins"].as_u64().unwrap() >= 40);
 }
 
@@ -195,17 +272,38 @@ fn check_fails_on_a_hand_made_dataset_with_a_gap() {
     let tmp = tempfile::tempdir().unwrap();
     make_dataset(tmp.path(), Mode::GapEverywhere);
     let (o, text, report) = stats(tmp.path(), &["--check"]);
-    assert!(!o.status.success(), "stats --check passed a dataset with a gap:\n{text}");
+    assert!(
+        !o.status.success(),
+        "stats --check passed a dataset with a gap:\n{text}"
+    );
     assert!(text.contains("verdict: FAIL"), "{text}");
     for line in category_lines(&text) {
-        assert!(line.starts_with("FAIL") && line.contains("object-level KS") && line.contains("gap:"), "{line}");
+        assert!(
+            line.starts_with("FAIL") && line.contains("object-level KS") && line.contains("gap:"),
+            "{line}"
+        );
     }
     // The empty bins are exactly the ones inside the gap: bins wholly inside (40·1.08, 150) are
     // empty, bins wholly inside [2, 40] or [150, 240] are not.
-    for c in report["categories"].as_array().unwrap().iter().chain([&report["overall"]]) {
+    for c in report["categories"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .chain([&report["overall"]])
+    {
         let g = &c["pixels"]["gap_check"];
-        let edges: Vec<f64> = g["edges"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-        let counts: Vec<u64> = g["counts"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+        let edges: Vec<f64> = g["edges"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let counts: Vec<u64> = g["counts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .collect();
         let mut inside_gap = 0;
         for (i, &n) in counts.iter().enumerate() {
             let (a, b) = (edges[i], edges[i + 1]);
@@ -218,7 +316,10 @@ fn check_fails_on_a_hand_made_dataset_with_a_gap() {
             }
         }
         assert!(inside_gap >= 1);
-        assert_eq!(g["empty"].as_array().unwrap().len(), counts.iter().filter(|n| **n == 0).count());
+        assert_eq!(
+            g["empty"].as_array().unwrap().len(),
+            counts.iter().filter(|n| **n == 0).count()
+        );
     }
 }
 
@@ -229,7 +330,10 @@ fn check_sees_a_pixel_gap_even_when_object_targets_follow_the_law() {
     let (o, text, _) = stats(tmp.path(), &["--check"]);
     assert!(!o.status.success(), "{text}");
     for line in category_lines(&text) {
-        assert!(line.starts_with("FAIL") && line.contains("gap:") && !line.contains("object-level KS"), "{line}");
+        assert!(
+            line.starts_with("FAIL") && line.contains("gap:") && !line.contains("object-level KS"),
+            "{line}"
+        );
     }
     // With only two gap bins ([2, 121] and [121, 240]) the hole is too coarse to see: the check
     // passes. The bin count is what gives the check its resolution.
@@ -245,19 +349,37 @@ fn unreadable_maps_and_plots() {
     // Plots render text and curves (not blank) at the documented sizes.
     let (o, text, _) = stats(tmp.path(), &["--plot", "--bins", "48"]);
     assert!(o.status.success(), "{text}");
-    for (name, w) in [("stats_objects.png", 1000), ("stats_pixels.png", 1000), ("stats_categories.png", 1400), ("stats_coverage.png", 1400)] {
+    for (name, w) in [
+        ("stats_objects.png", 1000),
+        ("stats_pixels.png", 1000),
+        ("stats_categories.png", 1400),
+        ("stats_coverage.png", 1400),
+    ] {
         let img = stereo_io::read_rgb(&tmp.path().join("stats-out").join(name)).unwrap();
         assert_eq!(img.width, w, "{name}");
-        let dark = img.data.chunks(3).filter(|p| p.iter().all(|&c| c < 80)).count();
-        assert!(dark > 2000, "{name}: only {dark} dark pixels (no text or axes?)");
+        let dark = img
+            .data
+            .chunks(3)
+            .filter(|p| p.iter().all(|&c| c < 80))
+            .count();
+        assert!(
+            dark > 2000,
+            "{name}: only {dark} dark pixels (no text or axes?)"
+        );
     }
     // A missing EXR is reported and fails the check.
     let victim = tmp.path().join("tree").join("0000001_right.disp.exr");
     std::fs::remove_file(&victim).unwrap();
     let (o, text, report) = stats(tmp.path(), &["--check"]);
     assert!(!o.status.success(), "{text}");
-    assert!(text.contains("ERROR") && text.contains("0000001_right.disp.exr"), "{text}");
-    assert!(text.contains("verdict: FAIL (1 unreadable file(s))"), "{text}");
+    assert!(
+        text.contains("ERROR") && text.contains("0000001_right.disp.exr"),
+        "{text}"
+    );
+    assert!(
+        text.contains("verdict: FAIL (1 unreadable file(s))"),
+        "{text}"
+    );
     assert_eq!(report["errors"].as_array().unwrap().len(), 1);
     assert_eq!(text.matches("0000001_right.disp.exr").count(), 1, "{text}");
 }
@@ -284,7 +406,13 @@ fn an_empty_dataset_does_not_pass() {
     std::fs::write(tmp.path().join("manifest.jsonl"), "").unwrap();
     let (o, text, report) = stats(tmp.path(), &["--check"]);
     assert!(!o.status.success(), "{text}");
-    assert!(text.contains("verdict: FAIL (the dataset has no samples)"), "{text}");
+    assert!(
+        text.contains("verdict: FAIL (the dataset has no samples)"),
+        "{text}"
+    );
     assert_eq!(report["samples"], 0);
-    assert!(category_lines(&text).iter().all(|l| l.starts_with("SKIP")), "{text}");
+    assert!(
+        category_lines(&text).iter().all(|l| l.starts_with("SKIP")),
+        "{text}"
+    );
 }

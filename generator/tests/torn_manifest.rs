@@ -17,11 +17,22 @@ const H: usize = 12;
 const FINISHED: u64 = 3;
 
 fn image(seed: u8) -> RgbImage {
-    RgbImage { width: W, height: H, data: (0..W * H * 3).map(|i| (i as u8).wrapping_mul(13).wrapping_add(seed)).collect() }
+    RgbImage {
+        width: W,
+        height: H,
+        data: (0..W * H * 3)
+            .map(|i| (i as u8).wrapping_mul(13).wrapping_add(seed))
+            .collect(),
+    }
 }
 
 fn disparity(d: f32) -> DisparityMap {
-    DisparityMap { width: W, height: H, data: vec![d; W * H], valid: vec![true; W * H] }
+    DisparityMap {
+        width: W,
+        height: H,
+        data: vec![d; W * H],
+        valid: vec![true; W * H],
+    }
 }
 
 /// `FINISHED` samples through the layout and the appender, then a torn line; returns it.
@@ -38,8 +49,18 @@ fn dataset_with_torn_line(root: &Path) -> String {
         std::fs::create_dir_all(root.join(&spec.category)).unwrap();
         stereo_io::write_png_rgb(&layout.abs(&files.left), &image(index as u8)).unwrap();
         stereo_io::write_png_rgb(&layout.abs(&files.right), &image(100 + index as u8)).unwrap();
-        stereo_io::write_disparity_exr(&layout.abs(&files.disp_left), &disparity(5.0), &DisparityMeta::default()).unwrap();
-        stereo_io::write_disparity_exr(&layout.abs(&files.disp_right), &disparity(5.0), &DisparityMeta::default()).unwrap();
+        stereo_io::write_disparity_exr(
+            &layout.abs(&files.disp_left),
+            &disparity(5.0),
+            &DisparityMeta::default(),
+        )
+        .unwrap();
+        stereo_io::write_disparity_exr(
+            &layout.abs(&files.disp_right),
+            &disparity(5.0),
+            &DisparityMeta::default(),
+        )
+        .unwrap();
         std::fs::write(layout.abs(&files.scene), spec.to_json()).unwrap();
         let entry = ManifestEntry {
             id: spec.id.clone(),
@@ -83,7 +104,10 @@ fn every_reader_leaves_an_unfinished_last_line_out_and_only_the_appender_cuts_it
     let manifest = root.join("manifest.jsonl");
 
     let contents = read_manifest(&manifest).unwrap();
-    assert_eq!((contents.entries.len() as u64, contents.unfinished_bytes), (FINISHED, torn.len() as u64));
+    assert_eq!(
+        (contents.entries.len() as u64, contents.unfinished_bytes),
+        (FINISHED, torn.len() as u64)
+    );
     assert_eq!(contents.entries[0].render_timings["render_color_left"], 0.5);
 
     let ds = stereo_io::open_dataset(&root, None).unwrap();
@@ -93,18 +117,40 @@ fn every_reader_leaves_an_unfinished_last_line_out_and_only_the_appender_cuts_it
     assert_eq!(report.samples as u64, FINISHED, "stats");
 
     let sheet = tmp.path().join("sheet.png");
-    assert_eq!(stereogen::validate::contact_sheet::write_contact_sheet(&root, 10, 2, &sheet).unwrap() as u64, FINISHED, "sheet");
+    assert_eq!(
+        stereogen::validate::contact_sheet::write_contact_sheet(&root, 10, 2, &sheet).unwrap()
+            as u64,
+        FINISHED,
+        "sheet"
+    );
 
     let out = tmp.path().join("cre");
-    let opts = ExportOptions { dataset: root.clone(), from: None, format: "crestereo".parse().unwrap(), out: out.clone(), jpeg_quality: None, jpeg_chroma: Default::default(), middlebury_variant: Default::default() };
+    let opts = ExportOptions {
+        dataset: root.clone(),
+        from: None,
+        format: "crestereo".parse().unwrap(),
+        out: out.clone(),
+        jpeg_quality: None,
+        jpeg_chroma: Default::default(),
+        middlebury_variant: Default::default(),
+    };
     assert_eq!(export(&opts).unwrap().samples as u64, FINISHED, "export");
-    assert_eq!(stereo_io::open_dataset(&out, None).unwrap().len() as u64, FINISHED);
+    assert_eq!(
+        stereo_io::open_dataset(&out, None).unwrap().len() as u64,
+        FINISHED
+    );
 
     // None of the readers touched the file; the appender's open (generate resuming) cuts the
     // torn line, so the next append starts on a line of its own.
     assert!(std::fs::read_to_string(&manifest).unwrap().ends_with(&torn));
     let (_, done) = Manifest::open(&manifest).unwrap();
-    assert_eq!((done.entries.len() as u64, done.unfinished_bytes), (FINISHED, torn.len() as u64));
+    assert_eq!(
+        (done.entries.len() as u64, done.unfinished_bytes),
+        (FINISHED, torn.len() as u64)
+    );
     let text = std::fs::read_to_string(&manifest).unwrap();
-    assert!(text.ends_with('\n') && text.lines().count() as u64 == FINISHED, "{text}");
+    assert!(
+        text.ends_with('\n') && text.lines().count() as u64 == FINISHED,
+        "{text}"
+    );
 }

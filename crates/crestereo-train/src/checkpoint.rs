@@ -63,10 +63,15 @@ pub fn list_checkpoints(run: &Path) -> Result<Vec<Checkpoint>> {
     for e in std::fs::read_dir(&dir).with_context(|| format!("cannot list {}", dir.display()))? {
         let e = e?;
         let name = e.file_name().to_string_lossy().to_string();
-        if let Some(step) = name.strip_prefix("step-").and_then(|s| s.parse::<u64>().ok())
+        if let Some(step) = name
+            .strip_prefix("step-")
+            .and_then(|s| s.parse::<u64>().ok())
             && e.path().join(STATE).is_file()
         {
-            out.push(Checkpoint { step, dir: e.path() });
+            out.push(Checkpoint {
+                step,
+                dir: e.path(),
+            });
         }
     }
     out.sort();
@@ -74,7 +79,13 @@ pub fn list_checkpoints(run: &Path) -> Result<Vec<Checkpoint>> {
 }
 
 /// Saves a checkpoint atomically and keeps the newest `keep`. Returns its directory.
-pub fn save_checkpoint<B, O>(run: &Path, model: &CREStereo<B>, optim: &O, state: &TrainState, keep: usize) -> Result<PathBuf>
+pub fn save_checkpoint<B, O>(
+    run: &Path,
+    model: &CREStereo<B>,
+    optim: &O,
+    state: &TrainState,
+    keep: usize,
+) -> Result<PathBuf>
 where
     B: AutodiffBackend,
     O: Optimizer<CREStereo<B>, B>,
@@ -100,18 +111,23 @@ where
     };
     if let Err(e) = write() {
         let _ = std::fs::remove_dir_all(&tmp);
-        return Err(e.context(format!("cannot write checkpoint {} (nothing replaced)", dir.join(&name).display())));
+        return Err(e.context(format!(
+            "cannot write checkpoint {} (nothing replaced)",
+            dir.join(&name).display()
+        )));
     }
     let target = dir.join(&name);
     if target.exists() {
         std::fs::remove_dir_all(&target)?;
     }
-    std::fs::rename(&tmp, &target).with_context(|| format!("cannot move checkpoint into {}", target.display()))?;
+    std::fs::rename(&tmp, &target)
+        .with_context(|| format!("cannot move checkpoint into {}", target.display()))?;
     std::fs::File::open(&dir)?.sync_all()?;
     let all = list_checkpoints(run)?;
     if all.len() > keep {
         for old in &all[..all.len() - keep] {
-            std::fs::remove_dir_all(&old.dir).with_context(|| format!("cannot prune {}", old.dir.display()))?;
+            std::fs::remove_dir_all(&old.dir)
+                .with_context(|| format!("cannot prune {}", old.dir.display()))?;
         }
     }
     Ok(target)
@@ -120,21 +136,34 @@ where
 /// Reads a checkpoint's training state.
 pub fn read_state(checkpoint: &Path) -> Result<TrainState> {
     let path = checkpoint.join(STATE);
-    let text = std::fs::read(&path).with_context(|| format!("{} is not a checkpoint (no {STATE})", checkpoint.display()))?;
+    let text = std::fs::read(&path)
+        .with_context(|| format!("{} is not a checkpoint (no {STATE})", checkpoint.display()))?;
     serde_json::from_slice(&text).with_context(|| format!("corrupt {}", path.display()))
 }
 
 /// Restores model and optimiser from a checkpoint directory.
-pub fn load_checkpoint<B, O>(checkpoint: &Path, model: CREStereo<B>, optim: O, device: &B::Device) -> Result<Learner<B, O>>
+pub fn load_checkpoint<B, O>(
+    checkpoint: &Path,
+    model: CREStereo<B>,
+    optim: O,
+    device: &B::Device,
+) -> Result<Learner<B, O>>
 where
     B: AutodiffBackend,
     O: Optimizer<CREStereo<B>, B>,
 {
     let state = read_state(checkpoint)?;
-    let model = crestereo::weights::load_record(model, checkpoint.join(format!("{MODEL}.mpk")), device)?;
-    let record = Recorder::<B>::load(&recorder(), checkpoint.join(OPTIMIZER), device)
-        .map_err(|e| anyhow::anyhow!("loading optimiser state from {}: {e}", checkpoint.display()))?;
-    Ok(Learner { model, optim: optim.load_record(record), state })
+    let model =
+        crestereo::weights::load_record(model, checkpoint.join(format!("{MODEL}.mpk")), device)?;
+    let record =
+        Recorder::<B>::load(&recorder(), checkpoint.join(OPTIMIZER), device).map_err(|e| {
+            anyhow::anyhow!("loading optimiser state from {}: {e}", checkpoint.display())
+        })?;
+    Ok(Learner {
+        model,
+        optim: optim.load_record(record),
+        state,
+    })
 }
 
 /// The model weights file of a checkpoint directory, or `path` itself when it is a file: what
@@ -149,8 +178,10 @@ pub fn weights_file(path: &Path) -> Result<PathBuf> {
         if let Some(last) = list_checkpoints(path)?.pop() {
             return Ok(last.dir.join(format!("{MODEL}.mpk")));
         }
-        bail!("{} holds no checkpoint (expected model.mpk or checkpoints/step-*/)", path.display());
+        bail!(
+            "{} holds no checkpoint (expected model.mpk or checkpoints/step-*/)",
+            path.display()
+        );
     }
     Ok(path.to_path_buf())
 }
-

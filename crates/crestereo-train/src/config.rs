@@ -81,7 +81,11 @@ pub struct AdamSettings {
 
 impl Default for AdamSettings {
     fn default() -> Self {
-        Self { beta1: 0.9, beta2: 0.999, eps: 1e-8 }
+        Self {
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+        }
     }
 }
 
@@ -122,7 +126,11 @@ pub struct LoaderSettings {
 
 impl Default for LoaderSettings {
     fn default() -> Self {
-        Self { workers: 0, prefetch: 16, max_bad_retries: 8 }
+        Self {
+            workers: 0,
+            prefetch: 16,
+            max_bad_retries: 8,
+        }
     }
 }
 
@@ -137,7 +145,10 @@ pub struct CheckpointSettings {
 
 impl Default for CheckpointSettings {
     fn default() -> Self {
-        Self { every: 1000, keep: 3 }
+        Self {
+            every: 1000,
+            keep: 3,
+        }
     }
 }
 
@@ -152,7 +163,10 @@ pub struct LogSettings {
 
 impl Default for LogSettings {
     fn default() -> Self {
-        Self { every: 1, tensorboard: true }
+        Self {
+            every: 1,
+            tensorboard: true,
+        }
     }
 }
 
@@ -195,7 +209,14 @@ pub struct ValidationSettings {
 impl ValidationSettings {
     /// Validation on `path` with the defaults a `[validation]` table gets.
     pub fn new(path: PathBuf) -> Self {
-        Self { path, format: None, every: default_val_every(), limit: 0, iters: default_val_iters(), stages: default_val_stages() }
+        Self {
+            path,
+            format: None,
+            every: default_val_every(),
+            limit: 0,
+            iters: default_val_iters(),
+            stages: default_val_stages(),
+        }
     }
 }
 
@@ -211,7 +232,8 @@ fn default_val_stages() -> usize {
 
 /// A stereo-io layout name (`None` = detect from the files); `key` names the setting in errors.
 pub fn parse_format(name: Option<&str>, key: &str) -> Result<Option<stereo_io::DatasetFormat>> {
-    name.map(|f| f.parse().map_err(|e: String| anyhow::anyhow!("{key}: {e}"))).transpose()
+    name.map(|f| f.parse().map_err(|e: String| anyhow::anyhow!("{key}: {e}")))
+        .transpose()
 }
 
 impl TrainConfig {
@@ -221,13 +243,20 @@ impl TrainConfig {
             .with_context(|| format!("cannot read training config {}", path.display()))?;
         let mut cfg: TrainConfig = toml::from_str(&text).map_err(|e| {
             // One line: the message and where, rather than toml's multi-line snippet.
-            let line = e.span().map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            let line = e
+                .span()
+                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
             let at = line.map_or(String::new(), |l| format!(" (line {l})"));
-            anyhow::anyhow!("training config {}{at}: {}", path.display(), e.message().trim())
+            anyhow::anyhow!(
+                "training config {}{at}: {}",
+                path.display(),
+                e.message().trim()
+            )
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         cfg.resolve_paths(base);
-        cfg.validate().with_context(|| format!("training config {}", path.display()))?;
+        cfg.validate()
+            .with_context(|| format!("training config {}", path.display()))?;
         Ok(cfg)
     }
 
@@ -237,8 +266,11 @@ impl TrainConfig {
         if !path.is_file() {
             return Ok(None);
         }
-        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-        Ok(Some(toml::from_str(&text).with_context(|| format!("corrupt {}", path.display()))?))
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        Ok(Some(
+            toml::from_str(&text).with_context(|| format!("corrupt {}", path.display()))?,
+        ))
     }
 
     /// Makes every path absolute relative to `base`, so a copy of the config stored in the run
@@ -284,7 +316,10 @@ impl TrainConfig {
         }
         for (i, d) in self.datasets.iter().enumerate() {
             if !(d.weight > 0.0 && d.weight.is_finite()) {
-                bail!("datasets[{i}].weight must be a positive number, got {}", d.weight);
+                bail!(
+                    "datasets[{i}].weight must be a positive number, got {}",
+                    d.weight
+                );
             }
             parse_format(d.format.as_deref(), &format!("datasets[{i}].format"))?;
         }
@@ -301,7 +336,10 @@ impl TrainConfig {
             bail!("batch_size and accumulate must be at least 1");
         }
         if self.iters < 2 || !self.iters.is_multiple_of(2) {
-            bail!("iters must be an even number ≥ 2 (half run at 1/16 and half at 1/8), got {}", self.iters);
+            bail!(
+                "iters must be an even number ≥ 2 (half run at 1/16 and half at 1/8), got {}",
+                self.iters
+            );
         }
         if !(self.gamma > 0.0 && self.gamma <= 1.0) {
             bail!("gamma must be in (0, 1], got {}", self.gamma);
@@ -310,11 +348,17 @@ impl TrainConfig {
         if !((0.0..1.0).contains(&a.beta1) && (0.0..1.0).contains(&a.beta2) && a.eps > 0.0) {
             bail!("adam: need 0 ≤ beta1, beta2 < 1 and eps > 0");
         }
-        self.schedule().validate().map_err(|e| anyhow::anyhow!("schedule: {e}"))?;
-        self.augment.validate().map_err(|e| anyhow::anyhow!("augment: {e}"))?;
+        self.schedule()
+            .validate()
+            .map_err(|e| anyhow::anyhow!("schedule: {e}"))?;
+        self.augment
+            .validate()
+            .map_err(|e| anyhow::anyhow!("augment: {e}"))?;
         let [h, w] = self.augment.crop;
         if h % 16 != 0 || w % 16 != 0 {
-            bail!("augment.crop {h}x{w}: both sides must be multiples of 16 (the network's 1/16 level)");
+            bail!(
+                "augment.crop {h}x{w}: both sides must be multiples of 16 (the network's 1/16 level)"
+            );
         }
         Ok(())
     }
@@ -344,7 +388,9 @@ impl TrainConfig {
         if self.loader.workers > 0 {
             self.loader.workers
         } else {
-            std::thread::available_parallelism().map_or(2, |n| n.get()).min(8)
+            std::thread::available_parallelism()
+                .map_or(2, |n| n.get())
+                .min(8)
         }
     }
 }
@@ -367,25 +413,40 @@ mod tests {
         assert_eq!(cfg.adam.eps, 1e-8);
         assert_eq!(cfg.gamma, 0.9);
         let s = cfg.schedule();
-        assert_eq!((s.base_lr, s.warmup_steps, s.decay_start, s.total_steps), (4e-4, 6000, 180_000, 300_000));
+        assert_eq!(
+            (s.base_lr, s.warmup_steps, s.decay_start, s.total_steps),
+            (4e-4, 6000, 180_000, 300_000)
+        );
         assert_eq!(cfg.datasets[0].weight, 1.0);
     }
 
     #[test]
     fn bad_keys_and_values_are_named() {
-        let e = parse("stepz = 3\n[[datasets]]\npath = \"a\"\n").unwrap_err().to_string();
+        let e = parse("stepz = 3\n[[datasets]]\npath = \"a\"\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("stepz"), "{e}");
-        let e = parse("[[datasets]]\npath = \"a\"\nweight = -1\n").unwrap_err().to_string();
+        let e = parse("[[datasets]]\npath = \"a\"\nweight = -1\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("datasets[0].weight"), "{e}");
-        let e = parse("[[datasets]]\npath = \"a\"\nformat = \"nope\"\n").unwrap_err().to_string();
+        let e = parse("[[datasets]]\npath = \"a\"\nformat = \"nope\"\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("datasets[0].format"), "{e}");
-        let e = parse("iters = 3\n[[datasets]]\npath = \"a\"\n").unwrap_err().to_string();
+        let e = parse("iters = 3\n[[datasets]]\npath = \"a\"\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("iters"), "{e}");
-        let e = parse("[augment]\ncrop = [100, 128]\n[[datasets]]\npath = \"a\"\n").unwrap_err().to_string();
+        let e = parse("[augment]\ncrop = [100, 128]\n[[datasets]]\npath = \"a\"\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("multiples of 16"), "{e}");
         let e = parse("").unwrap_err().to_string();
         assert!(e.contains("no training data"), "{e}");
-        let e = parse("steps = 100\n[schedule]\ndecay_start = 500\n[[datasets]]\npath = \"a\"\n").unwrap_err().to_string();
+        let e = parse("steps = 100\n[schedule]\ndecay_start = 500\n[[datasets]]\npath = \"a\"\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("schedule"), "{e}");
     }
 
@@ -393,7 +454,11 @@ mod tests {
     fn relative_paths_follow_the_config_file() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("train.toml");
-        std::fs::write(&file, "[[datasets]]\npath = \"data/ours\"\n[[datasets]]\npath = \"/abs/mb\"\nweight = 2\n").unwrap();
+        std::fs::write(
+            &file,
+            "[[datasets]]\npath = \"data/ours\"\n[[datasets]]\npath = \"/abs/mb\"\nweight = 2\n",
+        )
+        .unwrap();
         let cfg = TrainConfig::from_file(&file).unwrap();
         assert_eq!(cfg.datasets[0].path, dir.path().join("data/ours"));
         assert_eq!(cfg.datasets[1].path, PathBuf::from("/abs/mb"));

@@ -36,19 +36,29 @@ impl MixedSource {
         let mut names = Vec::new();
         for (i, e) in entries.iter().enumerate() {
             let ds = open_data(&e.path, e.format.as_deref(), &format!("datasets[{i}]"))?;
-            names.push(format!("{} ({}, {} samples)", e.path.display(), ds.format(), ds.len()));
+            names.push(format!(
+                "{} ({}, {} samples)",
+                e.path.display(),
+                ds.format(),
+                ds.len()
+            ));
             datasets.push(ds);
         }
         let total: f64 = entries.iter().map(|e| e.weight).sum();
         let weights = entries.iter().map(|e| e.weight / total).collect();
-        Ok(Self { datasets, names, weights })
+        Ok(Self {
+            datasets,
+            names,
+            weights,
+        })
     }
 }
 
 /// Opens a dataset that must hold samples; `key` names it in errors (`datasets[0]`, `--data`).
 pub fn open_data(path: &Path, format: Option<&str>, key: &str) -> Result<Box<dyn StereoDataset>> {
     let format = parse_format(format, &format!("{key}.format"))?;
-    let ds = open_dataset(path, format).with_context(|| format!("{key}: cannot open {}", path.display()))?;
+    let ds = open_dataset(path, format)
+        .with_context(|| format!("{key}: cannot open {}", path.display()))?;
     if ds.is_empty() {
         bail!("{key}: {} holds no samples", path.display());
     }
@@ -109,9 +119,14 @@ impl Planner {
     /// Epoch `number` of `dataset`: every index once, in an order of its own.
     fn epoch(&self, dataset: usize, number: u64) -> DatasetEpoch {
         let mut order: Vec<usize> = (0..self.lens[dataset]).collect();
-        let mut rng = ChaCha8Rng::seed_from_u64(mix_seed(mix_seed(self.seed, dataset as u64 + 1), number));
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(mix_seed(mix_seed(self.seed, dataset as u64 + 1), number));
         order.shuffle(&mut rng);
-        DatasetEpoch { number, order, next: 0 }
+        DatasetEpoch {
+            number,
+            order,
+            next: 0,
+        }
     }
 
     /// The ordinal of the sample [`Self::next_plan`] returns next.
@@ -147,7 +162,12 @@ impl Planner {
         let index = self.next_index(dataset);
         let ordinal = self.next;
         self.next += 1;
-        SamplePlan { ordinal, dataset, index, seed: mix_seed(self.seed ^ 0xA06_u64, ordinal) }
+        SamplePlan {
+            ordinal,
+            dataset,
+            index,
+            seed: mix_seed(self.seed ^ 0xA06_u64, ordinal),
+        }
     }
 
     /// Replays the plan up to sample `ordinal` (cheap: no decoding), for resuming.
@@ -192,11 +212,18 @@ pub fn load_sample(
         match ds.sample(index) {
             Ok(sample) => {
                 let sample = augment_random(&sample, augment, plan.seed);
-                return Ok(LoadedSample { plan, index, sample });
+                return Ok(LoadedSample {
+                    plan,
+                    index,
+                    sample,
+                });
             }
             Err(e) => {
                 let id = ds.id(index).unwrap_or("?").to_string();
-                tracing::warn!("skipping unreadable training sample {id} of {}: {e}", source.names[plan.dataset]);
+                tracing::warn!(
+                    "skipping unreadable training sample {id} of {}: {e}",
+                    source.names[plan.dataset]
+                );
                 skipped.lock().unwrap().push(SkippedSample {
                     dataset: source.names[plan.dataset].clone(),
                     id,
@@ -241,8 +268,21 @@ impl Worker {
             if self.stop.load(Ordering::Relaxed) {
                 return;
             }
-            let result = load_sample(&self.source, plan, &self.augment, self.retries, &self.skipped);
-            if self.results.send(Decoded { ordinal: plan.ordinal, result }).is_err() {
+            let result = load_sample(
+                &self.source,
+                plan,
+                &self.augment,
+                self.retries,
+                &self.skipped,
+            );
+            if self
+                .results
+                .send(Decoded {
+                    ordinal: plan.ordinal,
+                    result,
+                })
+                .is_err()
+            {
                 return;
             }
         }
@@ -286,7 +326,9 @@ impl Loader {
         let mut threads = Vec::new();
         {
             let (credit, stop) = (credit.clone(), stop.clone());
-            threads.push(std::thread::spawn(move || plan_loop(planner, job_tx, &credit, &stop)));
+            threads.push(std::thread::spawn(move || {
+                plan_loop(planner, job_tx, &credit, &stop)
+            }));
         }
         for _ in 0..workers {
             let worker = Worker {
@@ -300,7 +342,15 @@ impl Loader {
             };
             threads.push(std::thread::spawn(move || worker.run()));
         }
-        Self { results: res_rx, waiting: BTreeMap::new(), next: start, credit, stop, threads, skipped }
+        Self {
+            results: res_rx,
+            waiting: BTreeMap::new(),
+            next: start,
+            credit,
+            stop,
+            threads,
+            skipped,
+        }
     }
 
     /// The ordinal of the next sample [`Self::next_sample`] returns: the data position to store
@@ -318,7 +368,10 @@ impl Loader {
                 cv.notify_all();
                 return r;
             }
-            let decoded = self.results.recv().context("the data loader threads stopped")?;
+            let decoded = self
+                .results
+                .recv()
+                .context("the data loader threads stopped")?;
             self.waiting.insert(decoded.ordinal, decoded.result);
         }
     }
@@ -329,7 +382,12 @@ impl Loader {
     }
 }
 
-fn plan_loop(mut planner: Planner, jobs: SyncSender<SamplePlan>, credit: &(Mutex<u64>, Condvar), stop: &AtomicBool) {
+fn plan_loop(
+    mut planner: Planner,
+    jobs: SyncSender<SamplePlan>,
+    credit: &(Mutex<u64>, Condvar),
+    stop: &AtomicBool,
+) {
     let (lock, cv) = credit;
     loop {
         {
@@ -376,7 +434,13 @@ pub fn collate<B: Backend>(samples: &[TrainSample], device: &B::Device) -> Resul
     let mut valid = Vec::with_capacity(n * h * w);
     for s in samples {
         if (s.height, s.width) != (h, w) {
-            bail!("batch mixes sample sizes {}x{} and {}x{}", h, w, s.height, s.width);
+            bail!(
+                "batch mixes sample sizes {}x{} and {}x{}",
+                h,
+                w,
+                s.height,
+                s.width
+            );
         }
         left.extend_from_slice(&s.left);
         right.extend_from_slice(&s.right);
@@ -391,7 +455,6 @@ pub fn collate<B: Backend>(samples: &[TrainSample], device: &B::Device) -> Resul
     })
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -403,7 +466,12 @@ mod tests {
         let small = plans.iter().filter(|s| s.dataset == 1).count() as f64 / plans.len() as f64;
         assert!((small - 0.02).abs() < 0.005, "share {small}");
         // The first 50 draws of dataset 0 are one permutation of its indices.
-        let mut first: Vec<usize> = plans.iter().filter(|s| s.dataset == 0).take(50).map(|s| s.index).collect();
+        let mut first: Vec<usize> = plans
+            .iter()
+            .filter(|s| s.dataset == 0)
+            .take(50)
+            .map(|s| s.index)
+            .collect();
         first.sort();
         assert_eq!(first, (0..50).collect::<Vec<_>>());
         assert!(plans.iter().enumerate().all(|(k, s)| s.ordinal == k as u64));

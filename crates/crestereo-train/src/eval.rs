@@ -34,7 +34,14 @@ pub struct EvalOptions {
 
 impl Default for EvalOptions {
     fn default() -> Self {
-        Self { iters: 20, stages: 2, limit: 0, fg_masks: None, boundary_px: 4, lr_tolerance_px: 1.0 }
+        Self {
+            iters: 20,
+            stages: 2,
+            limit: 0,
+            fg_masks: None,
+            boundary_px: 4,
+            lr_tolerance_px: 1.0,
+        }
     }
 }
 
@@ -95,7 +102,10 @@ pub struct NonOccMask {
 /// exists, else `None`.
 pub fn nonocc_mask(sample: &StereoSample, tolerance: f32) -> Option<NonOccMask> {
     if let Some(m) = &sample.valid_left {
-        return Some(NonOccMask { mask: m.clone(), source: NonOccSource::Dataset });
+        return Some(NonOccMask {
+            mask: m.clone(),
+            source: NonOccSource::Dataset,
+        });
     }
     let right = sample.disp_right.as_ref()?;
     let left = &sample.disp_left;
@@ -116,14 +126,24 @@ pub fn nonocc_mask(sample: &StereoSample, tolerance: f32) -> Option<NonOccMask> 
             mask[i] = right.valid[j] && (right.data[j] - d).abs() <= tolerance;
         }
     }
-    Some(NonOccMask { mask, source: NonOccSource::LeftRightCheck })
+    Some(NonOccMask {
+        mask,
+        source: NonOccSource::LeftRightCheck,
+    })
 }
 
 fn foreground(dir: &Path, id: &str, width: usize, height: usize) -> Result<Vec<bool>> {
     let path = dir.join(format!("{id}.png"));
     let img = stereo_io::read_image(&path)?;
     if (img.width, img.height) != (width, height) {
-        bail!("foreground mask {} is {}x{}, the image {}x{}", path.display(), img.width, img.height, width, height);
+        bail!(
+            "foreground mask {} is {}x{}, the image {}x{}",
+            path.display(),
+            img.width,
+            img.height,
+            width,
+            height
+        );
     }
     // Non-zero in the first channel = foreground.
     let c = img.channels;
@@ -134,15 +154,35 @@ fn foreground(dir: &Path, id: &str, width: usize, height: usize) -> Result<Vec<b
 }
 
 /// Evaluates one decoded sample.
-pub fn evaluate_sample<B: Backend>(model: &CREStereo<B>, sample: &StereoSample, id: &str, opts: &EvalOptions, device: &B::Device) -> Result<ImageResult> {
+pub fn evaluate_sample<B: Backend>(
+    model: &CREStereo<B>,
+    sample: &StereoSample,
+    id: &str,
+    opts: &EvalOptions,
+    device: &B::Device,
+) -> Result<ImageResult> {
     let t0 = Instant::now();
-    let pred = infer_disparity(model, &BgrImage::from_rgb(&sample.left), &BgrImage::from_rgb(&sample.right), InferenceOptions { iters: opts.iters, stages: opts.stages }, device)?;
+    let pred = infer_disparity(
+        model,
+        &BgrImage::from_rgb(&sample.left),
+        &BgrImage::from_rgb(&sample.right),
+        InferenceOptions {
+            iters: opts.iters,
+            stages: opts.stages,
+        },
+        device,
+    )?;
     let seconds = t0.elapsed().as_secs_f64();
     let truth = &sample.disp_left;
     let all = disparity_metrics(&pred.data, &truth.data, &truth.valid);
     let nonocc_mask = nonocc_mask(sample, opts.lr_tolerance_px);
     let nonocc = nonocc_mask.as_ref().and_then(|n| {
-        let m: Vec<bool> = n.mask.iter().zip(&truth.valid).map(|(a, b)| *a && *b).collect();
+        let m: Vec<bool> = n
+            .mask
+            .iter()
+            .zip(&truth.valid)
+            .map(|(a, b)| *a && *b)
+            .collect();
         disparity_metrics(&pred.data, &truth.data, &m)
     });
     let nonocc_source = nonocc_mask.map(|n| n.source);
@@ -153,7 +193,17 @@ pub fn evaluate_sample<B: Backend>(model: &CREStereo<B>, sample: &StereoSample, 
         let band = boundary_band(&fg, truth.width, truth.height, opts.boundary_px);
         mxiou_bd = max_iou(&pred.data, &fg, &band);
     }
-    Ok(ImageResult { id: id.to_string(), width: truth.width, height: truth.height, seconds, all, nonocc, nonocc_source, mxiou, mxiou_bd })
+    Ok(ImageResult {
+        id: id.to_string(),
+        width: truth.width,
+        height: truth.height,
+        seconds,
+        all,
+        nonocc,
+        nonocc_source,
+        mxiou,
+        mxiou_bd,
+    })
 }
 
 /// The mean of each metric over images; `count` is the total of pixels.
@@ -193,12 +243,19 @@ pub fn evaluate<B: Backend>(
     device: &B::Device,
     mut progress: impl FnMut(usize, usize, &ImageResult),
 ) -> Result<EvalReport> {
-    let n = if opts.limit > 0 { dataset.len().min(opts.limit) } else { dataset.len() };
+    let n = if opts.limit > 0 {
+        dataset.len().min(opts.limit)
+    } else {
+        dataset.len()
+    };
     let mut per_image = Vec::new();
     let mut failed = Vec::new();
     for i in 0..n {
         let id = dataset.id(i).unwrap_or("?").to_string();
-        let result = dataset.sample(i).map_err(anyhow::Error::from).and_then(|s| evaluate_sample(model, &s, &id, opts, device));
+        let result = dataset
+            .sample(i)
+            .map_err(anyhow::Error::from)
+            .and_then(|s| evaluate_sample(model, &s, &id, opts, device));
         match result {
             Ok(r) => {
                 progress(i + 1, n, &r);
@@ -206,17 +263,26 @@ pub fn evaluate<B: Backend>(
             }
             Err(e) => {
                 tracing::warn!("evaluation skips {id}: {e:#}");
-                failed.push(FailedImage { id, error: format!("{e:#}") });
+                failed.push(FailedImage {
+                    id,
+                    error: format!("{e:#}"),
+                });
             }
         }
     }
-    Ok(EvalReport::summarise(dataset, weights, opts, per_image, failed))
+    Ok(EvalReport::summarise(
+        dataset, weights, opts, per_image, failed,
+    ))
 }
 
-const CSV_METRICS: [&str; 11] = ["epe", "rms", "bad_0_5", "bad_1", "bad_2", "bad_3", "d1", "a50", "a90", "a95", "a99"];
+const CSV_METRICS: [&str; 11] = [
+    "epe", "rms", "bad_0_5", "bad_1", "bad_2", "bad_3", "d1", "a50", "a90", "a95", "a99",
+];
 
 fn metric_values(m: &DisparityMetrics) -> [f64; 11] {
-    [m.epe, m.rms, m.bad_0_5, m.bad_1, m.bad_2, m.bad_3, m.d1, m.a50, m.a90, m.a95, m.a99]
+    [
+        m.epe, m.rms, m.bad_0_5, m.bad_1, m.bad_2, m.bad_3, m.d1, m.a50, m.a90, m.a95, m.a99,
+    ]
 }
 
 fn opt(v: Option<f64>) -> String {
@@ -225,7 +291,13 @@ fn opt(v: Option<f64>) -> String {
 
 impl EvalReport {
     /// The report of `per_image` results: means over images.
-    fn summarise(dataset: &dyn StereoDataset, weights: &str, opts: &EvalOptions, per_image: Vec<ImageResult>, failed: Vec<FailedImage>) -> Self {
+    fn summarise(
+        dataset: &dyn StereoDataset,
+        weights: &str,
+        opts: &EvalOptions,
+        per_image: Vec<ImageResult>,
+        failed: Vec<FailedImage>,
+    ) -> Self {
         let alls: Vec<_> = per_image.iter().filter_map(|r| r.all).collect();
         let noccs: Vec<_> = per_image.iter().filter_map(|r| r.nonocc).collect();
         Self {
@@ -257,7 +329,15 @@ impl EvalReport {
         }
         s.push_str(",mxiou,mxiou_bd\n");
         for r in &self.per_image {
-            write!(s, "{},{},{},{:.3}", csv_field(&r.id), r.width, r.height, r.seconds).unwrap();
+            write!(
+                s,
+                "{},{},{},{:.3}",
+                csv_field(&r.id),
+                r.width,
+                r.height,
+                r.seconds
+            )
+            .unwrap();
             for m in [&r.all, &r.nonocc] {
                 match m {
                     Some(m) => {
@@ -277,16 +357,31 @@ impl EvalReport {
     /// The human-readable summary `crestereo eval` prints.
     pub fn table(&self) -> String {
         let mut s = String::new();
-        writeln!(s, "{} ({}), {} images, weights {}", self.dataset, self.format, self.images, self.weights).unwrap();
+        writeln!(
+            s,
+            "{} ({}), {} images, weights {}",
+            self.dataset, self.format, self.images, self.weights
+        )
+        .unwrap();
         if !self.failed.is_empty() {
-            writeln!(s, "{} images could not be evaluated (see the JSON)", self.failed.len()).unwrap();
+            writeln!(
+                s,
+                "{} images could not be evaluated (see the JSON)",
+                self.failed.len()
+            )
+            .unwrap();
         }
         self.write_metric_rows(&mut s);
         if let Some(v) = self.mean_mxiou {
             writeln!(s, "{:<14}{v:>12.4}", "mxIoU").unwrap();
         }
         if let Some(v) = self.mean_mxiou_bd {
-            writeln!(s, "{:<14}{v:>12.4}", format!("mxIoUbd (p={})", self.options.boundary_px)).unwrap();
+            writeln!(
+                s,
+                "{:<14}{v:>12.4}",
+                format!("mxIoUbd (p={})", self.options.boundary_px)
+            )
+            .unwrap();
         }
         writeln!(s, "{:<14}{:>12.3}", "s / image", self.seconds_per_image).unwrap();
         s
@@ -303,7 +398,19 @@ impl EvalReport {
             }
         }
         s.push('\n');
-        let labels = ["EPE (AvgErr)", "RMS", "Bad-0.5 %", "Bad-1 %", "Bad-2 %", "Bad-3 %", "D1 %", "A50", "A90", "A95", "A99"];
+        let labels = [
+            "EPE (AvgErr)",
+            "RMS",
+            "Bad-0.5 %",
+            "Bad-1 %",
+            "Bad-2 %",
+            "Bad-3 %",
+            "D1 %",
+            "A50",
+            "A90",
+            "A95",
+            "A99",
+        ];
         for (k, label) in labels.iter().enumerate() {
             write!(s, "{label:<14}").unwrap();
             for (_, m) in cols {
@@ -318,14 +425,20 @@ impl EvalReport {
     /// Writes `<out>.json` style outputs: the full report as JSON and the per-image CSV.
     pub fn write(&self, json: &Path, csv: &Path) -> Result<()> {
         let text = serde_json::to_vec_pretty(self)?;
-        stereo_io::write_bytes_atomically(json, &text).with_context(|| format!("cannot write {}", json.display()))?;
-        stereo_io::write_bytes_atomically(csv, self.per_image_csv().as_bytes()).with_context(|| format!("cannot write {}", csv.display()))?;
+        stereo_io::write_bytes_atomically(json, &text)
+            .with_context(|| format!("cannot write {}", json.display()))?;
+        stereo_io::write_bytes_atomically(csv, self.per_image_csv().as_bytes())
+            .with_context(|| format!("cannot write {}", csv.display()))?;
         Ok(())
     }
 }
 
 fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
 }
 
 #[cfg(test)]
@@ -334,8 +447,17 @@ mod tests {
     use stereo_io::{DisparityMap, RgbImage, SampleMeta};
 
     fn sample(left: &[f32], right: Option<&[f32]>, w: usize) -> StereoSample {
-        let map = |d: &[f32]| DisparityMap { width: w, height: 1, data: d.to_vec(), valid: d.iter().map(|v| *v > 0.0).collect() };
-        let img = RgbImage { width: w, height: 1, data: vec![0; 3 * w] };
+        let map = |d: &[f32]| DisparityMap {
+            width: w,
+            height: 1,
+            data: d.to_vec(),
+            valid: d.iter().map(|v| *v > 0.0).collect(),
+        };
+        let img = RgbImage {
+            width: w,
+            height: 1,
+            data: vec![0; 3 * w],
+        };
         StereoSample {
             left: img.clone(),
             right: img,
@@ -352,7 +474,8 @@ mod tests {
         // view the strip moves to 2..4 and hides the background seen by left pixels 3 and 4.
         let left = [0.0, 1.0, 1.0, 1.0, 2.0, 2.0, 1.0, 1.0];
         let right = [1.0, 1.0, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0];
-        let NonOccMask { mask, source } = nonocc_mask(&sample(&left, Some(&right), 8), 0.5).unwrap();
+        let NonOccMask { mask, source } =
+            nonocc_mask(&sample(&left, Some(&right), 8), 0.5).unwrap();
         assert_eq!(source, NonOccSource::LeftRightCheck);
         // x=0 invalid; x=1 → 0 ok; x=2 → 1 ok; x=3 → 2 (d 2 ≠ 1) occluded; x=4,5 → 2,3 ok;
         // x=6 → 5 ok; x=7 → 6 ok.
@@ -371,7 +494,17 @@ mod tests {
         assert_eq!(m.count, 3);
         assert!((m.epe - (0.5 + 2.0) / 2.0).abs() < 1e-12);
         assert!((m.bad_1 - (0.0 + 100.0) / 2.0).abs() < 1e-12);
-        let r = |id: &str, m| ImageResult { id: id.into(), width: 2, height: 1, seconds: 0.1, all: Some(m), nonocc: None, nonocc_source: None, mxiou: Some(0.5), mxiou_bd: None };
+        let r = |id: &str, m| ImageResult {
+            id: id.into(),
+            width: 2,
+            height: 1,
+            seconds: 0.1,
+            all: Some(m),
+            nonocc: None,
+            nonocc_source: None,
+            mxiou: Some(0.5),
+            mxiou_bd: None,
+        };
         let report = EvalReport {
             dataset: "d".into(),
             format: "f".into(),
@@ -393,6 +526,9 @@ mod tests {
         assert_eq!(lines[2].split(',').count(), cols);
         assert!(lines[1].starts_with("\"a,1\",2,1,"));
         let table = report.table();
-        assert!(table.contains("EPE (AvgErr)") && table.contains("mxIoU") && !table.contains("non-occ"), "{table}");
+        assert!(
+            table.contains("EPE (AvgErr)") && table.contains("mxIoU") && !table.contains("non-occ"),
+            "{table}"
+        );
     }
 }

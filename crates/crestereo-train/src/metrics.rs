@@ -33,13 +33,20 @@ pub struct DisparityMetrics {
 pub fn quantile(sorted: &[f64], q: f64) -> f64 {
     let pos = q.clamp(0.0, 1.0) * (sorted.len() - 1) as f64;
     let (i, f) = (pos.floor() as usize, pos.fract());
-    if i + 1 < sorted.len() { sorted[i] * (1.0 - f) + sorted[i + 1] * f } else { sorted[i] }
+    if i + 1 < sorted.len() {
+        sorted[i] * (1.0 - f) + sorted[i + 1] * f
+    } else {
+        sorted[i]
+    }
 }
 
 /// Metrics over the pixels where `mask` is true; `None` when it selects none.
 /// Panics when the buffers differ in length (a caller bug, not bad data).
 pub fn disparity_metrics(pred: &[f32], truth: &[f32], mask: &[bool]) -> Option<DisparityMetrics> {
-    assert!(pred.len() == truth.len() && truth.len() == mask.len(), "prediction, truth and mask differ in size");
+    assert!(
+        pred.len() == truth.len() && truth.len() == mask.len(),
+        "prediction, truth and mask differ in size"
+    );
     let mut errors = Vec::new();
     let (mut sum, mut sq) = (0.0, 0.0);
     let mut bad = [0usize; 4];
@@ -88,7 +95,10 @@ pub fn boundary_band(fg: &[bool], width: usize, height: usize, p: usize) -> Vec<
     for y in 0..height {
         for x in 0..width {
             let here = at(x, y);
-            let edge = (x > 0 && at(x - 1, y) != here) || (x + 1 < width && at(x + 1, y) != here) || (y > 0 && at(x, y - 1) != here) || (y + 1 < height && at(x, y + 1) != here);
+            let edge = (x > 0 && at(x - 1, y) != here)
+                || (x + 1 < width && at(x + 1, y) != here)
+                || (y > 0 && at(x, y - 1) != here)
+                || (y + 1 < height && at(x, y + 1) != here);
             if edge {
                 for by in y.saturating_sub(p)..=(y + p).min(height - 1) {
                     for bx in x.saturating_sub(p)..=(x + p).min(width - 1) {
@@ -108,7 +118,13 @@ pub fn boundary_band(fg: &[bool], width: usize, height: usize, p: usize) -> Vec<
 pub fn max_iou(pred: &[f32], fg: &[bool], region: &[bool]) -> Option<f64> {
     assert!(pred.len() == fg.len() && fg.len() == region.len());
     // Sweep thresholds from high to low: lowering t past a pixel's value adds it to the mask.
-    let mut pixels: Vec<(f32, bool)> = pred.iter().zip(fg).zip(region).filter(|(_, r)| **r).map(|((d, f), _)| (*d, *f)).collect();
+    let mut pixels: Vec<(f32, bool)> = pred
+        .iter()
+        .zip(fg)
+        .zip(region)
+        .filter(|(_, r)| **r)
+        .map(|((d, f), _)| (*d, *f))
+        .collect();
     let fg_total = pixels.iter().filter(|(_, f)| *f).count();
     if fg_total == 0 {
         return None;
@@ -149,7 +165,12 @@ mod tests {
         assert!((m.epe - 8.8 / 5.0).abs() < 1e-6);
         let sq = 0.04 + 0.36 + 2.25 + 6.25 + 16.0;
         assert!((m.rms - (sq / 5.0f64).sqrt()).abs() < 1e-6);
-        assert!(close(m.bad_0_5, 80.0) && close(m.bad_1, 60.0) && close(m.bad_2, 40.0) && close(m.bad_3, 20.0));
+        assert!(
+            close(m.bad_0_5, 80.0)
+                && close(m.bad_1, 60.0)
+                && close(m.bad_2, 40.0)
+                && close(m.bad_3, 20.0)
+        );
         // 4.0 > 3 and > 5% of 50 = 2.5: one D1 outlier; 2.5 on a truth of 100 is neither.
         assert!(close(m.d1, 20.0));
         // Sorted errors 0.2 0.6 1.5 2.5 4.0: the median is 1.5, A90 at rank 3.6 = 2.5 + 0.6·1.5.

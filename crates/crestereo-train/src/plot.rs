@@ -26,19 +26,31 @@ fn err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
 
 /// Columns of a CSV by header name: `(step, value)` pairs of finite values.
 fn read_columns(path: &Path, want: &[&str]) -> Result<Vec<Vec<(f64, f64)>>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
     let idx: Vec<usize> = want
         .iter()
-        .map(|w| header.iter().position(|h| h == w).ok_or_else(|| anyhow!("{}: no column `{w}`", path.display())))
+        .map(|w| {
+            header
+                .iter()
+                .position(|h| h == w)
+                .ok_or_else(|| anyhow!("{}: no column `{w}`", path.display()))
+        })
         .collect::<Result<_>>()?;
     let mut out = vec![Vec::new(); want.len()];
     for line in lines {
         let cells: Vec<&str> = line.split(',').collect();
-        let Some(step) = cells.first().and_then(|s| s.parse::<f64>().ok()) else { continue };
+        let Some(step) = cells.first().and_then(|s| s.parse::<f64>().ok()) else {
+            continue;
+        };
         for (k, &i) in idx.iter().enumerate() {
-            if let Some(v) = cells.get(i).and_then(|s| s.parse::<f64>().ok()).filter(|v| v.is_finite()) {
+            if let Some(v) = cells
+                .get(i)
+                .and_then(|s| s.parse::<f64>().ok())
+                .filter(|v| v.is_finite())
+            {
                 out[k].push((step, v));
             }
         }
@@ -72,7 +84,10 @@ impl RunCurves {
     fn read(run: &Path) -> Result<Self> {
         let train_log = run.join("train_log.csv");
         let mut cols = read_columns(&train_log, &["loss", "epe"])?.into_iter();
-        let (loss, epe) = (cols.next().unwrap_or_default(), cols.next().unwrap_or_default());
+        let (loss, epe) = (
+            cols.next().unwrap_or_default(),
+            cols.next().unwrap_or_default(),
+        );
         if loss.is_empty() {
             bail!("{} has no finite loss rows yet", train_log.display());
         }
@@ -99,15 +114,25 @@ fn legend_mark(colour: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32
 /// The training loss per step and its moving average, on a log axis.
 fn draw_loss(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
     let loss = &curves.loss;
-    let (lo, hi) = loss.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let (lo, hi) = loss
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
     let mut chart = ChartBuilder::on(area)
         .caption("training loss", ("sans-serif", 22))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0.0..curves.last_step(), (lo.max(1e-6) * 0.9..hi * 1.1).log_scale())
+        .build_cartesian_2d(
+            0.0..curves.last_step(),
+            (lo.max(1e-6) * 0.9..hi * 1.1).log_scale(),
+        )
         .map_err(err)?;
-    chart.configure_mesh().x_desc("step").y_desc("sequence loss").draw().map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("step")
+        .y_desc("sequence loss")
+        .draw()
+        .map_err(err)?;
     let (raw, averaged) = (RGBColor(170, 190, 230), RGBColor(31, 119, 180));
     chart
         .draw_series(LineSeries::new(loss.iter().copied(), raw.stroke_width(1)))
@@ -115,17 +140,29 @@ fn draw_loss(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
         .label("per step")
         .legend(legend_mark(raw));
     chart
-        .draw_series(LineSeries::new(moving_average(loss, smooth), averaged.stroke_width(2)))
+        .draw_series(LineSeries::new(
+            moving_average(loss, smooth),
+            averaged.stroke_width(2),
+        ))
         .map_err(err)?
         .label(format!("moving average ({smooth})"))
         .legend(legend_mark(averaged));
-    chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)
+    chart
+        .configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(err)
 }
 
 /// The training EPE (moving average) and the validation EPE.
 fn draw_epe(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
     let (epe, val) = (&curves.epe, &curves.val);
-    let e_hi = epe.iter().chain(val).fold(0.0f64, |a, p| a.max(p.1)).max(1e-3);
+    let e_hi = epe
+        .iter()
+        .chain(val)
+        .fold(0.0f64, |a, p| a.max(p.1))
+        .max(1e-3);
     let mut chart = ChartBuilder::on(area)
         .caption("end-point error (px)", ("sans-serif", 22))
         .margin(12)
@@ -133,22 +170,40 @@ fn draw_epe(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
         .y_label_area_size(60)
         .build_cartesian_2d(0.0..curves.last_step(), 0.0..e_hi * 1.05)
         .map_err(err)?;
-    chart.configure_mesh().x_desc("step").y_desc("EPE").draw().map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("step")
+        .y_desc("EPE")
+        .draw()
+        .map_err(err)?;
     let (training, validation) = (RGBColor(255, 127, 14), RGBColor(44, 160, 44));
     chart
-        .draw_series(LineSeries::new(moving_average(epe, smooth), training.stroke_width(2)))
+        .draw_series(LineSeries::new(
+            moving_average(epe, smooth),
+            training.stroke_width(2),
+        ))
         .map_err(err)?
         .label("training crops (moving average)")
         .legend(legend_mark(training));
     if !val.is_empty() {
         chart
-            .draw_series(LineSeries::new(val.iter().copied(), validation.stroke_width(2)))
+            .draw_series(LineSeries::new(
+                val.iter().copied(),
+                validation.stroke_width(2),
+            ))
             .map_err(err)?
             .label("validation (full images)")
             .legend(legend_mark(validation));
-        chart.draw_series(val.iter().map(|&p| Circle::new(p, 4, validation.filled()))).map_err(err)?;
+        chart
+            .draw_series(val.iter().map(|&p| Circle::new(p, 4, validation.filled())))
+            .map_err(err)?;
     }
-    chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(err)
+    chart
+        .configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(err)
 }
 
 /// Draws a run's loss and EPE curves side by side into a PNG.
@@ -165,7 +220,12 @@ pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
         draw_epe(&right, &curves, smooth)?;
         root.present().map_err(err)?;
     }
-    let img = stereo_io::Image { width: w as usize, height: h as usize, channels: 3, samples: stereo_io::Samples::U8(buf) };
+    let img = stereo_io::Image {
+        width: w as usize,
+        height: h as usize,
+        channels: 3,
+        samples: stereo_io::Samples::U8(buf),
+    };
     stereo_io::write_png(out, &img)?;
     Ok(())
 }
@@ -178,19 +238,33 @@ mod tests {
     fn moving_average_is_trailing() {
         let p: Vec<(f64, f64)> = (0..5).map(|i| (i as f64, i as f64)).collect();
         let m = moving_average(&p, 2);
-        assert_eq!(m.iter().map(|p| p.1).collect::<Vec<_>>(), [0.0, 0.5, 1.5, 2.5, 3.5]);
+        assert_eq!(
+            m.iter().map(|p| p.1).collect::<Vec<_>>(),
+            [0.0, 0.5, 1.5, 2.5, 3.5]
+        );
     }
 
     #[test]
     fn plots_a_log() {
         let dir = tempfile::tempdir().unwrap();
-        let mut csv = String::from("step,samples,lr,loss,epe,samples_per_s,elapsed_s,skipped_steps\n");
+        let mut csv =
+            String::from("step,samples,lr,loss,epe,samples_per_s,elapsed_s,skipped_steps\n");
         for s in 1..=50 {
-            csv.push_str(&format!("{s},{},{},{},{},1,1,0\n", 2 * s, 4e-4, 10.0 / s as f64, 5.0 / s as f64));
+            csv.push_str(&format!(
+                "{s},{},{},{},{},1,1,0\n",
+                2 * s,
+                4e-4,
+                10.0 / s as f64,
+                5.0 / s as f64
+            ));
         }
         csv.push_str("51,102,4e-4,NaN,NaN,1,1,1\n");
         std::fs::write(dir.path().join("train_log.csv"), csv).unwrap();
-        std::fs::write(dir.path().join("val_log.csv"), "step,images,epe\n25,4,2.0\n50,4,1.0\n").unwrap();
+        std::fs::write(
+            dir.path().join("val_log.csv"),
+            "step,images,epe\n25,4,2.0\n50,4,1.0\n",
+        )
+        .unwrap();
         let out = dir.path().join("loss.png");
         plot_run(dir.path(), &out, 5).unwrap();
         let img = stereo_io::read_image(&out).unwrap();

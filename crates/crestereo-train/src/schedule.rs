@@ -17,7 +17,13 @@ pub struct LrScheduleConfig {
 
 impl Default for LrScheduleConfig {
     fn default() -> Self {
-        Self { base_lr: 4e-4, floor_fraction: 0.05, warmup_steps: 6_000, decay_start: 180_000, total_steps: 300_000 }
+        Self {
+            base_lr: 4e-4,
+            floor_fraction: 0.05,
+            warmup_steps: 6_000,
+            decay_start: 180_000,
+            total_steps: 300_000,
+        }
     }
 }
 
@@ -28,10 +34,16 @@ impl LrScheduleConfig {
             return Err(format!("base_lr must be > 0, got {}", self.base_lr));
         }
         if !(0.0..=1.0).contains(&self.floor_fraction) {
-            return Err(format!("floor_fraction must be in 0..=1, got {}", self.floor_fraction));
+            return Err(format!(
+                "floor_fraction must be in 0..=1, got {}",
+                self.floor_fraction
+            ));
         }
         if !(self.warmup_steps <= self.decay_start && self.decay_start <= self.total_steps) {
-            return Err(format!("need warmup_steps ({}) <= decay_start ({}) <= total_steps ({})", self.warmup_steps, self.decay_start, self.total_steps));
+            return Err(format!(
+                "need warmup_steps ({}) <= decay_start ({}) <= total_steps ({})",
+                self.warmup_steps, self.decay_start, self.total_steps
+            ));
         }
         Ok(())
     }
@@ -68,7 +80,10 @@ mod tests {
         assert!(close(s.lr(240_000), 4e-4 * 0.525));
         assert!(close(s.lr(300_000), 2e-5));
         assert!(close(s.lr(400_000), 2e-5));
-        let bad = LrScheduleConfig { decay_start: 1_000, ..s };
+        let bad = LrScheduleConfig {
+            decay_start: 1_000,
+            ..s
+        };
         assert!(bad.validate().unwrap_err().contains("warmup_steps"));
     }
 }

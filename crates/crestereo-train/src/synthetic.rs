@@ -21,7 +21,15 @@ impl Texture {
     fn new(rng: &mut ChaCha8Rng, width: usize, height: usize, cell: f64) -> Self {
         let gw = (width as f64 / cell) as usize + 3;
         let gh = (height as f64 / cell) as usize + 3;
-        let grid = (0..gw * gh).map(|_| [rng.random_range(20.0..235.0), rng.random_range(20.0..235.0), rng.random_range(20.0..235.0)]).collect();
+        let grid = (0..gw * gh)
+            .map(|_| {
+                [
+                    rng.random_range(20.0..235.0),
+                    rng.random_range(20.0..235.0),
+                    rng.random_range(20.0..235.0),
+                ]
+            })
+            .collect();
         Self { cell, gw, grid }
     }
 
@@ -29,10 +37,15 @@ impl Texture {
         let (gx, gy) = (u / self.cell + 1.0, v / self.cell + 1.0);
         let (x0, y0) = (gx.floor().max(0.0) as usize, gy.floor().max(0.0) as usize);
         let (fx, fy) = (gx - x0 as f64, gy - y0 as f64);
-        let g = |x: usize, y: usize| self.grid[y.min(self.grid.len() / self.gw - 1) * self.gw + x.min(self.gw - 1)];
+        let g = |x: usize, y: usize| {
+            self.grid[y.min(self.grid.len() / self.gw - 1) * self.gw + x.min(self.gw - 1)]
+        };
         let mut out = [0.0; 3];
         for (c, o) in out.iter_mut().enumerate() {
-            *o = g(x0, y0)[c] * (1.0 - fx) * (1.0 - fy) + g(x0 + 1, y0)[c] * fx * (1.0 - fy) + g(x0, y0 + 1)[c] * (1.0 - fx) * fy + g(x0 + 1, y0 + 1)[c] * fx * fy;
+            *o = g(x0, y0)[c] * (1.0 - fx) * (1.0 - fy)
+                + g(x0 + 1, y0)[c] * fx * (1.0 - fy)
+                + g(x0, y0 + 1)[c] * (1.0 - fx) * fy
+                + g(x0 + 1, y0 + 1)[c] * fx * fy;
         }
         // Deterministic fine detail tied to the texture coordinate, not to the view.
         let h = ((u * 12.9898 + v * 78.233).sin() * 43758.5453).fract();
@@ -56,13 +69,20 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let d_bg = rng.random_range(4..16) as f64;
     let d_fg = d_bg + rng.random_range(4..(width / 8).max(6)) as f64;
-    let (rw, rh) = (rng.random_range(width / 4..width / 2), rng.random_range(height / 4..height / 2));
+    let (rw, rh) = (
+        rng.random_range(width / 4..width / 2),
+        rng.random_range(height / 4..height / 2),
+    );
     let x0 = rng.random_range(d_fg as usize..width - rw) as f64;
     let y0 = rng.random_range(0..height - rh);
     let (x1, y1) = (x0 + rw as f64, y0 + rh);
     let bg = Texture::new(&mut rng, width + 64, height, 9.0);
     let fg = Texture::new(&mut rng, width, height, 5.0);
-    let mut left = RgbImage { width, height, data: vec![0; width * height * 3] };
+    let mut left = RgbImage {
+        width,
+        height,
+        data: vec![0; width * height * 3],
+    };
     let mut right = left.clone();
     let mut disp_left = DisparityMap::new(width, height);
     let mut disp_right = DisparityMap::new(width, height);
@@ -80,7 +100,11 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
             // x − d_bg in the right view, so its texture coordinate is x + (offset) in both.
             let inside = in_rows && xf >= x0 && xf < x1;
             foreground[y * width + x] = inside;
-            let (c, d) = if inside { (fg.at(xf - x0, y as f64), d_fg) } else { (bg.at(xf + 32.0, y as f64), d_bg) };
+            let (c, d) = if inside {
+                (fg.at(xf - x0, y as f64), d_fg)
+            } else {
+                (bg.at(xf + 32.0, y as f64), d_bg)
+            };
             put(&mut left, x, y, c);
             disp_left.data[y * width + x] = d as f32;
             disp_left.valid[y * width + x] = true;
@@ -95,23 +119,56 @@ pub fn synthetic_pair(width: usize, height: usize, seed: u64) -> SyntheticPair {
             disp_right.valid[y * width + x] = true;
         }
     }
-    SyntheticPair { left, right, disp_left, disp_right, foreground }
+    SyntheticPair {
+        left,
+        right,
+        disp_left,
+        disp_right,
+        foreground,
+    }
 }
 
 /// Writes `count` synthetic pairs in the CREStereo release layout through stereo-io's writer
-/// (`<name>_left.jpg`, …, ×32 PNG disparity) under `dir`, JPEG at quality 95 (the layout's own
-/// format), and each pair's foreground mask as `dir/foreground/<name>.png` (for
+/// (`<name>_left.jpg`, …, ×32 PNG disparity) under `dir`, real JPEG at quality 100, 4:4:4 (the
+/// layout's own format; the analytic pairs' correspondences are exact, so their pixels should
+/// carry as little compression noise as the format allows), and each pair's foreground mask as `dir/foreground/<name>.png` (for
 /// `crestereo eval --fg-masks`).
-pub fn write_crestereo_dataset(dir: &Path, count: usize, width: usize, height: usize, seed: u64) -> Result<()> {
-    let mut writer = stereo_io::create_writer(WritableFormat::Crestereo, dir, ImageEncoding::Jpeg(95))?;
+pub fn write_crestereo_dataset(
+    dir: &Path,
+    count: usize,
+    width: usize,
+    height: usize,
+    seed: u64,
+) -> Result<()> {
+    let mut writer =
+        stereo_io::create_writer(WritableFormat::Crestereo, dir, ImageEncoding::Jpeg(100))?;
     std::fs::create_dir_all(dir.join("foreground"))?;
     for i in 0..count {
         let p = synthetic_pair(width, height, crate::data::mix_seed(seed, i as u64));
         let name = format!("pair{i:03}");
-        let sample = StereoSample { left: p.left, right: p.right, disp_left: p.disp_left, disp_right: Some(p.disp_right), valid_left: None, meta: SampleMeta::default() };
+        let sample = StereoSample {
+            left: p.left,
+            right: p.right,
+            disp_left: p.disp_left,
+            disp_right: Some(p.disp_right),
+            valid_left: None,
+            meta: SampleMeta::default(),
+        };
         writer.write(i, &name, &sample)?;
-        let mask = p.foreground.iter().map(|f| if *f { 255 } else { 0 }).collect();
-        stereo_io::write_png(&dir.join("foreground").join(format!("{name}.png")), &stereo_io::Image { width, height, channels: 1, samples: stereo_io::Samples::U8(mask) })?;
+        let mask = p
+            .foreground
+            .iter()
+            .map(|f| if *f { 255 } else { 0 })
+            .collect();
+        stereo_io::write_png(
+            &dir.join("foreground").join(format!("{name}.png")),
+            &stereo_io::Image {
+                width,
+                height,
+                channels: 1,
+                samples: stereo_io::Samples::U8(mask),
+            },
+        )?;
     }
     Ok(())
 }
@@ -135,7 +192,11 @@ mod tests {
                 if p.disp_right.data[y * w + x - d] as usize != d {
                     continue;
                 }
-                assert_eq!(p.left.data[(y * w + x) * 3..][..3], p.right.data[(y * w + x - d) * 3..][..3], "pixel {x},{y}");
+                assert_eq!(
+                    p.left.data[(y * w + x) * 3..][..3],
+                    p.right.data[(y * w + x - d) * 3..][..3],
+                    "pixel {x},{y}"
+                );
                 checked += 1;
             }
         }

@@ -58,17 +58,29 @@ pub fn scalar_event(wall_time: f64, step: i64, tag: &str, value: f32) -> Vec<u8>
 }
 
 fn now() -> f64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 impl EventWriter {
     /// Creates `dir/events.out.tfevents.<time>.<host>.<pid>` and writes the version record.
     pub fn create(dir: &Path) -> Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        let host = std::fs::read_to_string("/etc/hostname").map(|h| h.trim().to_string()).unwrap_or_else(|_| "localhost".into());
-        let path = dir.join(format!("events.out.tfevents.{}.{host}.{}", now() as u64, std::process::id()));
-        let file = File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
-        let mut w = Self { path, out: BufWriter::new(file) };
+        let host = std::fs::read_to_string("/etc/hostname")
+            .map(|h| h.trim().to_string())
+            .unwrap_or_else(|_| "localhost".into());
+        let path = dir.join(format!(
+            "events.out.tfevents.{}.{host}.{}",
+            now() as u64,
+            std::process::id()
+        ));
+        let file =
+            File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
+        let mut w = Self {
+            path,
+            out: BufWriter::new(file),
+        };
         let mut event = Vec::new();
         event_header(now(), 0, &mut event);
         length_delimited(3, b"brain.Event:2", &mut event);
@@ -96,7 +108,9 @@ impl EventWriter {
     }
 
     pub fn flush(&mut self) -> Result<()> {
-        self.out.flush().with_context(|| format!("cannot write {}", self.path.display()))
+        self.out
+            .flush()
+            .with_context(|| format!("cannot write {}", self.path.display()))
     }
 }
 
@@ -116,13 +130,19 @@ pub fn read_scalars(path: &Path) -> Result<Vec<Scalar>> {
     let mut at = 0;
     let bad = |what: &str| anyhow::anyhow!("{}: {what}", path.display());
     while at < bytes.len() {
-        let header = bytes.get(at..at + 12).ok_or_else(|| bad("truncated record header"))?;
+        let header = bytes
+            .get(at..at + 12)
+            .ok_or_else(|| bad("truncated record header"))?;
         let len = u64::from_le_bytes(header[..8].try_into().unwrap()) as usize;
         if masked_crc(&header[..8]) != u32::from_le_bytes(header[8..12].try_into().unwrap()) {
             return Err(bad("record length CRC mismatch"));
         }
-        let data = bytes.get(at + 12..at + 12 + len).ok_or_else(|| bad("truncated record"))?;
-        let crc = bytes.get(at + 12 + len..at + 16 + len).ok_or_else(|| bad("truncated record CRC"))?;
+        let data = bytes
+            .get(at + 12..at + 12 + len)
+            .ok_or_else(|| bad("truncated record"))?;
+        let crc = bytes
+            .get(at + 12 + len..at + 16 + len)
+            .ok_or_else(|| bad("truncated record CRC"))?;
         if masked_crc(data) != u32::from_le_bytes(crc.try_into().unwrap()) {
             return Err(bad("record data CRC mismatch"));
         }
@@ -169,7 +189,11 @@ impl Cursor<'_> {
             5 => (self.take(4)?.to_vec(), 0),
             w => return Err(format!("unsupported wire type {w}")),
         };
-        Ok(Field { number, payload, varint })
+        Ok(Field {
+            number,
+            payload,
+            varint,
+        })
     }
 
     fn at_end(&self) -> bool {
@@ -217,13 +241,20 @@ fn decode_summary(summary: &[u8], values: &mut Vec<Scalar>) -> Result<(), String
 
 /// One `Summary.Value{tag, simple_value}`.
 fn decode_value(value: &[u8]) -> Result<Scalar, String> {
-    let mut scalar = Scalar { step: 0, tag: String::new(), value: f32::NAN };
+    let mut scalar = Scalar {
+        step: 0,
+        tag: String::new(),
+        value: f32::NAN,
+    };
     let mut c = Cursor { b: value, i: 0 };
     while !c.at_end() {
         let field = c.field()?;
         match field.number {
             1 => scalar.tag = String::from_utf8(field.payload).map_err(|_| "tag is not UTF-8")?,
-            2 => scalar.value = f32::from_le_bytes(field.payload.try_into().map_err(|_| "bad float")?),
+            2 => {
+                scalar.value =
+                    f32::from_le_bytes(field.payload.try_into().map_err(|_| "bad float")?)
+            }
             _ => {}
         }
     }
@@ -247,7 +278,9 @@ mod tests {
         let e = scalar_event(0.5, 3, "loss", 1.0);
         let mut want = vec![0x09];
         want.extend_from_slice(&0.5f64.to_le_bytes());
-        want.extend_from_slice(&[0x10, 3, 0x2a, 13, 0x0a, 11, 0x0a, 4, b'l', b'o', b's', b's', 0x15]);
+        want.extend_from_slice(&[
+            0x10, 3, 0x2a, 13, 0x0a, 11, 0x0a, 4, b'l', b'o', b's', b's', 0x15,
+        ]);
         want.extend_from_slice(&1.0f32.to_le_bytes());
         assert_eq!(e, want);
     }
@@ -263,12 +296,24 @@ mod tests {
         w.flush().unwrap();
         let got = read_scalars(w.path()).unwrap();
         assert_eq!(got.len(), 600);
-        assert_eq!(got[2 * 299], Scalar { step: 299, tag: "train/loss".to_string(), value: (1.0f64 / 300.0) as f32 });
+        assert_eq!(
+            got[2 * 299],
+            Scalar {
+                step: 299,
+                tag: "train/loss".to_string(),
+                value: (1.0f64 / 300.0) as f32
+            }
+        );
         // A flipped byte is caught.
         let mut bytes = std::fs::read(w.path()).unwrap();
         let n = bytes.len();
         bytes[n - 6] ^= 1;
         std::fs::write(w.path(), bytes).unwrap();
-        assert!(read_scalars(w.path()).unwrap_err().to_string().contains("CRC"));
+        assert!(
+            read_scalars(w.path())
+                .unwrap_err()
+                .to_string()
+                .contains("CRC")
+        );
     }
 }

@@ -4,12 +4,20 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 fn crestereo(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_crestereo")).args(args).env("CRESTEREO_LOG", "warn").output().unwrap()
+    Command::new(env!("CARGO_BIN_EXE_crestereo"))
+        .args(args)
+        .env("CRESTEREO_LOG", "warn")
+        .output()
+        .unwrap()
 }
 
 fn ok(args: &[&str]) -> String {
     let out = crestereo(args);
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(out.status.success(), "crestereo {args:?} failed:\n{text}");
     text
 }
@@ -31,13 +39,56 @@ fn train_then_eval_then_plot() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     let run = dir.path().join("run");
-    ok(&["synth", "--out", s(&data), "--count", "3", "--size", "64x128", "--seed", "4"]);
-    let small = ["--crop", "32x64", "--iters", "2", "--batch-size", "1", "--accumulate", "1", "--no-progress", "--threads", "2"];
-    let mut args = vec!["train", "--data", s(&data), "--out", s(&run), "--steps", "3", "--val", s(&data), "--val-every", "3", "--val-limit", "2"];
+    ok(&[
+        "synth",
+        "--out",
+        s(&data),
+        "--count",
+        "3",
+        "--size",
+        "64x128",
+        "--seed",
+        "4",
+    ]);
+    let small = [
+        "--crop",
+        "32x64",
+        "--iters",
+        "2",
+        "--batch-size",
+        "1",
+        "--accumulate",
+        "1",
+        "--no-progress",
+        "--threads",
+        "2",
+    ];
+    let mut args = vec![
+        "train",
+        "--data",
+        s(&data),
+        "--out",
+        s(&run),
+        "--steps",
+        "3",
+        "--val",
+        s(&data),
+        "--val-every",
+        "3",
+        "--val-limit",
+        "2",
+    ];
     args.extend(small);
     let text = ok(&args);
     assert!(text.contains("step 3 of 3"), "{text}");
-    for f in ["config.toml", "train_log.csv", "val_log.csv", "checkpoints/step-00000003/model.mpk", "checkpoints/step-00000003/optimizer.mpk", "checkpoints/step-00000003/state.json"] {
+    for f in [
+        "config.toml",
+        "train_log.csv",
+        "val_log.csv",
+        "checkpoints/step-00000003/model.mpk",
+        "checkpoints/step-00000003/optimizer.mpk",
+        "checkpoints/step-00000003/state.json",
+    ] {
         assert!(run.join(f).is_file(), "{f} missing");
     }
     let val = std::fs::read_to_string(run.join("val_log.csv")).unwrap();
@@ -48,24 +99,66 @@ fn train_then_eval_then_plot() {
     ok(&resume);
     resume.extend(["--seed", "9"]);
     let e = fails(&resume);
-    assert!(e.contains("differs from the one this run started with"), "{e}");
+    assert!(
+        e.contains("differs from the one this run started with"),
+        "{e}"
+    );
 
     let json = dir.path().join("eval.json");
     let fg = data.join("foreground");
-    let table = ok(&["eval", "--data", s(&data), "--weights", s(&run), "--iters", "2", "--stages", "1", "--json", s(&json), "--fg-masks", s(&fg)]);
-    for label in ["EPE (AvgErr)", "Bad-2 %", "D1 %", "A95", "non-occ", "mxIoU", "mxIoUbd (p=4)"] {
+    let table = ok(&[
+        "eval",
+        "--data",
+        s(&data),
+        "--weights",
+        s(&run),
+        "--iters",
+        "2",
+        "--stages",
+        "1",
+        "--json",
+        s(&json),
+        "--fg-masks",
+        s(&fg),
+    ]);
+    for label in [
+        "EPE (AvgErr)",
+        "Bad-2 %",
+        "D1 %",
+        "A95",
+        "non-occ",
+        "mxIoU",
+        "mxIoUbd (p=4)",
+    ] {
         assert!(table.contains(label), "{label} missing from:\n{table}");
     }
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     assert_eq!(report["images"], 3);
     assert!(report["mean_all"]["epe"].as_f64().unwrap().is_finite());
-    assert!(report["mean_nonocc"]["count"].as_u64().unwrap() < report["mean_all"]["count"].as_u64().unwrap());
+    assert!(
+        report["mean_nonocc"]["count"].as_u64().unwrap()
+            < report["mean_all"]["count"].as_u64().unwrap()
+    );
     assert_eq!(report["per_image"][0]["nonocc_source"], "left-right-check");
     assert!((0.0..=1.0).contains(&report["mean_mxiou"].as_f64().unwrap()));
     let csv = std::fs::read_to_string(dir.path().join("eval.per_image.csv")).unwrap();
     assert_eq!(csv.lines().count(), 4);
     // The untrained baseline evaluates too.
-    ok(&["eval", "--data", s(&data), "--untrained-seed", "1", "--iters", "2", "--stages", "1", "--limit", "1", "--json", s(&dir.path().join("u.json"))]);
+    ok(&[
+        "eval",
+        "--data",
+        s(&data),
+        "--untrained-seed",
+        "1",
+        "--iters",
+        "2",
+        "--stages",
+        "1",
+        "--limit",
+        "1",
+        "--json",
+        s(&dir.path().join("u.json")),
+    ]);
 
     let png = dir.path().join("loss.png");
     ok(&["plot", s(&run), "--out", s(&png)]);
@@ -77,19 +170,48 @@ fn bad_input_gets_one_clear_line() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("bad.toml");
     std::fs::write(&cfg, "batch_sise = 4\n[[datasets]]\npath = \"x\"\n").unwrap();
-    let e = fails(&["train", "--config", s(&cfg), "--out", s(&dir.path().join("r"))]);
+    let e = fails(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--out",
+        s(&dir.path().join("r")),
+    ]);
     assert!(e.contains("batch_sise"), "{e}");
-    let e = fails(&["train", "--data", "/no/such/dir", "--out", s(&dir.path().join("r")), "--steps", "2"]);
+    let e = fails(&[
+        "train",
+        "--data",
+        "/no/such/dir",
+        "--out",
+        s(&dir.path().join("r")),
+        "--steps",
+        "2",
+    ]);
     assert!(e.contains("/no/such/dir"), "{e}");
     let e = fails(&["train", "--out", s(&dir.path().join("r"))]);
     assert!(e.contains("no training data"), "{e}");
     let e = fails(&["eval", "--data", s(dir.path()), "--weights", "/no/such.mpk"]);
-    assert!(e.contains("holds no samples") || e.contains("cannot open"), "{e}");
+    assert!(
+        e.contains("holds no samples") || e.contains("cannot open"),
+        "{e}"
+    );
     ok(&["synth", "--out", s(&dir.path().join("d")), "--count", "1"]);
-    let e = fails(&["eval", "--data", s(&dir.path().join("d")), "--weights", "/no/such.mpk"]);
+    let e = fails(&[
+        "eval",
+        "--data",
+        s(&dir.path().join("d")),
+        "--weights",
+        "/no/such.mpk",
+    ]);
     assert!(e.contains("/no/such.mpk"), "{e}");
     let e = fails(&["eval", "--data", s(&dir.path().join("d"))]);
     assert!(e.contains("no weights"), "{e}");
-    let e = fails(&["eval", "--data", s(&dir.path().join("d")), "--weights", s(dir.path())]);
+    let e = fails(&[
+        "eval",
+        "--data",
+        s(&dir.path().join("d")),
+        "--weights",
+        s(dir.path()),
+    ]);
     assert!(e.contains("holds no checkpoint"), "{e}");
 }

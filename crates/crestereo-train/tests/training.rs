@@ -24,7 +24,11 @@ fn dataset(dir: &Path, count: usize) {
 /// accumulated, 2 iterations.
 fn tiny_config(data: &Path, steps: u64) -> TrainConfig {
     let mut cfg = TrainConfig {
-        datasets: vec![DatasetEntry { path: data.to_path_buf(), format: None, weight: 1.0 }],
+        datasets: vec![DatasetEntry {
+            path: data.to_path_buf(),
+            format: None,
+            weight: 1.0,
+        }],
         steps,
         batch_size: 1,
         accumulate: 2,
@@ -43,8 +47,16 @@ fn tiny_config(data: &Path, steps: u64) -> TrainConfig {
 
 fn weights(checkpoint: &Path) -> Vec<(String, Vec<f32>)> {
     let device = Default::default();
-    let model = load_record(CREStereoConfig::new().init::<CpuBackend>(&device), checkpoint.join("model.mpk"), &device).unwrap();
-    named_parameters(&model).into_iter().map(|p| (p.name, p.data)).collect()
+    let model = load_record(
+        CREStereoConfig::new().init::<CpuBackend>(&device),
+        checkpoint.join("model.mpk"),
+        &device,
+    )
+    .unwrap();
+    named_parameters(&model)
+        .into_iter()
+        .map(|p| (p.name, p.data))
+        .collect()
 }
 
 #[test]
@@ -55,7 +67,15 @@ fn loader_order_does_not_depend_on_threads_and_resumes_mid_stream() {
     let source = Arc::new(MixedSource::open(&cfg.datasets).unwrap());
     let planner = || Planner::new(5, &source.weights, &[source.datasets[0].len()]);
     let take = |start: u64, workers: usize, n: usize| {
-        let mut l = Loader::start(source.clone(), planner(), start, cfg.augment.clone(), workers, 3, 2);
+        let mut l = Loader::start(
+            source.clone(),
+            planner(),
+            start,
+            cfg.augment.clone(),
+            workers,
+            3,
+            2,
+        );
         (0..n).map(|_| l.next_sample().unwrap()).collect::<Vec<_>>()
     };
     let one = take(0, 1, 14);
@@ -63,10 +83,18 @@ fn loader_order_does_not_depend_on_threads_and_resumes_mid_stream() {
     let resumed = take(9, 3, 5);
     for (a, b) in one.iter().zip(&many) {
         assert_eq!((a.plan, a.index), (b.plan, b.index));
-        assert_eq!(a.sample, b.sample, "sample {} differs with 4 workers", a.plan.ordinal);
+        assert_eq!(
+            a.sample, b.sample,
+            "sample {} differs with 4 workers",
+            a.plan.ordinal
+        );
     }
     for (a, b) in one[9..].iter().zip(&resumed) {
-        assert_eq!(a.sample, b.sample, "resumed stream differs at {}", a.plan.ordinal);
+        assert_eq!(
+            a.sample, b.sample,
+            "resumed stream differs at {}",
+            a.plan.ordinal
+        );
     }
     // Every sample is augmented differently (different seeds), and an epoch covers all 6.
     assert_ne!(one[0].sample, one[6].sample);
@@ -83,12 +111,29 @@ fn an_unreadable_sample_is_replaced_and_listed() {
     std::fs::write(dir.path().join("pair002_left.jpg"), b"not a jpeg").unwrap();
     let cfg = tiny_config(dir.path(), 1);
     let source = Arc::new(MixedSource::open(&cfg.datasets).unwrap());
-    let mut l = Loader::start(source.clone(), Planner::new(1, &source.weights, &[4]), 0, AugmentConfig::none([64, 128]), 2, 4, 3);
+    let mut l = Loader::start(
+        source.clone(),
+        Planner::new(1, &source.weights, &[4]),
+        0,
+        AugmentConfig::none([64, 128]),
+        2,
+        4,
+        3,
+    );
     let got: Vec<_> = (0..8).map(|_| l.next_sample().unwrap()).collect();
-    assert!(got.iter().all(|s| s.index != 2), "the corrupt sample was used");
-    assert!(got.iter().any(|s| s.plan.index == 2), "the corrupt sample was never drawn");
+    assert!(
+        got.iter().all(|s| s.index != 2),
+        "the corrupt sample was used"
+    );
+    assert!(
+        got.iter().any(|s| s.plan.index == 2),
+        "the corrupt sample was never drawn"
+    );
     let skipped = l.skipped.lock().unwrap().clone();
-    assert!(!skipped.is_empty() && skipped[0].id.contains("pair002"), "{skipped:?}");
+    assert!(
+        !skipped.is_empty() && skipped[0].id.contains("pair002"),
+        "{skipped:?}"
+    );
     // A dataset where nothing can be read stops with a clear error instead of spinning.
     for f in std::fs::read_dir(dir.path()).unwrap() {
         let p = f.unwrap().path();
@@ -96,7 +141,15 @@ fn an_unreadable_sample_is_replaced_and_listed() {
             std::fs::write(&p, b"broken").unwrap();
         }
     }
-    let mut l = Loader::start(source.clone(), Planner::new(1, &source.weights, &[4]), 0, AugmentConfig::none([64, 128]), 1, 2, 3);
+    let mut l = Loader::start(
+        source.clone(),
+        Planner::new(1, &source.weights, &[4]),
+        0,
+        AugmentConfig::none([64, 128]),
+        1,
+        2,
+        3,
+    );
     let e = l.next_sample().unwrap_err().to_string();
     assert!(e.contains("4 consecutive unreadable samples"), "{e}");
 }
@@ -108,16 +161,39 @@ fn resumed_run_matches_a_straight_run_exactly() {
     let cfg = tiny_config(data.path(), 20);
     let device = Default::default();
     let straight = tempfile::tempdir().unwrap();
-    let quiet = TrainOptions { progress: false, ..TrainOptions::default() };
+    let quiet = TrainOptions {
+        progress: false,
+        ..TrainOptions::default()
+    };
     let a = train::<CpuAutodiffBackend>(&cfg, straight.path(), &quiet, &device).unwrap();
     assert_eq!(a.step, 20);
     let split = tempfile::tempdir().unwrap();
-    let b1 = train::<CpuAutodiffBackend>(&cfg, split.path(), &TrainOptions { stop_at: Some(10), ..quiet.clone() }, &device).unwrap();
+    let b1 = train::<CpuAutodiffBackend>(
+        &cfg,
+        split.path(),
+        &TrainOptions {
+            stop_at: Some(10),
+            ..quiet.clone()
+        },
+        &device,
+    )
+    .unwrap();
     assert_eq!(b1.step, 10);
     // Without --resume a run with checkpoints is refused rather than overwritten.
-    let e = train::<CpuAutodiffBackend>(&cfg, split.path(), &quiet, &device).unwrap_err().to_string();
+    let e = train::<CpuAutodiffBackend>(&cfg, split.path(), &quiet, &device)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("--resume"), "{e}");
-    let b2 = train::<CpuAutodiffBackend>(&cfg, split.path(), &TrainOptions { resume: true, ..quiet.clone() }, &device).unwrap();
+    let b2 = train::<CpuAutodiffBackend>(
+        &cfg,
+        split.path(),
+        &TrainOptions {
+            resume: true,
+            ..quiet.clone()
+        },
+        &device,
+    )
+    .unwrap();
     assert_eq!((b2.resumed_from, b2.step), (Some(10), 20));
 
     let wa = weights(&a.checkpoint.unwrap());
@@ -125,23 +201,42 @@ fn resumed_run_matches_a_straight_run_exactly() {
     assert_eq!(wa.len(), wb.len());
     let mut moved = 0.0f64;
     for ((name, x), (_, y)) in wa.iter().zip(&wb) {
-        assert!(x == y, "{name} differs between the straight and the resumed run");
+        assert!(
+            x == y,
+            "{name} differs between the straight and the resumed run"
+        );
         moved += x.iter().map(|v| f64::from(v.abs())).sum::<f64>();
     }
     assert!(moved.is_finite() && moved > 0.0);
     // The logs continue the same curve: identical loss columns.
     let log = |d: &Path| -> Vec<String> {
-        std::fs::read_to_string(d.join("train_log.csv")).unwrap().lines().map(|l| l.split(',').take(5).collect::<Vec<_>>().join(",")).collect()
+        std::fs::read_to_string(d.join("train_log.csv"))
+            .unwrap()
+            .lines()
+            .map(|l| l.split(',').take(5).collect::<Vec<_>>().join(","))
+            .collect()
     };
     assert_eq!(log(straight.path()), log(split.path()));
     assert_eq!(log(straight.path()).len(), 21);
     // Checkpoints every 5 steps, the newest 2 kept, no temp directories left.
-    let kept: Vec<u64> = list_checkpoints(straight.path()).unwrap().into_iter().map(|c| c.step).collect();
+    let kept: Vec<u64> = list_checkpoints(straight.path())
+        .unwrap()
+        .into_iter()
+        .map(|c| c.step)
+        .collect();
     assert_eq!(kept, [15, 20]);
-    let names: Vec<String> = std::fs::read_dir(straight.path().join("checkpoints")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+    let names: Vec<String> = std::fs::read_dir(straight.path().join("checkpoints"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into())
+        .collect();
     assert_eq!(names.len(), 2, "{names:?}");
     // TensorBoard events were written for every step.
-    let tb = std::fs::read_dir(straight.path().join("tensorboard")).unwrap().next().unwrap().unwrap().path();
+    let tb = std::fs::read_dir(straight.path().join("tensorboard"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
     let scalars = crestereo_train::tensorboard::read_scalars(&tb).unwrap();
     assert_eq!(scalars.iter().filter(|s| s.tag == "train/loss").count(), 20);
 }
@@ -159,17 +254,35 @@ fn non_finite_losses_skip_the_step_and_are_logged() {
     cfg.schedule.warmup_steps = 0;
     cfg.schedule.floor_fraction = 1.0;
     let run = tempfile::tempdir().unwrap();
-    let out = train::<CpuAutodiffBackend>(&cfg, run.path(), &TrainOptions::default(), &Default::default()).unwrap();
+    let out = train::<CpuAutodiffBackend>(
+        &cfg,
+        run.path(),
+        &TrainOptions::default(),
+        &Default::default(),
+    )
+    .unwrap();
     assert_eq!(out.step, 4);
     assert_eq!(out.skipped_steps, 3, "{out:?}");
     let csv = std::fs::read_to_string(run.path().join("train_log.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().skip(1).collect();
-    assert!(rows[0].split(',').nth(3).unwrap().parse::<f64>().unwrap().is_finite());
+    assert!(
+        rows[0]
+            .split(',')
+            .nth(3)
+            .unwrap()
+            .parse::<f64>()
+            .unwrap()
+            .is_finite()
+    );
     // Rows 2..4: loss NaN, skipped_steps = step − 1.
     for r in &rows[1..] {
         let cells: Vec<&str> = r.split(',').collect();
         let step: u64 = cells[0].parse().unwrap();
-        assert_eq!((cells[3], cells[7]), ("NaN", (step - 1).to_string().as_str()), "{csv}");
+        assert_eq!(
+            (cells[3], cells[7]),
+            ("NaN", (step - 1).to_string().as_str()),
+            "{csv}"
+        );
     }
     // The saved weights are the finite ones from before the blow-up.
     let w = weights(&out.checkpoint.unwrap());
@@ -190,14 +303,32 @@ fn overfits_a_single_batch() {
     cfg.schedule.decay_start = 150;
     cfg.checkpoint.every = 1000;
     let run = tempfile::tempdir().unwrap();
-    let out = train::<CpuAutodiffBackend>(&cfg, run.path(), &TrainOptions::default(), &Default::default()).unwrap();
+    let out = train::<CpuAutodiffBackend>(
+        &cfg,
+        run.path(),
+        &TrainOptions::default(),
+        &Default::default(),
+    )
+    .unwrap();
     let csv = std::fs::read_to_string(run.path().join("train_log.csv")).unwrap();
-    let losses: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(3).unwrap().parse().unwrap()).collect();
+    let losses: Vec<f64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(3).unwrap().parse().unwrap())
+        .collect();
     let start = losses[0];
     let end = losses[losses.len() - 5..].iter().sum::<f64>() / 5.0;
-    eprintln!("overfit: loss {start:.3} → {end:.3} ({:.1}%) over {} steps, {:.2} samples/s", 100.0 * end / start, losses.len(), out.samples_per_s);
+    eprintln!(
+        "overfit: loss {start:.3} → {end:.3} ({:.1}%) over {} steps, {:.2} samples/s",
+        100.0 * end / start,
+        losses.len(),
+        out.samples_per_s
+    );
     assert_eq!(out.skipped_steps, 0);
-    assert!(end < 0.1 * start, "loss {start} → {end}: not below 10% of the start");
+    assert!(
+        end < 0.1 * start,
+        "loss {start} → {end}: not below 10% of the start"
+    );
 }
 
 #[test]
@@ -212,13 +343,22 @@ fn accumulating_two_halves_equals_one_full_batch() {
         cfg.schedule.warmup_steps = 0;
         cfg.schedule.decay_start = 1;
         let run = tempfile::tempdir().unwrap();
-        let out = train::<CpuAutodiffBackend>(&cfg, run.path(), &TrainOptions::default(), &Default::default()).unwrap();
+        let out = train::<CpuAutodiffBackend>(
+            &cfg,
+            run.path(),
+            &TrainOptions::default(),
+            &Default::default(),
+        )
+        .unwrap();
         (out.first_loss.unwrap(), weights(&out.checkpoint.unwrap()))
     };
     let (loss_full, full) = run_with(2, 1);
     let (loss_acc, acc) = run_with(1, 2);
     // The same two samples either way: the mean loss and the Adam step must agree.
-    assert!((loss_full - loss_acc).abs() <= 1e-5 * loss_full, "{loss_full} vs {loss_acc}");
+    assert!(
+        (loss_full - loss_acc).abs() <= 1e-5 * loss_full,
+        "{loss_full} vs {loss_acc}"
+    );
     // Adam's first step moves each weight by lr·g/(|g|+eps) (lr = 4e-4). Equal gradients up to
     // float summation order give equal steps, except where a gradient is within rounding of 0;
     // a missing or doubled step would move every weight.
@@ -230,7 +370,10 @@ fn accumulating_two_halves_equals_one_full_batch() {
             differ += usize::from((x - y).abs() > 1e-6);
         }
     }
-    assert!(differ * 1000 <= total, "{differ} of {total} weights differ by more than 0.25% of the step");
+    assert!(
+        differ * 1000 <= total,
+        "{differ} of {total} weights differ by more than 0.25% of the step"
+    );
 }
 
 /// A real dataset that counts the samples decoded from it.
@@ -253,7 +396,8 @@ impl stereo_io::StereoDataset for Counting {
         self.inner.id(index)
     }
     fn sample(&self, index: usize) -> stereo_io::Result<stereo_io::StereoSample> {
-        self.decoded.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        self.decoded
+            .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         self.inner.sample(index)
     }
 }
@@ -264,8 +408,23 @@ fn loader_stays_within_its_prefetch_bound() {
     dataset(dir.path(), 4);
     let decoded = Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let inner = stereo_io::open_dataset(dir.path(), None).unwrap();
-    let source = Arc::new(MixedSource { datasets: vec![Box::new(Counting { inner, decoded: decoded.clone() })], names: vec!["counted".into()], weights: vec![1.0] });
-    let mut l = Loader::start(source, Planner::new(0, &[1.0], &[4]), 0, AugmentConfig::none([32, 64]), 3, 5, 0);
+    let source = Arc::new(MixedSource {
+        datasets: vec![Box::new(Counting {
+            inner,
+            decoded: decoded.clone(),
+        })],
+        names: vec!["counted".into()],
+        weights: vec![1.0],
+    });
+    let mut l = Loader::start(
+        source,
+        Planner::new(0, &[1.0], &[4]),
+        0,
+        AugmentConfig::none([32, 64]),
+        3,
+        5,
+        0,
+    );
     let settle = |n: usize| {
         for _ in 0..200 {
             if decoded.load(std::sync::atomic::Ordering::SeqCst) >= n {

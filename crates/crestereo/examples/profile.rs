@@ -35,7 +35,10 @@ fn rand<B: Backend, const D: usize>(shape: [usize; D]) -> Tensor<B, D> {
 /// CPU seconds of this process (all threads). On a loaded machine this is steadier than wall
 /// time; with RAYON_NUM_THREADS=1 it is the work done.
 fn cpu_seconds() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
     // SAFETY: clock_gettime writes one timespec.
     unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
@@ -102,14 +105,19 @@ impl Table {
     fn print(&self, title: &str, total: (f64, f64, f64)) {
         let (fwd, bwd, rest) = total;
         let step = fwd + bwd + rest;
-        println!("\n{title}: measured step {step:.2} s (forward {fwd:.2}, backward {bwd:.2}, other {rest:.2})");
+        println!(
+            "\n{title}: measured step {step:.2} s (forward {fwd:.2}, backward {bwd:.2}, other {rest:.2})"
+        );
         println!("| op group | forward s | backward s | share of step |");
         println!("|---|---:|---:|---:|");
         let (mut sf, mut sb) = (0.0, 0.0);
         for (g, f, b) in &self.rows {
             sf += f;
             sb += b;
-            println!("| {g} | {f:.3} | {b:.3} | {:.1} % |", 100.0 * (f + b) / step);
+            println!(
+                "| {g} | {f:.3} | {b:.3} | {:.1} % |",
+                100.0 * (f + b) / step
+            );
         }
         if rest > 0.0 {
             println!("| Adam | | | {:.1} % |", 100.0 * rest / step);
@@ -140,7 +148,11 @@ fn encoder<B: Measure>(t: &mut Table, m: &CREStereo<B>, n: usize, h: usize, w: u
         Tensor::cat(vec![a, b], 0)
     });
     let (ef, eb) = (whole.rows[0].1, whole.rows[0].2);
-    t.rows.push(("encoder convolutions (+ residual adds)".into(), ef - nf, eb - nb));
+    t.rows.push((
+        "encoder convolutions (+ residual adds)".into(),
+        ef - nf,
+        eb - nb,
+    ));
     t.rows.push(("instance norms + ReLU".into(), nf, nb));
 }
 
@@ -193,7 +205,10 @@ fn cascade<B: Measure>(
             rand::<B, 4>([n, 2, hh, ww]).require_grad(),
             rand::<B, 4>([n, 144, hh, ww]).require_grad(),
         );
-        for (i, window) in [SearchWindow::Row1x9, SearchWindow::Square3x3].into_iter().enumerate() {
+        for (i, window) in [SearchWindow::Row1x9, SearchWindow::Square3x3]
+            .into_iter()
+            .enumerate()
+        {
             let k = calls / 2 + if i == 0 { calls % 2 } else { 0 };
             if warp {
                 t.add::<B>("AGCL correlation (sampling + group products)", k, &|| {
@@ -234,8 +249,9 @@ fn train(n: usize, h: usize, w: usize, iters: usize) {
     let mut t = Table::default();
     encoder(&mut t, &m, n, h, w);
     cascade(&mut t, &m, n, h, w, iters / 2, iters / 2, iters);
-    let preds: Vec<Tensor<A, 4>> =
-        (0..2 * iters).map(|_| rand::<A, 4>([n, 2, h, w]).require_grad()).collect();
+    let preds: Vec<Tensor<A, 4>> = (0..2 * iters)
+        .map(|_| rand::<A, 4>([n, 2, h, w]).require_grad())
+        .collect();
     let (disp, valid) = (rand::<A, 3>([n, h, w]), rand::<A, 3>([n, h, w]));
     t.add::<A>("loss", 1, &|| {
         sequence_loss(&preds, disp.clone(), valid.clone(), 0.9).reshape([1, 1, 1, 1])
@@ -246,8 +262,18 @@ fn train(n: usize, h: usize, w: usize, iters: usize) {
     let mut total = (0.0, 0.0, 0.0);
     for _ in 0..2 {
         let (loss, fwd) = seconds(|| {
-            let preds = model.forward(rand([n, 3, h, w]).mul_scalar(255.0), rand([n, 3, h, w]).mul_scalar(255.0), iters, None);
-            sequence_loss(&preds, rand::<A, 3>([n, h, w]).abs(), Tensor::ones([n, h, w], &device), 0.9)
+            let preds = model.forward(
+                rand([n, 3, h, w]).mul_scalar(255.0),
+                rand([n, 3, h, w]).mul_scalar(255.0),
+                iters,
+                None,
+            );
+            sequence_loss(
+                &preds,
+                rand::<A, 3>([n, h, w]).abs(),
+                Tensor::ones([n, h, w], &device),
+                0.9,
+            )
         });
         let (grads, bwd) = seconds(|| loss.backward());
         let (next, adam) = seconds(|| {
@@ -258,7 +284,10 @@ fn train(n: usize, h: usize, w: usize, iters: usize) {
         total = (fwd, bwd, adam);
     }
     t.print(
-        &format!("training step, batch {n}, {h}x{w}, {iters} iterations, {} threads", threads()),
+        &format!(
+            "training step, batch {n}, {h}x{w}, {iters} iterations, {} threads",
+            threads()
+        ),
         total,
     );
 }
@@ -293,7 +322,10 @@ fn infer(h: usize, w: usize, iters: usize) {
         total = s;
     }
     merged.print(
-        &format!("two-pass inference, {h}x{w}, {iters} iterations, {} threads", threads()),
+        &format!(
+            "two-pass inference, {h}x{w}, {iters} iterations, {} threads",
+            threads()
+        ),
         (total, 0.0, 0.0),
     );
 }
@@ -320,7 +352,11 @@ fn threads() -> String {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let num = |i: usize, d: usize| args.get(i).map(|v| v.parse().expect("a number")).unwrap_or(d);
+    let num = |i: usize, d: usize| {
+        args.get(i)
+            .map(|v| v.parse().expect("a number"))
+            .unwrap_or(d)
+    };
     match args.first().map(String::as_str) {
         Some("infer") => infer(num(1, 256), num(2, 320), num(3, 20)),
         Some("gemm") => gemm(num(1, 128), num(2, 1920), num(3, 3072)),

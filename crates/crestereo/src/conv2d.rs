@@ -47,7 +47,10 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
         return conv.forward(x);
     };
     let options = ConvOptions::new(conv.stride, padding, conv.dilation, 1);
-    let (x, w) = (x.into_primitive().tensor(), conv.weight.val().into_primitive().tensor());
+    let (x, w) = (
+        x.into_primitive().tensor(),
+        conv.weight.val().into_primitive().tensor(),
+    );
     let y = if autodiff {
         same(conv2d_autodiff(same(x), same(w), options))
     } else {
@@ -133,7 +136,9 @@ impl Geometry {
     fn new(x: &FlexTensor, w: &FlexTensor, o: &ConvOptions<2>) -> Self {
         let [n, cin, h, wd] = x.shape().dims();
         let [cout, _, kh, kw] = w.shape().dims();
-        let out = |i: usize, k: usize, d: usize| (i + 2 * o.padding[d] - o.dilation[d] * (k - 1) - 1) / o.stride[d] + 1;
+        let out = |i: usize, k: usize, d: usize| {
+            (i + 2 * o.padding[d] - o.dilation[d] * (k - 1) - 1) / o.stride[d] + 1
+        };
         Geometry {
             n,
             cin,
@@ -166,7 +171,9 @@ impl Geometry {
 
     /// Output range along axis `d` whose input coordinate for tap `t` lies in `0..len`.
     fn valid(&self, t: usize, d: usize, len: usize, out_len: usize) -> std::ops::Range<usize> {
-        let lo = (0..out_len).find(|&o| self.src(o, t, d) >= 0).unwrap_or(out_len);
+        let lo = (0..out_len)
+            .find(|&o| self.src(o, t, d) >= 0)
+            .unwrap_or(out_len);
         let hi = (lo..out_len)
             .find(|&o| self.src(o, t, d) >= len as isize)
             .unwrap_or(out_len);
@@ -193,7 +200,8 @@ fn im2col(x: &[f32], g: &Geometry, b: usize) -> Vec<f32> {
             let out_row = &mut dst[oy * g.wo..(oy + 1) * g.wo];
             if g.stride[1] == 1 && g.dil[1] == 1 {
                 let ix0 = g.src(xs.start, c, 1) as usize;
-                out_row[xs.clone()].copy_from_slice(&plane[iy * g.w + ix0..iy * g.w + ix0 + xs.len()]);
+                out_row[xs.clone()]
+                    .copy_from_slice(&plane[iy * g.w + ix0..iy * g.w + ix0 + xs.len()]);
             } else {
                 for ox in xs.clone() {
                     out_row[ox] = plane[iy * g.w + g.src(ox, c, 1) as usize];
@@ -302,7 +310,10 @@ mod tests {
 
     fn max_diff(a: &[f32], b: &[f32]) -> f32 {
         assert_eq!(a.len(), b.len());
-        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
     }
 
     /// The GEMM path against Burn's own convolution, forward and both gradients, including maps
@@ -325,7 +336,9 @@ mod tests {
                 .with_dilation([d, d])
                 .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
                 .init::<Ad>(&device);
-            let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device).require_grad();
+            let x =
+                Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
+                    .require_grad();
             let ours = forward(&conv, x.clone());
             let theirs = conv.forward(x.clone());
             let case = format!("cin {cin} cout {cout} k {k} s {s} p {p} d {d} {h}x{w}");
@@ -337,7 +350,11 @@ mod tests {
             let g_theirs = (theirs * up).sum().backward();
             let pairs = [
                 (x.grad(&g_ours).unwrap(), x.grad(&g_theirs).unwrap(), "dx"),
-                (conv.weight.val().grad(&g_ours).unwrap(), conv.weight.val().grad(&g_theirs).unwrap(), "dw"),
+                (
+                    conv.weight.val().grad(&g_ours).unwrap(),
+                    conv.weight.val().grad(&g_theirs).unwrap(),
+                    "dw",
+                ),
             ];
             for (a, b, name) in pairs {
                 let diff = max_diff(&values(a), &values(b));
@@ -346,7 +363,10 @@ mod tests {
             // the plain Flex forward takes the GEMM path too
             let xf = x.inner();
             let conv_f = conv.valid();
-            let diff = max_diff(&values(forward(&conv_f, xf.clone())), &values(conv_f.forward(xf)));
+            let diff = max_diff(
+                &values(forward(&conv_f, xf.clone())),
+                &values(conv_f.forward(xf)),
+            );
             assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
         }
     }

@@ -154,6 +154,10 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
     /// Warp-and-shift correlation used at 1/4 (no learned offsets).
     pub fn corr_warp(&self, flow: Tensor<B, 4>, window: SearchWindow) -> Tensor<B, 4> {
         let warped = crate::agcl::warp(self.fmap2.clone(), flow);
-        crate::agcl::shift_corr(self.fmap1.clone(), warped, CorrSpec::new(window, self.groups))
+        crate::agcl::shift_corr(
+            self.fmap1.clone(),
+            warped,
+            CorrSpec::new(window, self.groups),
+        )
     }
 }

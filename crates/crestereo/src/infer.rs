@@ -108,5 +108,10 @@ pub fn infer_disparity<B: Backend>(
 /// A prediction as a disparity map: the network gives every pixel a value, so every pixel is
 /// valid. Values are kept as they are (a diverged network's NaN stays visible in metrics).
 fn prediction_map(width: usize, height: usize, data: Vec<f32>) -> DisparityMap {
-    DisparityMap { width, height, valid: vec![true; data.len()], data }
+    DisparityMap {
+        width,
+        height,
+        valid: vec![true; data.len()],
+        data,
+    }
 }

@@ -23,13 +23,23 @@ pub struct BgrImage {
 
 impl BgrImage {
     pub fn zeros(width: usize, height: usize) -> Self {
-        Self { width, height, data: vec![0.0; 3 * width * height] }
+        Self {
+            width,
+            height,
+            data: vec![0.0; 3 * width * height],
+        }
     }
 
     /// Interleaved 8-bit RGB (as `stereo-io` decodes images) to planar BGR.
     pub fn from_rgb(img: &stereo_io::RgbImage) -> Self {
         let n = img.width * img.height;
-        assert_eq!(img.data.len(), 3 * n, "RGB buffer does not match {}x{}", img.width, img.height);
+        assert_eq!(
+            img.data.len(),
+            3 * n,
+            "RGB buffer does not match {}x{}",
+            img.width,
+            img.height
+        );
         let mut out = Self::zeros(img.width, img.height);
         for (i, rgb) in img.data.chunks_exact(3).enumerate() {
             out.data[i] = f32::from(rgb[2]);
@@ -52,7 +62,10 @@ impl BgrImage {
 
     /// The image as a (1, 3, H, W) tensor.
     pub fn to_tensor<B: Backend>(&self, device: &B::Device) -> Tensor<B, 4> {
-        Tensor::from_data(TensorData::new(self.data.clone(), [1, 3, self.height, self.width]), device)
+        Tensor::from_data(
+            TensorData::new(self.data.clone(), [1, 3, self.height, self.width]),
+            device,
+        )
     }
 }
 
@@ -62,7 +75,11 @@ mod tests {
 
     #[test]
     fn rgb_becomes_planar_bgr() {
-        let rgb = stereo_io::RgbImage { width: 2, height: 1, data: vec![1, 2, 3, 4, 5, 6] };
+        let rgb = stereo_io::RgbImage {
+            width: 2,
+            height: 1,
+            data: vec![1, 2, 3, 4, 5, 6],
+        };
         let bgr = BgrImage::from_rgb(&rgb);
         assert_eq!(bgr.data, vec![3.0, 6.0, 2.0, 5.0, 1.0, 4.0]);
         assert_eq!(bgr.plane(2), &[1.0, 4.0]);
@@ -73,10 +90,28 @@ mod tests {
     fn sixteen_bit_png_reads_as_its_8_bit_values() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("deep.png");
-        let samples: Vec<u16> = vec![0, 0, 0, 65535, 65535, 65535, 257 * 100, 257 * 200 + 100, 257 * 7];
-        let img = stereo_io::Image { width: 3, height: 1, channels: 3, samples: stereo_io::Samples::U16(samples) };
+        let samples: Vec<u16> = vec![
+            0,
+            0,
+            0,
+            65535,
+            65535,
+            65535,
+            257 * 100,
+            257 * 200 + 100,
+            257 * 7,
+        ];
+        let img = stereo_io::Image {
+            width: 3,
+            height: 1,
+            channels: 3,
+            samples: stereo_io::Samples::U16(samples),
+        };
         stereo_io::write_png(&path, &img).unwrap();
         let bgr = BgrImage::from_rgb(&stereo_io::read_rgb(&path).unwrap());
-        assert_eq!(bgr.data, vec![0.0, 255.0, 7.0, 0.0, 255.0, 200.0, 0.0, 255.0, 100.0]);
+        assert_eq!(
+            bgr.data,
+            vec![0.0, 255.0, 7.0, 0.0, 255.0, 200.0, 0.0, 255.0, 100.0]
+        );
     }
 }

@@ -136,13 +136,18 @@ impl<B: Backend> CREStereo<B> {
     ) -> Vec<Tensor<B, 4>> {
         check_pair(&left, &right);
         let (fmap1, fmap2) = self.encode(left, right, observer);
-        let Levels { quarter, eighth, sixteenth } = self.levels(fmap1, fmap2, observer);
+        let Levels {
+            quarter,
+            eighth,
+            sixteenth,
+        } = self.levels(fmap1, fmap2, observer);
         let mut predictions = Vec::with_capacity(2 * iters);
         let flow = match flow_init {
             Some(init) => hand_over(init, quarter.size()),
             None => {
                 let start = sixteenth.zero_flow();
-                let flow = self.refine_level(sixteenth, start, iters / 2, &mut predictions, observer);
+                let flow =
+                    self.refine_level(sixteenth, start, iters / 2, &mut predictions, observer);
                 let flow = hand_over(flow, eighth.size());
                 let flow = self.refine_level(eighth, flow, iters / 2, &mut predictions, observer);
                 hand_over(flow, quarter.size())
@@ -153,7 +158,12 @@ impl<B: Backend> CREStereo<B> {
     }
 
     /// The encoder's 1/4 maps of both images, normalised to −1..1 first as the reference does.
-    fn encode(&self, left: Tensor<B, 4>, right: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> (Tensor<B, 4>, Tensor<B, 4>) {
+    fn encode(
+        &self,
+        left: Tensor<B, 4>,
+        right: Tensor<B, 4>,
+        observer: &mut dyn ForwardObserver<B>,
+    ) -> (Tensor<B, 4>, Tensor<B, 4>) {
         let norm = |x: Tensor<B, 4>| x.div_scalar(255.0).mul_scalar(2.0).sub_scalar(1.0);
         let (fmap1, fmap2) = self.fnet.forward_pair(norm(left), norm(right));
         observer.features(&fmap1, &fmap2);
@@ -163,12 +173,22 @@ impl<B: Backend> CREStereo<B> {
     /// The three levels' inputs, in the reference's order of operations. 1/8 and 1/16 are
     /// average pools of the 1/4 maps; the left 1/4 map splits into hidden state (tanh) and
     /// context (relu); the 1/16 maps are self-attended before their correlation is set up.
-    fn levels(&self, fmap1: Tensor<B, 4>, fmap2: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> Levels<B> {
+    fn levels(
+        &self,
+        fmap1: Tensor<B, 4>,
+        fmap2: Tensor<B, 4>,
+        observer: &mut dyn ForwardObserver<B>,
+    ) -> Levels<B> {
         let [n, c, h4, w4] = fmap1.dims();
         let hd = self.hidden_dim;
         let fmap1_dw8 = pool(fmap1.clone(), 2);
         let fmap2_dw8 = pool(fmap2.clone(), 2);
-        let offset_dw8 = self.learned_offsets(&self.conv_offset_8, Level::Eighth, fmap1_dw8.clone(), observer);
+        let offset_dw8 = self.learned_offsets(
+            &self.conv_offset_8,
+            Level::Eighth,
+            fmap1_dw8.clone(),
+            observer,
+        );
 
         let net = tanh(fmap1.clone().slice([0..n, 0..hd, 0..h4, 0..w4]));
         let inp = relu(fmap1.clone().slice([0..n, hd..c, 0..h4, 0..w4]));
@@ -177,21 +197,38 @@ impl<B: Backend> CREStereo<B> {
 
         let fmap1_dw16 = pool(fmap1.clone(), 4);
         let fmap2_dw16 = pool(fmap2.clone(), 4);
-        let offset_dw16 = self.learned_offsets(&self.conv_offset_16, Level::Sixteenth, fmap1_dw16.clone(), observer);
+        let offset_dw16 = self.learned_offsets(
+            &self.conv_offset_16,
+            Level::Sixteenth,
+            fmap1_dw16.clone(),
+            observer,
+        );
         let net_dw16 = pool(net.clone(), 4);
         let inp_dw16 = pool(inp.clone(), 4);
         let (fmap1_dw16, fmap2_dw16) = self.self_attend(fmap1_dw16, fmap2_dw16, observer);
 
         let agcl = AdaptiveGroupCorrelationConfig::new().with_groups(self.groups);
         Levels {
-            quarter: LevelInputs { lookup: Lookup::Warp { corr: agcl.init(fmap1, fmap2) }, net, inp },
+            quarter: LevelInputs {
+                lookup: Lookup::Warp {
+                    corr: agcl.init(fmap1, fmap2),
+                },
+                net,
+                inp,
+            },
             eighth: LevelInputs {
-                lookup: Lookup::Offsets { corr: agcl.init(fmap1_dw8, fmap2_dw8), offsets: offset_dw8 },
+                lookup: Lookup::Offsets {
+                    corr: agcl.init(fmap1_dw8, fmap2_dw8),
+                    offsets: offset_dw8,
+                },
                 net: net_dw8,
                 inp: inp_dw8,
             },
             sixteenth: LevelInputs {
-                lookup: Lookup::AttendedOffsets { corr: agcl.init(fmap1_dw16, fmap2_dw16), offsets: offset_dw16 },
+                lookup: Lookup::AttendedOffsets {
+                    corr: agcl.init(fmap1_dw16, fmap2_dw16),
+                    offsets: offset_dw16,
+                },
                 net: net_dw16,
                 inp: inp_dw16,
             },
@@ -199,14 +236,27 @@ impl<B: Backend> CREStereo<B> {
     }
 
     /// A level's learned offsets `(sigmoid(conv(x)) − 0.5) · 2 · range`, in (−range, range).
-    fn learned_offsets(&self, conv: &Conv2d<B>, level: Level, x: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> Tensor<B, 4> {
+    fn learned_offsets(
+        &self,
+        conv: &Conv2d<B>,
+        level: Level,
+        x: Tensor<B, 4>,
+        observer: &mut dyn ForwardObserver<B>,
+    ) -> Tensor<B, 4> {
         let logits = conv.forward(x);
         observer.offset_logits(level, &logits);
-        sigmoid(logits).sub_scalar(0.5).mul_scalar(2.0 * self.offset_range)
+        sigmoid(logits)
+            .sub_scalar(0.5)
+            .mul_scalar(2.0 * self.offset_range)
     }
 
     /// Positional encoding, then self-attention, on the 1/16 maps.
-    fn self_attend(&self, left: Tensor<B, 4>, right: Tensor<B, 4>, observer: &mut dyn ForwardObserver<B>) -> (Tensor<B, 4>, Tensor<B, 4>) {
+    fn self_attend(
+        &self,
+        left: Tensor<B, 4>,
+        right: Tensor<B, 4>,
+        observer: &mut dyn ForwardObserver<B>,
+    ) -> (Tensor<B, 4>, Tensor<B, 4>) {
         let [_, _, h, w] = left.dims();
         let table = self.pos_encoding.table_tensor::<B>(h, w, &left.device());
         observer.positional_encoding(&table);
@@ -221,7 +271,14 @@ impl<B: Backend> CREStereo<B> {
 
 fn check_pair<B: Backend>(left: &Tensor<B, 4>, right: &Tensor<B, 4>) {
     let [_, ch, h, w] = left.dims();
-    assert_eq!(left.dims(), right.dims(), "CREStereo: left and right images differ in shape");
+    assert_eq!(
+        left.dims(),
+        right.dims(),
+        "CREStereo: left and right images differ in shape"
+    );
     assert_eq!(ch, 3, "CREStereo: expected 3-channel images");
-    assert!(h % 16 == 0 && w % 16 == 0, "CREStereo: image size {h}x{w} is not a multiple of 16");
+    assert!(
+        h % 16 == 0 && w % 16 == 0,
+        "CREStereo: image size {h}x{w} is not a multiple of 16"
+    );
 }

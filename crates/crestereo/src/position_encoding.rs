@@ -64,13 +64,20 @@ impl PositionEncodingSine {
 
     /// The table as a tensor (d_model, h, w).
     pub fn table_tensor<B: Backend>(&self, h: usize, w: usize, device: &B::Device) -> Tensor<B, 3> {
-        Tensor::from_data(TensorData::new(self.table(h, w), [self.d_model, h, w]), device)
+        Tensor::from_data(
+            TensorData::new(self.table(h, w), [self.d_model, h, w]),
+            device,
+        )
     }
 
     /// `x + table` for `x` of shape (N, d_model, H, W) and its `table` (d_model, H, W).
     pub fn add<B: Backend>(&self, x: Tensor<B, 4>, table: &Tensor<B, 3>) -> Tensor<B, 4> {
         let [_, c, h, w] = x.dims();
-        assert_eq!([c, h, w], [self.d_model, table.dims()[1], table.dims()[2]], "positional encoding: shape mismatch");
+        assert_eq!(
+            [c, h, w],
+            [self.d_model, table.dims()[1], table.dims()[2]],
+            "positional encoding: shape mismatch"
+        );
         x + table.clone().unsqueeze::<4>()
     }
 

@@ -33,9 +33,15 @@ impl Level {
 pub(crate) enum Lookup<B: Backend> {
     /// 1/16: cross-attention between the (self-attended) maps before every lookup, then
     /// learned offsets (N, 18, h, w) around each window candidate.
-    AttendedOffsets { corr: AdaptiveGroupCorrelation<B>, offsets: Tensor<B, 4> },
+    AttendedOffsets {
+        corr: AdaptiveGroupCorrelation<B>,
+        offsets: Tensor<B, 4>,
+    },
     /// 1/8: learned offsets around each window candidate.
-    Offsets { corr: AdaptiveGroupCorrelation<B>, offsets: Tensor<B, 4> },
+    Offsets {
+        corr: AdaptiveGroupCorrelation<B>,
+        offsets: Tensor<B, 4>,
+    },
     /// 1/4: the right map warped by the flow, then shifted by the window's integer offsets.
     Warp { corr: AdaptiveGroupCorrelation<B> },
 }
@@ -51,7 +57,9 @@ impl<B: Backend> Lookup<B> {
 
     fn correlation(&self) -> &AdaptiveGroupCorrelation<B> {
         match self {
-            Lookup::AttendedOffsets { corr, .. } | Lookup::Offsets { corr, .. } | Lookup::Warp { corr } => corr,
+            Lookup::AttendedOffsets { corr, .. }
+            | Lookup::Offsets { corr, .. }
+            | Lookup::Warp { corr } => corr,
         }
     }
 }
@@ -113,15 +121,28 @@ impl<B: Backend> CREStereo<B> {
         predictions: &mut Vec<Tensor<B, 4>>,
         observer: &mut dyn ForwardObserver<B>,
     ) -> Tensor<B, 4> {
-        let LevelInputs { lookup, mut net, inp } = level;
+        let LevelInputs {
+            lookup,
+            mut net,
+            inp,
+        } = level;
         let rate = self.upsample_rate;
         let mut upsampled = None;
         for index in 0..iters {
             flow = flow.detach();
             let corr = self.look_up(&lookup, flow.clone(), index, observer);
-            let (net_new, up_mask, delta_flow) = self.update_block.forward(net, inp.clone(), corr.clone(), flow.clone());
+            let (net_new, up_mask, delta_flow) =
+                self.update_block
+                    .forward(net, inp.clone(), corr.clone(), flow.clone());
             net = net_new;
-            let step = IterationOutputs { level: lookup.level(), index, corr: &corr, delta_flow: &delta_flow, up_mask: &up_mask, net: &net };
+            let step = IterationOutputs {
+                level: lookup.level(),
+                index,
+                corr: &corr,
+                delta_flow: &delta_flow,
+                up_mask: &up_mask,
+                net: &net,
+            };
             observer.iteration(&step);
             flow = flow + delta_flow;
             let up = convex_upsample(flow.clone(), up_mask, rate);
@@ -135,16 +156,30 @@ impl<B: Backend> CREStereo<B> {
     }
 
     /// The correlation volume of iteration `index` around `flow`.
-    fn look_up(&self, lookup: &Lookup<B>, flow: Tensor<B, 4>, index: usize, observer: &mut dyn ForwardObserver<B>) -> Tensor<B, 4> {
+    fn look_up(
+        &self,
+        lookup: &Lookup<B>,
+        flow: Tensor<B, 4>,
+        index: usize,
+        observer: &mut dyn ForwardObserver<B>,
+    ) -> Tensor<B, 4> {
         let window = SearchWindow::for_iteration(index);
         match lookup {
             Lookup::AttendedOffsets { corr, offsets } => {
                 let [_, _, h, w] = corr.fmap1.dims();
                 let (left, right) = corr.cross_attend(&self.cross_att_fn);
                 observer.cross_attention(index, &left, &right);
-                corr.corr_offset_maps(from_tokens(left, h, w), from_tokens(right, h, w), flow, offsets.clone(), window)
+                corr.corr_offset_maps(
+                    from_tokens(left, h, w),
+                    from_tokens(right, h, w),
+                    flow,
+                    offsets.clone(),
+                    window,
+                )
             }
-            Lookup::Offsets { corr, offsets } => corr.corr_offset(flow, offsets.clone(), window, None),
+            Lookup::Offsets { corr, offsets } => {
+                corr.corr_offset(flow, offsets.clone(), window, None)
+            }
             Lookup::Warp { corr } => corr.corr_warp(flow, window),
         }
     }

@@ -28,8 +28,20 @@ fn reference_sample_points<B: Backend>(
         0,
     );
     let zero_row = (n * h * w) as i64;
-    let xs: Vec<f32> = x.clone().detach().into_data().convert::<f32>().into_vec().unwrap();
-    let ys: Vec<f32> = y.clone().detach().into_data().convert::<f32>().into_vec().unwrap();
+    let xs: Vec<f32> = x
+        .clone()
+        .detach()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
+    let ys: Vec<f32> = y
+        .clone()
+        .detach()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
     let np = n * p;
     let mut x0f = vec![0f32; np];
     let mut y0f = vec![0f32; np];
@@ -99,8 +111,13 @@ fn reference_offset_corr<B: Backend>(
     let offsets = window.offsets();
     let k = offsets.len();
     let extra = extra_offset.reshape([n, k, 2, h, w]);
-    let off_x = extra.clone().slice([0..n, 0..k, 0..1, 0..h, 0..w]).reshape([n, k, h, w]);
-    let off_y = extra.slice([0..n, 0..k, 1..2, 0..h, 0..w]).reshape([n, k, h, w]);
+    let off_x = extra
+        .clone()
+        .slice([0..n, 0..k, 0..1, 0..h, 0..w])
+        .reshape([n, k, h, w]);
+    let off_y = extra
+        .slice([0..n, 0..k, 1..2, 0..h, 0..w])
+        .reshape([n, k, h, w]);
     let dx: Vec<f32> = offsets.iter().map(|o| o.0 as f32).collect();
     let dy: Vec<f32> = offsets.iter().map(|o| o.1 as f32).collect();
     let dx = Tensor::<B, 4>::from_data(TensorData::new(dx, [1, k, 1, 1]), &device);
@@ -159,7 +176,10 @@ fn values<B: Backend, const D: usize>(t: Tensor<B, D>) -> Vec<f32> {
 
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 struct Inputs {
@@ -179,7 +199,9 @@ fn inputs(dims: [usize; 4], window: SearchWindow, seed: u64, away_from_integers:
     let k = window.offsets().len();
     let mut state = seed;
     let mut next = move || {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((state >> 33) as f64 / (1u64 << 31) as f64) as f32 // [0, 1)
     };
     let left: Vec<f32> = (0..n * c * h * w).map(|_| next() * 2.0 - 1.0).collect();
@@ -272,18 +294,20 @@ fn shift_corr_matches_composed_reference() {
         let x = inputs(dims, window, 41, false);
         let spec = CorrSpec::new(window, groups);
         let fused = agcl::shift_corr(t4::<B>(&x.left, dims), t4::<B>(&x.right, dims), spec);
-        let reference =
-            reference_shift_corr(t4::<B>(&x.left, dims), t4::<B>(&x.right, dims), window, groups);
+        let reference = reference_shift_corr(
+            t4::<B>(&x.left, dims),
+            t4::<B>(&x.right, dims),
+            window,
+            groups,
+        );
         let err = max_abs_diff(&values(fused), &values(reference));
         println!("shift {window:?}: max |fused - composed| = {err:.3e}");
         assert!(err <= 1e-6, "{window:?}: {err}");
         let [n, _, h, w] = dims;
-        let weights = t4::<A>(&inputs([n, groups * x.k, h, w], window, 43, false).left, [
-            n,
-            groups * x.k,
-            h,
-            w,
-        ]);
+        let weights = t4::<A>(
+            &inputs([n, groups * x.k, h, w], window, 43, false).left,
+            [n, groups * x.k, h, w],
+        );
         let grads_of = |fused: bool| -> Vec<Vec<f32>> {
             let l = t4::<A>(&x.left, dims).require_grad();
             let r = t4::<A>(&x.right, dims).require_grad();
@@ -314,16 +338,16 @@ fn gradients_match_autodiff_of_composed_reference() {
     ] {
         let x = inputs(dims, window, 11, false);
         let [n, _, h, w] = dims;
-        let weights = t4::<A>(&inputs([n, groups * x.k, h, w], window, 5, false).left, [
-            n,
-            groups * x.k,
-            h,
-            w,
-        ]);
+        let weights = t4::<A>(
+            &inputs([n, groups * x.k, h, w], window, 5, false).left,
+            [n, groups * x.k, h, w],
+        );
         let grads_of = |fused: bool| -> Vec<Vec<f32>> {
             let l = t4::<A>(&x.left, dims).require_grad();
             let r = t4::<A>(&x.right, dims).require_grad();
-            let fl = t4::<A>(&x.flow, [n, 2, h, w]).add_scalar(0.1).require_grad();
+            let fl = t4::<A>(&x.flow, [n, 2, h, w])
+                .add_scalar(0.1)
+                .require_grad();
             let of = t4::<A>(&x.offset, [n, 2 * x.k, h, w]).require_grad();
             let out = if fused {
                 agcl::offset_corr(
@@ -358,17 +382,25 @@ fn gradients_match_autodiff_of_composed_reference() {
     let dims = [2, 5, 6, 7];
     let x = inputs(dims, SearchWindow::Row1x9, 13, false);
     let [n, c, h, w] = dims;
-    let weights = t4::<A>(&inputs(dims, SearchWindow::Row1x9, 17, false).left, [n, c, h, w]);
+    let weights = t4::<A>(
+        &inputs(dims, SearchWindow::Row1x9, 17, false).left,
+        [n, c, h, w],
+    );
     let grads_of = |fused: bool| -> Vec<Vec<f32>> {
         let r = t4::<A>(&x.right, dims).require_grad();
-        let fl = t4::<A>(&x.flow, [n, 2, h, w]).add_scalar(0.3).require_grad();
+        let fl = t4::<A>(&x.flow, [n, 2, h, w])
+            .add_scalar(0.3)
+            .require_grad();
         let out = if fused {
             agcl::warp(r.clone(), fl.clone())
         } else {
             reference_warp(r.clone(), fl.clone())
         };
         let g = (out * weights.clone()).sum().backward();
-        [r, fl].iter().map(|t| values(t.grad(&g).unwrap())).collect()
+        [r, fl]
+            .iter()
+            .map(|t| values(t.grad(&g).unwrap()))
+            .collect()
     };
     let (fused, reference) = (grads_of(true), grads_of(false));
     for (name, (a, b)) in ["right", "flow"].iter().zip(fused.iter().zip(&reference)) {
@@ -439,8 +471,13 @@ fn offset_corr_finite_difference_gradients() {
                 .map(|(g, d)| *g as f64 * *d as f64)
                 .sum();
             let rel = (fd - an).abs() / an.abs().max(1e-3);
-            println!("{window:?} d/d{name}: analytic {an:.6e}, finite difference {fd:.6e}, rel {rel:.2e}");
-            assert!(rel <= 2e-3, "{window:?} d/d{name}: analytic {an} vs FD {fd}");
+            println!(
+                "{window:?} d/d{name}: analytic {an:.6e}, finite difference {fd:.6e}, rel {rel:.2e}"
+            );
+            assert!(
+                rel <= 2e-3,
+                "{window:?} d/d{name}: analytic {an} vs FD {fd}"
+            );
         }
     }
 }
@@ -493,10 +530,18 @@ fn no_host_reads_in_forward_or_backward() {
             }
         }
     }
-    assert!(files.len() >= 10, "sources not found under {}", src.display());
+    assert!(
+        files.len() >= 10,
+        "sources not found under {}",
+        src.display()
+    );
     let mut offenders = Vec::new();
     for path in &files {
-        let rel = path.strip_prefix(&src).unwrap().to_string_lossy().to_string();
+        let rel = path
+            .strip_prefix(&src)
+            .unwrap()
+            .to_string_lossy()
+            .to_string();
         if host_io.contains(&rel.as_str()) {
             continue;
         }

@@ -38,7 +38,8 @@ fn compare(f64_features: bool) -> Worst {
     let loss = sequence_loss(&preds, disp, valid, 0.8);
     let grads = loss.backward();
     let ours = named_gradients(&m, &grads);
-    let reference = stereo_io::read_npz(&fixtures().join(format!("{t}/grads_official_semantics.npz"))).unwrap();
+    let reference =
+        stereo_io::read_npz(&fixtures().join(format!("{t}/grads_official_semantics.npz"))).unwrap();
     assert_eq!(reference.len(), 94);
     assert_eq!(ours.len(), 94);
 

@@ -26,7 +26,10 @@ const TEMP_MARK: &str = ".partial-";
 /// process's temporary files, so two threads writing one target never share a temp file).
 pub fn temp_sibling(path: &Path) -> PathBuf {
     static NEXT: AtomicU64 = AtomicU64::new(0);
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let n = NEXT.fetch_add(1, Ordering::Relaxed);
     path.with_file_name(format!(".{name}{TEMP_MARK}{}-{n}", std::process::id()))
 }
@@ -46,7 +49,11 @@ pub fn temp_owner(name: &str) -> Option<u32> {
 /// Whether process `pid` may still be running. Only Linux is asked (`/proc`); elsewhere every
 /// owner counts as alive, so nothing of a running process is ever removed.
 pub fn process_alive(pid: u32) -> bool {
-    if cfg!(target_os = "linux") && Path::new("/proc/self").exists() { Path::new("/proc").join(pid.to_string()).exists() } else { true }
+    if cfg!(target_os = "linux") && Path::new("/proc/self").exists() {
+        Path::new("/proc").join(pid.to_string()).exists()
+    } else {
+        true
+    }
 }
 
 /// Removes the temporary files of dead processes ([`temp_sibling`], [`temp_owner`]) under `root`,
@@ -68,11 +75,16 @@ pub fn remove_orphaned_temp_files(root: &Path) -> usize {
 pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = temp_sibling(path);
     let written = (|| {
-        let mut file = fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
+        let mut file = fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
         file.write_all(bytes)?;
         file.sync_all()
     })();
-    let outcome = written.map_err(|e| Error::io(path, e)).and_then(|()| place(&tmp, path));
+    let outcome = written
+        .map_err(|e| Error::io(path, e))
+        .and_then(|()| place(&tmp, path));
     if outcome.is_err() {
         let _ = fs::remove_file(&tmp);
     }
@@ -105,8 +117,19 @@ where
 /// thread's open [`Batch`]. A rename onto another temporary name (an encoder writing through a
 /// nested atomic write) is never held back.
 pub(crate) fn place(tmp: &Path, path: &Path) -> Result<()> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    if !is_temp_name(&name) && BATCH.with(|b| b.borrow_mut().as_mut().map(|ops| ops.push(Op::Rename(tmp.to_path_buf(), path.to_path_buf())))).is_some() {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    if !is_temp_name(&name)
+        && BATCH
+            .with(|b| {
+                b.borrow_mut()
+                    .as_mut()
+                    .map(|ops| ops.push(Op::Rename(tmp.to_path_buf(), path.to_path_buf())))
+            })
+            .is_some()
+    {
         return Ok(());
     }
     rename_into_place(tmp, path)?;
@@ -115,7 +138,14 @@ pub(crate) fn place(tmp: &Path, path: &Path) -> Result<()> {
 
 /// Removes `path` (if it exists): now, or at the commit of the thread's open [`Batch`].
 pub fn remove_file_durably(path: &Path) -> Result<()> {
-    if BATCH.with(|b| b.borrow_mut().as_mut().map(|ops| ops.push(Op::Remove(path.to_path_buf())))).is_some() {
+    if BATCH
+        .with(|b| {
+            b.borrow_mut()
+                .as_mut()
+                .map(|ops| ops.push(Op::Remove(path.to_path_buf())))
+        })
+        .is_some()
+    {
         return Ok(());
     }
     remove_if_present(path)?;
@@ -152,7 +182,14 @@ pub fn sync_parent(path: &Path) -> Result<()> {
 pub fn sync_dir(dir: &Path) -> Result<()> {
     let synced = fs::File::open(dir).and_then(|d| d.sync_all());
     match synced {
-        Err(e) if !matches!(e.kind(), std::io::ErrorKind::InvalidInput | std::io::ErrorKind::Unsupported) => Err(Error::io(dir, e)),
+        Err(e)
+            if !matches!(
+                e.kind(),
+                std::io::ErrorKind::InvalidInput | std::io::ErrorKind::Unsupported
+            ) =>
+        {
+            Err(Error::io(dir, e))
+        }
         _ => Ok(()),
     }
 }
@@ -184,7 +221,9 @@ impl Batch {
             assert!(b.is_none(), "atomic::Batch does not nest");
             *b = Some(Vec::new());
         });
-        Batch { _not_send: std::marker::PhantomData }
+        Batch {
+            _not_send: std::marker::PhantomData,
+        }
     }
 
     fn take() -> Vec<Op> {
@@ -213,7 +252,13 @@ impl Batch {
             }
         }
         outcome?;
-        dirs.iter().try_for_each(|d| sync_dir(if d.as_os_str().is_empty() { Path::new(".") } else { d }))
+        dirs.iter().try_for_each(|d| {
+            sync_dir(if d.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                d
+            })
+        })
     }
 }
 
@@ -232,7 +277,10 @@ mod tests {
     use super::*;
 
     fn names(dir: &Path) -> Vec<String> {
-        let mut v: Vec<String> = fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        let mut v: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
         v.sort();
         v
     }
@@ -265,7 +313,10 @@ mod tests {
         let target = dir.path().join("missing").join("a.bin");
         let e = write_bytes_atomically(&target, b"x").unwrap_err();
         let text = format!("{}", anyhow_like(&e));
-        assert!(text.contains("missing/a.bin") && !text.contains(TEMP_MARK), "{text}");
+        assert!(
+            text.contains("missing/a.bin") && !text.contains(TEMP_MARK),
+            "{text}"
+        );
         assert_eq!(text.matches("os error 2").count(), 1, "{text}");
     }
 
@@ -287,7 +338,11 @@ mod tests {
         assert!(is_temp_name(&name), "{name}");
         assert_eq!(temp_owner(&name), Some(std::process::id()));
         assert_eq!(temp_owner(".a.png.partial-123"), Some(123));
-        assert_ne!(temp_sibling(Path::new("/x/a.png")), t, "two temp names of one target differ");
+        assert_ne!(
+            temp_sibling(Path::new("/x/a.png")),
+            t,
+            "two temp names of one target differ"
+        );
     }
 
     #[test]
@@ -301,7 +356,11 @@ mod tests {
             remove_file_durably(&b).unwrap();
             assert!(!a.exists() && b.exists());
         }
-        assert_eq!(names(dir.path()), vec!["b"], "a dropped batch removes its temporary files and keeps what was there");
+        assert_eq!(
+            names(dir.path()),
+            vec!["b"],
+            "a dropped batch removes its temporary files and keeps what was there"
+        );
         let batch = Batch::begin();
         write_bytes_atomically(&a, b"new a").unwrap();
         remove_file_durably(&b).unwrap();

@@ -19,30 +19,49 @@ pub struct DisparityRange {
 impl DisparityRange {
     /// `lo..hi`; an empty or inverted range becomes `lo..lo + 1` (everything maps to `lo`'s colour).
     pub fn new(lo: f32, hi: f32) -> Self {
-        Self { lo, hi: if hi > lo { hi } else { lo + 1.0 } }
+        Self {
+            lo,
+            hi: if hi > lo { hi } else { lo + 1.0 },
+        }
     }
 
     /// The range rule: from `min(0, smallest)` to the largest valid finite value; `0..1` when
     /// the map has none.
     pub fn of(map: &DisparityMap) -> Self {
-        let mut values = map.data.iter().zip(&map.valid).filter(|&(d, &v)| v && d.is_finite()).map(|(&d, _)| d).peekable();
+        let mut values = map
+            .data
+            .iter()
+            .zip(&map.valid)
+            .filter(|&(d, &v)| v && d.is_finite())
+            .map(|(&d, _)| d)
+            .peekable();
         if values.peek().is_none() {
             return Self::new(0.0, 1.0);
         }
-        let (lo, hi) = values.fold((0f32, f32::NEG_INFINITY), |(lo, hi), d| (lo.min(d), hi.max(d)));
+        let (lo, hi) = values.fold((0f32, f32::NEG_INFINITY), |(lo, hi), d| {
+            (lo.min(d), hi.max(d))
+        });
         Self::new(lo, hi)
     }
 
     /// Where `d` falls on the ramp, 0..=1 (non-finite values at 0).
     pub fn position(&self, d: f32) -> f32 {
         let t = (d - self.lo) / (self.hi - self.lo);
-        if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 }
+        if t.is_finite() {
+            t.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
     }
 }
 
 /// The ramp at `t` in 0..=1: hue from 240° (blue) down to 0° (red), full saturation and value.
 pub fn ramp(t: f32) -> [u8; 3] {
-    let t = if t.is_finite() { f64::from(t.clamp(0.0, 1.0)) } else { 0.0 };
+    let t = if t.is_finite() {
+        f64::from(t.clamp(0.0, 1.0))
+    } else {
+        0.0
+    };
     let h = (1.0 - t) * 4.0;
     let x = 1.0 - (h % 2.0 - 1.0).abs();
     let (r, g, b) = match h as u32 {
@@ -58,9 +77,17 @@ pub fn ramp(t: f32) -> [u8; 3] {
 pub fn colourise(map: &DisparityMap, range: DisparityRange) -> RgbImage {
     let mut data = Vec::with_capacity(map.data.len() * 3);
     for (&d, &v) in map.data.iter().zip(&map.valid) {
-        data.extend(if v { ramp(range.position(d)) } else { [0, 0, 0] });
+        data.extend(if v {
+            ramp(range.position(d))
+        } else {
+            [0, 0, 0]
+        });
     }
-    RgbImage { width: map.width, height: map.height, data }
+    RgbImage {
+        width: map.width,
+        height: map.height,
+        data,
+    }
 }
 
 /// Space between the map and the bar, the bar's width and the label column's width, in pixels.
@@ -75,7 +102,11 @@ const MIN_BAR_HEIGHT: usize = 64;
 pub fn colourise_with_bar(map: &DisparityMap, range: DisparityRange) -> RgbImage {
     let width = map.width + BAR_GAP + BAR_WIDTH + LABEL_WIDTH;
     let height = map.height.max(MIN_BAR_HEIGHT);
-    let mut out = RgbImage { width, height, data: vec![0; width * height * 3] };
+    let mut out = RgbImage {
+        width,
+        height,
+        data: vec![0; width * height * 3],
+    };
     let body = colourise(map, range);
     for y in 0..map.height {
         let (s, d) = (y * map.width * 3, y * width * 3);
@@ -90,7 +121,13 @@ pub fn colourise_with_bar(map: &DisparityMap, range: DisparityRange) -> RgbImage
     let scale = if height >= 200 { 2 } else { 1 };
     let x = map.width + BAR_GAP + BAR_WIDTH + 3;
     draw_label(&mut out, x, 1, &format!("{:.1}", range.hi), scale);
-    draw_label(&mut out, x, height.saturating_sub(GLYPH_ROWS * scale + scale + 1), &format!("{:.1}", range.lo), scale);
+    draw_label(
+        &mut out,
+        x,
+        height.saturating_sub(GLYPH_ROWS * scale + scale + 1),
+        &format!("{:.1}", range.lo),
+        scale,
+    );
     out
 }
 
@@ -124,11 +161,20 @@ fn glyph(ch: char) -> Option<[u8; GLYPH_ROWS]> {
 
 /// White text, each glyph pixel a `scale`×`scale` square, glyphs 4·`scale` apart.
 fn draw_label(img: &mut RgbImage, x0: usize, y0: usize, text: &str, scale: usize) {
-    for (k, rows) in text.chars().enumerate().filter_map(|(k, ch)| Some((k, glyph(ch)?))) {
+    for (k, rows) in text
+        .chars()
+        .enumerate()
+        .filter_map(|(k, ch)| Some((k, glyph(ch)?)))
+    {
         for (r, bits) in rows.iter().enumerate() {
             for c in (0..3).filter(|c| bits & (0b100 >> c) != 0) {
                 for (dx, dy) in (0..scale).flat_map(|dx| (0..scale).map(move |dy| (dx, dy))) {
-                    put(img, x0 + (4 * k + c) * scale + dx, y0 + r * scale + dy, [255; 3]);
+                    put(
+                        img,
+                        x0 + (4 * k + c) * scale + dx,
+                        y0 + r * scale + dy,
+                        [255; 3],
+                    );
                 }
             }
         }
@@ -140,7 +186,12 @@ mod tests {
     use super::*;
 
     fn map(data: Vec<f32>, valid: Vec<bool>) -> DisparityMap {
-        DisparityMap { width: data.len(), height: 1, data, valid }
+        DisparityMap {
+            width: data.len(),
+            height: 1,
+            data,
+            valid,
+        }
     }
 
     #[test]
@@ -156,36 +207,67 @@ mod tests {
 
     #[test]
     fn range_includes_zero_and_ignores_invalid_and_non_finite_values() {
-        let m = map(vec![2.0, 10.0, 50.0, f32::INFINITY], vec![true, true, false, true]);
+        let m = map(
+            vec![2.0, 10.0, 50.0, f32::INFINITY],
+            vec![true, true, false, true],
+        );
         assert_eq!(DisparityRange::of(&m), DisparityRange { lo: 0.0, hi: 10.0 });
         let m = map(vec![-3.0, 4.0], vec![true, true]);
         assert_eq!(DisparityRange::of(&m), DisparityRange { lo: -3.0, hi: 4.0 });
         // flat, empty and all-invalid maps still give a usable range
-        assert_eq!(DisparityRange::of(&map(vec![0.0, 0.0], vec![true, true])), DisparityRange { lo: 0.0, hi: 1.0 });
-        assert_eq!(DisparityRange::of(&map(vec![5.0], vec![false])), DisparityRange { lo: 0.0, hi: 1.0 });
-        assert_eq!(DisparityRange::new(-2.0, -4.0), DisparityRange { lo: -2.0, hi: -1.0 });
+        assert_eq!(
+            DisparityRange::of(&map(vec![0.0, 0.0], vec![true, true])),
+            DisparityRange { lo: 0.0, hi: 1.0 }
+        );
+        assert_eq!(
+            DisparityRange::of(&map(vec![5.0], vec![false])),
+            DisparityRange { lo: 0.0, hi: 1.0 }
+        );
+        assert_eq!(
+            DisparityRange::new(-2.0, -4.0),
+            DisparityRange { lo: -2.0, hi: -1.0 }
+        );
     }
 
     #[test]
     fn colourise_maps_the_range_ends_and_blacks_out_invalid_pixels() {
-        let m = map(vec![0.0, 5.0, 10.0, 3.0, 12.0], vec![true, true, true, false, true]);
+        let m = map(
+            vec![0.0, 5.0, 10.0, 3.0, 12.0],
+            vec![true, true, true, false, true],
+        );
         let img = colourise(&m, DisparityRange::new(0.0, 10.0));
         assert_eq!((img.width, img.height), (5, 1));
-        assert_eq!(img.data, [[0, 0, 255], [0, 255, 0], [255, 0, 0], [0, 0, 0], [255, 0, 0]].concat());
+        assert_eq!(
+            img.data,
+            [
+                [0, 0, 255],
+                [0, 255, 0],
+                [255, 0, 0],
+                [0, 0, 0],
+                [255, 0, 0]
+            ]
+            .concat()
+        );
     }
 
     #[test]
     fn bar_spans_the_ramp_beside_the_map_and_carries_labels() {
         let m = map(vec![1.0, 2.0, 3.0], vec![true; 3]);
         let img = colourise_with_bar(&m, DisparityRange::of(&m));
-        assert_eq!((img.width, img.height), (3 + BAR_GAP + BAR_WIDTH + LABEL_WIDTH, MIN_BAR_HEIGHT));
-        let px = |x: usize, y: usize| -> [u8; 3] { img.data[(y * img.width + x) * 3..][..3].try_into().unwrap() };
+        assert_eq!(
+            (img.width, img.height),
+            (3 + BAR_GAP + BAR_WIDTH + LABEL_WIDTH, MIN_BAR_HEIGHT)
+        );
+        let px = |x: usize, y: usize| -> [u8; 3] {
+            img.data[(y * img.width + x) * 3..][..3].try_into().unwrap()
+        };
         assert_eq!(px(2, 0), [255, 0, 0]);
         assert_eq!(px(0, 1), [0, 0, 0]); // below the one-row map
         let bar_x = 3 + BAR_GAP;
         assert_eq!(px(bar_x, 0), [255, 0, 0]);
         assert_eq!(px(bar_x, MIN_BAR_HEIGHT - 1), [0, 0, 255]);
-        let labels = (0..img.height).flat_map(|y| (bar_x + BAR_WIDTH..img.width).map(move |x| (x, y)));
+        let labels =
+            (0..img.height).flat_map(|y| (bar_x + BAR_WIDTH..img.width).map(move |x| (x, y)));
         let white = labels.filter(|&(x, y)| px(x, y) == [255; 3]).count();
         assert!(white > 20, "labels missing ({white} white pixels)");
     }

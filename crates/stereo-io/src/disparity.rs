@@ -34,15 +34,31 @@ pub struct DisparityStats {
 
 impl DisparityMap {
     pub fn new(width: usize, height: usize) -> Self {
-        Self { width, height, data: vec![0.0; width * height], valid: vec![false; width * height] }
+        Self {
+            width,
+            height,
+            data: vec![0.0; width * height],
+            valid: vec![false; width * height],
+        }
     }
 
     /// Converts planar camera depth to disparity `d = f_px * B / Z`.
     ///
     /// Depth that is not finite, not positive, or at/after `background_depth` (Cycles writes
     /// 1e10 where a ray hits nothing) becomes disparity 0 and invalid.
-    pub fn from_depth(width: usize, height: usize, depth: &[f32], f_px: f64, baseline_m: f64, background_depth: f32) -> Self {
-        assert_eq!(depth.len(), width * height, "depth buffer does not match {width}x{height}");
+    pub fn from_depth(
+        width: usize,
+        height: usize,
+        depth: &[f32],
+        f_px: f64,
+        baseline_m: f64,
+        background_depth: f32,
+    ) -> Self {
+        assert_eq!(
+            depth.len(),
+            width * height,
+            "depth buffer does not match {width}x{height}"
+        );
         let fb = f_px * baseline_m;
         let mut map = Self::new(width, height);
         for (i, &z) in depth.iter().enumerate() {
@@ -75,7 +91,12 @@ impl DisparityMap {
                 sum += f64::from(d);
             }
         }
-        (n > 0).then(|| DisparityStats { valid_pixels: n, min, max, mean: sum / n as f64 })
+        (n > 0).then(|| DisparityStats {
+            valid_pixels: n,
+            min,
+            max,
+            mean: sum / n as f64,
+        })
     }
 }
 

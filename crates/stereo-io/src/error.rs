@@ -6,7 +6,10 @@ pub enum Error {
     /// The OS error is part of the message and deliberately not a `source()`: error chains
     /// (`{:#}`) would print it twice.
     #[error("{path}: {error}")]
-    Io { path: PathBuf, error: std::io::Error },
+    Io {
+        path: PathBuf,
+        error: std::io::Error,
+    },
     #[error("{path}: not a readable EXR file: {message}")]
     Exr { path: PathBuf, message: String },
     #[error("{path}: not a readable image: {message}")]
@@ -19,7 +22,10 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
     pub fn io(path: impl Into<PathBuf>, error: std::io::Error) -> Self {
-        Error::Io { path: path.into(), error }
+        Error::Io {
+            path: path.into(),
+            error,
+        }
     }
 
     /// The OS error's kind, for an I/O error.
@@ -30,6 +36,9 @@ impl Error {
         }
     }
     pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
-        Error::Format { path: path.into(), message: message.into() }
+        Error::Format {
+            path: path.into(),
+            message: message.into(),
+        }
     }
 }

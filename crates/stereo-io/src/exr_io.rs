@@ -17,7 +17,10 @@ const ATTR_UNITS: &str = "stereogen.units";
 const ATTR_VIEW: &str = "stereogen.view";
 
 fn exr_err(path: &Path, e: impl std::fmt::Display) -> Error {
-    Error::Exr { path: path.to_path_buf(), message: e.to_string() }
+    Error::Exr {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
 }
 
 /// Writes a disparity map as a ZIP-compressed float32 EXR, durably ([`crate::atomic`]). Output
@@ -28,32 +31,56 @@ pub fn write_disparity_exr(path: &Path, map: &DisparityMap, meta: &DisparityMeta
 }
 
 /// The bytes of [`write_disparity_exr`]'s file.
-pub fn encode_disparity_exr(map: &DisparityMap, meta: &DisparityMeta) -> std::result::Result<Vec<u8>, String> {
+pub fn encode_disparity_exr(
+    map: &DisparityMap,
+    meta: &DisparityMeta,
+) -> std::result::Result<Vec<u8>, String> {
     if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
         return Err("disparity map buffers do not match its size".into());
     }
     let mut attrs = LayerAttributes::named("disparity");
     if let Some(f) = meta.f_px {
-        attrs.other.insert(Text::from(ATTR_F_PX), AttributeValue::F64(f));
+        attrs
+            .other
+            .insert(Text::from(ATTR_F_PX), AttributeValue::F64(f));
     }
     if let Some(b) = meta.baseline_m {
-        attrs.other.insert(Text::from(ATTR_BASELINE), AttributeValue::F64(b));
+        attrs
+            .other
+            .insert(Text::from(ATTR_BASELINE), AttributeValue::F64(b));
     }
-    attrs.other.insert(Text::from(ATTR_UNITS), AttributeValue::Text(Text::from("pixels")));
+    attrs.other.insert(
+        Text::from(ATTR_UNITS),
+        AttributeValue::Text(Text::from("pixels")),
+    );
     if let Some(v) = &meta.view {
-        attrs.other.insert(Text::from(ATTR_VIEW), AttributeValue::Text(Text::from(v.as_str())));
+        attrs.other.insert(
+            Text::from(ATTR_VIEW),
+            AttributeValue::Text(Text::from(v.as_str())),
+        );
     }
-    let valid: Vec<f16> = map.valid.iter().map(|&v| if v { f16::ONE } else { f16::ZERO }).collect();
+    let valid: Vec<f16> = map
+        .valid
+        .iter()
+        .map(|&v| if v { f16::ONE } else { f16::ZERO })
+        .collect();
     let channels = AnyChannels::sort(SmallVec::from_vec(vec![
         AnyChannel::new(DISPARITY_CHANNEL, FlatSamples::F32(map.data.clone())),
         AnyChannel::new(VALID_CHANNEL, FlatSamples::F16(valid)),
     ]));
     // Increasing line order: parallel compression must not decide the chunk order, or equal
     // maps would give different bytes.
-    let encoding = Encoding { compression: Compression::ZIP16, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+    let encoding = Encoding {
+        compression: Compression::ZIP16,
+        blocks: Blocks::ScanLines,
+        line_order: LineOrder::Increasing,
+    };
     let layer = Layer::new((map.width, map.height), attrs, encoding, channels);
     let mut bytes = std::io::Cursor::new(Vec::new());
-    Image::from_layer(layer).write().to_buffered(&mut bytes).map_err(|e| format!("cannot encode EXR: {e}"))?;
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(&mut bytes)
+        .map_err(|e| format!("cannot encode EXR: {e}"))?;
     let mut bytes = bytes.into_inner();
     sort_header_attributes(&mut bytes)?;
     Ok(bytes)
@@ -70,14 +97,26 @@ fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
     if u32::from_le_bytes(bytes[4..8].try_into().unwrap()) & MULTIPART != 0 {
         return Ok(());
     }
-    let cstr_end = |from: usize| bytes[from..].iter().position(|&b| b == 0).map(|p| from + p).ok_or("unterminated header string");
+    let cstr_end = |from: usize| {
+        bytes[from..]
+            .iter()
+            .position(|&b| b == 0)
+            .map(|p| from + p)
+            .ok_or("unterminated header string")
+    };
     let mut attributes: Vec<(Vec<u8>, std::ops::Range<usize>)> = Vec::new();
     let mut pos = 8;
     while bytes.get(pos).copied().ok_or("truncated header")? != 0 {
         let name_end = cstr_end(pos)?;
         let type_end = cstr_end(name_end + 1)?;
         let size_at = type_end + 1;
-        let size = i32::from_le_bytes(bytes.get(size_at..size_at + 4).ok_or("truncated header")?.try_into().unwrap());
+        let size = i32::from_le_bytes(
+            bytes
+                .get(size_at..size_at + 4)
+                .ok_or("truncated header")?
+                .try_into()
+                .unwrap(),
+        );
         let end = size_at + 4 + usize::try_from(size).map_err(|_| "negative attribute size")?;
         if end > bytes.len() {
             return Err("attribute runs past the end of the file".into());
@@ -87,7 +126,10 @@ fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
     }
     let mut sorted = attributes.clone();
     sorted.sort_by(|a, b| a.0.cmp(&b.0));
-    let reordered: Vec<u8> = sorted.iter().flat_map(|(_, r)| bytes[r.clone()].to_vec()).collect();
+    let reordered: Vec<u8> = sorted
+        .iter()
+        .flat_map(|(_, r)| bytes[r.clone()].to_vec())
+        .collect();
     bytes[8..pos].copy_from_slice(&reordered);
     Ok(())
 }
@@ -101,15 +143,26 @@ fn read_flat(path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
 /// best-compressing EXR codec, stays near 1:1000, so a small file claiming gigapixels is corrupt
 /// and must not make the decoder allocate (and abort the process).
 fn check_decoded_size(bytes: &[u8], path: &Path) -> IoResult<()> {
-    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false).map_err(|e| exr_err(path, e))?;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+        .map_err(|e| exr_err(path, e))?;
     let budget = (bytes.len() as u128 * 4096 + (1 << 20)).min(1 << 33);
     for header in &meta.headers {
-        let per_pixel: u128 = header.channels.list.iter().map(|c| c.sample_type.bytes_per_sample() as u128).sum();
+        let per_pixel: u128 = header
+            .channels
+            .list
+            .iter()
+            .map(|c| c.sample_type.bytes_per_sample() as u128)
+            .sum();
         let need = header.layer_size.x() as u128 * header.layer_size.y() as u128 * per_pixel;
         if need > budget {
             return Err(exr_err(
                 path,
-                format!("header claims {}x{} pixels ({need} bytes decoded) from a {}-byte file: corrupt or truncated", header.layer_size.x(), header.layer_size.y(), bytes.len()),
+                format!(
+                    "header claims {}x{} pixels ({need} bytes decoded) from a {}-byte file: corrupt or truncated",
+                    header.layer_size.x(),
+                    header.layer_size.y(),
+                    bytes.len()
+                ),
             ));
         }
     }
@@ -159,18 +212,37 @@ pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap
     let (width, height) = (layer.size.width(), layer.size.height());
     let channels = &mut layer.channel_data.list;
     let position = |name: &str| channels.iter().position(|c| c.name.to_string() == name);
-    let (disp_at, valid_at) = (position(DISPARITY_CHANNEL).or(if channels.len() == 1 { Some(0) } else { None }), position(VALID_CHANNEL));
+    let (disp_at, valid_at) = (
+        position(DISPARITY_CHANNEL).or(if channels.len() == 1 { Some(0) } else { None }),
+        position(VALID_CHANNEL),
+    );
     let disp_at = disp_at.ok_or_else(|| {
         let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
-        Error::format(path, format!("no disparity channel `{DISPARITY_CHANNEL}` (channels: {})", names.join(", ")))
+        Error::format(
+            path,
+            format!(
+                "no disparity channel `{DISPARITY_CHANNEL}` (channels: {})",
+                names.join(", ")
+            ),
+        )
     })?;
     // Move the decoded samples out instead of copying them (8 MB for a 1080p map).
-    let data = match std::mem::replace(&mut channels[disp_at].sample_data, FlatSamples::F32(Vec::new())) {
+    let data = match std::mem::replace(
+        &mut channels[disp_at].sample_data,
+        FlatSamples::F32(Vec::new()),
+    ) {
         FlatSamples::F32(v) => v,
         other => samples_f32(&other),
     };
     if let Some(i) = data.iter().position(|d| d.is_nan()) {
-        return Err(Error::format(path, format!("disparity is NaN at pixel ({}, {}); NaN is not accepted", i % width.max(1), i / width.max(1))));
+        return Err(Error::format(
+            path,
+            format!(
+                "disparity is NaN at pixel ({}, {}); NaN is not accepted",
+                i % width.max(1),
+                i / width.max(1)
+            ),
+        ));
     }
     let valid = match valid_at.map(|i| &channels[i].sample_data) {
         Some(FlatSamples::F16(v)) => v.iter().map(|x| x.to_f32() > 0.5).collect(),
@@ -181,8 +253,20 @@ pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap
         Some(AttributeValue::Text(t)) => Some(t.to_string()),
         _ => None,
     };
-    let meta = DisparityMeta { f_px: attr_f64(&layer, ATTR_F_PX), baseline_m: attr_f64(&layer, ATTR_BASELINE), view };
-    Ok((DisparityMap { width, height, data, valid }, meta))
+    let meta = DisparityMeta {
+        f_px: attr_f64(&layer, ATTR_F_PX),
+        baseline_m: attr_f64(&layer, ATTR_BASELINE),
+        view,
+    };
+    Ok((
+        DisparityMap {
+            width,
+            height,
+            data,
+            valid,
+        },
+        meta,
+    ))
 }
 
 /// Reads the planar depth channel from a render-pass EXR (Blender multilayer: `*.Depth.Z`,
@@ -198,9 +282,16 @@ pub fn read_depth_channel(path: &Path) -> IoResult<(usize, usize, Vec<f32>)> {
         })
         .ok_or_else(|| {
             let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
-            Error::format(path, format!("no depth channel (channels: {})", names.join(", ")))
+            Error::format(
+                path,
+                format!("no depth channel (channels: {})", names.join(", ")),
+            )
         })?;
-    Ok((layer.size.width(), layer.size.height(), samples_f32(&depth.sample_data)))
+    Ok((
+        layer.size.width(),
+        layer.size.height(),
+        samples_f32(&depth.sample_data),
+    ))
 }
 
 #[cfg(test)]
@@ -214,7 +305,11 @@ mod tests {
         let mut map = DisparityMap::new(3, 2);
         map.data = vec![0.0, 1.5, 1e-7, 123.456, 0.0, 7.0];
         map.valid = vec![false, true, true, true, false, true];
-        let meta = DisparityMeta { f_px: Some(1050.0), baseline_m: Some(0.12), view: Some("left".into()) };
+        let meta = DisparityMeta {
+            f_px: Some(1050.0),
+            baseline_m: Some(0.12),
+            view: Some("left".into()),
+        };
         write_disparity_exr(&path, &map, &meta).unwrap();
         let (back, back_meta) = read_disparity_exr(&path).unwrap();
         assert_eq!(back, map);
@@ -231,15 +326,25 @@ mod tests {
         }
         map.valid.iter_mut().for_each(|v| *v = true);
         // Several custom attributes: their order must not depend on the writer's hash map.
-        let meta = DisparityMeta { f_px: Some(500.0), baseline_m: Some(0.2), view: Some("right".into()) };
+        let meta = DisparityMeta {
+            f_px: Some(500.0),
+            baseline_m: Some(0.2),
+            view: Some("right".into()),
+        };
         let first = dir.path().join("first.exr");
         write_disparity_exr(&first, &map, &meta).unwrap();
         let reference = std::fs::read(&first).unwrap();
         for i in 0..8 {
             let again = dir.path().join(format!("again{i}.exr"));
             write_disparity_exr(&again, &map, &meta).unwrap();
-            assert!(std::fs::read(&again).unwrap() == reference, "write {i} gave different bytes");
-            assert_eq!(read_disparity_exr(&again).unwrap(), (map.clone(), meta.clone()));
+            assert!(
+                std::fs::read(&again).unwrap() == reference,
+                "write {i} gave different bytes"
+            );
+            assert_eq!(
+                read_disparity_exr(&again).unwrap(),
+                (map.clone(), meta.clone())
+            );
         }
     }
 
@@ -257,6 +362,11 @@ mod tests {
         let bytes = std::fs::read(&good).unwrap();
         let cut = dir.path().join("cut.exr");
         std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-        assert!(read_disparity_exr(&cut).unwrap_err().to_string().contains("cut.exr"));
+        assert!(
+            read_disparity_exr(&cut)
+                .unwrap_err()
+                .to_string()
+                .contains("cut.exr")
+        );
     }
 }

@@ -32,8 +32,12 @@ impl DisparityFormat {
             "exr" => Self::Exr,
             "pfm" => Self::Pfm,
             "npy" => Self::Npy,
-            "png" if name.ends_with(".disp.png") => Self::Png16 { scale: crate::png_disp::CRESTEREO_SCALE },
-            "png" => Self::Png16 { scale: crate::png_disp::KITTI_SCALE },
+            "png" if name.ends_with(".disp.png") => Self::Png16 {
+                scale: crate::png_disp::CRESTEREO_SCALE,
+            },
+            "png" => Self::Png16 {
+                scale: crate::png_disp::KITTI_SCALE,
+            },
             _ => return None,
         })
     }
@@ -64,9 +68,16 @@ impl FromStr for DisparityFormat {
             "sintel" => Self::SintelPng,
             "png32" | "crestereo" => Self::Png16 { scale: 32.0 },
             "png256" | "kitti" => Self::Png16 { scale: 256.0 },
-            other => match other.strip_prefix("png16:").and_then(|v| v.parse::<f32>().ok()) {
+            other => match other
+                .strip_prefix("png16:")
+                .and_then(|v| v.parse::<f32>().ok())
+            {
                 Some(scale) if scale.is_finite() && scale > 0.0 => Self::Png16 { scale },
-                _ => return Err(format!("unknown disparity format {s:?} (exr, pfm, npy, sintel, png32, png256, png16:SCALE)")),
+                _ => {
+                    return Err(format!(
+                        "unknown disparity format {s:?} (exr, pfm, npy, sintel, png32, png256, png16:SCALE)"
+                    ));
+                }
             },
         })
     }
@@ -77,7 +88,10 @@ fn resolve(path: &Path, format: Option<DisparityFormat>) -> Result<DisparityForm
 }
 
 /// Reads a disparity file; the format comes from `format` or the file name.
-pub fn read_disparity(path: &Path, format: Option<DisparityFormat>) -> Result<(DisparityMap, DisparityMeta)> {
+pub fn read_disparity(
+    path: &Path,
+    format: Option<DisparityFormat>,
+) -> Result<(DisparityMap, DisparityMeta)> {
     let map = match resolve(path, format)? {
         DisparityFormat::Exr => return crate::exr_io::read_disparity_exr(path),
         DisparityFormat::Pfm => crate::pfm::read_disparity_pfm(path)?,
@@ -89,11 +103,18 @@ pub fn read_disparity(path: &Path, format: Option<DisparityFormat>) -> Result<(D
 }
 
 /// Writes a disparity file atomically; only EXR keeps `meta`.
-pub fn write_disparity(path: &Path, map: &DisparityMap, meta: &DisparityMeta, format: Option<DisparityFormat>) -> Result<()> {
+pub fn write_disparity(
+    path: &Path,
+    map: &DisparityMap,
+    meta: &DisparityMeta,
+    format: Option<DisparityFormat>,
+) -> Result<()> {
     match resolve(path, format)? {
         DisparityFormat::Exr => crate::exr_io::write_disparity_exr(path, map, meta),
         DisparityFormat::Pfm => crate::pfm::write_disparity_pfm(path, map),
-        DisparityFormat::Png16 { scale } => crate::png_disp::write_disparity_png16(path, map, scale),
+        DisparityFormat::Png16 { scale } => {
+            crate::png_disp::write_disparity_png16(path, map, scale)
+        }
         DisparityFormat::SintelPng => crate::png_disp::write_disparity_sintel(path, map),
         DisparityFormat::Npy => crate::npy::write_disparity_npy(path, map),
     }

@@ -34,7 +34,10 @@ pub struct Image {
 }
 
 pub(crate) fn image_err(path: &Path, e: impl std::fmt::Display) -> Error {
-    Error::Image { path: path.to_path_buf(), message: e.to_string() }
+    Error::Image {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
 }
 
 /// Decodes an image file, recognising the format from its content.
@@ -47,7 +50,9 @@ pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<DynamicImage> {
     if crate::jpeg::is_jpeg(bytes) {
         return jpeg_to_dynamic(crate::jpeg::decode_jpeg(bytes, path)?, path);
     }
-    let reader = ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| image_err(path, e))?;
+    let reader = ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| image_err(path, e))?;
     if reader.format().is_none() {
         return Err(image_err(path, "unknown image format (not PNG or JPEG)"));
     }
@@ -57,7 +62,9 @@ pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<DynamicImage> {
 /// A decoded JPEG (8-bit grey or RGB) as the `image` crate's type.
 fn jpeg_to_dynamic(img: Image, path: &Path) -> Result<DynamicImage> {
     let (w, h) = (img.width as u32, img.height as u32);
-    let Samples::U8(data) = img.samples else { return Err(image_err(path, "JPEG decoded to 16-bit samples")) };
+    let Samples::U8(data) = img.samples else {
+        return Err(image_err(path, "JPEG decoded to 16-bit samples"));
+    };
     let built = match img.channels {
         1 => image::GrayImage::from_raw(w, h, data).map(DynamicImage::ImageLuma8),
         _ => image::RgbImage::from_raw(w, h, data).map(DynamicImage::ImageRgb8),
@@ -76,7 +83,11 @@ pub(crate) fn to_rgb(img: DynamicImage) -> RgbImage {
         DynamicImage::ImageRgb8(b) => b,
         other => other.to_rgb8(),
     };
-    RgbImage { width: rgb.width() as usize, height: rgb.height() as usize, data: rgb.into_raw() }
+    RgbImage {
+        width: rgb.width() as usize,
+        height: rgb.height() as usize,
+        data: rgb.into_raw(),
+    }
 }
 
 /// Reads an image keeping its bit depth (8 or 16; float images are rejected) and channel count.
@@ -92,9 +103,22 @@ pub fn read_image(path: &Path) -> Result<Image> {
         DynamicImage::ImageLumaA16(b) => (2, Samples::U16(b.into_raw())),
         DynamicImage::ImageRgb16(b) => (3, Samples::U16(b.into_raw())),
         DynamicImage::ImageRgba16(b) => (4, Samples::U16(b.into_raw())),
-        other => return Err(image_err(path, format!("unsupported pixel type {:?} (expected 8- or 16-bit integers)", other.color()))),
+        other => {
+            return Err(image_err(
+                path,
+                format!(
+                    "unsupported pixel type {:?} (expected 8- or 16-bit integers)",
+                    other.color()
+                ),
+            ));
+        }
     };
-    Ok(Image { width, height, channels, samples })
+    Ok(Image {
+        width,
+        height,
+        channels,
+        samples,
+    })
 }
 
 /// Encodes an 8- or 16-bit image with 1-4 channels as PNG.
@@ -102,21 +126,40 @@ pub fn encode_png(img: &Image) -> std::result::Result<Vec<u8>, String> {
     use image::ExtendedColorType as C;
     let n = img.width * img.height * img.channels;
     let (ty, bytes): (C, Vec<u8>) = match (&img.samples, img.channels) {
-        (Samples::U8(v), c) if v.len() == n => ([C::L8, C::La8, C::Rgb8, C::Rgba8].get(c.wrapping_sub(1)).copied().ok_or("1-4 channels")?, v.clone()),
+        (Samples::U8(v), c) if v.len() == n => (
+            [C::L8, C::La8, C::Rgb8, C::Rgba8]
+                .get(c.wrapping_sub(1))
+                .copied()
+                .ok_or("1-4 channels")?,
+            v.clone(),
+        ),
         // The encoder takes 16-bit samples in native byte order.
-        (Samples::U16(v), c) if v.len() == n => {
-            ([C::L16, C::La16, C::Rgb16, C::Rgba16].get(c.wrapping_sub(1)).copied().ok_or("1-4 channels")?, v.iter().flat_map(|s| s.to_ne_bytes()).collect())
-        }
+        (Samples::U16(v), c) if v.len() == n => (
+            [C::L16, C::La16, C::Rgb16, C::Rgba16]
+                .get(c.wrapping_sub(1))
+                .copied()
+                .ok_or("1-4 channels")?,
+            v.iter().flat_map(|s| s.to_ne_bytes()).collect(),
+        ),
         _ => return Err("image buffer does not match its size".into()),
     };
     let mut out = Cursor::new(Vec::new());
-    image::write_buffer_with_format(&mut out, &bytes, img.width as u32, img.height as u32, ty, ImageFormat::Png).map_err(|e| e.to_string())?;
+    image::write_buffer_with_format(
+        &mut out,
+        &bytes,
+        img.width as u32,
+        img.height as u32,
+        ty,
+        ImageFormat::Png,
+    )
+    .map_err(|e| e.to_string())?;
     Ok(out.into_inner())
 }
 
 /// Writes an 8- or 16-bit PNG durably ([`crate::atomic`]).
 pub fn write_png(path: &Path, img: &Image) -> Result<()> {
-    let bytes = encode_png(img).map_err(|m| Error::format(path, format!("cannot encode PNG: {m}")))?;
+    let bytes =
+        encode_png(img).map_err(|m| Error::format(path, format!("cannot encode PNG: {m}")))?;
     crate::atomic::write_bytes_atomically(path, &bytes)
 }
 
@@ -126,7 +169,15 @@ pub fn write_png_rgb(path: &Path, img: &RgbImage) -> Result<()> {
     if img.data.len() != img.width * img.height * 3 {
         return Err(Error::format(path, "image buffer does not match its size"));
     }
-    write_png(path, &Image { width: img.width, height: img.height, channels: 3, samples: Samples::U8(img.data.clone()) })
+    write_png(
+        path,
+        &Image {
+            width: img.width,
+            height: img.height,
+            channels: 3,
+            samples: Samples::U8(img.data.clone()),
+        },
+    )
 }
 
 /// Writes an RGB8 JPEG with `quality` 1..=100, durably.
@@ -136,7 +187,12 @@ pub fn write_jpeg_rgb(path: &Path, img: &RgbImage, quality: u8) -> Result<()> {
     }
     let mut out = Cursor::new(Vec::new());
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
-        .encode(&img.data, img.width as u32, img.height as u32, image::ExtendedColorType::Rgb8)
+        .encode(
+            &img.data,
+            img.width as u32,
+            img.height as u32,
+            image::ExtendedColorType::Rgb8,
+        )
         .map_err(|e| Error::format(path, format!("cannot encode JPEG: {e}")))?;
     crate::atomic::write_bytes_atomically(path, &out.into_inner())
 }
@@ -149,7 +205,11 @@ mod tests {
     fn png_round_trip() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("x.png");
-        let img = RgbImage { width: 2, height: 2, data: (0..12).map(|i| i * 20).collect() };
+        let img = RgbImage {
+            width: 2,
+            height: 2,
+            data: (0..12).map(|i| i * 20).collect(),
+        };
         write_png_rgb(&path, &img).unwrap();
         assert_eq!(read_rgb(&path).unwrap(), img);
         std::fs::write(&path, b"\x89PNG broken").unwrap();

@@ -80,7 +80,10 @@ pub struct JpegOptions {
 impl Default for JpegOptions {
     /// Quality 95 with full-resolution colour: near-lossless for training images.
     fn default() -> Self {
-        Self { quality: 95, chroma: ChromaSampling::Full }
+        Self {
+            quality: 95,
+            chroma: ChromaSampling::Full,
+        }
     }
 }
 
@@ -97,7 +100,10 @@ fn message(cinfo: &mut jpeg_common_struct) -> String {
             return "libjpeg error".into();
         };
         type Format = unsafe extern "C-unwind" fn(&mut jpeg_common_struct, &mut [u8; 80]);
-        let format: Format = std::mem::transmute::<unsafe extern "C-unwind" fn(&mut jpeg_common_struct, &[u8; 80]), Format>(format);
+        let format: Format = std::mem::transmute::<
+            unsafe extern "C-unwind" fn(&mut jpeg_common_struct, &[u8; 80]),
+            Format,
+        >(format);
         let mut buffer = [0u8; 80];
         format(cinfo, &mut buffer);
         let text = buffer.split(|&b| b == 0).next().unwrap_or_default();
@@ -113,7 +119,9 @@ extern "C-unwind" fn on_message(cinfo: &mut jpeg_common_struct, level: c_int) {
     // SAFETY: see `message`.
     let code = unsafe { cinfo.err.as_ref().map_or(0, |e| e.msg_code) };
     if level < 0 && code == JWRN_JPEG_EOF as c_int {
-        resume_unwind(Box::new(JpegFailure("the file ends before its image data does (truncated)".into())));
+        resume_unwind(Box::new(JpegFailure(
+            "the file ends before its image data does (truncated)".into(),
+        )));
     }
 }
 
@@ -147,11 +155,20 @@ pub fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<Image> {
         let (channels, mut started) = match dec.color_space() {
             ColorSpace::JCS_GRAYSCALE => (1, dec.grayscale()?),
             ColorSpace::JCS_YCbCr | ColorSpace::JCS_RGB => (3, dec.rgb()?),
-            other => return Err(std::io::Error::other(format!("{other:?} JPEGs are not supported (grey or colour only)"))),
+            other => {
+                return Err(std::io::Error::other(format!(
+                    "{other:?} JPEGs are not supported (grey or colour only)"
+                )));
+            }
         };
         let data: Vec<u8> = started.read_scanlines()?;
         started.finish()?;
-        Ok(Image { width, height, channels, samples: Samples::U8(data) })
+        Ok(Image {
+            width,
+            height,
+            channels,
+            samples: Samples::U8(data),
+        })
     })
     .map_err(|m| image_err(path, format!("JPEG: {m}")))
 }
@@ -161,8 +178,17 @@ pub fn encode_jpeg_rgb(img: &RgbImage, opts: JpegOptions) -> std::result::Result
     if !(1..=100).contains(&opts.quality) {
         return Err(format!("JPEG quality {} is outside 1..=100", opts.quality));
     }
-    if img.data.len() != img.width * img.height * 3 || img.width == 0 || img.height == 0 || img.width.max(img.height) > 65_500 {
-        return Err(format!("a {}x{} image with {} bytes cannot be a JPEG", img.width, img.height, img.data.len()));
+    if img.data.len() != img.width * img.height * 3
+        || img.width == 0
+        || img.height == 0
+        || img.width.max(img.height) > 65_500
+    {
+        return Err(format!(
+            "a {}x{} image with {} bytes cannot be a JPEG",
+            img.width,
+            img.height,
+            img.data.len()
+        ));
     }
     guarded(|| {
         let mut comp = Compress::new_err(Box::new(error_manager()), ColorSpace::JCS_RGB);
@@ -196,7 +222,10 @@ pub fn chroma_sampling(bytes: &[u8]) -> Option<ChromaSampling> {
         return None;
     }
     let (y, cb, cr) = (&comps[0], &comps[1], &comps[2]);
-    let same = cb.h_samp_factor == 1 && cb.v_samp_factor == 1 && cr.h_samp_factor == 1 && cr.v_samp_factor == 1;
+    let same = cb.h_samp_factor == 1
+        && cb.v_samp_factor == 1
+        && cr.h_samp_factor == 1
+        && cr.v_samp_factor == 1;
     match (same, y.h_samp_factor, y.v_samp_factor) {
         (true, 1, 1) => Some(ChromaSampling::Full),
         (true, 2, 2) => Some(ChromaSampling::Half),
@@ -216,30 +245,54 @@ mod tests {
                 (s >> 24) as u8
             })
             .collect();
-        RgbImage { width: w, height: h, data }
+        RgbImage {
+            width: w,
+            height: h,
+            data,
+        }
     }
 
     #[test]
     fn round_trip_keeps_size_and_chroma_sampling() {
         let img = noise(37, 21);
         for chroma in [ChromaSampling::Full, ChromaSampling::Half] {
-            let bytes = encode_jpeg_rgb(&img, JpegOptions { quality: 90, chroma }).unwrap();
+            let bytes = encode_jpeg_rgb(
+                &img,
+                JpegOptions {
+                    quality: 90,
+                    chroma,
+                },
+            )
+            .unwrap();
             assert!(is_jpeg(&bytes));
             assert_eq!(chroma_sampling(&bytes), Some(chroma));
             let back = decode_jpeg(&bytes, Path::new("x.jpg")).unwrap();
             assert_eq!((back.width, back.height, back.channels), (37, 21, 3));
         }
-        assert!(encode_jpeg_rgb(&img, JpegOptions { quality: 0, chroma: ChromaSampling::Full }).is_err());
+        assert!(
+            encode_jpeg_rgb(
+                &img,
+                JpegOptions {
+                    quality: 0,
+                    chroma: ChromaSampling::Full
+                }
+            )
+            .is_err()
+        );
     }
 
     #[test]
     fn truncated_and_broken_files_are_errors_naming_the_file() {
         let bytes = encode_jpeg_rgb(&noise(64, 64), JpegOptions::default()).unwrap();
-        let e = decode_jpeg(&bytes[..bytes.len() / 2], Path::new("cut.jpg")).unwrap_err().to_string();
+        let e = decode_jpeg(&bytes[..bytes.len() / 2], Path::new("cut.jpg"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("cut.jpg") && e.contains("truncated"), "{e}");
         let mut broken = bytes.clone();
         broken[2..40].fill(0x55);
-        let e = decode_jpeg(&broken, Path::new("bad.jpg")).unwrap_err().to_string();
+        let e = decode_jpeg(&broken, Path::new("bad.jpg"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("bad.jpg") && e.contains("JPEG"), "{e}");
     }
 

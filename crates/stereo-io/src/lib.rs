@@ -27,16 +27,33 @@ pub mod png_disp;
 
 pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomically};
 pub use datasets::export::{ExportOptions, export_dataset};
-pub use datasets::stereogen::{DatasetInfo, DatasetLayout, DisparitySummary, Manifest, ManifestContents, ManifestEntry, SamplePaths, read_manifest};
-pub use datasets::write::{DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, create_writer};
 pub use datasets::middlebury::MiddleburyVariant;
-pub use datasets::{DatasetFormat, ReadOptions, SampleMeta, StereoDataset, StereoSample, detect_format, open_dataset, open_dataset_with};
+pub use datasets::stereogen::{
+    DatasetInfo, DatasetLayout, DisparitySummary, Manifest, ManifestContents, ManifestEntry,
+    SamplePaths, read_manifest,
+};
+pub use datasets::write::{
+    DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, create_writer,
+};
+pub use datasets::{
+    DatasetFormat, ReadOptions, SampleMeta, StereoDataset, StereoSample, detect_format,
+    open_dataset, open_dataset_with,
+};
 pub use disparity::{DisparityMap, DisparityMeta, DisparityStats};
 pub use error::{Error, Result};
-pub use exr_io::{decode_disparity_exr, read_depth_channel, read_disparity_exr, write_disparity_exr};
+pub use exr_io::{
+    decode_disparity_exr, read_depth_channel, read_disparity_exr, write_disparity_exr,
+};
 pub use formats::{DisparityFormat, read_disparity, write_disparity};
-pub use image_io::{Image, RgbImage, Samples, read_image, read_rgb, write_jpeg_rgb, write_png, write_png_rgb};
+pub use image_io::{
+    Image, RgbImage, Samples, read_image, read_rgb, write_jpeg_rgb, write_png, write_png_rgb,
+};
 pub use jpeg::{ChromaSampling, JpegOptions, decode_jpeg, encode_jpeg_rgb, write_jpeg};
 pub use npy::{NpyArray, read_disparity_npy, read_npy, read_npz, write_disparity_npy, write_npy};
-pub use pfm::{Endian, FloatImage, decode_pfm, read_disparity_pfm, read_pfm, write_disparity_pfm, write_pfm};
-pub use png_disp::{CRESTEREO_SCALE, KITTI_SCALE, decode_disparity_png16, read_disparity_png16, read_disparity_sintel, write_disparity_png16, write_disparity_sintel};
+pub use pfm::{
+    Endian, FloatImage, decode_pfm, read_disparity_pfm, read_pfm, write_disparity_pfm, write_pfm,
+};
+pub use png_disp::{
+    CRESTEREO_SCALE, KITTI_SCALE, decode_disparity_png16, read_disparity_png16,
+    read_disparity_sintel, write_disparity_png16, write_disparity_sintel,
+};

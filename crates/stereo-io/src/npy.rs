@@ -22,14 +22,18 @@ pub fn read_npz(path: &Path) -> Result<Vec<(String, NpyArray)>> {
     use std::io::Read;
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let bad = |m: String| Error::format(path, format!("not a valid .npz archive: {m}"));
-    let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| bad(e.to_string()))?;
+    let mut archive =
+        zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| bad(e.to_string()))?;
     let mut out = Vec::with_capacity(archive.len());
     for i in 0..archive.len() {
         let mut entry = archive.by_index(i).map_err(|e| bad(e.to_string()))?;
         let name = entry.name().trim_end_matches(".npy").to_string();
         let mut bytes = Vec::with_capacity(entry.size() as usize);
-        entry.read_to_end(&mut bytes).map_err(|e| bad(format!("{name}: {e}")))?;
-        let array = decode_npy(&bytes, &path.join(&name)).map_err(|e| bad(format!("{name}: {e}")))?;
+        entry
+            .read_to_end(&mut bytes)
+            .map_err(|e| bad(format!("{name}: {e}")))?;
+        let array =
+            decode_npy(&bytes, &path.join(&name)).map_err(|e| bad(format!("{name}: {e}")))?;
         out.push((name, array));
     }
     Ok(out)
@@ -42,44 +46,75 @@ pub fn read_npy(path: &Path) -> Result<NpyArray> {
 
 /// Value of `'key':` in the header dict, as the raw text up to the next top-level comma.
 fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
-    let at = header.find(&format!("'{key}'")).or_else(|| header.find(&format!("\"{key}\"")))?;
-    let rest = header[at + key.len() + 2..].trim_start().strip_prefix(':')?.trim_start();
-    let end = if rest.starts_with('(') { rest.find(')')? + 1 } else { rest.find([',', '}']).unwrap_or(rest.len()) };
+    let at = header
+        .find(&format!("'{key}'"))
+        .or_else(|| header.find(&format!("\"{key}\"")))?;
+    let rest = header[at + key.len() + 2..]
+        .trim_start()
+        .strip_prefix(':')?
+        .trim_start();
+    let end = if rest.starts_with('(') {
+        rest.find(')')? + 1
+    } else {
+        rest.find([',', '}']).unwrap_or(rest.len())
+    };
     Some(rest[..end].trim())
 }
 
 pub fn decode_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
     let bad = |m: String| Error::format(path, format!("not a valid .npy file: {m}"));
     if bytes.len() < 10 || &bytes[..6] != MAGIC {
-        return Err(bad("missing the \\x93NUMPY magic (truncated or another format)".into()));
+        return Err(bad(
+            "missing the \\x93NUMPY magic (truncated or another format)".into(),
+        ));
     }
     let (header_len, start): (usize, usize) = match bytes[6] {
         1 => (usize::from(u16::from_le_bytes([bytes[8], bytes[9]])), 10),
-        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize, 12),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize,
+            12,
+        ),
         v => return Err(bad(format!("unsupported format version {v}"))),
     };
-    let header = bytes.get(start..start.saturating_add(header_len)).ok_or_else(|| bad("truncated header".into()))?;
+    let header = bytes
+        .get(start..start.saturating_add(header_len))
+        .ok_or_else(|| bad("truncated header".into()))?;
     let header = std::str::from_utf8(header).map_err(|_| bad("header is not text".into()))?;
-    let descr = dict_value(header, "descr").ok_or_else(|| bad("header has no 'descr'".into()))?.trim_matches(['\'', '"']);
+    let descr = dict_value(header, "descr")
+        .ok_or_else(|| bad("header has no 'descr'".into()))?
+        .trim_matches(['\'', '"']);
     let fortran = match dict_value(header, "fortran_order") {
         Some("True") => true,
         Some("False") => false,
         other => return Err(bad(format!("header 'fortran_order' is {other:?}"))),
     };
-    let shape_text = dict_value(header, "shape").ok_or_else(|| bad("header has no 'shape'".into()))?;
+    let shape_text =
+        dict_value(header, "shape").ok_or_else(|| bad("header has no 'shape'".into()))?;
     let shape: Vec<usize> = shape_text
         .trim_matches(['(', ')'])
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse().map_err(|_| bad(format!("shape {shape_text} is not a tuple of sizes"))))
+        .map(|s| {
+            s.parse()
+                .map_err(|_| bad(format!("shape {shape_text} is not a tuple of sizes")))
+        })
         .collect::<Result<_>>()?;
-    let count = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n <= 1 << 31).ok_or_else(|| bad(format!("shape {shape_text} is too large")))?;
+    let count = shape
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .filter(|&n| n <= 1 << 31)
+        .ok_or_else(|| bad(format!("shape {shape_text} is too large")))?;
     let (order, kind, size) = {
         let mut c = descr.chars();
         let order = c.next().ok_or_else(|| bad("empty 'descr'".into()))?;
-        let kind = c.next().ok_or_else(|| bad(format!("dtype {descr:?} is not understood")))?;
-        let size: usize = c.as_str().parse().map_err(|_| bad(format!("dtype {descr:?} is not understood")))?;
+        let kind = c
+            .next()
+            .ok_or_else(|| bad(format!("dtype {descr:?} is not understood")))?;
+        let size: usize = c
+            .as_str()
+            .parse()
+            .map_err(|_| bad(format!("dtype {descr:?} is not understood")))?;
         (order, kind, size)
     };
     let big = match order {
@@ -88,9 +123,14 @@ pub fn decode_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         _ => return Err(bad(format!("dtype {descr:?} has no byte order"))),
     };
     let raw = &bytes[start + header_len..];
-    let need = count.checked_mul(size).ok_or_else(|| bad("size overflow".into()))?;
+    let need = count
+        .checked_mul(size)
+        .ok_or_else(|| bad("size overflow".into()))?;
     if raw.len() < need {
-        return Err(bad(format!("truncated: shape {shape_text} of {descr} needs {need} bytes of data, the file has {}", raw.len())));
+        return Err(bad(format!(
+            "truncated: shape {shape_text} of {descr} needs {need} bytes of data, the file has {}",
+            raw.len()
+        )));
     }
     macro_rules! conv {
         ($t:ty, $n:expr) => {
@@ -98,7 +138,11 @@ pub fn decode_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
                 .chunks_exact($n)
                 .map(|b| {
                     let b: [u8; $n] = b.try_into().unwrap();
-                    (if big { <$t>::from_be_bytes(b) } else { <$t>::from_le_bytes(b) }) as f32
+                    (if big {
+                        <$t>::from_be_bytes(b)
+                    } else {
+                        <$t>::from_le_bytes(b)
+                    }) as f32
                 })
                 .collect::<Vec<f32>>()
         };
@@ -106,7 +150,17 @@ pub fn decode_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
     let data = match (kind, size) {
         ('f', 4) => conv!(f32, 4),
         ('f', 8) => conv!(f64, 8),
-        ('f', 2) => raw[..need].chunks_exact(2).map(|b| half::f16::from_bits(if big { u16::from_be_bytes([b[0], b[1]]) } else { u16::from_le_bytes([b[0], b[1]]) }).to_f32()).collect(),
+        ('f', 2) => raw[..need]
+            .chunks_exact(2)
+            .map(|b| {
+                half::f16::from_bits(if big {
+                    u16::from_be_bytes([b[0], b[1]])
+                } else {
+                    u16::from_le_bytes([b[0], b[1]])
+                })
+                .to_f32()
+            })
+            .collect(),
         ('u', 1) | ('b', 1) => raw[..need].iter().map(|&b| f32::from(b)).collect(),
         ('i', 1) => raw[..need].iter().map(|&b| f32::from(b as i8)).collect(),
         ('u', 2) => conv!(u16, 2),
@@ -115,9 +169,17 @@ pub fn decode_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         ('i', 4) => conv!(i32, 4),
         ('u', 8) => conv!(u64, 8),
         ('i', 8) => conv!(i64, 8),
-        _ => return Err(bad(format!("dtype {descr:?} is not supported (bool, integers, float16/32/64)"))),
+        _ => {
+            return Err(bad(format!(
+                "dtype {descr:?} is not supported (bool, integers, float16/32/64)"
+            )));
+        }
     };
-    let data = if fortran && shape.len() > 1 { fortran_to_c(&shape, &data) } else { data };
+    let data = if fortran && shape.len() > 1 {
+        fortran_to_c(&shape, &data)
+    } else {
+        data
+    };
     Ok(NpyArray { shape, data })
 }
 
@@ -148,7 +210,11 @@ pub fn encode_npy(arr: &NpyArray) -> std::result::Result<Vec<u8>, String> {
         return Err("array data does not match its shape".into());
     }
     let dims: Vec<String> = arr.shape.iter().map(|d| d.to_string()).collect();
-    let shape = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+    let shape = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
     let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
     // Pad with spaces so the data starts on a 64-byte boundary, ending with a newline.
     let total = 10 + header.len() + 1;
@@ -175,7 +241,14 @@ pub fn read_disparity_npy(path: &Path) -> Result<DisparityMap> {
     let arr = read_npy(path)?;
     let (h, w) = match arr.shape.as_slice() {
         [h, w] | [h, w, 1] => (*h, *w),
-        s => return Err(Error::format(path, format!("a disparity array must have shape (H, W) or (H, W, 1), this one has {s:?}"))),
+        s => {
+            return Err(Error::format(
+                path,
+                format!(
+                    "a disparity array must have shape (H, W) or (H, W, 1), this one has {s:?}"
+                ),
+            ));
+        }
     };
     crate::pfm::floats_to_disparity(path, w, h, arr.data)
 }
@@ -183,10 +256,24 @@ pub fn read_disparity_npy(path: &Path) -> Result<DisparityMap> {
 /// Writes a map as float32 (H, W) with `inf` where invalid.
 pub fn write_disparity_npy(path: &Path, map: &DisparityMap) -> Result<()> {
     if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
-        return Err(Error::format(path, "disparity map buffers do not match its size"));
+        return Err(Error::format(
+            path,
+            "disparity map buffers do not match its size",
+        ));
     }
-    let data = map.data.iter().zip(&map.valid).map(|(&d, &v)| if v { d } else { f32::INFINITY }).collect();
-    write_npy(path, &NpyArray { shape: vec![map.height, map.width], data })
+    let data = map
+        .data
+        .iter()
+        .zip(&map.valid)
+        .map(|(&d, &v)| if v { d } else { f32::INFINITY })
+        .collect();
+    write_npy(
+        path,
+        &NpyArray {
+            shape: vec![map.height, map.width],
+            data,
+        },
+    )
 }
 
 #[cfg(test)]
@@ -194,7 +281,10 @@ mod tests {
     use super::*;
 
     fn npy(descr: &str, fortran: bool, shape: &str, data: &[u8]) -> Vec<u8> {
-        let header = format!("{{'descr': '{descr}', 'fortran_order': {}, 'shape': {shape}, }}\n", if fortran { "True" } else { "False" });
+        let header = format!(
+            "{{'descr': '{descr}', 'fortran_order': {}, 'shape': {shape}, }}\n",
+            if fortran { "True" } else { "False" }
+        );
         let mut out = MAGIC.to_vec();
         out.extend_from_slice(&[1, 0]);
         out.extend_from_slice(&(header.len() as u16).to_le_bytes());
@@ -206,16 +296,29 @@ mod tests {
     #[test]
     fn reads_other_dtypes_orders_and_byte_orders() {
         let p = Path::new("a.npy");
-        let f64s: Vec<u8> = [1.5f64, -2.0, 3.25, 4.0, 5.0, 6.0].iter().flat_map(|v| v.to_be_bytes()).collect();
+        let f64s: Vec<u8> = [1.5f64, -2.0, 3.25, 4.0, 5.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
         let a = decode_npy(&npy(">f8", false, "(2, 3)", &f64s), p).unwrap();
-        assert_eq!((a.shape.clone(), a.data.clone()), (vec![2, 3], vec![1.5, -2.0, 3.25, 4.0, 5.0, 6.0]));
+        assert_eq!(
+            (a.shape.clone(), a.data.clone()),
+            (vec![2, 3], vec![1.5, -2.0, 3.25, 4.0, 5.0, 6.0])
+        );
         // Fortran order: the bytes list column by column.
-        let u16s: Vec<u8> = [1u16, 4, 2, 5, 3, 6].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let u16s: Vec<u8> = [1u16, 4, 2, 5, 3, 6]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         let b = decode_npy(&npy("<u2", true, "(2, 3)", &u16s), p).unwrap();
         assert_eq!(b.data, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
-        let e = decode_npy(&npy("<c8", false, "(1,)", &[0; 8]), p).unwrap_err().to_string();
+        let e = decode_npy(&npy("<c8", false, "(1,)", &[0; 8]), p)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("a.npy") && e.contains("<c8"), "{e}");
-        let t = decode_npy(&npy("<f4", false, "(4, 4)", &[0; 10]), p).unwrap_err().to_string();
+        let t = decode_npy(&npy("<f4", false, "(4, 4)", &[0; 10]), p)
+            .unwrap_err()
+            .to_string();
         assert!(t.contains("truncated"), "{t}");
     }
 }

@@ -52,15 +52,22 @@ pub fn decode_pfm(bytes: &[u8], path: &Path) -> Result<FloatImage> {
         if pos >= bytes.len() {
             return Err(bad(format!("truncated header after {what}")));
         }
-        String::from_utf8(bytes[start..pos].to_vec()).map_err(|_| bad(format!("{what} is not text")))
+        String::from_utf8(bytes[start..pos].to_vec())
+            .map_err(|_| bad(format!("{what} is not text")))
     };
     let channels = match token("the PF/Pf magic")?.as_str() {
         "PF" => 3,
         "Pf" => 1,
-        other => return Err(bad(format!("magic is {other:?}, expected \"PF\" (3 channels) or \"Pf\" (1 channel)"))),
+        other => {
+            return Err(bad(format!(
+                "magic is {other:?}, expected \"PF\" (3 channels) or \"Pf\" (1 channel)"
+            )));
+        }
     };
     let dim = |t: String, what: &str| -> Result<usize> {
-        let v: usize = t.parse().map_err(|_| bad(format!("{what} {t:?} is not a positive integer")))?;
+        let v: usize = t
+            .parse()
+            .map_err(|_| bad(format!("{what} {t:?} is not a positive integer")))?;
         if v == 0 || v > MAX_SIDE {
             return Err(bad(format!("{what} {v} is outside 1..={MAX_SIDE}")));
         }
@@ -69,9 +76,13 @@ pub fn decode_pfm(bytes: &[u8], path: &Path) -> Result<FloatImage> {
     let width = dim(token("the width")?, "width")?;
     let height = dim(token("the height")?, "height")?;
     let scale_text = token("the scale")?;
-    let scale: f64 = scale_text.parse().map_err(|_| bad(format!("scale {scale_text:?} is not a number")))?;
+    let scale: f64 = scale_text
+        .parse()
+        .map_err(|_| bad(format!("scale {scale_text:?} is not a number")))?;
     if !scale.is_finite() || scale == 0.0 {
-        return Err(bad(format!("scale {scale_text} must be finite and non-zero (its sign gives the byte order)")));
+        return Err(bad(format!(
+            "scale {scale_text} must be finite and non-zero (its sign gives the byte order)"
+        )));
     }
     let little = scale < 0.0;
     // Exactly one whitespace byte separates the header from the raster.
@@ -80,7 +91,9 @@ pub fn decode_pfm(bytes: &[u8], path: &Path) -> Result<FloatImage> {
     let need = n * 4;
     let have = bytes.len().saturating_sub(pos);
     if have < need {
-        return Err(bad(format!("truncated: {width}x{height}x{channels} floats need {need} bytes of pixels, the file has {have}")));
+        return Err(bad(format!(
+            "truncated: {width}x{height}x{channels} floats need {need} bytes of pixels, the file has {have}"
+        )));
     }
     let raster = &bytes[pos..pos + need];
     let row_len = width * channels;
@@ -90,10 +103,19 @@ pub fn decode_pfm(bytes: &[u8], path: &Path) -> Result<FloatImage> {
         let out = &mut data[out_row * row_len..(out_row + 1) * row_len];
         for (o, b) in out.iter_mut().zip(chunk.chunks_exact(4)) {
             let b: [u8; 4] = b.try_into().expect("chunks of 4");
-            *o = if little { f32::from_le_bytes(b) } else { f32::from_be_bytes(b) };
+            *o = if little {
+                f32::from_le_bytes(b)
+            } else {
+                f32::from_be_bytes(b)
+            };
         }
     }
-    Ok(FloatImage { width, height, channels, data })
+    Ok(FloatImage {
+        width,
+        height,
+        channels,
+        data,
+    })
 }
 
 /// Encodes a 1- or 3-channel float image as PFM (scale magnitude 1).
@@ -106,13 +128,21 @@ pub fn encode_pfm(img: &FloatImage, endian: Endian) -> std::result::Result<Vec<u
     if img.data.len() != img.width * img.height * img.channels {
         return Err("float image buffer does not match its size".into());
     }
-    let scale = if endian == Endian::Little { "-1.0" } else { "1.0" };
+    let scale = if endian == Endian::Little {
+        "-1.0"
+    } else {
+        "1.0"
+    };
     let mut out = format!("{magic}\n{} {}\n{scale}\n", img.width, img.height).into_bytes();
     out.reserve(img.data.len() * 4);
     let row_len = img.width * img.channels;
     for row in (0..img.height).rev() {
         for &v in &img.data[row * row_len..(row + 1) * row_len] {
-            out.extend_from_slice(&if endian == Endian::Little { v.to_le_bytes() } else { v.to_be_bytes() });
+            out.extend_from_slice(&if endian == Endian::Little {
+                v.to_le_bytes()
+            } else {
+                v.to_be_bytes()
+            });
         }
     }
     Ok(out)
@@ -125,13 +155,33 @@ pub fn write_pfm(path: &Path, img: &FloatImage, endian: Endian) -> Result<()> {
 }
 
 /// Turns disparity floats into a map: `±inf` = no ground truth, NaN = error.
-pub(crate) fn floats_to_disparity(path: &Path, width: usize, height: usize, data: Vec<f32>) -> Result<DisparityMap> {
+pub(crate) fn floats_to_disparity(
+    path: &Path,
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+) -> Result<DisparityMap> {
     if let Some(i) = data.iter().position(|d| d.is_nan()) {
-        return Err(Error::format(path, format!("disparity is NaN at pixel ({}, {}); NaN is not accepted (use inf for no ground truth)", i % width.max(1), i / width.max(1))));
+        return Err(Error::format(
+            path,
+            format!(
+                "disparity is NaN at pixel ({}, {}); NaN is not accepted (use inf for no ground truth)",
+                i % width.max(1),
+                i / width.max(1)
+            ),
+        ));
     }
     let valid: Vec<bool> = data.iter().map(|d| d.is_finite()).collect();
-    let data = data.into_iter().map(|d| if d.is_finite() { d } else { 0.0 }).collect();
-    Ok(DisparityMap { width, height, data, valid })
+    let data = data
+        .into_iter()
+        .map(|d| if d.is_finite() { d } else { 0.0 })
+        .collect();
+    Ok(DisparityMap {
+        width,
+        height,
+        data,
+        valid,
+    })
 }
 
 /// Reads a disparity PFM. `inf` marks pixels without ground truth (Middlebury, ETH3D). A
@@ -139,7 +189,11 @@ pub(crate) fn floats_to_disparity(path: &Path, width: usize, height: usize, data
 /// channel.
 pub fn read_disparity_pfm(path: &Path) -> Result<DisparityMap> {
     let img = read_pfm(path)?;
-    let data = if img.channels == 1 { img.data } else { img.data.iter().step_by(img.channels).copied().collect() };
+    let data = if img.channels == 1 {
+        img.data
+    } else {
+        img.data.iter().step_by(img.channels).copied().collect()
+    };
     floats_to_disparity(path, img.width, img.height, data)
 }
 
@@ -147,10 +201,27 @@ pub fn read_disparity_pfm(path: &Path) -> Result<DisparityMap> {
 /// (the Middlebury convention), atomically.
 pub fn write_disparity_pfm(path: &Path, map: &DisparityMap) -> Result<()> {
     if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
-        return Err(Error::format(path, "disparity map buffers do not match its size"));
+        return Err(Error::format(
+            path,
+            "disparity map buffers do not match its size",
+        ));
     }
-    let data = map.data.iter().zip(&map.valid).map(|(&d, &v)| if v { d } else { f32::INFINITY }).collect();
-    write_pfm(path, &FloatImage { width: map.width, height: map.height, channels: 1, data }, Endian::Little)
+    let data = map
+        .data
+        .iter()
+        .zip(&map.valid)
+        .map(|(&d, &v)| if v { d } else { f32::INFINITY })
+        .collect();
+    write_pfm(
+        path,
+        &FloatImage {
+            width: map.width,
+            height: map.height,
+            channels: 1,
+            data,
+        },
+        Endian::Little,
+    )
 }
 
 #[cfg(test)]
@@ -159,7 +230,12 @@ mod tests {
 
     #[test]
     fn rows_are_stored_bottom_up_in_both_byte_orders() {
-        let img = FloatImage { width: 2, height: 2, channels: 1, data: vec![1.0, 2.0, 3.0, 4.0] };
+        let img = FloatImage {
+            width: 2,
+            height: 2,
+            channels: 1,
+            data: vec![1.0, 2.0, 3.0, 4.0],
+        };
         let le = encode_pfm(&img, Endian::Little).unwrap();
         let header = b"Pf\n2 2\n-1.0\n";
         assert_eq!(&le[..header.len()], header);

@@ -19,7 +19,10 @@ pub const KITTI_SCALE: f32 = 256.0;
 
 fn check_scale(path: &Path, scale: f32) -> Result<()> {
     if !(scale.is_finite() && scale > 0.0) {
-        return Err(Error::format(path, format!("disparity scale {scale} must be finite and positive")));
+        return Err(Error::format(
+            path,
+            format!("disparity scale {scale} must be finite and positive"),
+        ));
     }
     Ok(())
 }
@@ -30,12 +33,26 @@ fn png16_from_image(path: &Path, img: DynamicImage, scale: f32) -> Result<Dispar
     let raw = match img {
         DynamicImage::ImageLuma16(b) => b.into_raw(),
         other => {
-            return Err(Error::format(path, format!("a scaled disparity PNG must be 16-bit grey, this one is {:?}", other.color())));
+            return Err(Error::format(
+                path,
+                format!(
+                    "a scaled disparity PNG must be 16-bit grey, this one is {:?}",
+                    other.color()
+                ),
+            ));
         }
     };
     let valid: Vec<bool> = raw.iter().map(|&v| v != 0).collect();
-    let data = raw.iter().map(|&v| (f64::from(v) / f64::from(scale)) as f32).collect();
-    Ok(DisparityMap { width, height, data, valid })
+    let data = raw
+        .iter()
+        .map(|&v| (f64::from(v) / f64::from(scale)) as f32)
+        .collect();
+    Ok(DisparityMap {
+        width,
+        height,
+        data,
+        valid,
+    })
 }
 
 /// Reads a 16-bit disparity PNG: `d = value / scale`, 0 = invalid.
@@ -55,7 +72,9 @@ pub fn decode_disparity_png16(bytes: &[u8], path: &Path, scale: f32) -> Result<D
 /// (above 65535/scale) is an error.
 pub fn quantize_png16(map: &DisparityMap, scale: f32) -> std::result::Result<Vec<u16>, String> {
     if !(scale.is_finite() && scale > 0.0) {
-        return Err(format!("disparity scale {scale} must be finite and positive"));
+        return Err(format!(
+            "disparity scale {scale} must be finite and positive"
+        ));
     }
     if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
         return Err("disparity map buffers do not match its size".into());
@@ -69,7 +88,10 @@ pub fn quantize_png16(map: &DisparityMap, scale: f32) -> std::result::Result<Vec
         let q = (f64::from(d) * f64::from(scale)).round();
         if !(q.is_finite() && (0.0..=65535.0).contains(&q)) || d < 0.0 {
             let (x, y) = (i % map.width, i / map.width);
-            return Err(format!("disparity {d} at pixel ({x}, {y}) does not fit a 16-bit PNG with scale {scale} (0..={})", 65535.0 / scale));
+            return Err(format!(
+                "disparity {d} at pixel ({x}, {y}) does not fit a 16-bit PNG with scale {scale} (0..={})",
+                65535.0 / scale
+            ));
         }
         out.push((q as u16).max(1));
     }
@@ -77,9 +99,17 @@ pub fn quantize_png16(map: &DisparityMap, scale: f32) -> std::result::Result<Vec
 }
 
 /// Encodes a map as a 16-bit grey PNG with `scale`.
-pub fn encode_disparity_png16(map: &DisparityMap, scale: f32) -> std::result::Result<Vec<u8>, String> {
+pub fn encode_disparity_png16(
+    map: &DisparityMap,
+    scale: f32,
+) -> std::result::Result<Vec<u8>, String> {
     let q = quantize_png16(map, scale)?;
-    encode_png(&Image { width: map.width, height: map.height, channels: 1, samples: Samples::U16(q) })
+    encode_png(&Image {
+        width: map.width,
+        height: map.height,
+        channels: 1,
+        samples: Samples::U16(q),
+    })
 }
 
 /// Writes a 16-bit disparity PNG atomically (see [`quantize_png16`]).
@@ -95,31 +125,62 @@ pub fn read_disparity_sintel(path: &Path) -> Result<DisparityMap> {
     let (width, height) = (img.width() as usize, img.height() as usize);
     let rgb = match img {
         DynamicImage::ImageRgb8(b) => b.into_raw(),
-        other => return Err(Error::format(path, format!("a Sintel disparity PNG must be 8-bit RGB, this one is {:?}", other.color()))),
+        other => {
+            return Err(Error::format(
+                path,
+                format!(
+                    "a Sintel disparity PNG must be 8-bit RGB, this one is {:?}",
+                    other.color()
+                ),
+            ));
+        }
     };
     let data: Vec<f32> = rgb
         .chunks_exact(3)
-        .map(|p| (f64::from(p[0]) * 4.0 + f64::from(p[1]) / 64.0 + f64::from(p[2]) / 16384.0) as f32)
+        .map(|p| {
+            (f64::from(p[0]) * 4.0 + f64::from(p[1]) / 64.0 + f64::from(p[2]) / 16384.0) as f32
+        })
         .collect();
-    Ok(DisparityMap { width, height, valid: vec![true; data.len()], data })
+    Ok(DisparityMap {
+        width,
+        height,
+        valid: vec![true; data.len()],
+        data,
+    })
 }
 
 /// Writes Sintel's packing (resolution 2^-14 px, range 0..1024 px); invalid pixels are stored as 0.
 pub fn write_disparity_sintel(path: &Path, map: &DisparityMap) -> Result<()> {
     if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
-        return Err(Error::format(path, "disparity map buffers do not match its size"));
+        return Err(Error::format(
+            path,
+            "disparity map buffers do not match its size",
+        ));
     }
     let mut rgb = Vec::with_capacity(map.data.len() * 3);
     for (i, (&d, &v)) in map.data.iter().zip(&map.valid).enumerate() {
         let d = if v { f64::from(d) } else { 0.0 };
         let q = (d * 16384.0).round();
         if !(q.is_finite() && (0.0..16_777_216.0).contains(&q)) {
-            return Err(Error::format(path, format!("disparity {d} at pixel ({}, {}) does not fit Sintel's packing (0..1024)", i % map.width, i / map.width)));
+            return Err(Error::format(
+                path,
+                format!(
+                    "disparity {d} at pixel ({}, {}) does not fit Sintel's packing (0..1024)",
+                    i % map.width,
+                    i / map.width
+                ),
+            ));
         }
         let q = q as u32;
         rgb.extend_from_slice(&[(q >> 16) as u8, (q >> 8) as u8, q as u8]);
     }
-    let bytes = encode_png(&Image { width: map.width, height: map.height, channels: 3, samples: Samples::U8(rgb) }).map_err(|m| Error::format(path, format!("cannot encode PNG: {m}")))?;
+    let bytes = encode_png(&Image {
+        width: map.width,
+        height: map.height,
+        channels: 3,
+        samples: Samples::U8(rgb),
+    })
+    .map_err(|m| Error::format(path, format!("cannot encode PNG: {m}")))?;
     crate::atomic::write_bytes_atomically(path, &bytes)
 }
 
@@ -132,7 +193,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("s.png");
         // R=3, G=128, B=64 -> 12 + 2 + 1/256.
-        let img = Image { width: 1, height: 1, channels: 3, samples: Samples::U8(vec![3, 128, 64]) };
+        let img = Image {
+            width: 1,
+            height: 1,
+            channels: 3,
+            samples: Samples::U8(vec![3, 128, 64]),
+        };
         crate::image_io::write_png(&p, &img).unwrap();
         let m = read_disparity_sintel(&p).unwrap();
         assert_eq!(m.data, vec![14.0 + 1.0 / 256.0]);

@@ -10,7 +10,10 @@ use proptest::test_runner::{Config, TestRunner};
 use stereo_io::*;
 
 fn cases() -> u32 {
-    std::env::var("STEREO_IO_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(300)
+    std::env::var("STEREO_IO_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(300)
 }
 
 fn valid_files() -> (Vec<u8>, Vec<u8>, Vec<u8>, Vec<u8>) {
@@ -20,18 +23,36 @@ fn valid_files() -> (Vec<u8>, Vec<u8>, Vec<u8>, Vec<u8>) {
         *v = i % 5 != 0;
         *d = if *v { i as f32 * 0.75 } else { 0.0 };
     }
-    let meta = DisparityMeta { f_px: Some(100.0), baseline_m: Some(0.1), view: Some("left".into()) };
-    let (e, p, n) = (dir.path().join("a.exr"), dir.path().join("a.pfm"), dir.path().join("a.png"));
+    let meta = DisparityMeta {
+        f_px: Some(100.0),
+        baseline_m: Some(0.1),
+        view: Some("left".into()),
+    };
+    let (e, p, n) = (
+        dir.path().join("a.exr"),
+        dir.path().join("a.pfm"),
+        dir.path().join("a.png"),
+    );
     write_disparity_exr(&e, &m, &meta).unwrap();
     write_disparity_pfm(&p, &m).unwrap();
     write_disparity_png16(&n, &m, 32.0).unwrap();
     let y = dir.path().join("a.npy");
     write_disparity_npy(&y, &m).unwrap();
-    (std::fs::read(e).unwrap(), std::fs::read(p).unwrap(), std::fs::read(n).unwrap(), std::fs::read(y).unwrap())
+    (
+        std::fs::read(e).unwrap(),
+        std::fs::read(p).unwrap(),
+        std::fs::read(n).unwrap(),
+        std::fs::read(y).unwrap(),
+    )
 }
 
 /// Applies a mutation: overwrite bytes, truncate, or insert.
-fn mutate(base: &[u8], edits: &[(usize, u8)], cut: Option<usize>, insert: Option<(usize, Vec<u8>)>) -> Vec<u8> {
+fn mutate(
+    base: &[u8],
+    edits: &[(usize, u8)],
+    cut: Option<usize>,
+    insert: Option<(usize, Vec<u8>)>,
+) -> Vec<u8> {
     let mut b = base.to_vec();
     for &(at, v) in edits {
         if !b.is_empty() {
@@ -52,7 +73,10 @@ fn mutate(base: &[u8], edits: &[(usize, u8)], cut: Option<usize>, insert: Option
 static OK: AtomicUsize = AtomicUsize::new(0);
 static ERR: AtomicUsize = AtomicUsize::new(0);
 
-fn check(name: &str, r: std::result::Result<impl Sized, Error>) -> std::result::Result<(), TestCaseError> {
+fn check(
+    name: &str,
+    r: std::result::Result<impl Sized, Error>,
+) -> std::result::Result<(), TestCaseError> {
     if r.is_ok() {
         OK.fetch_add(1, Ordering::Relaxed);
     }
@@ -67,8 +91,14 @@ fn check(name: &str, r: std::result::Result<impl Sized, Error>) -> std::result::
 fn run_all(bytes: &[u8]) -> std::result::Result<(), TestCaseError> {
     check("f.exr", decode_disparity_exr(bytes, Path::new("f.exr")))?;
     check("f.pfm", decode_pfm(bytes, Path::new("f.pfm")))?;
-    check("f.png", decode_disparity_png16(bytes, Path::new("f.png"), 32.0))?;
-    check("f.npy", stereo_io::npy::decode_npy(bytes, Path::new("f.npy")))?;
+    check(
+        "f.png",
+        decode_disparity_png16(bytes, Path::new("f.png"), 32.0),
+    )?;
+    check(
+        "f.npy",
+        stereo_io::npy::decode_npy(bytes, Path::new("f.npy")),
+    )?;
     Ok(())
 }
 
@@ -80,7 +110,11 @@ fn readers_never_panic_on_mutated_files() {
     decode_pfm(&pfm, Path::new("a.pfm")).unwrap();
     decode_disparity_png16(&png, Path::new("a.png"), 32.0).unwrap();
     stereo_io::npy::decode_npy(&npy, Path::new("a.npy")).unwrap();
-    let mut runner = TestRunner::new(Config { cases: cases(), failure_persistence: None, ..Config::default() });
+    let mut runner = TestRunner::new(Config {
+        cases: cases(),
+        failure_persistence: None,
+        ..Config::default()
+    });
     let strategy = (
         0usize..4,
         prop::collection::vec((any::<usize>(), any::<u8>()), 0..8),
@@ -93,21 +127,41 @@ fn readers_never_panic_on_mutated_files() {
             run_all(&mutate(base, &edits, cut, insert))
         })
         .unwrap();
-    eprintln!("mutated: {} cases; decoder results so far: {} ok, {} errors", cases(), OK.load(Ordering::Relaxed), ERR.load(Ordering::Relaxed));
+    eprintln!(
+        "mutated: {} cases; decoder results so far: {} ok, {} errors",
+        cases(),
+        OK.load(Ordering::Relaxed),
+        ERR.load(Ordering::Relaxed)
+    );
 }
 
 #[test]
 fn readers_never_panic_on_random_bytes() {
-    let mut runner = TestRunner::new(Config { cases: cases(), failure_persistence: None, ..Config::default() });
+    let mut runner = TestRunner::new(Config {
+        cases: cases(),
+        failure_persistence: None,
+        ..Config::default()
+    });
     // Random tails after each format's magic, so the parsers get past the first check.
     let strategy = (0usize..5, prop::collection::vec(any::<u8>(), 0..512));
     runner
         .run(&strategy, |(prefix, tail)| {
-            let magic: &[u8] = [&b""[..], b"\x76\x2f\x31\x01", b"Pf\n", b"\x89PNG\r\n\x1a\n", b"\x93NUMPY\x01\x00"][prefix];
+            let magic: &[u8] = [
+                &b""[..],
+                b"\x76\x2f\x31\x01",
+                b"Pf\n",
+                b"\x89PNG\r\n\x1a\n",
+                b"\x93NUMPY\x01\x00",
+            ][prefix];
             let mut bytes = magic.to_vec();
             bytes.extend_from_slice(&tail);
             run_all(&bytes)
         })
         .unwrap();
-    eprintln!("random: {} cases; decoder results so far: {} ok, {} errors", cases(), OK.load(Ordering::Relaxed), ERR.load(Ordering::Relaxed));
+    eprintln!(
+        "random: {} cases; decoder results so far: {} ok, {} errors",
+        cases(),
+        OK.load(Ordering::Relaxed),
+        ERR.load(Ordering::Relaxed)
+    );
 }

@@ -12,12 +12,29 @@ use fixtures::*;
 
 /// A sample with a camera, built from pixels only (no source files to link).
 fn sample(seed: u8, with_right: bool) -> StereoSample {
-    let meta = SampleMeta { f_px: Some(64.0), baseline_m: Some(0.1), cx: Some(1.5), cy: Some(1.0), ..Default::default() };
+    let meta = SampleMeta {
+        f_px: Some(64.0),
+        baseline_m: Some(0.1),
+        cx: Some(1.5),
+        cy: Some(1.0),
+        ..Default::default()
+    };
     let right = with_right.then(|| disp(f32::from(seed) + 0.5));
-    StereoSample { left: rgb(seed), right: rgb(seed + 40), disp_left: disp(f32::from(seed)), disp_right: right, valid_left: None, meta }
+    StereoSample {
+        left: rgb(seed),
+        right: rgb(seed + 40),
+        disp_left: disp(f32::from(seed)),
+        disp_right: right,
+        valid_left: None,
+        meta,
+    }
 }
 
-fn write_all(format: WritableFormat, root: &Path, samples: &[(&str, StereoSample)]) -> WriteSummary {
+fn write_all(
+    format: WritableFormat,
+    root: &Path,
+    samples: &[(&str, StereoSample)],
+) -> WriteSummary {
     let mut w = create_writer(format, root, ImageEncoding::Lossless).unwrap();
     for (n, (name, s)) in samples.iter().enumerate() {
         w.write(n, name, s).unwrap();
@@ -27,21 +44,45 @@ fn write_all(format: WritableFormat, root: &Path, samples: &[(&str, StereoSample
 
 #[test]
 fn each_writer_round_trips_through_its_reader() {
-    let samples = [("tree/0000000", sample(2, true)), ("tree/0000001", sample(9, false))];
+    let samples = [
+        ("tree/0000000", sample(2, true)),
+        ("tree/0000001", sample(9, false)),
+    ];
     for format in WritableFormat::ALL {
         let t = tempfile::tempdir().unwrap();
         let s = write_all(format, t.path(), &samples);
         // KITTI holds no right-view disparity (its disp_occ_1 is a later frame's).
-        let kitti = matches!(format, WritableFormat::Kitti2012 | WritableFormat::Kitti2015);
+        let kitti = matches!(
+            format,
+            WritableFormat::Kitti2012 | WritableFormat::Kitti2015
+        );
         let without_right = if kitti { 2 } else { 1 };
-        assert_eq!((s.samples, s.without_right_disparity, s.dropped_pixels, s.linked), (2, without_right, 0, 0), "{format}");
+        assert_eq!(
+            (
+                s.samples,
+                s.without_right_disparity,
+                s.dropped_pixels,
+                s.linked
+            ),
+            (2, without_right, 0, 0),
+            "{format}"
+        );
         let ds = open_dataset(t.path(), None).unwrap();
         assert_eq!((ds.format(), ds.len()), (format.dataset_format(), 2));
         let ids = match format {
             WritableFormat::Crestereo => ["tree/0000000", "tree/0000001"],
-            WritableFormat::Kitti2012 => ["training/colored_0/000000_10.png", "training/colored_0/000001_10.png"],
-            WritableFormat::Kitti2015 => ["training/image_2/000000_10.png", "training/image_2/000001_10.png"],
-            WritableFormat::Middlebury => ["Middlebury2014/train/tree_0000000-perfect", "Middlebury2014/train/tree_0000001-perfect"],
+            WritableFormat::Kitti2012 => [
+                "training/colored_0/000000_10.png",
+                "training/colored_0/000001_10.png",
+            ],
+            WritableFormat::Kitti2015 => [
+                "training/image_2/000000_10.png",
+                "training/image_2/000001_10.png",
+            ],
+            WritableFormat::Middlebury => [
+                "Middlebury2014/train/tree_0000000-perfect",
+                "Middlebury2014/train/tree_0000001-perfect",
+            ],
         };
         for (i, (_, want)) in samples.iter().enumerate() {
             assert_eq!(ds.id(i), Some(ids[i]), "{format}");
@@ -49,11 +90,24 @@ fn each_writer_round_trips_through_its_reader() {
             if format == WritableFormat::Crestereo {
                 // Real JPEG (quality 95, 4:4:4) of a 4x3 ramp with steps of 7 levels: within 16.
                 for (g, w) in [(&got.left, &want.left), (&got.right, &want.right)] {
-                    let worst = g.data.iter().zip(&w.data).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
-                    assert!(worst <= 16, "{format} {i}: JPEG far from the pixels ({worst})");
+                    let worst = g
+                        .data
+                        .iter()
+                        .zip(&w.data)
+                        .map(|(a, b)| a.abs_diff(*b))
+                        .max()
+                        .unwrap();
+                    assert!(
+                        worst <= 16,
+                        "{format} {i}: JPEG far from the pixels ({worst})"
+                    );
                 }
             } else {
-                assert_eq!((&got.left, &got.right), (&want.left, &want.right), "{format} {i}: images");
+                assert_eq!(
+                    (&got.left, &got.right),
+                    (&want.left, &want.right),
+                    "{format} {i}: images"
+                );
             }
             // Every value of `disp` is a multiple of 1/4: exact at x32, x256 and in PFM.
             assert_disp_eq(&got.disp_left, &want.disp_left);
@@ -64,16 +118,25 @@ fn each_writer_round_trips_through_its_reader() {
                 other => panic!("{format} {i}: right disparity {other:?}"),
             }
             if format == WritableFormat::Middlebury {
-                assert_eq!((got.meta.f_px, got.meta.cx, got.meta.cy), (Some(64.0), Some(1.5), Some(1.0)));
+                assert_eq!(
+                    (got.meta.f_px, got.meta.cx, got.meta.cy),
+                    (Some(64.0), Some(1.5), Some(1.0))
+                );
                 assert!((got.meta.baseline_m.unwrap() - 0.1).abs() < 1e-12);
                 assert!(got.meta.ndisp.unwrap() as f32 > want.disp_left.stats().unwrap().max);
             }
         }
         // Writing again where a sample now lacks its right disparity leaves no stale file.
-        let swapped = [("tree/0000000", sample(2, false)), ("tree/0000001", sample(9, false))];
+        let swapped = [
+            ("tree/0000000", sample(2, false)),
+            ("tree/0000001", sample(9, false)),
+        ];
         write_all(format, t.path(), &swapped);
         let ds = open_dataset(t.path(), None).unwrap();
-        assert!(ds.sample(0).unwrap().disp_right.is_none(), "{format}: a stale right disparity is still read");
+        assert!(
+            ds.sample(0).unwrap().disp_right.is_none(),
+            "{format}: a stale right disparity is still read"
+        );
     }
 }
 
@@ -84,11 +147,27 @@ fn kitti_writes_disp_noc_where_the_source_has_a_stricter_mask() {
     let mut keep = s.disp_left.valid.clone();
     keep[0] = false;
     s.valid_left = Some(keep.clone());
-    for (format, noc) in [(WritableFormat::Kitti2012, "disp_noc"), (WritableFormat::Kitti2015, "disp_noc_0")] {
+    for (format, noc) in [
+        (WritableFormat::Kitti2012, "disp_noc"),
+        (WritableFormat::Kitti2015, "disp_noc_0"),
+    ] {
         let root = t.path().join(format.to_string());
         write_all(format, &root, &[("x", s.clone()), ("y", sample(3, false))]);
-        assert!(root.join("training").join(noc).join("000000_10.png").is_file(), "{format}");
-        assert!(!root.join("training").join(noc).join("000001_10.png").exists(), "{format}: no mask, no {noc}");
+        assert!(
+            root.join("training")
+                .join(noc)
+                .join("000000_10.png")
+                .is_file(),
+            "{format}"
+        );
+        assert!(
+            !root
+                .join("training")
+                .join(noc)
+                .join("000001_10.png")
+                .exists(),
+            "{format}: no mask, no {noc}"
+        );
         let ds = open_dataset(&root, None).unwrap();
         let got = ds.sample(0).unwrap();
         assert_disp_eq(&got.disp_left, &s.disp_left);
@@ -99,7 +178,10 @@ fn kitti_writes_disp_noc_where_the_source_has_a_stricter_mask() {
 
 #[test]
 fn sixteen_bit_layouts_drop_what_they_cannot_hold_and_count_it() {
-    for (format, max) in [(WritableFormat::Kitti2015, 256.0), (WritableFormat::Crestereo, 2048.0)] {
+    for (format, max) in [
+        (WritableFormat::Kitti2015, 256.0),
+        (WritableFormat::Crestereo, 2048.0),
+    ] {
         let t = tempfile::tempdir().unwrap();
         let mut s = sample(1, true);
         s.disp_left.data[0] = max;
@@ -116,18 +198,30 @@ fn sixteen_bit_layouts_drop_what_they_cannot_hold_and_count_it() {
 #[test]
 fn middlebury_calib_needs_the_camera_and_states_doffs() {
     let t = tempfile::tempdir().unwrap();
-    let mut w = create_writer(WritableFormat::Middlebury, t.path(), ImageEncoding::Lossless).unwrap();
+    let mut w = create_writer(
+        WritableFormat::Middlebury,
+        t.path(),
+        ImageEncoding::Lossless,
+    )
+    .unwrap();
     let mut s = sample(1, true);
     s.meta.baseline_m = None;
     s.meta.cx = None;
     let e = w.write(0, "a", &s).unwrap_err().to_string();
-    assert!(e.contains("calib.txt") && e.contains("no baseline_m, cx"), "{e}");
-    assert!(!t.path().join("Middlebury2014/train/a-perfect").exists(), "nothing is written for a sample that cannot be");
+    assert!(
+        e.contains("calib.txt") && e.contains("no baseline_m, cx"),
+        "{e}"
+    );
+    assert!(
+        !t.path().join("Middlebury2014/train/a-perfect").exists(),
+        "nothing is written for a sample that cannot be"
+    );
     // A Middlebury source keeps its doffs: cam1's cx is cam0's plus doffs.
     let mut s = sample(1, true);
     s.meta.extra.insert("doffs".into(), "131.5".into());
     w.write(1, "b", &s).unwrap();
-    let calib = std::fs::read_to_string(t.path().join("Middlebury2014/train/b-perfect/calib.txt")).unwrap();
+    let calib =
+        std::fs::read_to_string(t.path().join("Middlebury2014/train/b-perfect/calib.txt")).unwrap();
     // cx = 1.5 and cy = 1 (pixel centres) are 2 and 1.5 in calib.txt's corner-origin convention.
     assert!(calib.contains("cam0=[64 0 2; 0 64 1.5; 0 0 1]\ncam1=[64 0 133.5; 0 64 1.5; 0 0 1]\ndoffs=131.5\nbaseline=100\n"), "{calib}");
 }
@@ -135,13 +229,24 @@ fn middlebury_calib_needs_the_camera_and_states_doffs() {
 #[test]
 fn crestereo_jpegs_are_real_jpegs_at_the_asked_quality() {
     let t = tempfile::tempdir().unwrap();
-    let mut w = create_writer(WritableFormat::Crestereo, t.path(), ImageEncoding::Jpeg(95)).unwrap();
+    let mut w =
+        create_writer(WritableFormat::Crestereo, t.path(), ImageEncoding::Jpeg(95)).unwrap();
     w.write(0, "pair000", &sample(3, true)).unwrap();
     let bytes = std::fs::read(t.path().join("pair000_left.jpg")).unwrap();
     assert_eq!(&bytes[..3], &[0xFF, 0xD8, 0xFF]);
     let back = open_dataset(t.path(), None).unwrap().sample(0).unwrap();
-    let worst = back.left.data.iter().zip(&rgb(3).data).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
-    assert!(worst < 40, "JPEG at quality 95 is close to the pixels (worst {worst})");
+    let worst = back
+        .left
+        .data
+        .iter()
+        .zip(&rgb(3).data)
+        .map(|(a, b)| a.abs_diff(*b))
+        .max()
+        .unwrap();
+    assert!(
+        worst < 40,
+        "JPEG at quality 95 is close to the pixels (worst {worst})"
+    );
 }
 
 fn same_inode(a: &Path, b: &Path) -> bool {
@@ -155,46 +260,87 @@ fn sceneflow_and_middlebury_export_to_crestereo_and_read_back() {
     sceneflow(&sf.join("FlyingThings3D"));
     let mb = t.path().join("mb");
     let mb_disp = middlebury_scene(&mb.join("trainingF/Adirondack"));
-    let opts = |from| ExportOptions { from, to: WritableFormat::Crestereo, images: ImageEncoding::Lossless, read: ReadOptions::default() };
+    let opts = |from| ExportOptions {
+        from,
+        to: WritableFormat::Crestereo,
+        images: ImageEncoding::Lossless,
+        read: ReadOptions::default(),
+    };
 
     let out = t.path().join("sf_cre");
     let s = export_dataset(&sf, &out, &opts(None)).unwrap();
-    assert_eq!((s.samples, s.without_right_disparity, s.linked, s.outside_categories), (1, 0, 0, 1));
+    assert_eq!(
+        (
+            s.samples,
+            s.without_right_disparity,
+            s.linked,
+            s.outside_categories
+        ),
+        (1, 0, 0, 1)
+    );
     let ds = open_dataset(&out, None).unwrap();
     assert_eq!((ds.format(), ds.len()), (DatasetFormat::Crestereo, 1));
-    assert_eq!(ds.id(0), Some("FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006"));
+    assert_eq!(
+        ds.id(0),
+        Some("FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006")
+    );
     let got = ds.sample(0).unwrap();
-    assert_eq!(got.meta.id, "FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006", "meta.id is the sample's id in every layout");
+    assert_eq!(
+        got.meta.id, "FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006",
+        "meta.id is the sample's id in every layout"
+    );
     for (g, w) in [(&got.left, rgb(1)), (&got.right, rgb(4))] {
-        let worst = g.data.iter().zip(&w.data).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
+        let worst = g
+            .data
+            .iter()
+            .zip(&w.data)
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap();
         assert!(worst <= 16, "JPEG far from the pixels ({worst})");
     }
     assert_disp_eq(&got.disp_left, &disp(1.0));
     assert_disp_eq(got.disp_right.as_ref().unwrap(), &disp(4.0));
     // PNG sources are encoded as real JPEGs: no `.jpg` holds PNG bytes.
-    assert!(!same_inode(&got.meta.left_path, &sf.join("FlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png")));
-    assert_eq!(&std::fs::read(&got.meta.left_path).unwrap()[..3], &[0xFF, 0xD8, 0xFF]);
+    assert!(!same_inode(
+        &got.meta.left_path,
+        &sf.join("FlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png")
+    ));
+    assert_eq!(
+        &std::fs::read(&got.meta.left_path).unwrap()[..3],
+        &[0xFF, 0xD8, 0xFF]
+    );
     // The release's four category folders exist, empty where no sample has that category.
     for category in ["tree", "shapenet", "reflective", "hole"] {
         assert!(out.join(category).is_dir(), "{category}");
     }
     let index = std::fs::read_to_string(out.join("stereogen_samples.tsv")).unwrap();
-    assert_eq!(index, "000000\t\tFlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png\n");
+    assert_eq!(
+        index,
+        "000000\t\tFlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png\n"
+    );
 
     // Middlebury has no right-view disparity: the sample is written without one.
     let out = t.path().join("mb_cre");
     let s = export_dataset(&mb, &out, &opts(Some(DatasetFormat::Middlebury))).unwrap();
     assert_eq!((s.samples, s.without_right_disparity), (1, 1));
-    let got = open_dataset(&out, Some(DatasetFormat::Crestereo)).unwrap().sample(0).unwrap();
+    let got = open_dataset(&out, Some(DatasetFormat::Crestereo))
+        .unwrap()
+        .sample(0)
+        .unwrap();
     assert_eq!((got.left.width, got.right.height), (W, H));
     assert_disp_eq(&got.disp_left, &mb_disp);
     assert!(got.disp_right.is_none());
     assert!(!out.join("trainingF_Adirondack_right.disp.png").exists());
 
     // The source as its own output, or a source that is not there, are refused with their names.
-    let e = export_dataset(&mb, &mb, &opts(None)).unwrap_err().to_string();
+    let e = export_dataset(&mb, &mb, &opts(None))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("must differ"), "{e}");
-    let e = export_dataset(&t.path().join("nothing"), &out, &opts(None)).unwrap_err().to_string();
+    let e = export_dataset(&t.path().join("nothing"), &out, &opts(None))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("nothing") && e.contains("manifest.jsonl"), "{e}");
 }
 
@@ -207,8 +353,18 @@ fn our_principal_point_is_written_to_calib_txt_in_middleburys_corner_origin_conv
     mkdir(&root.join("tree"));
     write_png_rgb(&layout.abs(&paths.left), &rgb(1)).unwrap();
     write_png_rgb(&layout.abs(&paths.right), &rgb(2)).unwrap();
-    write_disparity_exr(&layout.abs(&paths.disp_left), &disp(3.0), &DisparityMeta::default()).unwrap();
-    write_disparity_exr(&layout.abs(&paths.disp_right), &disp(3.5), &DisparityMeta::default()).unwrap();
+    write_disparity_exr(
+        &layout.abs(&paths.disp_left),
+        &disp(3.0),
+        &DisparityMeta::default(),
+    )
+    .unwrap();
+    write_disparity_exr(
+        &layout.abs(&paths.disp_right),
+        &disp(3.5),
+        &DisparityMeta::default(),
+    )
+    .unwrap();
     let entry: ManifestEntry = serde_json::from_value(serde_json::json!({
         "id": "0000000", "category": "tree", "index": 0, "files": paths,
         "width": W, "height": H, "f_px": 64.0, "baseline_m": 0.1, "cx": W as f64 / 2.0, "cy": H as f64 / 2.0,
@@ -218,12 +374,29 @@ fn our_principal_point_is_written_to_calib_txt_in_middleburys_corner_origin_conv
     manifest.append(&entry).unwrap();
 
     let out = t.path().join("mb");
-    let s = export_dataset(&root, &out, &ExportOptions { from: None, to: WritableFormat::Middlebury, images: ImageEncoding::Lossless, read: ReadOptions::default() }).unwrap();
+    let s = export_dataset(
+        &root,
+        &out,
+        &ExportOptions {
+            from: None,
+            to: WritableFormat::Middlebury,
+            images: ImageEncoding::Lossless,
+            read: ReadOptions::default(),
+        },
+    )
+    .unwrap();
     assert_eq!((s.samples, s.linked), (1, 2));
     // Our continuous cx = W/2 = 2 is Middlebury's (cvkit's corner origin) cx = 2 too; read back,
     // it is the pixel centre (W - 1)/2 = 1.5 (and cy = 1.5 is 1).
-    let calib = std::fs::read_to_string(out.join("Middlebury2014/train/tree_0000000-perfect/calib.txt")).unwrap();
-    assert!(calib.starts_with("cam0=[64 0 2; 0 64 1.5; 0 0 1]\ncam1=[64 0 2; 0 64 1.5; 0 0 1]\ndoffs=0\n"), "{calib}");
+    let calib =
+        std::fs::read_to_string(out.join("Middlebury2014/train/tree_0000000-perfect/calib.txt"))
+            .unwrap();
+    assert!(
+        calib.starts_with(
+            "cam0=[64 0 2; 0 64 1.5; 0 0 1]\ncam1=[64 0 2; 0 64 1.5; 0 0 1]\ndoffs=0\n"
+        ),
+        "{calib}"
+    );
     let back = open_dataset(&out, None).unwrap().sample(0).unwrap();
     let ours = open_dataset(&root, None).unwrap().sample(0).unwrap();
     assert_eq!((back.meta.cx, back.meta.cy), (ours.meta.cx, ours.meta.cy));

@@ -11,23 +11,47 @@ use walkdir::WalkDir;
 /// A fingerprint of every directory's path and mtime under `root`: cheap next to reading files.
 pub fn tree_stamp(root: &Path) -> String {
     let mut h = Sha256::new();
-    for entry in WalkDir::new(root).follow_links(true).sort_by_file_name().into_iter().flatten() {
+    for entry in WalkDir::new(root)
+        .follow_links(true)
+        .sort_by_file_name()
+        .into_iter()
+        .flatten()
+    {
         if entry.file_type().is_dir() {
-            let mtime = entry.metadata().ok().and_then(|m| m.modified().ok()).and_then(|t| t.duration_since(UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());
+            let mtime = entry
+                .metadata()
+                .ok()
+                .and_then(|m| m.modified().ok())
+                .and_then(|t| t.duration_since(UNIX_EPOCH).ok())
+                .map_or(0, |d| d.as_nanos());
             h.update(entry.path().to_string_lossy().as_bytes());
             h.update(mtime.to_le_bytes());
         }
     }
-    h.finalize().iter().take(12).map(|b| format!("{b:02x}")).collect()
+    h.finalize()
+        .iter()
+        .take(12)
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 fn cache_path(home: &Path, kind: &str, key: &str) -> PathBuf {
-    let digest: String = Sha256::digest(key.as_bytes()).iter().take(8).map(|b| format!("{b:02x}")).collect();
+    let digest: String = Sha256::digest(key.as_bytes())
+        .iter()
+        .take(8)
+        .map(|b| format!("{b:02x}"))
+        .collect();
     home.join("index").join(format!("{kind}-{digest}.json"))
 }
 
 /// Returns the cached value for (kind, key) if its stamp matches, else builds, stores and returns it.
-pub fn cached<T: Serialize + DeserializeOwned>(home: &Path, kind: &str, key: &str, stamp: &str, build: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
+pub fn cached<T: Serialize + DeserializeOwned>(
+    home: &Path,
+    kind: &str,
+    key: &str,
+    stamp: &str,
+    build: impl FnOnce() -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
     let path = cache_path(home, kind, key);
     if let Ok(text) = std::fs::read_to_string(&path)
         && let Ok((s, value)) = serde_json::from_str::<(String, T)>(&text)

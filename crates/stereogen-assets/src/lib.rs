@@ -23,16 +23,26 @@ pub fn stereogen_home() -> PathBuf {
     if let Some(h) = std::env::var_os("STEREOGEN_HOME").filter(|h| !h.is_empty()) {
         return PathBuf::from(h);
     }
-    let home = std::env::var_os("HOME").map(PathBuf::from).unwrap_or_else(std::env::temp_dir);
+    let home = std::env::var_os("HOME")
+        .map(PathBuf::from)
+        .unwrap_or_else(std::env::temp_dir);
     home.join(".cache").join("stereogen")
 }
 
 /// Feeds a folder's file list into the fingerprint, relative to the folder so that a moved folder
 /// keeps it.
-fn hash_files<'a>(h: &mut Sha256, what: &str, root: &Path, files: impl Iterator<Item = (&'a Path, String)>) {
+fn hash_files<'a>(
+    h: &mut Sha256,
+    what: &str,
+    root: &Path,
+    files: impl Iterator<Item = (&'a Path, String)>,
+) {
     h.update(format!("[{what}]\n"));
     for (path, extra) in files {
-        h.update(format!("{} {extra}\n", path.strip_prefix(root).unwrap_or(path).display()));
+        h.update(format!(
+            "{} {extra}\n",
+            path.strip_prefix(root).unwrap_or(path).display()
+        ));
     }
 }
 
@@ -45,19 +55,36 @@ pub fn index_sources(sources: &SourcesRecipe, home: &Path) -> anyhow::Result<Ass
     let mut h = Sha256::new();
     if let Some(root) = &sources.shapenet {
         let (found, skipped) = meshes::index_shapenet(root, &sources.shapenet_synsets, home)?;
-        hash_files(&mut h, "shapenet", root, found.iter().map(|m| (m.path.as_path(), String::new())));
+        hash_files(
+            &mut h,
+            "shapenet",
+            root,
+            found.iter().map(|m| (m.path.as_path(), String::new())),
+        );
         index.shapenet = found;
         index.skipped.extend(skipped);
     }
     if let Some(root) = &sources.meshes {
         let (found, skipped) = meshes::index_mesh_folder(root, home)?;
-        hash_files(&mut h, "meshes", root, found.iter().map(|m| (m.path.as_path(), String::new())));
+        hash_files(
+            &mut h,
+            "meshes",
+            root,
+            found.iter().map(|m| (m.path.as_path(), String::new())),
+        );
         index.meshes = found;
         index.skipped.extend(skipped);
     }
     if let Some(root) = &sources.textures {
         let (found, skipped) = textures::index_textures(root, home)?;
-        hash_files(&mut h, "textures", root, found.iter().map(|t| (t.path.as_path(), format!("{:?}", t.size))));
+        hash_files(
+            &mut h,
+            "textures",
+            root,
+            found
+                .iter()
+                .map(|t| (t.path.as_path(), format!("{:?}", t.size))),
+        );
         index.textures = found;
         index.skipped.extend(skipped);
     }
@@ -75,9 +102,18 @@ pub fn index_sources(sources: &SourcesRecipe, home: &Path) -> anyhow::Result<Ass
         }
         index.skipped.extend(pack.skipped);
     }
-    let empty = index.shapenet.is_empty() && index.meshes.is_empty() && index.textures.is_empty() && index.pack_meshes.is_empty();
+    let empty = index.shapenet.is_empty()
+        && index.meshes.is_empty()
+        && index.textures.is_empty()
+        && index.pack_meshes.is_empty();
     if !empty {
-        index.fingerprint = Some(h.finalize().iter().take(8).map(|b| format!("{b:02x}")).collect());
+        index.fingerprint = Some(
+            h.finalize()
+                .iter()
+                .take(8)
+                .map(|b| format!("{b:02x}"))
+                .collect(),
+        );
     }
     for s in &index.skipped {
         tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);

@@ -16,7 +16,9 @@ pub use stereogen_plan::assets::MeshAsset;
 pub const MESH_EXTENSIONS: &[&str] = &["obj", "glb", "gltf", "ply", "stl", "off"];
 
 fn has_mesh_extension(path: &Path) -> bool {
-    path.extension().and_then(|e| e.to_str()).is_some_and(|e| MESH_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| MESH_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
 }
 
 /// Synset id → first name, from ShapeNet's `taxonomy.json` if present.
@@ -27,52 +29,112 @@ fn taxonomy(root: &Path) -> BTreeMap<String, String> {
         synset_id: String,
         name: String,
     }
-    let Ok(text) = std::fs::read_to_string(root.join("taxonomy.json")) else { return BTreeMap::new() };
-    let Ok(entries) = serde_json::from_str::<Vec<Entry>>(&text) else {
-        tracing::warn!("{}: not a ShapeNet taxonomy; synset names unavailable", root.join("taxonomy.json").display());
+    let Ok(text) = std::fs::read_to_string(root.join("taxonomy.json")) else {
         return BTreeMap::new();
     };
-    entries.into_iter().map(|e| (e.synset_id, e.name.split(',').next().unwrap_or_default().trim().to_string())).collect()
+    let Ok(entries) = serde_json::from_str::<Vec<Entry>>(&text) else {
+        tracing::warn!(
+            "{}: not a ShapeNet taxonomy; synset names unavailable",
+            root.join("taxonomy.json").display()
+        );
+        return BTreeMap::new();
+    };
+    entries
+        .into_iter()
+        .map(|e| {
+            (
+                e.synset_id,
+                e.name
+                    .split(',')
+                    .next()
+                    .unwrap_or_default()
+                    .trim()
+                    .to_string(),
+            )
+        })
+        .collect()
 }
 
 fn check_root(root: &Path, what: &str) -> anyhow::Result<()> {
     if !root.is_dir() {
-        bail!("{what} folder {} does not exist or is not a directory", root.display());
+        bail!(
+            "{what} folder {} does not exist or is not a directory",
+            root.display()
+        );
     }
     Ok(())
 }
 
 /// Indexes `<synset>/<model>/model.obj` (v1) and `<synset>/<model>/models/model_normalized.obj` (v2).
-pub fn index_shapenet(root: &Path, synsets: &[String], home: &Path) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
+pub fn index_shapenet(
+    root: &Path,
+    synsets: &[String],
+    home: &Path,
+) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
     check_root(root, "ShapeNet")?;
-    let key = format!("{}|{}", root.canonicalize().unwrap_or_else(|_| root.to_path_buf()).display(), synsets.join(","));
-    let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) = cached(home, "shapenet", &key, &tree_stamp(root), || {
-        let names = taxonomy(root);
-        let mut found = Vec::new();
-        let mut skipped = Vec::new();
-        for entry in WalkDir::new(root).follow_links(true).min_depth(3).max_depth(4).sort_by_file_name() {
-            let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
-            let rel = entry.path().strip_prefix(root).unwrap_or(entry.path());
-            let parts: Vec<String> = rel.components().map(|c| c.as_os_str().to_string_lossy().into_owned()).collect();
-            let is_model = matches!(parts.as_slice(), [_, _, f] if f == "model.obj") || matches!(parts.as_slice(), [_, _, d, f] if d == "models" && f == "model_normalized.obj");
-            if !is_model {
-                continue;
+    let key = format!(
+        "{}|{}",
+        root.canonicalize()
+            .unwrap_or_else(|_| root.to_path_buf())
+            .display(),
+        synsets.join(",")
+    );
+    let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) = cached(
+        home,
+        "shapenet",
+        &key,
+        &tree_stamp(root),
+        || {
+            let names = taxonomy(root);
+            let mut found = Vec::new();
+            let mut skipped = Vec::new();
+            for entry in WalkDir::new(root)
+                .follow_links(true)
+                .min_depth(3)
+                .max_depth(4)
+                .sort_by_file_name()
+            {
+                let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
+                let rel = entry.path().strip_prefix(root).unwrap_or(entry.path());
+                let parts: Vec<String> = rel
+                    .components()
+                    .map(|c| c.as_os_str().to_string_lossy().into_owned())
+                    .collect();
+                let is_model = matches!(parts.as_slice(), [_, _, f] if f == "model.obj")
+                    || matches!(parts.as_slice(), [_, _, d, f] if d == "models" && f == "model_normalized.obj");
+                if !is_model {
+                    continue;
+                }
+                let synset = parts[0].clone();
+                if !synsets.is_empty() && !synsets.contains(&synset) {
+                    continue;
+                }
+                if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
+                    skipped.push(SkippedAsset {
+                        path: entry.path().to_path_buf(),
+                        reason: "empty file".into(),
+                    });
+                    continue;
+                }
+                found.push(MeshAsset {
+                    path: entry.path().to_path_buf(),
+                    label: names.get(&synset).cloned(),
+                    synset: Some(synset),
+                });
             }
-            let synset = parts[0].clone();
-            if !synsets.is_empty() && !synsets.contains(&synset) {
-                continue;
-            }
-            if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
-                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason: "empty file".into() });
-                continue;
-            }
-            found.push(MeshAsset { path: entry.path().to_path_buf(), label: names.get(&synset).cloned(), synset: Some(synset) });
-        }
-        Ok((found, skipped))
-    })?;
+            Ok((found, skipped))
+        },
+    )?;
     if found.is_empty() {
-        let filter = if synsets.is_empty() { String::new() } else { format!(" for synsets {}", synsets.join(", ")) };
-        bail!("ShapeNet folder {} holds no <synset>/<model>/model.obj or .../models/model_normalized.obj{filter}", root.display());
+        let filter = if synsets.is_empty() {
+            String::new()
+        } else {
+            format!(" for synsets {}", synsets.join(", "))
+        };
+        bail!(
+            "ShapeNet folder {} holds no <synset>/<model>/model.obj or .../models/model_normalized.obj{filter}",
+            root.display()
+        );
     }
     Ok((found, skipped))
 }
@@ -80,45 +142,78 @@ pub fn index_shapenet(root: &Path, synsets: &[String], home: &Path) -> anyhow::R
 /// A GLB must have a sound header, and a file that `assets fetch` recorded (`<stem>.json` with a
 /// `sha256`) must still have the recorded bytes.
 fn check_fetched(path: &Path) -> Result<(), String> {
-    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) {
+    if !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("glb"))
+    {
         return Ok(());
     }
     crate::objaverse::check_glb(path)?;
-    let Ok(text) = std::fs::read_to_string(path.with_extension("json")) else { return Ok(()) };
-    let Ok(record) = serde_json::from_str::<crate::objaverse::ObjectRecord>(&text) else { return Ok(()) };
-    let (sha, _) = crate::objaverse::download::sha256_file(path).map_err(|e| format!("cannot read it: {e}"))?;
+    let Ok(text) = std::fs::read_to_string(path.with_extension("json")) else {
+        return Ok(());
+    };
+    let Ok(record) = serde_json::from_str::<crate::objaverse::ObjectRecord>(&text) else {
+        return Ok(());
+    };
+    let (sha, _) = crate::objaverse::download::sha256_file(path)
+        .map_err(|e| format!("cannot read it: {e}"))?;
     if sha != record.sha256 {
-        return Err(format!("corrupt: SHA-256 {sha} is not the {} its record states", record.sha256));
+        return Err(format!(
+            "corrupt: SHA-256 {sha} is not the {} its record states",
+            record.sha256
+        ));
     }
     Ok(())
 }
 
 /// Indexes every mesh file under `root`.
-pub fn index_mesh_folder(root: &Path, home: &Path) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
+pub fn index_mesh_folder(
+    root: &Path,
+    home: &Path,
+) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
     check_root(root, "mesh")?;
-    let key = root.canonicalize().unwrap_or_else(|_| root.to_path_buf()).display().to_string();
-    let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) = cached(home, "meshes", &key, &tree_stamp(root), || {
-        let mut found = Vec::new();
-        let mut skipped = Vec::new();
-        for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
-            let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
-            if !entry.file_type().is_file() || !has_mesh_extension(entry.path()) {
-                continue;
+    let key = root
+        .canonicalize()
+        .unwrap_or_else(|_| root.to_path_buf())
+        .display()
+        .to_string();
+    let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) =
+        cached(home, "meshes", &key, &tree_stamp(root), || {
+            let mut found = Vec::new();
+            let mut skipped = Vec::new();
+            for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
+                let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
+                if !entry.file_type().is_file() || !has_mesh_extension(entry.path()) {
+                    continue;
+                }
+                if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
+                    skipped.push(SkippedAsset {
+                        path: entry.path().to_path_buf(),
+                        reason: "empty file".into(),
+                    });
+                    continue;
+                }
+                if let Err(reason) = check_fetched(entry.path()) {
+                    skipped.push(SkippedAsset {
+                        path: entry.path().to_path_buf(),
+                        reason,
+                    });
+                    continue;
+                }
+                found.push(MeshAsset {
+                    path: entry.path().to_path_buf(),
+                    synset: None,
+                    label: None,
+                });
             }
-            if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
-                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason: "empty file".into() });
-                continue;
-            }
-            if let Err(reason) = check_fetched(entry.path()) {
-                skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason });
-                continue;
-            }
-            found.push(MeshAsset { path: entry.path().to_path_buf(), synset: None, label: None });
-        }
-        Ok((found, skipped))
-    })?;
+            Ok((found, skipped))
+        })?;
     if found.is_empty() {
-        bail!("mesh folder {} holds no {} files", root.display(), MESH_EXTENSIONS.join("/"));
+        bail!(
+            "mesh folder {} holds no {} files",
+            root.display(),
+            MESH_EXTENSIONS.join("/")
+        );
     }
     Ok((found, skipped))
 }
@@ -138,9 +233,17 @@ mod tests {
             std::fs::create_dir_all(d).unwrap();
         }
         std::fs::write(v1.join("model.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
-        std::fs::write(v2.join("model_normalized.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        std::fs::write(
+            v2.join("model_normalized.obj"),
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        )
+        .unwrap();
         std::fs::write(empty.join("model_normalized.obj"), "").unwrap();
-        std::fs::write(root.path().join("taxonomy.json"), r#"[{"synsetId":"03001627","name":"chair,seat","children":[],"numInstances":1}]"#).unwrap();
+        std::fs::write(
+            root.path().join("taxonomy.json"),
+            r#"[{"synsetId":"03001627","name":"chair,seat","children":[],"numInstances":1}]"#,
+        )
+        .unwrap();
         let (found, skipped) = index_shapenet(root.path(), &[], home.path()).unwrap();
         assert_eq!(found.len(), 2);
         assert_eq!(found[0].label.as_deref(), Some("chair"));
@@ -151,13 +254,24 @@ mod tests {
         let extra = root.path().join("03001627/ddd");
         std::fs::create_dir_all(&extra).unwrap();
         std::fs::write(extra.join("model.obj"), "v 0 0 0\n").unwrap();
-        assert_eq!(index_shapenet(root.path(), &[], home.path()).unwrap().0.len(), 3);
+        assert_eq!(
+            index_shapenet(root.path(), &[], home.path())
+                .unwrap()
+                .0
+                .len(),
+            3
+        );
     }
 
     #[test]
     fn missing_folder_is_a_clear_error() {
         let home = tempfile::tempdir().unwrap();
-        let err = index_mesh_folder(Path::new("/no/such/meshes"), home.path()).unwrap_err().to_string();
-        assert!(err.contains("/no/such/meshes") && err.contains("does not exist"), "{err}");
+        let err = index_mesh_folder(Path::new("/no/such/meshes"), home.path())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("/no/such/meshes") && err.contains("does not exist"),
+            "{err}"
+        );
     }
 }

@@ -10,10 +10,15 @@ use walkdir::WalkDir;
 use super::cache::{cached, tree_stamp};
 
 /// Extensions Blender loads as textures.
-pub const TEXTURE_EXTENSIONS: &[&str] = &["png", "jpg", "jpeg", "tif", "tiff", "bmp", "tga", "exr", "hdr", "webp"];
+pub const TEXTURE_EXTENSIONS: &[&str] = &[
+    "png", "jpg", "jpeg", "tif", "tiff", "bmp", "tga", "exr", "hdr", "webp",
+];
 
 fn probe(path: &Path) -> Result<(u32, u32), String> {
-    let reader = image::ImageReader::open(path).map_err(|e| e.to_string())?.with_guessed_format().map_err(|e| e.to_string())?;
+    let reader = image::ImageReader::open(path)
+        .map_err(|e| e.to_string())?
+        .with_guessed_format()
+        .map_err(|e| e.to_string())?;
     if reader.format().is_none() {
         return Err("not a recognised image format".into());
     }
@@ -25,37 +30,69 @@ fn probe(path: &Path) -> Result<(u32, u32), String> {
 }
 
 /// Indexes every image under `root`, with its pixel size where the header can be read.
-pub fn index_textures(root: &Path, home: &Path) -> anyhow::Result<(Vec<TextureAsset>, Vec<SkippedAsset>)> {
+pub fn index_textures(
+    root: &Path,
+    home: &Path,
+) -> anyhow::Result<(Vec<TextureAsset>, Vec<SkippedAsset>)> {
     if !root.is_dir() {
-        bail!("texture folder {} does not exist or is not a directory", root.display());
+        bail!(
+            "texture folder {} does not exist or is not a directory",
+            root.display()
+        );
     }
-    let key = root.canonicalize().unwrap_or_else(|_| root.to_path_buf()).display().to_string();
-    let (found, skipped): (Vec<TextureAsset>, Vec<SkippedAsset>) = cached(home, "photos", &key, &tree_stamp(root), || {
-        let mut found = Vec::new();
-        let mut skipped = Vec::new();
-        for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
-            let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
-            let ext = entry.path().extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-            if !entry.file_type().is_file() || !ext.as_deref().is_some_and(|e| TEXTURE_EXTENSIONS.contains(&e)) {
-                continue;
-            }
-            // image cannot probe every format Blender reads (EXR/HDR/TGA need features we do not build).
-            let mut size = None;
-            if matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp")) {
-                match probe(entry.path()) {
-                    Ok((w, h)) => size = Some([w, h]),
-                    Err(reason) => {
-                        skipped.push(SkippedAsset { path: entry.path().to_path_buf(), reason });
-                        continue;
+    let key = root
+        .canonicalize()
+        .unwrap_or_else(|_| root.to_path_buf())
+        .display()
+        .to_string();
+    let (found, skipped): (Vec<TextureAsset>, Vec<SkippedAsset>) =
+        cached(home, "photos", &key, &tree_stamp(root), || {
+            let mut found = Vec::new();
+            let mut skipped = Vec::new();
+            for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
+                let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
+                let ext = entry
+                    .path()
+                    .extension()
+                    .and_then(|e| e.to_str())
+                    .map(str::to_ascii_lowercase);
+                if !entry.file_type().is_file()
+                    || !ext
+                        .as_deref()
+                        .is_some_and(|e| TEXTURE_EXTENSIONS.contains(&e))
+                {
+                    continue;
+                }
+                // image cannot probe every format Blender reads (EXR/HDR/TGA need features we do not build).
+                let mut size = None;
+                if matches!(
+                    ext.as_deref(),
+                    Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp")
+                ) {
+                    match probe(entry.path()) {
+                        Ok((w, h)) => size = Some([w, h]),
+                        Err(reason) => {
+                            skipped.push(SkippedAsset {
+                                path: entry.path().to_path_buf(),
+                                reason,
+                            });
+                            continue;
+                        }
                     }
                 }
+                found.push(TextureAsset {
+                    path: entry.path().to_path_buf(),
+                    size,
+                });
             }
-            found.push(TextureAsset { path: entry.path().to_path_buf(), size });
-        }
-        Ok((found, skipped))
-    })?;
+            Ok((found, skipped))
+        })?;
     if found.is_empty() {
-        bail!("texture folder {} holds no readable images ({})", root.display(), TEXTURE_EXTENSIONS.join(", "));
+        bail!(
+            "texture folder {} holds no readable images ({})",
+            root.display(),
+            TEXTURE_EXTENSIONS.join(", ")
+        );
     }
     Ok((found, skipped))
 }
@@ -69,11 +106,19 @@ mod tests {
         let root = tempfile::tempdir().unwrap();
         let home = tempfile::tempdir().unwrap();
         let good = root.path().join("good.png");
-        image::RgbImage::from_pixel(4, 4, image::Rgb([10, 200, 30])).save(&good).unwrap();
+        image::RgbImage::from_pixel(4, 4, image::Rgb([10, 200, 30]))
+            .save(&good)
+            .unwrap();
         std::fs::write(root.path().join("bad.jpg"), b"this is not a jpeg").unwrap();
         std::fs::write(root.path().join("notes.txt"), b"ignored").unwrap();
         let (found, skipped) = index_textures(root.path(), home.path()).unwrap();
-        assert_eq!(found, vec![TextureAsset { path: good, size: Some([4, 4]) }]);
+        assert_eq!(
+            found,
+            vec![TextureAsset {
+                path: good,
+                size: Some([4, 4])
+            }]
+        );
         assert_eq!(skipped.len(), 1);
         assert!(skipped[0].path.ends_with("bad.jpg"));
     }

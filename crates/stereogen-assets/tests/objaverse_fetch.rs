@@ -14,7 +14,9 @@ use stereogen_assets::objaverse::{FetchOptions, ObjectRecord, fetch};
 
 /// A GLB 2.0 file: header, and a JSON chunk padded to 4 bytes.
 fn glb(name: &str) -> Vec<u8> {
-    let mut text = json!({"asset": {"version": "2.0", "generator": name}}).to_string().into_bytes();
+    let mut text = json!({"asset": {"version": "2.0", "generator": name}})
+        .to_string()
+        .into_bytes();
     while text.len() % 4 != 0 {
         text.push(b' ');
     }
@@ -36,7 +38,10 @@ fn gz(value: &serde_json::Value) -> Vec<u8> {
 }
 
 fn sha(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// What the server saw: (path, Range header).
@@ -65,7 +70,12 @@ fn serve(files: BTreeMap<String, Vec<u8>>, cut_once: Vec<String>) -> Server {
     Server { base, log }
 }
 
-fn answer(mut stream: TcpStream, files: &BTreeMap<String, Vec<u8>>, seen: &Log, cut: &Mutex<Vec<String>>) {
+fn answer(
+    mut stream: TcpStream,
+    files: &BTreeMap<String, Vec<u8>>,
+    seen: &Log,
+    cut: &Mutex<Vec<String>>,
+) {
     let mut reader = BufReader::new(stream.try_clone().unwrap());
     let mut line = String::new();
     reader.read_line(&mut line).unwrap();
@@ -86,20 +96,36 @@ fn answer(mut stream: TcpStream, files: &BTreeMap<String, Vec<u8>>, seen: &Log, 
     if let Some(rest) = path.strip_prefix("/glbs/")
         && let Some(bytes) = files.get(&format!("/cdn/{rest}"))
     {
-        let head = format!("HTTP/1.1 302 Found\r\nLocation: /cdn/{rest}\r\nX-Linked-Etag: \"{}\"\r\nContent-Length: 0\r\nConnection: close\r\n\r\n", sha(bytes));
+        let head = format!(
+            "HTTP/1.1 302 Found\r\nLocation: /cdn/{rest}\r\nX-Linked-Etag: \"{}\"\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+            sha(bytes)
+        );
         let _ = stream.write_all(head.as_bytes());
         return;
     }
     let Some(bytes) = files.get(&path) else {
-        let _ = stream.write_all(b"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
+        let _ = stream
+            .write_all(b"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n");
         return;
     };
-    let from: usize = range.as_deref().and_then(|r| r.strip_prefix("bytes=")).and_then(|r| r.trim_end_matches('-').parse().ok()).unwrap_or(0);
+    let from: usize = range
+        .as_deref()
+        .and_then(|r| r.strip_prefix("bytes="))
+        .and_then(|r| r.trim_end_matches('-').parse().ok())
+        .unwrap_or(0);
     let body = &bytes[from.min(bytes.len())..];
     let head = if from > 0 {
-        format!("HTTP/1.1 206 Partial Content\r\nContent-Range: bytes {from}-{}/{}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n", bytes.len() - 1, bytes.len(), body.len())
+        format!(
+            "HTTP/1.1 206 Partial Content\r\nContent-Range: bytes {from}-{}/{}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+            bytes.len() - 1,
+            bytes.len(),
+            body.len()
+        )
     } else {
-        format!("HTTP/1.1 200 OK\r\nContent-Length: {}\r\nConnection: close\r\n\r\n", body.len())
+        format!(
+            "HTTP/1.1 200 OK\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+            body.len()
+        )
     };
     let _ = stream.write_all(head.as_bytes());
     let mut cut = cut.lock().unwrap();
@@ -120,7 +146,11 @@ fn objects() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     vec![
         ("aaaa0001", "cc0", glb("chair")),
         ("aaaa0002", "by-nc", glb("restricted")),
-        ("aaaa0003", "by", glb("table lamp with a long name to make the body longer")),
+        (
+            "aaaa0003",
+            "by",
+            glb("table lamp with a long name to make the body longer"),
+        ),
         ("aaaa0004", "by", truncated),
         ("aaaa0005", "cc0", glb("mug")),
     ]
@@ -140,8 +170,14 @@ fn mini_objaverse() -> BTreeMap<String, Vec<u8>> {
         );
         files.insert(format!("/cdn/000-000/{uid}.glb"), bytes);
     }
-    files.insert("/object-paths.json.gz".into(), gz(&serde_json::Value::Object(paths)));
-    files.insert("/metadata/000-000.json.gz".into(), gz(&serde_json::Value::Object(meta)));
+    files.insert(
+        "/object-paths.json.gz".into(),
+        gz(&serde_json::Value::Object(paths)),
+    );
+    files.insert(
+        "/metadata/000-000.json.gz".into(),
+        gz(&serde_json::Value::Object(meta)),
+    );
     files
 }
 
@@ -156,7 +192,12 @@ fn options(server: &Server, out: &Path, count: usize) -> FetchOptions {
 }
 
 fn ranges_for(log: &Log, uid: &str) -> Vec<Option<String>> {
-    log.lock().unwrap().iter().filter(|(p, _)| p.ends_with(&format!("/{uid}.glb")) && p.starts_with("/cdn/")).map(|(_, r)| r.clone()).collect()
+    log.lock()
+        .unwrap()
+        .iter()
+        .filter(|(p, _)| p.ends_with(&format!("/{uid}.glb")) && p.starts_with("/cdn/"))
+        .map(|(_, r)| r.clone())
+        .collect()
 }
 
 #[test]
@@ -172,30 +213,71 @@ fn fetch_downloads_allowed_licences_resumes_and_reports_corrupt_files() {
 
     let summary = fetch(&options(&server, &out, 4), &|_| {}).unwrap();
     assert_eq!(summary.selected, 4, "{summary:?}");
-    assert_eq!(summary.skipped_licence, 1, "the by-nc object is passed over: {summary:?}");
+    assert_eq!(
+        summary.skipped_licence, 1,
+        "the by-nc object is passed over: {summary:?}"
+    );
     assert_eq!(summary.downloaded, 3, "{summary:?}");
     assert_eq!(summary.failed.len(), 1, "{summary:?}");
     assert_eq!(summary.failed[0].0, "aaaa0004");
-    assert!(summary.failed[0].1.contains("GLB"), "{}", summary.failed[0].1);
-    assert!(!out.join("aaaa0004.glb").exists() && !out.join("aaaa0004.json").exists() && !out.join("aaaa0002.glb").exists());
+    assert!(
+        summary.failed[0].1.contains("GLB"),
+        "{}",
+        summary.failed[0].1
+    );
+    assert!(
+        !out.join("aaaa0004.glb").exists()
+            && !out.join("aaaa0004.json").exists()
+            && !out.join("aaaa0002.glb").exists()
+    );
 
-    for (uid, licence, bytes) in objects.iter().filter(|o| ["aaaa0001", "aaaa0003", "aaaa0005"].contains(&o.0)) {
-        assert_eq!(&std::fs::read(out.join(format!("{uid}.glb"))).unwrap(), bytes, "{uid}");
-        let record: ObjectRecord = serde_json::from_slice(&std::fs::read(out.join(format!("{uid}.json"))).unwrap()).unwrap();
-        assert_eq!((record.uid.as_str(), record.licence.as_str(), record.sha256.clone()), (*uid, *licence, sha(bytes)));
+    for (uid, licence, bytes) in objects
+        .iter()
+        .filter(|o| ["aaaa0001", "aaaa0003", "aaaa0005"].contains(&o.0))
+    {
+        assert_eq!(
+            &std::fs::read(out.join(format!("{uid}.glb"))).unwrap(),
+            bytes,
+            "{uid}"
+        );
+        let record: ObjectRecord =
+            serde_json::from_slice(&std::fs::read(out.join(format!("{uid}.json"))).unwrap())
+                .unwrap();
+        assert_eq!(
+            (
+                record.uid.as_str(),
+                record.licence.as_str(),
+                record.sha256.clone()
+            ),
+            (*uid, *licence, sha(bytes))
+        );
         assert_eq!(record.author.as_deref(), Some("maker"));
         assert!(!out.join(format!("{uid}.glb.part")).exists());
     }
     // The connection cut half-way was resumed from where it broke, and the killed run's part too.
     let c = &objects[2].2;
-    assert_eq!(ranges_for(&server.log, "aaaa0003"), vec![None, Some(format!("bytes={}-", c.len() / 2))]);
-    assert_eq!(ranges_for(&server.log, "aaaa0005"), vec![Some(format!("bytes={}-", e.len() / 2))]);
+    assert_eq!(
+        ranges_for(&server.log, "aaaa0003"),
+        vec![None, Some(format!("bytes={}-", c.len() / 2))]
+    );
+    assert_eq!(
+        ranges_for(&server.log, "aaaa0005"),
+        vec![Some(format!("bytes={}-", e.len() / 2))]
+    );
 
     // A re-run finds the objects in place and downloads nothing again.
     let before = server.log.lock().unwrap().len();
     let again = fetch(&options(&server, &out, 4), &|_| {}).unwrap();
-    assert_eq!((again.present, again.downloaded, again.failed.len()), (3, 0, 1), "{again:?}");
-    assert!(server.log.lock().unwrap()[before..].iter().all(|(p, _)| !p.ends_with(".glb") || p.ends_with("aaaa0004.glb")));
+    assert_eq!(
+        (again.present, again.downloaded, again.failed.len()),
+        (3, 0, 1),
+        "{again:?}"
+    );
+    assert!(
+        server.log.lock().unwrap()[before..]
+            .iter()
+            .all(|(p, _)| !p.ends_with(".glb") || p.ends_with("aaaa0004.glb"))
+    );
 
     // A GLB damaged after the fetch is reported and left out by the mesh index.
     let a = out.join("aaaa0001.glb");
@@ -205,10 +287,17 @@ fn fetch_downloads_allowed_licences_resumes_and_reports_corrupt_files() {
     std::fs::write(&a, bytes).unwrap();
     let home = tempfile::tempdir().unwrap();
     let (found, skipped) = index_mesh_folder(&out, home.path()).unwrap();
-    let names: Vec<_> = found.iter().map(|m| m.path.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    let names: Vec<_> = found
+        .iter()
+        .map(|m| m.path.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
     assert_eq!(names, ["aaaa0003.glb", "aaaa0005.glb"]);
     assert_eq!(skipped.len(), 1);
-    assert!(skipped[0].path.ends_with("aaaa0001.glb") && skipped[0].reason.starts_with("corrupt"), "{:?}", skipped[0]);
+    assert!(
+        skipped[0].path.ends_with("aaaa0001.glb") && skipped[0].reason.starts_with("corrupt"),
+        "{:?}",
+        skipped[0]
+    );
 }
 
 #[test]
@@ -227,5 +316,8 @@ fn restricted_licences_need_consent_and_a_missing_index_is_one_clear_error() {
     let mut missing = options(&server, &dir.path().join("elsewhere"), 1);
     missing.base_url = format!("{}/no-such-mirror", server.base);
     let err = format!("{:#}", fetch(&missing, &|_| {}).unwrap_err());
-    assert!(err.contains("object-paths.json.gz") && err.contains("404"), "{err}");
+    assert!(
+        err.contains("object-paths.json.gz") && err.contains("404"),
+        "{err}"
+    );
 }

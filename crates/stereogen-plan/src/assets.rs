@@ -51,6 +51,9 @@ pub struct AssetIndex {
 impl AssetIndex {
     /// The pixel size of a photo of the index, if known.
     pub fn texture_size(&self, path: &Path) -> Option<[u32; 2]> {
-        self.textures.iter().find(|t| t.path == path).and_then(|t| t.size)
+        self.textures
+            .iter()
+            .find(|t| t.path == path)
+            .and_then(|t| t.size)
     }
 }

@@ -36,7 +36,8 @@ impl<'de> Deserialize<'de> for Dist {
                 Ok(Dist::Constant(v as f64))
             }
             fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<Dist, A::Error> {
-                Shaped::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(Dist::Shaped)
+                Shaped::deserialize(serde::de::value::MapAccessDeserializer::new(map))
+                    .map(Dist::Shaped)
             }
         }
         d.deserialize_any(V)
@@ -46,10 +47,24 @@ impl<'de> Deserialize<'de> for Dist {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "dist", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Shaped {
-    Uniform { min: f64, max: f64 },
-    LogUniform { min: f64, max: f64 },
-    Normal { mean: f64, std: f64, min: f64, max: f64 },
-    Histogram { edges: Vec<f64>, weights: Vec<f64> },
+    Uniform {
+        min: f64,
+        max: f64,
+    },
+    LogUniform {
+        min: f64,
+        max: f64,
+    },
+    Normal {
+        mean: f64,
+        std: f64,
+        min: f64,
+        max: f64,
+    },
+    Histogram {
+        edges: Vec<f64>,
+        weights: Vec<f64>,
+    },
 }
 
 impl Dist {
@@ -65,7 +80,11 @@ impl Dist {
     pub fn support(&self) -> (f64, f64) {
         match self {
             Dist::Constant(v) => (*v, *v),
-            Dist::Shaped(Shaped::Uniform { min, max } | Shaped::LogUniform { min, max } | Shaped::Normal { min, max, .. }) => (*min, *max),
+            Dist::Shaped(
+                Shaped::Uniform { min, max }
+                | Shaped::LogUniform { min, max }
+                | Shaped::Normal { min, max, .. },
+            ) => (*min, *max),
             Dist::Shaped(Shaped::Histogram { edges, .. }) => (edges[0], edges[edges.len() - 1]),
         }
     }
@@ -75,14 +94,25 @@ impl Dist {
         let finite = |v: f64| v.is_finite();
         let (min, max) = self.support();
         if !(finite(min) && finite(max) && lo <= min && min <= max && max <= hi) {
-            return Err(format!("need {lo} <= min <= max <= {hi}, got [{min}, {max}]"));
+            return Err(format!(
+                "need {lo} <= min <= max <= {hi}, got [{min}, {max}]"
+            ));
         }
         match self {
-            Dist::Shaped(Shaped::LogUniform { min, .. }) if *min <= 0.0 => Err("log_uniform needs min > 0".into()),
-            Dist::Shaped(Shaped::Normal { mean, std, .. }) if !(finite(*mean) && finite(*std) && *std > 0.0) => {
+            Dist::Shaped(Shaped::LogUniform { min, .. }) if *min <= 0.0 => {
+                Err("log_uniform needs min > 0".into())
+            }
+            Dist::Shaped(Shaped::Normal { mean, std, .. })
+                if !(finite(*mean) && finite(*std) && *std > 0.0) =>
+            {
                 Err("normal needs a finite mean and std > 0".into())
             }
-            Dist::Shaped(Shaped::Normal { mean, std, min, max }) if self.normal_mass(*mean, *std, *min, *max) < 1e-3 => {
+            Dist::Shaped(Shaped::Normal {
+                mean,
+                std,
+                min,
+                max,
+            }) if self.normal_mass(*mean, *std, *min, *max) < 1e-3 => {
                 Err("normal has almost no mass inside [min, max]".into())
             }
             Dist::Shaped(Shaped::Histogram { edges, weights }) => {
@@ -92,7 +122,9 @@ impl Dist {
                 if edges.windows(2).any(|w| w[1] <= w[0]) {
                     return Err("histogram edges must increase".into());
                 }
-                if weights.iter().any(|w| !(finite(*w) && *w >= 0.0)) || weights.iter().sum::<f64>() <= 0.0 {
+                if weights.iter().any(|w| !(finite(*w) && *w >= 0.0))
+                    || weights.iter().sum::<f64>() <= 0.0
+                {
                     return Err("histogram weights must be >= 0 with a positive sum".into());
                 }
                 Ok(())
@@ -110,7 +142,12 @@ impl Dist {
             Dist::Constant(v) => *v,
             Dist::Shaped(Shaped::Uniform { min, max }) => uniform(rng, *min, *max),
             Dist::Shaped(Shaped::LogUniform { min, max }) => uniform(rng, min.ln(), max.ln()).exp(),
-            Dist::Shaped(Shaped::Normal { mean, std, min, max }) => {
+            Dist::Shaped(Shaped::Normal {
+                mean,
+                std,
+                min,
+                max,
+            }) => {
                 // Rejection keeps the exact truncated shape; validation guarantees enough mass.
                 let n = Normal::new(*mean, *std).expect("validated");
                 loop {
@@ -140,9 +177,18 @@ impl Dist {
             Dist::Constant(v) => f64::from(u8::from(x >= *v)),
             Dist::Shaped(Shaped::Uniform { min, max }) => ramp(x, *min, *max),
             Dist::Shaped(Shaped::LogUniform { min, max }) => {
-                if x <= *min { 0.0 } else { ramp(x.ln(), min.ln(), max.ln()) }
+                if x <= *min {
+                    0.0
+                } else {
+                    ramp(x.ln(), min.ln(), max.ln())
+                }
             }
-            Dist::Shaped(Shaped::Normal { mean, std, min, max }) => {
+            Dist::Shaped(Shaped::Normal {
+                mean,
+                std,
+                min,
+                max,
+            }) => {
                 if x <= *min {
                     return 0.0;
                 }
@@ -168,11 +214,21 @@ impl Dist {
 }
 
 fn uniform<R: Rng + ?Sized>(rng: &mut R, min: f64, max: f64) -> f64 {
-    if min == max { min } else { Uniform::new_inclusive(min, max).expect("validated range").sample(rng) }
+    if min == max {
+        min
+    } else {
+        Uniform::new_inclusive(min, max)
+            .expect("validated range")
+            .sample(rng)
+    }
 }
 
 fn ramp(x: f64, a: f64, b: f64) -> f64 {
-    if b <= a { f64::from(u8::from(x >= a)) } else { ((x - a) / (b - a)).clamp(0.0, 1.0) }
+    if b <= a {
+        f64::from(u8::from(x >= a))
+    } else {
+        ((x - a) / (b - a)).clamp(0.0, 1.0)
+    }
 }
 
 /// Standard normal CDF.
@@ -184,12 +240,17 @@ pub fn normal_cdf(z: f64) -> f64 {
 fn erfc(x: f64) -> f64 {
     let z = x.abs();
     let t = 1.0 / (1.0 + 0.5 * z);
-    let r = t * (-z * z - 1.265_512_23
-        + t * (1.000_023_68
-            + t * (0.374_091_96
-                + t * (0.096_784_18
-                    + t * (-0.186_288_06 + t * (0.278_868_07 + t * (-1.135_203_98 + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
-        .exp();
+    let r = t
+        * (-z * z - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87
+                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
     if x >= 0.0 { r } else { 2.0 - r }
 }
 
@@ -252,7 +313,11 @@ impl CountRange {
     }
 
     pub fn validate(&self, lo: u32, hi: u32) -> Result<(), String> {
-        if lo <= self.min && self.min <= self.max && self.max <= hi { Ok(()) } else { Err(format!("need {lo} <= min <= max <= {hi}")) }
+        if lo <= self.min && self.min <= self.max && self.max <= hi {
+            Ok(())
+        } else {
+            Err(format!("need {lo} <= min <= max <= {hi}"))
+        }
     }
 }
 
@@ -304,8 +369,19 @@ impl UniformRange {
     }
 
     pub fn validate(&self, lo: f64, hi: f64) -> Result<(), String> {
-        let ok = self.min.is_finite() && self.max.is_finite() && lo <= self.min && self.min <= self.max && self.max <= hi;
-        if ok { Ok(()) } else { Err(format!("need {lo} <= min <= max <= {hi}, got [{}, {}]", self.min, self.max)) }
+        let ok = self.min.is_finite()
+            && self.max.is_finite()
+            && lo <= self.min
+            && self.min <= self.max
+            && self.max <= hi;
+        if ok {
+            Ok(())
+        } else {
+            Err(format!(
+                "need {lo} <= min <= max <= {hi}, got [{}, {}]",
+                self.min, self.max
+            ))
+        }
     }
 }
 
@@ -318,7 +394,9 @@ mod tests {
     fn uniform_ranges_draw_like_random_range_and_constants_keep_the_stream_aligned() {
         let mut a = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let mut b = a.clone();
-        let r: UniformRange = toml::from_str::<std::collections::BTreeMap<String, UniformRange>>("x = [0.2, 1.0]").unwrap()["x"];
+        let r: UniformRange =
+            toml::from_str::<std::collections::BTreeMap<String, UniformRange>>("x = [0.2, 1.0]")
+                .unwrap()["x"];
         assert_eq!(r.sample(&mut a), b.random_range(0.2..1.0));
         assert_eq!(UniformRange::new(0.5, 0.5).sample(&mut a), 0.5);
         let _ = b.random_range(0.0..1.0);
@@ -343,14 +421,28 @@ mod tests {
     fn samples_follow_their_cdf() {
         check_law(Dist::uniform(2.0, 200.0));
         check_law(Dist::log_uniform(0.5, 300.0));
-        check_law(Dist::Shaped(Shaped::Normal { mean: 40.0, std: 25.0, min: 1.0, max: 120.0 }));
-        check_law(Dist::Shaped(Shaped::Histogram { edges: vec![1.0, 10.0, 50.0, 200.0], weights: vec![1.0, 3.0, 2.0] }));
+        check_law(Dist::Shaped(Shaped::Normal {
+            mean: 40.0,
+            std: 25.0,
+            min: 1.0,
+            max: 120.0,
+        }));
+        check_law(Dist::Shaped(Shaped::Histogram {
+            edges: vec![1.0, 10.0, 50.0, 200.0],
+            weights: vec![1.0, 3.0, 2.0],
+        }));
     }
 
     #[test]
     fn ks_critical_matches_the_exact_table() {
         // Exact two-sided KS critical values at alpha = 0.01 (Miller 1956).
-        for (n, exact) in [(5, 0.669), (8, 0.543), (10, 0.490), (20, 0.356), (40, 0.252)] {
+        for (n, exact) in [
+            (5, 0.669),
+            (8, 0.543),
+            (10, 0.490),
+            (20, 0.356),
+            (40, 0.252),
+        ] {
             let c = ks_critical(n, 0.01);
             assert!((c - exact).abs() / exact < 0.015, "n={n}: {c} vs {exact}");
         }
@@ -377,6 +469,9 @@ mod tests {
         assert_eq!(t.a, Dist::Constant(3.0));
         assert_eq!(t.b, Dist::log_uniform(1.0, 9.0));
         assert!(t.c.validate(0.0, 10.0).is_ok());
-        assert!(toml::from_str::<T>("a = 1\nb = { dist = \"cauchy\", min = 1, max = 2 }\nc = 1").is_err());
+        assert!(
+            toml::from_str::<T>("a = 1\nb = { dist = \"cauchy\", min = 1, max = 2 }\nc = 1")
+                .is_err()
+        );
     }
 }

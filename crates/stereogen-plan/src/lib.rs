@@ -20,4 +20,7 @@ pub use recipe::{Recipe, RecipeError};
 pub use rig::{StereoCameras, StereoRig};
 pub use rng::SeedTree;
 pub use sampler::{plan_scene, scene_category};
-pub use spec::{BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec};
+pub use spec::{
+    BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern,
+    RenderSettings, SceneSpec, Shape, WorldSpec,
+};

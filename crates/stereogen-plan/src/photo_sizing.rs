@@ -10,8 +10,22 @@ const MIN_TEXTURE_PX: f64 = 8.0;
 /// Sizes `base`, if it is a photo, for an object `screen_px` pixels across its largest axis
 /// whose world extents along X, Y, Z are proportional to `axes`. `photo` is the photo's width
 /// and height; `texel_px` the allowed [min, max] screen pixels per photo pixel.
-pub fn size_photo(base: &mut BaseColor, photo: [u32; 2], screen_px: f64, axes: [f64; 3], texel_px: [f64; 2]) {
-    let BaseColor::Image { scale, texture_px, stretch, .. } = base else { return };
+pub fn size_photo(
+    base: &mut BaseColor,
+    photo: [u32; 2],
+    screen_px: f64,
+    axes: [f64; 3],
+    texel_px: [f64; 2],
+) {
+    let BaseColor::Image {
+        scale,
+        texture_px,
+        stretch,
+        ..
+    } = base
+    else {
+        return;
+    };
     let [lo, hi] = texel_px;
     let short = f64::from(photo[0].min(photo[1])).max(1.0);
     let long = f64::from(photo[0].max(photo[1])).max(1.0);
@@ -38,12 +52,24 @@ mod tests {
     use super::*;
 
     fn photo(scale: f64) -> BaseColor {
-        BaseColor::Image { path: "p.png".into(), scale, rotation: 0.0, fallback: [0.5; 3], texture_px: None, stretch: None }
+        BaseColor::Image {
+            path: "p.png".into(),
+            scale,
+            rotation: 0.0,
+            fallback: [0.5; 3],
+            texture_px: None,
+            stretch: None,
+        }
     }
 
     fn parts(b: &BaseColor) -> (f64, Option<u32>, Option<[f64; 3]>) {
         match b {
-            BaseColor::Image { scale, texture_px, stretch, .. } => (*scale, *texture_px, *stretch),
+            BaseColor::Image {
+                scale,
+                texture_px,
+                stretch,
+                ..
+            } => (*scale, *texture_px, *stretch),
             _ => unreachable!(),
         }
     }

@@ -45,14 +45,23 @@ impl StereoRig {
     pub fn cameras(&self) -> StereoCameras {
         let (cx, cy) = self.principal_point();
         let (shift_x, shift_y) = self.blender_shift();
-        let view = |v| ViewCamera { position: [self.camera_x(v), 0.0, 0.0], rotation: [0.0; 3] };
+        let view = |v| ViewCamera {
+            position: [self.camera_x(v), 0.0, 0.0],
+            rotation: [0.0; 3],
+        };
         StereoCameras {
             f_px: self.f_px(),
             principal_point: [cx, cy],
             image_coordinates: ImageCoordinates::PixelCornerOrigin,
             left: view(View::Left),
             right: view(View::Right),
-            blender: BlenderCamera { lens_mm: self.focal_mm, sensor_width_mm: self.sensor_width_mm, sensor_fit: SensorFit::Horizontal, shift_x, shift_y },
+            blender: BlenderCamera {
+                lens_mm: self.focal_mm,
+                sensor_width_mm: self.sensor_width_mm,
+                sensor_fit: SensorFit::Horizontal,
+                shift_x,
+                shift_y,
+            },
         }
     }
 
@@ -90,7 +99,11 @@ impl StereoRig {
     pub fn unproject_left(&self, u: f64, v: f64, z: f64) -> [f64; 3] {
         let (cx, cy) = self.principal_point();
         let f = self.f_px();
-        [(u - cx) * z / f + self.camera_x(View::Left), -(v - cy) * z / f, -z]
+        [
+            (u - cx) * z / f + self.camera_x(View::Left),
+            -(v - cy) * z / f,
+            -z,
+        ]
     }
 
     /// Unit-less ray direction through pixel position (u, v) of a view (not normalised, z = −1).
@@ -130,13 +143,23 @@ impl StereoCameras {
             let b = &c.blender;
             let mut v = vec![c.f_px, b.lens_mm, b.sensor_width_mm, b.shift_x, b.shift_y];
             v.extend(c.principal_point);
-            v.extend(c.left.position.iter().chain(&c.left.rotation).chain(&c.right.position).chain(&c.right.rotation));
+            v.extend(
+                c.left
+                    .position
+                    .iter()
+                    .chain(&c.left.rotation)
+                    .chain(&c.right.position)
+                    .chain(&c.right.rotation),
+            );
             v
         };
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0);
         self.image_coordinates == other.image_coordinates
             && self.blender.sensor_fit == other.blender.sensor_fit
-            && numbers(self).iter().zip(&numbers(other)).all(|(a, b)| close(*a, *b))
+            && numbers(self)
+                .iter()
+                .zip(&numbers(other))
+                .all(|(a, b)| close(*a, *b))
     }
 }
 
@@ -181,7 +204,13 @@ mod tests {
     use super::*;
 
     fn rig() -> StereoRig {
-        StereoRig { width: 320, height: 240, focal_mm: 35.0, sensor_width_mm: 36.0, baseline_m: 0.1 }
+        StereoRig {
+            width: 320,
+            height: 240,
+            focal_mm: 35.0,
+            sensor_width_mm: 36.0,
+            baseline_m: 0.1,
+        }
     }
 
     #[test]
@@ -205,7 +234,9 @@ mod tests {
         assert_eq!((c.blender.shift_x, c.blender.shift_y), (0.0, 0.0));
         assert_eq!(c.f_px, r.f_px());
         // A point on the optical axis of a view projects to the principal point.
-        let (u, v) = r.project(View::Right, [c.right.position[0], 0.0, -3.0]).unwrap();
+        let (u, v) = r
+            .project(View::Right, [c.right.position[0], 0.0, -3.0])
+            .unwrap();
         assert_eq!([u, v], c.principal_point);
     }
 }

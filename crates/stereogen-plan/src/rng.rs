@@ -21,23 +21,31 @@ fn mix(mut z: u64) -> u64 {
 
 /// FNV-1a over the label bytes; stable across platforms and Rust versions (unlike `DefaultHasher`).
 fn label_hash(label: &str) -> u64 {
-    label.bytes().fold(0xCBF2_9CE4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01B3))
+    label.bytes().fold(0xCBF2_9CE4_8422_2325u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01B3)
+    })
 }
 
 impl SeedTree {
     /// The root for one sample of a dataset.
     pub fn for_sample(seed: u64, index: u64) -> Self {
-        Self { key: mix(mix(seed) ^ mix(index.wrapping_add(0x5EED))) }
+        Self {
+            key: mix(mix(seed) ^ mix(index.wrapping_add(0x5EED))),
+        }
     }
 
     /// A named child stream.
     pub fn child(self, label: &str) -> Self {
-        Self { key: mix(self.key ^ label_hash(label)) }
+        Self {
+            key: mix(self.key ^ label_hash(label)),
+        }
     }
 
     /// A numbered child stream (object 0, 1, ...).
     pub fn nth(self, n: u64) -> Self {
-        Self { key: mix(self.key.wrapping_add(mix(n ^ 0xA5A5_A5A5))) }
+        Self {
+            key: mix(self.key.wrapping_add(mix(n ^ 0xA5A5_A5A5))),
+        }
     }
 
     /// The random stream of this node.

@@ -12,16 +12,17 @@ use std::f64::consts::PI;
 use rand::Rng;
 use rand::seq::IndexedRandom;
 
+use super::assets::{AssetIndex, MeshAsset};
+use super::photo_sizing::size_photo;
 use super::recipe::{CategoryRecipe, LightKind, Recipe, ShapeSource, TreeRecipe};
 use super::rig::StereoRig;
 use super::rng::SeedTree;
 use super::shapes::{net, primitive, wireframe};
 use super::spec::{
-    BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern, RenderSettings, SceneSpec, Shape, WorldSpec, SPEC_FORMAT_VERSION,
+    BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern,
+    RenderSettings, SPEC_FORMAT_VERSION, SceneSpec, Shape, WorldSpec,
 };
 use super::tree::{TreeParams, grow};
-use super::assets::{AssetIndex, MeshAsset};
-use super::photo_sizing::size_photo;
 
 /// The near clip never comes closer than this (metres), whatever the recipe says.
 const MIN_CLIP_START_M: f64 = 1e-4;
@@ -44,7 +45,11 @@ pub fn pick_weighted<K: Copy + Ord, R: Rng>(rng: &mut R, weights: &BTreeMap<K, f
 }
 
 fn random_color<R: Rng>(rng: &mut R) -> [f64; 3] {
-    [rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>()]
+    [
+        rng.random::<f64>(),
+        rng.random::<f64>(),
+        rng.random::<f64>(),
+    ]
 }
 
 /// The stable file stem of sample `index`.
@@ -55,7 +60,12 @@ pub fn sample_id(index: u64) -> String {
 /// The category scene `index` draws (needed before planning, e.g. to find its folder).
 pub fn scene_category(recipe: &Recipe, seed: u64, index: u64) -> &CategoryRecipe {
     let mut rng = SeedTree::for_sample(seed, index).child("category").rng();
-    let weights: BTreeMap<usize, f64> = recipe.categories.iter().enumerate().map(|(i, c)| (i, c.weight)).collect();
+    let weights: BTreeMap<usize, f64> = recipe
+        .categories
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (i, c.weight))
+        .collect();
     &recipe.categories[pick_weighted(&mut rng, &weights)]
 }
 
@@ -65,21 +75,58 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
     let category = scene_category(recipe, seed, index);
     let rig = draw_rig(recipe, root);
     let mut bg_rng = root.child("background").rng();
-    let background_depth = rig.depth_for_disparity(recipe.placement.background_disparity_px.sample(&mut bg_rng));
+    let background_depth =
+        rig.depth_for_disparity(recipe.placement.background_disparity_px.sample(&mut bg_rng));
     let nearest_depth = rig.depth_for_disparity(recipe.placement.disparity_px.support().1);
     let render = render_settings(recipe, root, nearest_depth, background_depth);
 
-    let mut objects = vec![background_wall(recipe, assets, &rig, background_depth, root.child("background"))];
-    let n_objects = category.objects.sample(&mut root.child("object_count").rng());
+    let mut objects = vec![background_wall(
+        recipe,
+        assets,
+        &rig,
+        background_depth,
+        root.child("background"),
+    )];
+    let n_objects = category
+        .objects
+        .sample(&mut root.child("object_count").rng());
     for i in 0..n_objects {
-        objects.push(content_object(recipe, category, assets, &rig, root.child("objects").nth(u64::from(i)), i));
+        objects.push(content_object(
+            recipe,
+            category,
+            assets,
+            &rig,
+            root.child("objects").nth(u64::from(i)),
+            i,
+        ));
     }
 
     let mut light_rng = root.child("lights").rng();
     let n_lights = recipe.lights.count.sample(&mut light_rng);
-    let lights = (0..n_lights).map(|i| light(recipe, &rig, nearest_depth, background_depth, root.child("lights").nth(u64::from(i)))).collect();
+    let lights = (0..n_lights)
+        .map(|i| {
+            light(
+                recipe,
+                &rig,
+                nearest_depth,
+                background_depth,
+                root.child("lights").nth(u64::from(i)),
+            )
+        })
+        .collect();
     let world = world(recipe, root);
-    SceneSpec { format_version: SPEC_FORMAT_VERSION, id: sample_id(index), category: category.name.clone(), seed, index, rig, render, world, objects, lights }
+    SceneSpec {
+        format_version: SPEC_FORMAT_VERSION,
+        id: sample_id(index),
+        category: category.name.clone(),
+        seed,
+        index,
+        rig,
+        render,
+        world,
+        objects,
+        lights,
+    }
 }
 
 fn draw_rig(recipe: &Recipe, root: SeedTree) -> StereoRig {
@@ -94,7 +141,12 @@ fn draw_rig(recipe: &Recipe, root: SeedTree) -> StereoRig {
     }
 }
 
-fn render_settings(recipe: &Recipe, root: SeedTree, nearest_depth: f64, background_depth: f64) -> RenderSettings {
+fn render_settings(
+    recipe: &Recipe,
+    root: SeedTree,
+    nearest_depth: f64,
+    background_depth: f64,
+) -> RenderSettings {
     let (r, cam) = (&recipe.render, &recipe.camera);
     RenderSettings {
         samples: r.samples,
@@ -114,13 +166,23 @@ fn world(recipe: &Recipe, root: SeedTree) -> WorldSpec {
     let mut rng = root.child("world").rng();
     let grey = l.world_grey.sample(&mut rng);
     WorldSpec {
-        color: [grey, grey * l.world_green_ratio.sample(&mut rng), grey * l.world_blue_ratio.sample(&mut rng)],
+        color: [
+            grey,
+            grey * l.world_green_ratio.sample(&mut rng),
+            grey * l.world_blue_ratio.sample(&mut rng),
+        ],
         strength: l.world_strength.sample(&mut rng),
     }
 }
 
 /// A textured wall at the far end, large enough to fill both cameras' views.
-fn background_wall(recipe: &Recipe, assets: &AssetIndex, rig: &StereoRig, depth: f64, node: SeedTree) -> ObjectSpec {
+fn background_wall(
+    recipe: &Recipe,
+    assets: &AssetIndex,
+    rig: &StereoRig,
+    depth: f64,
+    node: SeedTree,
+) -> ObjectSpec {
     let f = rig.f_px();
     let oversize = recipe.placement.background_oversize;
     let half_w = (f64::from(rig.width) / 2.0 / f * depth + rig.baseline_m / 2.0) * oversize;
@@ -129,12 +191,19 @@ fn background_wall(recipe: &Recipe, assets: &AssetIndex, rig: &StereoRig, depth:
     let class = pick_weighted(&mut rng, &recipe.materials.background);
     let mut material = material(recipe, assets, class, &mut rng);
     // The wall is large: keep its texture from turning into noise by scaling repeats to its size.
-    if let BaseColor::Procedural { scale, .. } | BaseColor::Image { scale, .. } = &mut material.base {
+    if let BaseColor::Procedural { scale, .. } | BaseColor::Image { scale, .. } = &mut material.base
+    {
         let [lo, hi] = recipe.materials.background_texture_scale;
         *scale = (*scale).clamp(lo, hi);
     }
     let screen_px = 2.0 * half_w.max(half_h) * f / depth;
-    fit_photo(recipe, assets, &mut material, screen_px, [half_w, half_h, half_w.min(half_h)]);
+    fit_photo(
+        recipe,
+        assets,
+        &mut material,
+        screen_px,
+        [half_w, half_h, half_w.min(half_h)],
+    );
     ObjectSpec {
         name: "background".into(),
         role: ObjectRole::Background,
@@ -150,14 +219,25 @@ fn background_wall(recipe: &Recipe, assets: &AssetIndex, rig: &StereoRig, depth:
 }
 
 /// A surface of the given class.
-pub fn material<R: Rng>(recipe: &Recipe, assets: &AssetIndex, class: MaterialClass, rng: &mut R) -> MaterialSpec {
+pub fn material<R: Rng>(
+    recipe: &Recipe,
+    assets: &AssetIndex,
+    class: MaterialClass,
+    rng: &mut R,
+) -> MaterialSpec {
     let m = &recipe.materials;
     let textured_base = |rng: &mut R| {
         let scale = m.texture_scale.sample(rng);
         // Procedural textures stay one class among the photos (no draw when the share is 0, so
         // recipes without the key plan as before).
-        let procedural = !assets.textures.is_empty() && m.procedural_share > 0.0 && rng.random_bool(m.procedural_share);
-        let photo = if procedural { None } else { assets.textures.choose(rng) };
+        let procedural = !assets.textures.is_empty()
+            && m.procedural_share > 0.0
+            && rng.random_bool(m.procedural_share);
+        let photo = if procedural {
+            None
+        } else {
+            assets.textures.choose(rng)
+        };
         match photo {
             Some(photo) => BaseColor::Image {
                 path: photo.path.clone(),
@@ -178,24 +258,61 @@ pub fn material<R: Rng>(recipe: &Recipe, assets: &AssetIndex, class: MaterialCla
     };
     let (base, roughness, metallic, transmission) = match class {
         MaterialClass::Textured => (textured_base(rng), m.roughness.sample(rng), 0.0, 0.0),
-        MaterialClass::Textureless => (BaseColor::Flat { color: random_color(rng) }, m.roughness.sample(rng), 0.0, 0.0),
+        MaterialClass::Textureless => (
+            BaseColor::Flat {
+                color: random_color(rng),
+            },
+            m.roughness.sample(rng),
+            0.0,
+            0.0,
+        ),
         MaterialClass::Glossy => {
-            let base = if rng.random_bool(m.glossy_textured_probability) { textured_base(rng) } else { BaseColor::Flat { color: random_color(rng) } };
+            let base = if rng.random_bool(m.glossy_textured_probability) {
+                textured_base(rng)
+            } else {
+                BaseColor::Flat {
+                    color: random_color(rng),
+                }
+            };
             (base, m.glossy_roughness.sample(rng), 0.0, 0.0)
         }
         MaterialClass::Metallic => {
             let tint: [f64; 3] = std::array::from_fn(|_| m.metallic_tint.sample(rng));
-            (BaseColor::Flat { color: tint }, m.metallic_roughness.sample(rng), 1.0, 0.0)
+            (
+                BaseColor::Flat { color: tint },
+                m.metallic_roughness.sample(rng),
+                1.0,
+                0.0,
+            )
         }
         MaterialClass::Glass => {
             let tint: [f64; 3] = std::array::from_fn(|_| m.glass_tint.sample(rng));
-            (BaseColor::Flat { color: tint }, m.glass_roughness.sample(rng), 0.0, 1.0)
+            (
+                BaseColor::Flat { color: tint },
+                m.glass_roughness.sample(rng),
+                0.0,
+                1.0,
+            )
         }
     };
-    MaterialSpec { class, base, roughness, metallic, transmission, ior: m.ior.sample(rng) }
+    MaterialSpec {
+        class,
+        base,
+        roughness,
+        metallic,
+        transmission,
+        ior: m.ior.sample(rng),
+    }
 }
 
-fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetIndex, rig: &StereoRig, node: SeedTree, i: u32) -> ObjectSpec {
+fn content_object(
+    recipe: &Recipe,
+    category: &CategoryRecipe,
+    assets: &AssetIndex,
+    rig: &StereoRig,
+    node: SeedTree,
+    i: u32,
+) -> ObjectSpec {
     let p = &recipe.placement;
     let mut rng = node.child("placement").rng();
     let d = p.disparity_px.sample(&mut rng);
@@ -218,7 +335,13 @@ fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetInde
     let class = pick_weighted(&mut mat_rng, &category.materials);
     let mut material = material(recipe, assets, class, &mut mat_rng);
     let drawn = draw_shape(recipe, drawn_from, &mut shape_rng);
-    fit_photo(recipe, assets, &mut material, 2.0 * radius * rig.f_px() / z, drawn.proportions);
+    fit_photo(
+        recipe,
+        assets,
+        &mut material,
+        2.0 * radius * rig.f_px() / z,
+        drawn.proportions,
+    );
 
     ObjectSpec {
         name: format!("object_{i:03}"),
@@ -235,8 +358,18 @@ fn content_object(recipe: &Recipe, category: &CategoryRecipe, assets: &AssetInde
 }
 
 /// Applies the recipe's photo sizing (`materials.photo_texel_px`) to a photo of known size.
-fn fit_photo(recipe: &Recipe, assets: &AssetIndex, material: &mut MaterialSpec, screen_px: f64, axes: [f64; 3]) {
-    let (Some(texel_px), BaseColor::Image { path, .. }) = (recipe.materials.photo_texel_px, &material.base) else { return };
+fn fit_photo(
+    recipe: &Recipe,
+    assets: &AssetIndex,
+    material: &mut MaterialSpec,
+    screen_px: f64,
+    axes: [f64; 3],
+) {
+    let (Some(texel_px), BaseColor::Image { path, .. }) =
+        (recipe.materials.photo_texel_px, &material.base)
+    else {
+        return;
+    };
     if let Some(size) = assets.texture_size(path) {
         size_photo(&mut material.base, size, screen_px, axes, texel_px);
     }
@@ -257,7 +390,10 @@ impl DrawnFrom<'_> {
     /// The `source` an object records.
     fn name(self) -> String {
         match self {
-            DrawnFrom::Procedural(s) | DrawnFrom::Files(s, _) => serde_json::to_value(s).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+            DrawnFrom::Procedural(s) | DrawnFrom::Files(s, _) => serde_json::to_value(s)
+                .ok()
+                .and_then(|v| v.as_str().map(String::from))
+                .unwrap_or_default(),
             DrawnFrom::Pack(_) => "pack".into(),
         }
     }
@@ -265,7 +401,12 @@ impl DrawnFrom<'_> {
 
 /// A mesh source without files falls back to the pack's meshes (a `pack_mesh_share` of the
 /// time, when the index has them) and to the built-in procedural primitives otherwise.
-fn shape_pool<'a, R: Rng>(recipe: &Recipe, assets: &'a AssetIndex, source: ShapeSource, rng: &mut R) -> DrawnFrom<'a> {
+fn shape_pool<'a, R: Rng>(
+    recipe: &Recipe,
+    assets: &'a AssetIndex,
+    source: ShapeSource,
+    rng: &mut R,
+) -> DrawnFrom<'a> {
     let files = match source {
         ShapeSource::Shapenet => &assets.shapenet,
         ShapeSource::Meshes => &assets.meshes,
@@ -292,19 +433,37 @@ struct DrawnShape {
 }
 
 fn draw_shape<R: Rng>(recipe: &Recipe, from: DrawnFrom<'_>, rng: &mut R) -> DrawnShape {
-    let plain = |shape, modifiers| DrawnShape { shape, modifiers, proportions: [1.0; 3], rotation: None };
+    let plain = |shape, modifiers| DrawnShape {
+        shape,
+        modifiers,
+        proportions: [1.0; 3],
+        rotation: None,
+    };
     let source = match from {
         DrawnFrom::Files(_, pool) | DrawnFrom::Pack(pool) => {
             let n = (recipe.sources.mesh_candidates as usize).min(pool.len());
-            let candidates = (0..n).map(|_| pool.choose(rng).expect("non-empty").path.clone()).collect();
-            return plain(Shape::MeshFile { candidates, max_triangles: recipe.sources.max_triangles }, Vec::new());
+            let candidates = (0..n)
+                .map(|_| pool.choose(rng).expect("non-empty").path.clone())
+                .collect();
+            return plain(
+                Shape::MeshFile {
+                    candidates,
+                    max_triangles: recipe.sources.max_triangles,
+                },
+                Vec::new(),
+            );
         }
         DrawnFrom::Procedural(source) => source,
     };
     match source {
         ShapeSource::Primitive => {
             let (shape, modifiers, proportions) = primitive(&recipe.primitives, rng);
-            DrawnShape { shape, modifiers, proportions, rotation: None }
+            DrawnShape {
+                shape,
+                modifiers,
+                proportions,
+                rotation: None,
+            }
         }
         ShapeSource::Wireframe => {
             let (shape, modifiers) = wireframe(&recipe.holes, rng);
@@ -312,7 +471,9 @@ fn draw_shape<R: Rng>(recipe: &Recipe, from: DrawnFrom<'_>, rng: &mut R) -> Draw
         }
         ShapeSource::Net => plain(net(&recipe.holes, rng), Vec::new()),
         // Mesh sources arrive as `Files`, `Pack` or primitives (see `shape_pool`).
-        ShapeSource::Shapenet | ShapeSource::Meshes => unreachable!("mesh sources are resolved by shape_pool"),
+        ShapeSource::Shapenet | ShapeSource::Meshes => {
+            unreachable!("mesh sources are resolved by shape_pool")
+        }
         ShapeSource::Tree => tree(&recipe.trees, rng),
     }
 }
@@ -321,23 +482,63 @@ fn draw_shape<R: Rng>(recipe: &Recipe, from: DrawnFrom<'_>, rng: &mut R) -> Draw
 fn tree<R: Rng>(t: &TreeRecipe, rng: &mut R) -> DrawnShape {
     let params = TreeParams::draw(rng, t);
     let tree = grow(&params, rng);
-    let rotation = [-PI / 2.0 + t.lean_rad.sample(rng), rng.random_range(0.0..2.0 * PI), t.lean_rad.sample(rng)];
+    let rotation = [
+        -PI / 2.0 + t.lean_rad.sample(rng),
+        rng.random_range(0.0..2.0 * PI),
+        t.lean_rad.sample(rng),
+    ];
     let leaf_color = t.leaf_rgb.map(|c| c.sample(rng));
-    let leaf = MaterialSpec { class: MaterialClass::Textureless, base: BaseColor::Flat { color: leaf_color }, roughness: t.leaf_roughness, metallic: 0.0, transmission: 0.0, ior: 1.45 };
-    let shape = Shape::Skeleton { strands: tree.strands, strand_levels: tree.strand_levels, sides: 8, leaves: tree.leaves, leaf_material: Some(Box::new(leaf)) };
-    DrawnShape { shape, modifiers: Vec::new(), proportions: [1.0; 3], rotation: Some(rotation) }
+    let leaf = MaterialSpec {
+        class: MaterialClass::Textureless,
+        base: BaseColor::Flat { color: leaf_color },
+        roughness: t.leaf_roughness,
+        metallic: 0.0,
+        transmission: 0.0,
+        ior: 1.45,
+    };
+    let shape = Shape::Skeleton {
+        strands: tree.strands,
+        strand_levels: tree.strand_levels,
+        sides: 8,
+        leaves: tree.leaves,
+        leaf_material: Some(Box::new(leaf)),
+    };
+    DrawnShape {
+        shape,
+        modifiers: Vec::new(),
+        proportions: [1.0; 3],
+        rotation: Some(rotation),
+    }
 }
 
 /// Approximate linear-RGB colour of a blackbody at `kelvin` (Tanner Helland's fit of the
 /// Planckian locus in sRGB, then linearised), normalised so its brightest channel is 1.
 pub fn blackbody_rgb(kelvin: f64) -> [f64; 3] {
     let t = kelvin / 100.0;
-    let r = if t <= 66.0 { 255.0 } else { 329.698_727_446 * (t - 60.0).powf(-0.133_204_759_2) };
-    let g = if t <= 66.0 { 99.470_802_586_1 * t.ln() - 161.119_568_166_1 } else { 288.122_169_528_3 * (t - 60.0).powf(-0.075_514_849_2) };
-    let b = if t >= 66.0 { 255.0 } else if t <= 19.0 { 0.0 } else { 138.517_731_223_1 * (t - 10.0).ln() - 305.044_792_730_7 };
+    let r = if t <= 66.0 {
+        255.0
+    } else {
+        329.698_727_446 * (t - 60.0).powf(-0.133_204_759_2)
+    };
+    let g = if t <= 66.0 {
+        99.470_802_586_1 * t.ln() - 161.119_568_166_1
+    } else {
+        288.122_169_528_3 * (t - 60.0).powf(-0.075_514_849_2)
+    };
+    let b = if t >= 66.0 {
+        255.0
+    } else if t <= 19.0 {
+        0.0
+    } else {
+        138.517_731_223_1 * (t - 10.0).ln() - 305.044_792_730_7
+    };
     let lin = |c: f64| {
         let c = (c / 255.0).clamp(0.0, 1.0);
-        if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
     };
     let rgb = [lin(r), lin(g), lin(b)];
     let m = rgb.iter().copied().fold(1e-9, f64::max);
@@ -362,14 +563,39 @@ fn light(recipe: &Recipe, rig: &StereoRig, near: f64, far: f64, node: SeedTree) 
     // Power scales with depth squared so a light deep in a large scene still reaches it.
     let power_w = l.power_w.sample(&mut rng) * z * z;
     // Aim lights roughly into the scene (−Z), with some spread.
-    let rotation = [l.tilt_rad.sample(&mut rng), l.tilt_rad.sample(&mut rng), rng.random_range(0.0..2.0 * PI)];
+    let rotation = [
+        l.tilt_rad.sample(&mut rng),
+        l.tilt_rad.sample(&mut rng),
+        rng.random_range(0.0..2.0 * PI),
+    ];
     let radius = l.radius_factor * z;
     match kind {
-        LightKind::Point => LightSpec::Point { location, color, power_w, radius },
-        LightKind::Spot => {
-            LightSpec::Spot { location, rotation, color, power_w, radius, spot_size: l.spot_size_rad.sample(&mut rng), blend: l.spot_blend.sample(&mut rng) }
-        }
-        LightKind::Area => LightSpec::Area { location, rotation, color, power_w, size: l.area_size_factor.sample(&mut rng) * z },
-        LightKind::Sun => LightSpec::Sun { rotation, color, strength: l.sun_strength.sample(&mut rng) },
+        LightKind::Point => LightSpec::Point {
+            location,
+            color,
+            power_w,
+            radius,
+        },
+        LightKind::Spot => LightSpec::Spot {
+            location,
+            rotation,
+            color,
+            power_w,
+            radius,
+            spot_size: l.spot_size_rad.sample(&mut rng),
+            blend: l.spot_blend.sample(&mut rng),
+        },
+        LightKind::Area => LightSpec::Area {
+            location,
+            rotation,
+            color,
+            power_w,
+            size: l.area_size_factor.sample(&mut rng) * z,
+        },
+        LightKind::Sun => LightSpec::Sun {
+            rotation,
+            color,
+            strength: l.sun_strength.sample(&mut rng),
+        },
     }
 }

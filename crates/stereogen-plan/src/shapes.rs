@@ -13,13 +13,34 @@ fn random_primitive<R: Rng>(rng: &mut R, with_grid: bool) -> Shape {
     }
     match *kinds.choose(rng).expect("non-empty") {
         0 => Shape::Cube,
-        1 => Shape::UvSphere { segments: rng.random_range(8..=32), rings: rng.random_range(4..=16) },
-        2 => Shape::IcoSphere { subdivisions: rng.random_range(1..=3) },
-        3 => Shape::Cylinder { vertices: rng.random_range(6..=32) },
-        4 => Shape::Cone { vertices: rng.random_range(4..=32), top_ratio: if rng.random_bool(0.5) { 0.0 } else { rng.random_range(0.2..0.8) } },
-        5 => Shape::Torus { major_segments: rng.random_range(12..=48), minor_segments: rng.random_range(6..=16), minor_ratio: rng.random_range(0.15..0.5) },
+        1 => Shape::UvSphere {
+            segments: rng.random_range(8..=32),
+            rings: rng.random_range(4..=16),
+        },
+        2 => Shape::IcoSphere {
+            subdivisions: rng.random_range(1..=3),
+        },
+        3 => Shape::Cylinder {
+            vertices: rng.random_range(6..=32),
+        },
+        4 => Shape::Cone {
+            vertices: rng.random_range(4..=32),
+            top_ratio: if rng.random_bool(0.5) {
+                0.0
+            } else {
+                rng.random_range(0.2..0.8)
+            },
+        },
+        5 => Shape::Torus {
+            major_segments: rng.random_range(12..=48),
+            minor_segments: rng.random_range(6..=16),
+            minor_ratio: rng.random_range(0.15..0.5),
+        },
         6 => Shape::Monkey,
-        _ => Shape::Grid { x_segments: rng.random_range(3..=12), y_segments: rng.random_range(3..=12) },
+        _ => Shape::Grid {
+            x_segments: rng.random_range(3..=12),
+            y_segments: rng.random_range(3..=12),
+        },
     }
 }
 
@@ -33,7 +54,11 @@ pub fn primitive<R: Rng>(p: &PrimitiveRecipe, rng: &mut R) -> (Shape, Vec<Modifi
     let proportions = proportions.map(|x| x / m);
     let mut modifiers = Vec::new();
     if rng.random_bool(p.boolean_probability) {
-        let cutter = if rng.random_bool(0.5) { Cutter::Cube } else { Cutter::Sphere };
+        let cutter = if rng.random_bool(0.5) {
+            Cutter::Cube
+        } else {
+            Cutter::Sphere
+        };
         let dir: [f64; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
         let size = rng.random_range(0.3..0.7);
         modifiers.push(Modifier::BooleanCut {
@@ -44,7 +69,9 @@ pub fn primitive<R: Rng>(p: &PrimitiveRecipe, rng: &mut R) -> (Shape, Vec<Modifi
         });
     }
     if rng.random_bool(p.subdivide_probability) {
-        modifiers.push(Modifier::Subdivide { levels: rng.random_range(1..=2) });
+        modifiers.push(Modifier::Subdivide {
+            levels: rng.random_range(1..=2),
+        });
     }
     if rng.random_bool(p.displace_probability) {
         // Displacement needs vertices to move: subdivide first.
@@ -63,10 +90,16 @@ pub fn wireframe<R: Rng>(h: &HoleRecipe, rng: &mut R) -> (Shape, Vec<Modifier>) 
     let shape = random_primitive(rng, true);
     let mut modifiers = Vec::new();
     // Low-poly shapes would keep only a few bars; a simple subdivision adds finer lattices.
-    if matches!(shape, Shape::Cube | Shape::Cylinder { .. } | Shape::Cone { .. }) && rng.random_bool(0.6) {
+    if matches!(
+        shape,
+        Shape::Cube | Shape::Cylinder { .. } | Shape::Cone { .. }
+    ) && rng.random_bool(0.6)
+    {
         modifiers.push(Modifier::Subdivide { levels: 1 });
     }
-    modifiers.push(Modifier::Wireframe { thickness: h.wire_thickness.sample(rng) });
+    modifiers.push(Modifier::Wireframe {
+        thickness: h.wire_thickness.sample(rng),
+    });
     (shape, modifiers)
 }
 
@@ -77,11 +110,22 @@ pub fn net<R: Rng>(h: &HoleRecipe, rng: &mut R) -> Shape {
     let cell = 2.0 * half / f64::from(cells);
     let radius = h.net_strand.sample(rng) * cell;
     let diagonal = rng.random_bool(0.4);
-    let bend = if rng.random_bool(0.3) { rng.random_range(0.3..1.2) } else { 0.0 };
+    let bend = if rng.random_bool(0.3) {
+        rng.random_range(0.3..1.2)
+    } else {
+        0.0
+    };
     // Strands sampled densely enough that a bend stays smooth.
     let samples = 16;
     let warp = |x: f64, y: f64| -> [f64; 3] {
-        let (x, y) = if diagonal { ((x - y) * std::f64::consts::FRAC_1_SQRT_2, (x + y) * std::f64::consts::FRAC_1_SQRT_2) } else { (x, y) };
+        let (x, y) = if diagonal {
+            (
+                (x - y) * std::f64::consts::FRAC_1_SQRT_2,
+                (x + y) * std::f64::consts::FRAC_1_SQRT_2,
+            )
+        } else {
+            (x, y)
+        };
         if bend == 0.0 {
             [x, y, 0.0]
         } else {
@@ -100,8 +144,17 @@ pub fn net<R: Rng>(h: &HoleRecipe, rng: &mut R) -> Shape {
                     if along_x { warp(t, c) } else { warp(c, t) }
                 })
                 .collect();
-            strands.push(Strand { radii: vec![radius; points.len()], points });
+            strands.push(Strand {
+                radii: vec![radius; points.len()],
+                points,
+            });
         }
     }
-    Shape::Skeleton { strands, strand_levels: Vec::new(), sides: 6, leaves: Vec::new(), leaf_material: None }
+    Shape::Skeleton {
+        strands,
+        strand_levels: Vec::new(),
+        sides: 6,
+        leaves: Vec::new(),
+        leaf_material: None,
+    }
 }

@@ -103,24 +103,47 @@ pub enum Shape {
     Plane,
     /// Cube with half-size 1/√3 so its corners touch the unit sphere.
     Cube,
-    UvSphere { segments: u32, rings: u32 },
-    IcoSphere { subdivisions: u32 },
+    UvSphere {
+        segments: u32,
+        rings: u32,
+    },
+    IcoSphere {
+        subdivisions: u32,
+    },
     /// Cylinder along Z, radius and half-height 1/√2.
-    Cylinder { vertices: u32 },
+    Cylinder {
+        vertices: u32,
+    },
     /// Cone along Z with the same bounds as the cylinder; `top_ratio` = top radius / bottom radius.
-    Cone { vertices: u32, top_ratio: f64 },
+    Cone {
+        vertices: u32,
+        top_ratio: f64,
+    },
     /// Torus in the XY plane; `minor_ratio` = tube radius / ring radius, outer radius 1.
-    Torus { major_segments: u32, minor_segments: u32, minor_ratio: f64 },
+    Torus {
+        major_segments: u32,
+        minor_segments: u32,
+        minor_ratio: f64,
+    },
     /// A subdivided square (−1/√2..1/√2), useful with the wireframe modifier as a grid of holes.
-    Grid { x_segments: u32, y_segments: u32 },
+    Grid {
+        x_segments: u32,
+        y_segments: u32,
+    },
     /// Blender's Suzanne, scaled into the unit sphere.
     Monkey,
     /// Explicit triangles (exactness tests, and callers that bring their own mesh).
-    Mesh { vertices: Vec<[f64; 3]>, triangles: Vec<[u32; 3]> },
+    Mesh {
+        vertices: Vec<[f64; 3]>,
+        triangles: Vec<[u32; 3]>,
+    },
     /// A mesh file. The worker loads the first candidate that imports, is not empty and has at
     /// most `max_triangles`, normalises it to the unit bounding sphere, and reports the others
     /// as skipped assets. Candidates are drawn by the planner, so the choice is deterministic.
-    MeshFile { candidates: Vec<PathBuf>, max_triangles: u64 },
+    MeshFile {
+        candidates: Vec<PathBuf>,
+        max_triangles: u64,
+    },
     /// Tubes along polylines (tree branches, net strands) and alpha-cut leaf quads.
     /// `strand_levels[i]` is strand i's branch level (0 = trunk); empty for nets.
     Skeleton {
@@ -159,9 +182,18 @@ pub enum Modifier {
     /// Catmull–Clark subdivision.
     Subdivide { levels: u32 },
     /// Pushes vertices along normals by a noise texture.
-    Displace { strength: f64, noise_scale: f64, offset: [f64; 3] },
+    Displace {
+        strength: f64,
+        noise_scale: f64,
+        offset: [f64; 3],
+    },
     /// Cuts a cube or sphere (object space) out of the shape.
-    BooleanCut { cutter: Cutter, location: [f64; 3], rotation: [f64; 3], scale: [f64; 3] },
+    BooleanCut {
+        cutter: Cutter,
+        location: [f64; 3],
+        rotation: [f64; 3],
+        scale: [f64; 3],
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -202,9 +234,17 @@ pub struct MaterialSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum BaseColor {
-    Flat { color: [f64; 3] },
+    Flat {
+        color: [f64; 3],
+    },
     /// A procedural Blender texture in object coordinates, blended between two colours.
-    Procedural { pattern: Pattern, scale: f64, color_a: [f64; 3], color_b: [f64; 3], detail: f64 },
+    Procedural {
+        pattern: Pattern,
+        scale: f64,
+        color_a: [f64; 3],
+        color_b: [f64; 3],
+        detail: f64,
+    },
     /// A photo, box-projected in object coordinates (works without UVs); `scale` = repeats per
     /// object unit (large = strongly repetitive). `fallback` is used if Blender cannot load it.
     /// `texture_px`: use a copy downsampled to this longer side (the planner's mip level, so a
@@ -235,13 +275,28 @@ pub enum Pattern {
 }
 
 impl Pattern {
-    pub const ALL: [Pattern; 7] = [Pattern::Noise, Pattern::Voronoi, Pattern::Checker, Pattern::Wave, Pattern::Brick, Pattern::Magic, Pattern::Gradient];
+    pub const ALL: [Pattern; 7] = [
+        Pattern::Noise,
+        Pattern::Voronoi,
+        Pattern::Checker,
+        Pattern::Wave,
+        Pattern::Brick,
+        Pattern::Magic,
+        Pattern::Gradient,
+    ];
 }
 
 impl MaterialSpec {
     /// A diffuse flat-colour surface.
     pub fn flat(color: [f64; 3], roughness: f64) -> Self {
-        Self { class: MaterialClass::Textureless, base: BaseColor::Flat { color }, roughness, metallic: 0.0, transmission: 0.0, ior: 1.45 }
+        Self {
+            class: MaterialClass::Textureless,
+            base: BaseColor::Flat { color },
+            roughness,
+            metallic: 0.0,
+            transmission: 0.0,
+            ior: 1.45,
+        }
     }
 }
 
@@ -249,13 +304,36 @@ impl MaterialSpec {
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LightSpec {
     /// Omni light; `radius` softens shadows.
-    Point { location: [f64; 3], color: [f64; 3], power_w: f64, radius: f64 },
+    Point {
+        location: [f64; 3],
+        color: [f64; 3],
+        power_w: f64,
+        radius: f64,
+    },
     /// Cone light pointing along its local −Z, `spot_size` full angle (radians).
-    Spot { location: [f64; 3], rotation: [f64; 3], color: [f64; 3], power_w: f64, radius: f64, spot_size: f64, blend: f64 },
+    Spot {
+        location: [f64; 3],
+        rotation: [f64; 3],
+        color: [f64; 3],
+        power_w: f64,
+        radius: f64,
+        spot_size: f64,
+        blend: f64,
+    },
     /// Square emitter of side `size` facing its local −Z.
-    Area { location: [f64; 3], rotation: [f64; 3], color: [f64; 3], power_w: f64, size: f64 },
+    Area {
+        location: [f64; 3],
+        rotation: [f64; 3],
+        color: [f64; 3],
+        power_w: f64,
+        size: f64,
+    },
     /// Directional light along its local −Z.
-    Sun { rotation: [f64; 3], color: [f64; 3], strength: f64 },
+    Sun {
+        rotation: [f64; 3],
+        color: [f64; 3],
+        strength: f64,
+    },
 }
 
 /// The JSON form of a [`SceneSpec`] as written: its fields plus the derived `cameras`.
@@ -323,7 +401,9 @@ impl<'de> Deserialize<'de> for SceneSpec {
         if let Some(cameras) = &s.cameras
             && !cameras.agrees_with(&s.rig.cameras())
         {
-            return Err(serde::de::Error::custom("SceneSpec `cameras` disagree with its `rig` (they are derived from it: fix the rig, or drop `cameras`)"));
+            return Err(serde::de::Error::custom(
+                "SceneSpec `cameras` disagree with its `rig` (they are derived from it: fix the rig, or drop `cameras`)",
+            ));
         }
         Ok(SceneSpec {
             format_version: SPEC_FORMAT_VERSION,
@@ -359,7 +439,10 @@ impl SceneSpec {
 
     /// Target disparities of the content objects (the object-level sample of the disparity law).
     pub fn target_disparities(&self) -> impl Iterator<Item = f64> + '_ {
-        self.objects.iter().filter(|o| o.role == ObjectRole::Content).filter_map(|o| o.target_disparity)
+        self.objects
+            .iter()
+            .filter(|o| o.role == ObjectRole::Content)
+            .filter_map(|o| o.target_disparity)
     }
 }
 
@@ -381,7 +464,10 @@ mod tests {
         assert_eq!(v["cameras"]["left"]["position"][0].as_f64(), Some(-b / 2.0));
         assert_eq!(v["cameras"]["right"]["position"][0].as_f64(), Some(b / 2.0));
         assert_eq!(v["cameras"]["f_px"].as_f64(), Some(spec.rig.f_px()));
-        assert_eq!(v["cameras"]["principal_point"][0].as_f64(), Some(f64::from(spec.rig.width) / 2.0));
+        assert_eq!(
+            v["cameras"]["principal_point"][0].as_f64(),
+            Some(f64::from(spec.rig.width) / 2.0)
+        );
         assert_eq!(v["cameras"]["image_coordinates"], "pixel_corner_origin");
         assert_eq!(v["cameras"]["blender"]["sensor_fit"], "HORIZONTAL");
         assert_eq!(SceneSpec::from_json(&spec.to_json()).unwrap(), spec);
@@ -403,11 +489,15 @@ mod tests {
         let spec = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 2);
         let mut v = json_value(&spec);
         v["rig"]["baseline_m"] = (spec.rig.baseline_m * 2.0).into();
-        let err = SceneSpec::from_json(&v.to_string()).unwrap_err().to_string();
+        let err = SceneSpec::from_json(&v.to_string())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("`cameras` disagree"), "{err}");
         let mut v = json_value(&spec);
         v["format_version"] = (SPEC_FORMAT_VERSION + 1).into();
-        let err = SceneSpec::from_json(&v.to_string()).unwrap_err().to_string();
+        let err = SceneSpec::from_json(&v.to_string())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("newer"), "{err}");
     }
 }

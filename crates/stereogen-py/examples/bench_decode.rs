@@ -13,13 +13,26 @@ use std::time::Instant;
 
 use stereo_io::*;
 
-const PINS: &[&str] = &["maturin==1.16.0", "numpy==2.4.6", "OpenEXR==3.4.3", "Pillow==12.0.0"];
+const PINS: &[&str] = &[
+    "maturin==1.16.0",
+    "numpy==2.4.6",
+    "OpenEXR==3.4.3",
+    "Pillow==12.0.0",
+];
 const W: usize = 1920;
 const H: usize = 1080;
 
 fn run(cmd: &mut Command, what: &str) -> String {
-    let out = cmd.output().unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
-    assert!(out.status.success(), "{what} failed ({}):\n{}\n{}", out.status, String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
+    assert!(
+        out.status.success(),
+        "{what} failed ({}):\n{}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
@@ -33,8 +46,22 @@ fn venv() -> PathBuf {
     let venv = base.join(format!("venv-bench-{}", PINS.join("-").replace("==", "")));
     if !venv.join(".complete").is_file() {
         let _ = std::fs::remove_dir_all(&venv);
-        run(Command::new("python3").args(["-m", "venv"]).arg(&venv), "python3 -m venv");
-        run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--disable-pip-version-check"]).args(PINS), "pip install");
+        run(
+            Command::new("python3").args(["-m", "venv"]).arg(&venv),
+            "python3 -m venv",
+        );
+        run(
+            Command::new(venv.join("bin/python"))
+                .args([
+                    "-m",
+                    "pip",
+                    "install",
+                    "--quiet",
+                    "--disable-pip-version-check",
+                ])
+                .args(PINS),
+            "pip install",
+        );
         std::fs::write(venv.join(".complete"), PINS.join("\n")).unwrap();
     }
     venv
@@ -47,7 +74,13 @@ fn install_module(venv: &Path) {
     let wheels = tempfile::tempdir().unwrap();
     run(
         Command::new(venv.join("bin/maturin"))
-            .args(["build", "--release", "--auditwheel", "skip", "--manifest-path"])
+            .args([
+                "build",
+                "--release",
+                "--auditwheel",
+                "skip",
+                "--manifest-path",
+            ])
             .arg(crate_dir.join("Cargo.toml"))
             .arg("--interpreter")
             .arg(venv.join("bin/python"))
@@ -56,8 +89,24 @@ fn install_module(venv: &Path) {
             .env("CARGO_TARGET_DIR", target),
         "maturin build",
     );
-    let wheel = std::fs::read_dir(wheels.path()).unwrap().map(|e| e.unwrap().path()).find(|p| p.extension().is_some_and(|x| x == "whl")).unwrap();
-    run(Command::new(venv.join("bin/python")).args(["-m", "pip", "install", "--quiet", "--no-deps", "--force-reinstall"]).arg(wheel), "pip install wheel");
+    let wheel = std::fs::read_dir(wheels.path())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "whl"))
+        .unwrap();
+    run(
+        Command::new(venv.join("bin/python"))
+            .args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--no-deps",
+                "--force-reinstall",
+            ])
+            .arg(wheel),
+        "pip install wheel",
+    );
 }
 
 /// A photo-like picture (smooth shading, edges, grain) so PNG compresses as it does on renders.
@@ -71,14 +120,19 @@ fn picture(seed: u32) -> RgbImage {
             state ^= state << 5;
             let grain = (state % 9) as f32 - 4.0;
             let (fx, fy) = (x as f32 / W as f32, y as f32 / H as f32);
-            let blob = (((fx * 7.0 + seed as f32).sin() * (fy * 5.0).cos()) > 0.2) as u8 as f32 * 60.0;
+            let blob =
+                (((fx * 7.0 + seed as f32).sin() * (fy * 5.0).cos()) > 0.2) as u8 as f32 * 60.0;
             for c in 0..3 {
                 let v = 40.0 + 120.0 * fx * (c as f32 + 1.0) / 3.0 + 50.0 * fy + blob + grain;
                 data.push(v.clamp(0.0, 255.0) as u8);
             }
         }
     }
-    RgbImage { width: W, height: H, data }
+    RgbImage {
+        width: W,
+        height: H,
+        data,
+    }
 }
 
 /// Smooth disparity with planar pieces and ~8% invalid background, like a render.
@@ -92,7 +146,8 @@ fn disparity(shift: f32) -> DisparityMap {
                 continue;
             }
             m.valid[i] = true;
-            m.data[i] = shift + 4.0 + 60.0 * fy + 25.0 * ((fx * 9.0).sin() * (fy * 4.0).cos()).max(0.0);
+            m.data[i] =
+                shift + 4.0 + 60.0 * fy + 25.0 * ((fx * 9.0).sin() * (fy * 4.0).cos()).max(0.0);
         }
     }
     m
@@ -104,7 +159,11 @@ fn write_sample(root: &Path) {
     std::fs::create_dir_all(root.join("bench")).unwrap();
     write_png_rgb(&layout.abs(&files.left), &picture(1)).unwrap();
     write_png_rgb(&layout.abs(&files.right), &picture(2)).unwrap();
-    let meta = DisparityMeta { f_px: Some(1500.0), baseline_m: Some(0.1), view: None };
+    let meta = DisparityMeta {
+        f_px: Some(1500.0),
+        baseline_m: Some(0.1),
+        view: None,
+    };
     write_disparity_exr(&layout.abs(&files.disp_left), &disparity(0.0), &meta).unwrap();
     write_disparity_exr(&layout.abs(&files.disp_right), &disparity(0.5), &meta).unwrap();
     let entry = serde_json::json!({
@@ -112,14 +171,24 @@ fn write_sample(root: &Path) {
         "width": W, "height": H, "f_px": 1500.0, "baseline_m": 0.1, "cx": W as f64 / 2.0, "cy": H as f64 / 2.0,
     });
     let entry: ManifestEntry = serde_json::from_value(entry).unwrap();
-    Manifest::open(&layout.manifest()).unwrap().0.append(&entry).unwrap();
+    Manifest::open(&layout.manifest())
+        .unwrap()
+        .0
+        .append(&entry)
+        .unwrap();
 }
 
 fn main() {
-    let repeats: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(10);
+    let repeats: usize = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(10);
     let dir = tempfile::tempdir().unwrap();
     write_sample(dir.path());
-    let bytes: u64 = walkdir(dir.path()).iter().map(|p| std::fs::metadata(p).unwrap().len()).sum();
+    let bytes: u64 = walkdir(dir.path())
+        .iter()
+        .map(|p| std::fs::metadata(p).unwrap().len())
+        .sum();
 
     let ds = open_dataset(dir.path(), None).unwrap();
     let time_rust = |n: usize| -> Vec<f64> {
@@ -139,41 +208,99 @@ fn main() {
     };
     let (rust_min, rust_med) = stats(&mut times.clone());
     if std::env::args().any(|a| a == "--rust-only") {
-        println!("Rust stereo_io: best {:.1} ms, median {:.1} ms", rust_min * 1e3, rust_med * 1e3);
-        let best_of = |f: &dyn Fn()| (0..repeats).map(|_| { let t = Instant::now(); f(); t.elapsed().as_secs_f64() }).fold(f64::INFINITY, f64::min);
+        println!(
+            "Rust stereo_io: best {:.1} ms, median {:.1} ms",
+            rust_min * 1e3,
+            rust_med * 1e3
+        );
+        let best_of = |f: &dyn Fn()| {
+            (0..repeats)
+                .map(|_| {
+                    let t = Instant::now();
+                    f();
+                    t.elapsed().as_secs_f64()
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
         let cat = dir.path().join("bench");
-        println!("  one PNG, serial: {:.1} ms", 1e3 * best_of(&|| { read_rgb(&cat.join("0000000_left.png")).unwrap(); }));
-        println!("  one EXR, serial: {:.1} ms", 1e3 * best_of(&|| { read_disparity_exr(&cat.join("0000000_left.disp.exr")).unwrap(); }));
+        println!(
+            "  one PNG, serial: {:.1} ms",
+            1e3 * best_of(&|| {
+                read_rgb(&cat.join("0000000_left.png")).unwrap();
+            })
+        );
+        println!(
+            "  one EXR, serial: {:.1} ms",
+            1e3 * best_of(&|| {
+                read_disparity_exr(&cat.join("0000000_left.disp.exr")).unwrap();
+            })
+        );
         return;
     }
     let venv = venv();
     install_module(&venv);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/bench_decode.py");
-    let out = run(Command::new(venv.join("bin/python")).arg(script).arg(dir.path()).arg(repeats.to_string()), "bench_decode.py");
+    let out = run(
+        Command::new(venv.join("bin/python"))
+            .arg(script)
+            .arg(dir.path())
+            .arg(repeats.to_string()),
+        "bench_decode.py",
+    );
     // Rust again after Python: half the runs on each side of it, against load drift.
     times.extend(time_rust(repeats));
     let (rust_min, rust_med) = stats(&mut times);
     let py: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
     let f = |k: &str| py[k].as_f64().unwrap();
     let decoded_mb = (W * H * (3 + 3 + 4 + 1 + 4 + 1)) as f64 / 1e6;
-    println!("One {W}x{H} sample: 2 PNG + 2 EXR, {:.1} MB on disk, {decoded_mb:.1} MB decoded; best / median of {repeats} (Rust: {repeats} before and {repeats} after Python), {} cores", bytes as f64 / 1e6, std::thread::available_parallelism().map_or(1, |n| n.get()));
-    println!("{:<34} {:>9} {:>9} {:>11}", "decoder", "best ms", "median ms", "samples/s");
+    println!(
+        "One {W}x{H} sample: 2 PNG + 2 EXR, {:.1} MB on disk, {decoded_mb:.1} MB decoded; best / median of {repeats} (Rust: {repeats} before and {repeats} after Python), {} cores",
+        bytes as f64 / 1e6,
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    );
+    println!(
+        "{:<34} {:>9} {:>9} {:>11}",
+        "decoder", "best ms", "median ms", "samples/s"
+    );
     for (name, min, med) in [
         ("Rust stereo_io", rust_min, rust_med),
-        ("Python stereogen module", f("stereogen_min"), f("stereogen_median")),
-        ("Python Pillow + OpenEXR", f("pillow_openexr_min"), f("pillow_openexr_median")),
+        (
+            "Python stereogen module",
+            f("stereogen_min"),
+            f("stereogen_median"),
+        ),
+        (
+            "Python Pillow + OpenEXR",
+            f("pillow_openexr_min"),
+            f("pillow_openexr_median"),
+        ),
     ] {
-        println!("{name:<34} {:>9.1} {:>9.1} {:>11.2}", min * 1e3, med * 1e3, 1.0 / med);
+        println!(
+            "{name:<34} {:>9.1} {:>9.1} {:>11.2}",
+            min * 1e3,
+            med * 1e3,
+            1.0 / med
+        );
     }
-    println!("ratio Pillow+OpenEXR / stereogen module (median): {:.2}x", f("pillow_openexr_median") / f("stereogen_median"));
-    println!("ratio stereogen module / Rust (median): {:.2}x", f("stereogen_median") / rust_med);
+    println!(
+        "ratio Pillow+OpenEXR / stereogen module (median): {:.2}x",
+        f("pillow_openexr_median") / f("stereogen_median")
+    );
+    println!(
+        "ratio stereogen module / Rust (median): {:.2}x",
+        f("stereogen_median") / rust_med
+    );
 }
 
 fn walkdir(dir: &Path) -> Vec<PathBuf> {
     let mut out = vec![];
     for e in std::fs::read_dir(dir).unwrap() {
         let p = e.unwrap().path();
-        if p.is_dir() { out.extend(walkdir(&p)) } else { out.push(p) }
+        if p.is_dir() {
+            out.extend(walkdir(&p))
+        } else {
+            out.push(p)
+        }
     }
     out
 }

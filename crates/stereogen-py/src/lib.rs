@@ -9,7 +9,9 @@ use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyIndexError, PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
-use stereo_io::{DatasetFormat, DisparityFormat, DisparityMap, DisparityMeta, StereoDataset, StereoSample};
+use stereo_io::{
+    DatasetFormat, DisparityFormat, DisparityMap, DisparityMeta, StereoDataset, StereoSample,
+};
 
 /// Rust errors become Python exceptions carrying the same message: `OSError` for I/O,
 /// `ValueError` for malformed files and bad arguments.
@@ -20,17 +22,26 @@ fn to_py(e: stereo_io::Error) -> PyErr {
     }
 }
 
-fn array_hw<'py, T: numpy::Element>(py: Python<'py>, data: Vec<T>, h: usize, w: usize) -> PyResult<Bound<'py, PyAny>> {
+fn array_hw<'py, T: numpy::Element>(
+    py: Python<'py>,
+    data: Vec<T>,
+    h: usize,
+    w: usize,
+) -> PyResult<Bound<'py, PyAny>> {
     Ok(PyArray1::from_vec(py, data).reshape([h, w])?.into_any())
 }
 
 fn rgb_array<'py>(py: Python<'py>, img: stereo_io::RgbImage) -> PyResult<Bound<'py, PyAny>> {
     let (h, w) = (img.height, img.width);
-    Ok(PyArray1::from_vec(py, img.data).reshape([h, w, 3])?.into_any())
+    Ok(PyArray1::from_vec(py, img.data)
+        .reshape([h, w, 3])?
+        .into_any())
 }
 
 fn parse_disp_format(format: Option<&str>) -> PyResult<Option<DisparityFormat>> {
-    format.map(|f| f.parse::<DisparityFormat>().map_err(PyValueError::new_err)).transpose()
+    format
+        .map(|f| f.parse::<DisparityFormat>().map_err(PyValueError::new_err))
+        .transpose()
 }
 
 fn meta_dict<'py>(py: Python<'py>, s: &StereoSample) -> PyResult<Bound<'py, PyDict>> {
@@ -94,7 +105,9 @@ impl Dataset {
         let n = self.inner.len() as isize;
         let i = if index < 0 { index + n } else { index };
         if i < 0 || i >= n {
-            return Err(PyIndexError::new_err(format!("index {index} is out of range for a dataset of {n} samples")));
+            return Err(PyIndexError::new_err(format!(
+                "index {index} is out of range for a dataset of {n} samples"
+            )));
         }
         let inner = &self.inner;
         let sample = py.detach(|| inner.sample(i as usize)).map_err(to_py)?;
@@ -114,11 +127,19 @@ impl Dataset {
 
     /// The stable name of sample `index`, without decoding it.
     fn id(&self, index: usize) -> PyResult<String> {
-        self.inner.id(index).map(str::to_owned).ok_or_else(|| PyIndexError::new_err(format!("index {index} is out of range")))
+        self.inner
+            .id(index)
+            .map(str::to_owned)
+            .ok_or_else(|| PyIndexError::new_err(format!("index {index} is out of range")))
     }
 
     fn __repr__(&self) -> String {
-        format!("stereogen.Dataset(format={:?}, root={:?}, len={})", self.inner.format().name(), self.inner.root(), self.inner.len())
+        format!(
+            "stereogen.Dataset(format={:?}, root={:?}, len={})",
+            self.inner.format().name(),
+            self.inner.root(),
+            self.inner.len()
+        )
     }
 }
 
@@ -128,15 +149,21 @@ impl Dataset {
 #[pyfunction]
 #[pyo3(signature = (path, format=None))]
 fn open_dataset(py: Python<'_>, path: PathBuf, format: Option<&str>) -> PyResult<Dataset> {
-    let format = format.map(|f| f.parse::<DatasetFormat>().map_err(PyValueError::new_err)).transpose()?;
-    let inner = py.detach(|| stereo_io::open_dataset(&path, format)).map_err(to_py)?;
+    let format = format
+        .map(|f| f.parse::<DatasetFormat>().map_err(PyValueError::new_err))
+        .transpose()?;
+    let inner = py
+        .detach(|| stereo_io::open_dataset(&path, format))
+        .map_err(to_py)?;
     Ok(Dataset { inner })
 }
 
 /// detect_format(path) -> str: the layout name `open_dataset` would use.
 #[pyfunction]
 fn detect_format(py: Python<'_>, path: PathBuf) -> PyResult<&'static str> {
-    py.detach(|| stereo_io::detect_format(&path)).map(|f| f.name()).map_err(to_py)
+    py.detach(|| stereo_io::detect_format(&path))
+        .map(|f| f.name())
+        .map_err(to_py)
 }
 
 /// read_disparity(path, format=None, with_meta=False) -> (disparity, valid) or (disparity, valid, meta)
@@ -146,9 +173,16 @@ fn detect_format(py: Python<'_>, path: PathBuf) -> PyResult<&'static str> {
 /// sintel, png32, png256, png16:SCALE). `meta` (EXR only) has f_px, baseline_m, view.
 #[pyfunction]
 #[pyo3(signature = (path, format=None, with_meta=false))]
-fn read_disparity<'py>(py: Python<'py>, path: PathBuf, format: Option<&str>, with_meta: bool) -> PyResult<Bound<'py, PyTuple>> {
+fn read_disparity<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    format: Option<&str>,
+    with_meta: bool,
+) -> PyResult<Bound<'py, PyTuple>> {
     let format = parse_disp_format(format)?;
-    let (map, meta) = py.detach(|| stereo_io::read_disparity(&path, format)).map_err(to_py)?;
+    let (map, meta) = py
+        .detach(|| stereo_io::read_disparity(&path, format))
+        .map_err(to_py)?;
     let (h, w) = (map.height, map.width);
     let disp = array_hw(py, map.data, h, w)?;
     let valid = array_hw(py, map.valid, h, w)?;
@@ -182,27 +216,52 @@ fn write_disparity(
     view: Option<String>,
 ) -> PyResult<()> {
     let np = py.import("numpy")?;
-    let arr = np.call_method1("ascontiguousarray", (array, "float32"))?.cast_into::<numpy::PyArrayDyn<f32>>()?;
+    let arr = np
+        .call_method1("ascontiguousarray", (array, "float32"))?
+        .cast_into::<numpy::PyArrayDyn<f32>>()?;
     let shape = arr.shape().to_vec();
     let [h, w] = shape[..] else {
-        return Err(PyValueError::new_err(format!("{}: a disparity array must be 2-D (H, W), got shape {shape:?}", path.display())));
+        return Err(PyValueError::new_err(format!(
+            "{}: a disparity array must be 2-D (H, W), got shape {shape:?}",
+            path.display()
+        )));
     };
     let data: Vec<f32> = arr.readonly().as_slice()?.to_vec();
     let valid: Vec<bool> = match valid {
         Some(v) => {
-            let v = np.call_method1("ascontiguousarray", (v, "bool"))?.cast_into::<numpy::PyArrayDyn<bool>>()?;
+            let v = np
+                .call_method1("ascontiguousarray", (v, "bool"))?
+                .cast_into::<numpy::PyArrayDyn<bool>>()?;
             if v.shape() != [h, w] {
-                return Err(PyValueError::new_err(format!("{}: valid has shape {:?}, the disparity {shape:?}", path.display(), v.shape())));
+                return Err(PyValueError::new_err(format!(
+                    "{}: valid has shape {:?}, the disparity {shape:?}",
+                    path.display(),
+                    v.shape()
+                )));
             }
             v.readonly().as_slice()?.to_vec()
         }
         None => data.iter().map(|d| d.is_finite()).collect(),
     };
-    let data = data.iter().zip(&valid).map(|(&d, &v)| if v && d.is_finite() { d } else { 0.0 }).collect();
-    let map = DisparityMap { width: w, height: h, data, valid };
-    let meta = DisparityMeta { f_px, baseline_m: baseline, view };
+    let data = data
+        .iter()
+        .zip(&valid)
+        .map(|(&d, &v)| if v && d.is_finite() { d } else { 0.0 })
+        .collect();
+    let map = DisparityMap {
+        width: w,
+        height: h,
+        data,
+        valid,
+    };
+    let meta = DisparityMeta {
+        f_px,
+        baseline_m: baseline,
+        view,
+    };
     let format = parse_disp_format(format)?;
-    py.detach(|| stereo_io::write_disparity(&path, &map, &meta, format)).map_err(to_py)
+    py.detach(|| stereo_io::write_disparity(&path, &map, &meta, format))
+        .map_err(to_py)
 }
 
 /// plan_scene(recipe, seed, index) -> dict
@@ -210,12 +269,19 @@ fn write_disparity(
 /// The SceneSpec of sample `index` of (`recipe`, `seed`), planned by the generator's own Rust
 /// planner. `recipe` is a preset name or a recipe TOML path.
 #[pyfunction]
-fn plan_scene<'py>(py: Python<'py>, recipe: &str, seed: u64, index: u64) -> PyResult<Bound<'py, PyAny>> {
+fn plan_scene<'py>(
+    py: Python<'py>,
+    recipe: &str,
+    seed: u64,
+    index: u64,
+) -> PyResult<Bound<'py, PyAny>> {
     let json = py
         .detach(|| -> anyhow_free::Result<String> {
-            let recipe = stereogen_plan::Recipe::load_or_preset(recipe).map_err(|e| e.to_string())?;
+            let recipe =
+                stereogen_plan::Recipe::load_or_preset(recipe).map_err(|e| e.to_string())?;
             let home = stereogen_assets::stereogen_home();
-            let assets = stereogen_assets::index_sources(&recipe.sources, &home).map_err(|e| format!("{e:#}"))?;
+            let assets = stereogen_assets::index_sources(&recipe.sources, &home)
+                .map_err(|e| format!("{e:#}"))?;
             Ok(stereogen_plan::plan_scene(&recipe, &assets, seed, index).to_json())
         })
         .map_err(PyValueError::new_err)?;

@@ -42,7 +42,12 @@ pub enum FetchSource {
         #[arg(long, value_name = "N")]
         count: usize,
         /// Accepted licences (cc0, cc-by, cc-by-sa, ...); NC/ND ones need --allow-nc-nd.
-        #[arg(long, value_name = "LICENCES", value_delimiter = ',', default_value = "cc0,cc-by")]
+        #[arg(
+            long,
+            value_name = "LICENCES",
+            value_delimiter = ',',
+            default_value = "cc0,cc-by"
+        )]
         license: Vec<String>,
         /// Let --license name licences that forbid commercial use or derivatives.
         #[arg(long)]
@@ -73,12 +78,28 @@ fn print_list(index: &PackIndex) {
     println!("{} ({})", index.name, index.root.display());
     for e in &index.entries {
         let size = e.size.map(|[w, h]| format!("{w}x{h}")).unwrap_or_default();
-        println!("{:<5} {:<13} {:<22} {:>10} {:>9}  {}", format!("{:?}", e.kind).to_lowercase(), e.licence, format!("{}=={}", e.package, e.version), mib(e.bytes), size, e.file);
+        println!(
+            "{:<5} {:<13} {:<22} {:>10} {:>9}  {}",
+            format!("{:?}", e.kind).to_lowercase(),
+            e.licence,
+            format!("{}=={}", e.package, e.version),
+            mib(e.bytes),
+            size,
+            e.file
+        );
     }
     for ((kind, licence), n) in index.licence_counts() {
-        println!("total: {n} {}(s) under {licence}", format!("{kind:?}").to_lowercase());
+        println!(
+            "total: {n} {}(s) under {licence}",
+            format!("{kind:?}").to_lowercase()
+        );
     }
-    println!("total: {} file(s), {}; fingerprint {}", index.entries.len(), mib(index.entries.iter().map(|e| e.bytes).sum()), index.fingerprint);
+    println!(
+        "total: {} file(s), {}; fingerprint {}",
+        index.entries.len(),
+        mib(index.entries.iter().map(|e| e.bytes).sum()),
+        index.fingerprint
+    );
     for f in &index.excluded {
         println!("excluded by licence: {f}");
     }
@@ -102,26 +123,54 @@ fn print_info(e: &PackEntry) {
 }
 
 fn fetch_bar(show: bool) -> ProgressBar {
-    let bar = if show { ProgressBar::new(0) } else { ProgressBar::hidden() };
-    bar.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} objects · {msg}").expect("static template"));
+    let bar = if show {
+        ProgressBar::new(0)
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} objects · {msg}",
+        )
+        .expect("static template"),
+    );
     bar
 }
 
 pub fn run(command: AssetsCommand) -> anyhow::Result<()> {
     match command {
-        AssetsCommand::List { exclude_licences } => print_list(&installed_index(&stereogen_home(), &exclude_licences)?),
+        AssetsCommand::List { exclude_licences } => {
+            print_list(&installed_index(&stereogen_home(), &exclude_licences)?)
+        }
         AssetsCommand::Info { file } => {
             let index = installed_index(&stereogen_home(), &[])?;
-            let found = index.entries.iter().find(|e| e.file == file || e.file.rsplit('/').next() == Some(file.as_str()));
+            let found = index
+                .entries
+                .iter()
+                .find(|e| e.file == file || e.file.rsplit('/').next() == Some(file.as_str()));
             let Some(entry) = found else {
                 if let Some(s) = index.skipped.iter().find(|s| s.path.ends_with(&file)) {
                     bail!("{file}: in the pack but not usable: {}", s.reason);
                 }
-                bail!("{file}: no such file in the content pack (`stereogen assets list` shows them)");
+                bail!(
+                    "{file}: no such file in the content pack (`stereogen assets list` shows them)"
+                );
             };
             print_info(entry);
         }
-        AssetsCommand::Fetch { source: FetchSource::Objaverse { count, license, allow_nc_nd, categories, out, jobs, base_url, no_progress } } => {
+        AssetsCommand::Fetch {
+            source:
+                FetchSource::Objaverse {
+                    count,
+                    license,
+                    allow_nc_nd,
+                    categories,
+                    out,
+                    jobs,
+                    base_url,
+                    no_progress,
+                },
+        } => {
             let mut opts = FetchOptions::new(&out, count);
             opts.licences = license;
             opts.allow_restricted = allow_nc_nd;
@@ -136,7 +185,9 @@ pub fn run(command: AssetsCommand) -> anyhow::Result<()> {
                     bar.set_position(present as u64);
                     bar.enable_steady_tick(Duration::from_millis(250));
                 }
-                FetchEvent::Bytes(n) => bar.set_message(mib(bytes.fetch_add(n, Ordering::Relaxed) + n)),
+                FetchEvent::Bytes(n) => {
+                    bar.set_message(mib(bytes.fetch_add(n, Ordering::Relaxed) + n))
+                }
                 FetchEvent::Done { .. } => bar.inc(1),
                 FetchEvent::Failed { uid, error } => {
                     bar.println(format!("{uid}: {error}"));
@@ -154,10 +205,16 @@ pub fn run(command: AssetsCommand) -> anyhow::Result<()> {
                 out.display()
             );
             if s.selected < count {
-                eprintln!("stereogen: only {} object(s) of the index match the licences and categories asked for", s.selected);
+                eprintln!(
+                    "stereogen: only {} object(s) of the index match the licences and categories asked for",
+                    s.selected
+                );
             }
             if !s.failed.is_empty() {
-                bail!("{} object(s) failed; re-run the same command to retry them", s.failed.len());
+                bail!(
+                    "{} object(s) failed; re-run the same command to retry them",
+                    s.failed.len()
+                );
             }
         }
     }

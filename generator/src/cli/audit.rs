@@ -2,7 +2,10 @@
 
 use std::path::PathBuf;
 
-use stereogen::validate::audit::{AUDIT_FILE, AuditOptions, PixelSelection, SampleAudit, SampleSelection, audit, summary_lines, write_json};
+use stereogen::validate::audit::{
+    AUDIT_FILE, AuditOptions, PixelSelection, SampleAudit, SampleSelection, audit, summary_lines,
+    write_json,
+};
 
 use super::RuntimeArgs;
 
@@ -59,8 +62,23 @@ pub fn run(args: AuditArgs) -> anyhow::Result<()> {
     opts.seed = args.seed;
     opts.worker_options = args.runtime.worker_options();
     let progress = |done: usize, total: usize, s: &SampleAudit| {
-        let share = s.tally.share_within_0_01().map_or("-".to_string(), |v| format!("{:.4}%", 100.0 * v));
-        eprintln!("audit: [{done}/{total}] {} {}: {} px, within 0.01 px {share}, {} silhouette, {} flying{}", if s.pass { "ok  " } else { "FAIL" }, s.id, s.tally.pixels, s.tally.silhouette, s.tally.flying, if s.problems.is_empty() { String::new() } else { format!(" -- {}", s.problems.join("; ")) });
+        let share = s
+            .tally
+            .share_within_0_01()
+            .map_or("-".to_string(), |v| format!("{:.4}%", 100.0 * v));
+        eprintln!(
+            "audit: [{done}/{total}] {} {}: {} px, within 0.01 px {share}, {} silhouette, {} flying{}",
+            if s.pass { "ok  " } else { "FAIL" },
+            s.id,
+            s.tally.pixels,
+            s.tally.silhouette,
+            s.tally.flying,
+            if s.problems.is_empty() {
+                String::new()
+            } else {
+                format!(" -- {}", s.problems.join("; "))
+            }
+        );
     };
     let report = audit(&opts, &progress)?;
     let path = args.json.unwrap_or_else(|| args.dataset.join(AUDIT_FILE));

@@ -97,7 +97,9 @@ pub struct FarmArgs {
 }
 
 fn parse_env(s: &str) -> Result<(String, String), String> {
-    let (k, v) = s.split_once('=').ok_or_else(|| format!("{s:?} is not KEY=VALUE"))?;
+    let (k, v) = s
+        .split_once('=')
+        .ok_or_else(|| format!("{s:?} is not KEY=VALUE"))?;
     Ok((k.to_string(), v.to_string()))
 }
 
@@ -110,7 +112,8 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
     let stereogen = match (a.stereogen, scheduler) {
         (Some(p), _) => p,
         (None, Scheduler::Kubernetes) => PathBuf::from("stereogen"),
-        (None, _) => std::env::current_exe().context("cannot find this stereogen executable; pass --stereogen PATH")?,
+        (None, _) => std::env::current_exe()
+            .context("cannot find this stereogen executable; pass --stereogen PATH")?,
     };
     let opts = FarmOptions {
         recipe: a.recipe.load()?,
@@ -144,8 +147,13 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
     let first = files[0].display();
     match scheduler {
         Scheduler::Slurm => println!("submit: bash {first}"),
-        Scheduler::Kubernetes => println!("submit: kubectl apply -f {first}; when it is complete: kubectl apply -f {}", files[1].display()),
-        Scheduler::OpenJd => println!("check: openjd check {first}; run locally: openjd run {first} --step Check --run-dependencies"),
+        Scheduler::Kubernetes => println!(
+            "submit: kubectl apply -f {first}; when it is complete: kubectl apply -f {}",
+            files[1].display()
+        ),
+        Scheduler::OpenJd => println!(
+            "check: openjd check {first}; run locally: openjd run {first} --step Check --run-dependencies"
+        ),
     }
     println!("watch: stereogen status {}", opts.out.display());
     Ok(())

@@ -10,7 +10,11 @@ use stereogen::dataset::{DatasetLayout, GenerateOptions, generate};
 
 /// Draws the library's progress reports (a hidden bar when `show` is false).
 fn progress_bar(show: bool) -> ProgressBar {
-    let bar = if show { ProgressBar::new(0) } else { ProgressBar::hidden() };
+    let bar = if show {
+        ProgressBar::new(0)
+    } else {
+        ProgressBar::hidden()
+    };
     bar.set_style(
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} samples · {per_sec} · ETA {eta} {msg}")
             .expect("static template"),
@@ -58,7 +62,11 @@ pub fn run(opts: &GenerateOptions, show_progress: bool) -> anyhow::Result<()> {
     }
     if !s.failed.is_empty() {
         let failures = DatasetLayout::new(opts.dataset_dir()).failures();
-        bail!("{} sample(s) failed (listed in {}); re-run the same command to retry them", s.failed.len(), failures.display());
+        bail!(
+            "{} sample(s) failed (listed in {}); re-run the same command to retry them",
+            s.failed.len(),
+            failures.display()
+        );
     }
     Ok(())
 }

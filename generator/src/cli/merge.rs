@@ -16,7 +16,10 @@ pub struct MergeArgs {
 
 pub fn run(a: MergeArgs) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
-    let report = merge(&MergeOptions { out: a.out.clone(), verify: a.verify })?;
+    let report = merge(&MergeOptions {
+        out: a.out.clone(),
+        verify: a.verify,
+    })?;
     for note in &report.notes {
         eprintln!("note: {note}");
     }
@@ -24,13 +27,19 @@ pub fn run(a: MergeArgs) -> anyhow::Result<()> {
         println!("problem: {problem}");
     }
     if !report.problems.is_empty() {
-        anyhow::bail!("merge: {} problem(s) in {}; nothing written", report.problems.len(), a.out.display());
+        anyhow::bail!(
+            "merge: {} problem(s) in {}; nothing written",
+            report.problems.len(),
+            a.out.display()
+        );
     }
     println!(
         "merged {} samples of {} shards into {} ({} files checked, {} checksums recomputed, {:.1} s)",
         report.samples,
         report.shards,
-        a.out.join(stereo_io::datasets::stereogen::MANIFEST_FILE).display(),
+        a.out
+            .join(stereo_io::datasets::stereogen::MANIFEST_FILE)
+            .display(),
         report.files_checked,
         report.files_hashed,
         t0.elapsed().as_secs_f64()

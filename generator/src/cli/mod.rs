@@ -15,7 +15,6 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand};
 use stereogen::assets::{index_sources, stereogen_home};
@@ -272,17 +271,33 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Setup { runtime, no_pack } => setup::run(&runtime, !no_pack)?,
         Command::Assets { command } => assets::run(command)?,
-        Command::Generate { recipe, out, count, seed, start, shard, shards, break_lock, workers, no_progress, runtime } => {
-            let mut opts = stereogen::dataset::GenerateOptions::new(&out, recipe.load()?, seed, count);
+        Command::Generate {
+            recipe,
+            out,
+            count,
+            seed,
+            start,
+            shard,
+            shards,
+            break_lock,
+            workers,
+            no_progress,
+            runtime,
+        } => {
+            let mut opts =
+                stereogen::dataset::GenerateOptions::new(&out, recipe.load()?, seed, count);
             opts.start = start;
             // Where an automatic shard came from goes to the log (a task's first line).
             let auto = shard == Some(ShardArg::Auto);
-            opts.shard = shard.map(|s| resolve_shard(s, shards)).transpose()?.map(|d| {
-                if auto {
-                    tracing::info!("shard {} ({})", d.shard, d.source);
-                }
-                d.shard
-            });
+            opts.shard = shard
+                .map(|s| resolve_shard(s, shards))
+                .transpose()?
+                .map(|d| {
+                    if auto {
+                        tracing::info!("shard {} ({})", d.shard, d.source);
+                    }
+                    d.shard
+                });
             opts.break_lock = break_lock;
             opts.workers = workers;
             opts.worker_options = runtime.worker_options();
@@ -291,18 +306,50 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Farm(args) => farm::run(args)?,
         Command::Merge(args) => merge::run(args)?,
         Command::Status(args) => status::run(args)?,
-        Command::Sheet { dataset, out, count, cols } => {
-            let n = stereogen::validate::contact_sheet::write_contact_sheet(&dataset, count, cols, &out)?;
-            eprintln!("stereogen: contact sheet of {n} samples -> {}", out.display());
+        Command::Sheet {
+            dataset,
+            out,
+            count,
+            cols,
+        } => {
+            let n = stereogen::validate::contact_sheet::write_contact_sheet(
+                &dataset, count, cols, &out,
+            )?;
+            eprintln!(
+                "stereogen: contact sheet of {n} samples -> {}",
+                out.display()
+            );
         }
-        Command::Plan { recipe, seed, index } => {
+        Command::Plan {
+            recipe,
+            seed,
+            index,
+        } => {
             let recipe = recipe.load()?;
             let assets = index_sources(&recipe.sources, &stereogen_home())?;
             println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
-        Command::Render { spec, out, runtime } => render::run(&spec, &out, &runtime.worker_options())?,
-        Command::Export { dataset, format, from_format, out, jpeg_quality, jpeg_chroma, middlebury_variant } => {
-            let opts = stereogen::dataset::export::ExportOptions { dataset, from: from_format, format, out: out.clone(), jpeg_quality, jpeg_chroma, middlebury_variant };
+        Command::Render { spec, out, runtime } => {
+            render::run(&spec, &out, &runtime.worker_options())?
+        }
+        Command::Export {
+            dataset,
+            format,
+            from_format,
+            out,
+            jpeg_quality,
+            jpeg_chroma,
+            middlebury_variant,
+        } => {
+            let opts = stereogen::dataset::export::ExportOptions {
+                dataset,
+                from: from_format,
+                format,
+                out: out.clone(),
+                jpeg_quality,
+                jpeg_chroma,
+                middlebury_variant,
+            };
             let s = stereogen::dataset::export::export(&opts)?;
             if format == stereo_io::WritableFormat::Crestereo && s.outside_categories > 0 {
                 eprintln!(
@@ -323,8 +370,23 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Audit(args) => audit::run(args)?,
         Command::Report(args) => report::run(args)?,
-        Command::Stats { dataset, plot, check, ks_alpha, verify, bins, gap_bins, out } => {
-            let opts = stereogen::validate::StatsOptions { dataset, ks_alpha, bins, gap_bins, verify };
+        Command::Stats {
+            dataset,
+            plot,
+            check,
+            ks_alpha,
+            verify,
+            bins,
+            gap_bins,
+            out,
+        } => {
+            let opts = stereogen::validate::StatsOptions {
+                dataset,
+                ks_alpha,
+                bins,
+                gap_bins,
+                verify,
+            };
             stats::run(&opts, out, plot, check)?;
         }
     }
@@ -335,7 +397,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("STEREOGEN_LOG").unwrap_or_else(|_| "info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("STEREOGEN_LOG")
+                .unwrap_or_else(|_| "info".into()),
+        )
         .with_writer(std::io::stderr)
         .with_target(false)
         .without_time()
@@ -344,7 +409,9 @@ pub fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            if e.downcast_ref::<stereogen::dataset::interrupt::Interrupted>().is_some() {
+            if e.downcast_ref::<stereogen::dataset::interrupt::Interrupted>()
+                .is_some()
+            {
                 ExitCode::from(stereogen::dataset::interrupt::EXIT_INTERRUPTED)
             } else {
                 ExitCode::FAILURE

@@ -23,7 +23,11 @@ pub struct ReportArgs {
 
 pub fn run(args: ReportArgs) -> anyhow::Result<()> {
     let out = args.out.unwrap_or_else(|| args.dataset.join("report.html"));
-    let summary = write_report(&ReportOptions { dataset: args.dataset, out, thumbnails: args.thumbnails })?;
+    let summary = write_report(&ReportOptions {
+        dataset: args.dataset,
+        out,
+        thumbnails: args.thumbnails,
+    })?;
     println!(
         "wrote {} ({:.1} KiB in {:.2} s: {} samples, {} in the gallery, {} standing out, {} problem(s) listed)",
         summary.path.display(),

@@ -20,13 +20,22 @@ fn pip_python(runtime: &BlenderRuntime) -> PathBuf {
 pub fn run(runtime: &RuntimeArgs, with_pack: bool) -> anyhow::Result<()> {
     let cfg = runtime.worker_options().resolve(1)?;
     let worker = Worker::spawn(&cfg)?;
-    println!("Blender {} (Python {}) ready via {}", worker.hello.blender, worker.hello.python, cfg.runtime.describe());
+    println!(
+        "Blender {} (Python {}) ready via {}",
+        worker.hello.blender,
+        worker.hello.python,
+        cfg.runtime.describe()
+    );
     worker.shutdown();
     if with_pack {
         let index = install_pack(&stereogen_home(), &pip_python(&cfg.runtime))?;
         let photos = index.photos().len();
         let meshes = index.meshes().len();
-        println!("content pack {}: {photos} photo(s), {meshes} mesh(es) in {} (`stereogen assets list` shows them)", index.name, index.root.display());
+        println!(
+            "content pack {}: {photos} photo(s), {meshes} mesh(es) in {} (`stereogen assets list` shows them)",
+            index.name,
+            index.root.display()
+        );
         for s in &index.skipped {
             println!("skipped: {}: {}", s.path.display(), s.reason);
         }

@@ -6,7 +6,12 @@ use stereogen::validate::{StatsOptions, compute, plots, summary_lines, write_jso
 
 /// Writes into `out` (default: the dataset root); with `check`, fails when any category misses
 /// its target.
-pub fn run(opts: &StatsOptions, out: Option<PathBuf>, plot: bool, check: bool) -> anyhow::Result<()> {
+pub fn run(
+    opts: &StatsOptions,
+    out: Option<PathBuf>,
+    plot: bool,
+    check: bool,
+) -> anyhow::Result<()> {
     let report = compute(opts)?;
     let dir = out.unwrap_or_else(|| opts.dataset.clone());
     let json = write_json(&report, &dir)?;
@@ -20,14 +25,22 @@ pub fn run(opts: &StatsOptions, out: Option<PathBuf>, plot: bool, check: bool) -
         }
     }
     if opts.verify && report.errors.is_empty() {
-        println!("verified: every file of the {} samples matches its manifest checksum and decodes", report.samples);
+        println!(
+            "verified: every file of the {} samples matches its manifest checksum and decodes",
+            report.samples
+        );
     }
     // A broken or unreadable file never looks like success, with or without --check.
     if !report.errors.is_empty() {
-        anyhow::bail!("{} file(s) of the dataset are unreadable or fail verification (see the ERROR lines above)", report.errors.len());
+        anyhow::bail!(
+            "{} file(s) of the dataset are unreadable or fail verification (see the ERROR lines above)",
+            report.errors.len()
+        );
     }
     if check && !report.pass {
-        anyhow::bail!("stats --check: the dataset does not follow its recipe (see the FAIL and ERROR lines above)");
+        anyhow::bail!(
+            "stats --check: the dataset does not follow its recipe (see the FAIL and ERROR lines above)"
+        );
     }
     Ok(())
 }

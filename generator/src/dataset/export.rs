@@ -4,7 +4,10 @@
 
 use std::path::PathBuf;
 
-use stereo_io::{ChromaSampling, DatasetFormat, ImageEncoding, JpegOptions, MiddleburyVariant, ReadOptions, WritableFormat, WriteSummary};
+use stereo_io::{
+    ChromaSampling, DatasetFormat, ImageEncoding, JpegOptions, MiddleburyVariant, ReadOptions,
+    WritableFormat, WriteSummary,
+};
 
 #[derive(Debug, Clone)]
 pub struct ExportOptions {
@@ -27,9 +30,19 @@ pub struct ExportOptions {
 pub fn export(opts: &ExportOptions) -> anyhow::Result<WriteSummary> {
     let images = match (opts.jpeg_quality, opts.jpeg_chroma) {
         (None, ChromaSampling::Full) => ImageEncoding::Lossless,
-        (quality, chroma) => ImageEncoding::JpegWith(JpegOptions { quality: quality.unwrap_or(JpegOptions::default().quality), chroma }),
+        (quality, chroma) => ImageEncoding::JpegWith(JpegOptions {
+            quality: quality.unwrap_or(JpegOptions::default().quality),
+            chroma,
+        }),
     };
-    let read = ReadOptions { middlebury_variant: opts.middlebury_variant };
-    let to = stereo_io::ExportOptions { from: opts.from, to: opts.format, images, read };
+    let read = ReadOptions {
+        middlebury_variant: opts.middlebury_variant,
+    };
+    let to = stereo_io::ExportOptions {
+        from: opts.from,
+        to: opts.format,
+        images,
+        read,
+    };
     Ok(stereo_io::export_dataset(&opts.dataset, &opts.out, &to)?)
 }

@@ -6,8 +6,8 @@
 
 use std::collections::{BTreeSet, VecDeque};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -49,7 +49,18 @@ pub struct GenerateOptions {
 
 impl GenerateOptions {
     pub fn new(out: impl Into<PathBuf>, recipe: Recipe, seed: u64, count: u64) -> Self {
-        Self { out: out.into(), recipe, seed, start: 0, count, shard: None, break_lock: false, workers: 1, worker_options: WorkerOptions::default(), stop: StopFlag::new() }
+        Self {
+            out: out.into(),
+            recipe,
+            seed,
+            start: 0,
+            count,
+            shard: None,
+            break_lock: false,
+            workers: 1,
+            worker_options: WorkerOptions::default(),
+            stop: StopFlag::new(),
+        }
     }
 
     /// The directory this run writes: `out`, or its shard's directory under `out/shards/`.
@@ -63,7 +74,9 @@ impl GenerateOptions {
     /// The indices this run is responsible for (its range, less other shards'); the range was
     /// checked by [`check_options`].
     fn indices(&self) -> Vec<u64> {
-        (self.start..self.start + self.count).filter(|&i| self.shard.is_none_or(|s| s.owns(i))).collect()
+        (self.start..self.start + self.count)
+            .filter(|&i| self.shard.is_none_or(|s| s.owns(i)))
+            .collect()
     }
 }
 
@@ -75,7 +88,11 @@ pub enum Progress<'a> {
     /// A sample is in the dataset.
     Rendered { index: u64, seconds: f64 },
     /// A sample failed (it is listed in `failures.jsonl`); the run goes on.
-    Failed { index: u64, id: &'a str, error: &'a str },
+    Failed {
+        index: u64,
+        id: &'a str,
+        error: &'a str,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -111,18 +128,26 @@ struct FaultPlan(Vec<(u64, Fault, bool)>);
 
 impl FaultPlan {
     fn from_env() -> anyhow::Result<Self> {
-        let Ok(text) = std::env::var("STEREOGEN_FAULT") else { return Ok(Self::default()) };
+        let Ok(text) = std::env::var("STEREOGEN_FAULT") else {
+            return Ok(Self::default());
+        };
         let mut plan = Vec::new();
         for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-            let (kind, index) = item.split_once('@').with_context(|| format!("STEREOGEN_FAULT item {item:?} is not kind@index"))?;
-            let index: u64 = index.parse().with_context(|| format!("STEREOGEN_FAULT item {item:?}: bad index"))?;
+            let (kind, index) = item
+                .split_once('@')
+                .with_context(|| format!("STEREOGEN_FAULT item {item:?} is not kind@index"))?;
+            let index: u64 = index
+                .parse()
+                .with_context(|| format!("STEREOGEN_FAULT item {item:?}: bad index"))?;
             let (fault, always) = match kind {
                 "crash" => (Fault::Crash, false),
                 "hang" => (Fault::Hang, false),
                 "crash-always" => (Fault::Crash, true),
                 "hang-always" => (Fault::Hang, true),
                 "raise" => (Fault::Raise, false),
-                other => bail!("STEREOGEN_FAULT: unknown fault {other:?} (crash, hang, crash-always, hang-always, raise)"),
+                other => bail!(
+                    "STEREOGEN_FAULT: unknown fault {other:?} (crash, hang, crash-always, hang-always, raise)"
+                ),
             };
             plan.push((index, fault, always));
         }
@@ -130,7 +155,10 @@ impl FaultPlan {
     }
 
     fn fault(&self, index: u64, attempt: u32) -> Option<Fault> {
-        self.0.iter().find(|(i, _, always)| *i == index && (*always || attempt == 0)).map(|(_, f, _)| *f)
+        self.0
+            .iter()
+            .find(|(i, _, always)| *i == index && (*always || attempt == 0))
+            .map(|(_, f, _)| *f)
     }
 }
 
@@ -140,7 +168,11 @@ impl FaultPlan {
 fn rewrite_log(guard: &Mutex<()>, path: &Path, keep: impl Fn(&str) -> bool, add: &[String]) {
     let _guard = guard.lock().unwrap();
     let old = std::fs::read_to_string(path).unwrap_or_default();
-    let mut text: String = old.lines().filter(|l| !l.trim().is_empty() && keep(l)).map(|l| format!("{l}\n")).collect();
+    let mut text: String = old
+        .lines()
+        .filter(|l| !l.trim().is_empty() && keep(l))
+        .map(|l| format!("{l}\n"))
+        .collect();
     for line in add {
         text.push_str(line);
         text.push('\n');
@@ -148,7 +180,11 @@ fn rewrite_log(guard: &Mutex<()>, path: &Path, keep: impl Fn(&str) -> bool, add:
     if text == old {
         return;
     }
-    let written = if text.is_empty() { stereo_io::atomic::remove_file_durably(path) } else { stereo_io::write_bytes_atomically(path, text.as_bytes()) };
+    let written = if text.is_empty() {
+        stereo_io::atomic::remove_file_durably(path)
+    } else {
+        stereo_io::write_bytes_atomically(path, text.as_bytes())
+    };
     if let Err(e) = written {
         tracing::error!("cannot update {e}");
     }
@@ -165,7 +201,10 @@ fn append_failure(guard: &Mutex<()>, layout: &DatasetLayout, index: u64, error: 
 
 /// The index a line of `failures.jsonl` is about.
 fn failure_index(line: &str) -> Option<u64> {
-    serde_json::from_str::<serde_json::Value>(line).ok()?.get("index")?.as_u64()
+    serde_json::from_str::<serde_json::Value>(line)
+        .ok()?
+        .get("index")?
+        .as_u64()
 }
 
 /// Drops from `failures.jsonl` the samples that are now in the manifest (a later run rendered
@@ -174,19 +213,35 @@ fn forget_finished_failures(guard: &Mutex<()>, layout: &DatasetLayout) {
     if !layout.failures().exists() {
         return;
     }
-    let Ok(done) = read_manifest(&layout.manifest()) else { return };
+    let Ok(done) = read_manifest(&layout.manifest()) else {
+        return;
+    };
     let done: BTreeSet<u64> = done.entries.iter().map(|e| e.index).collect();
-    rewrite_log(guard, &layout.failures(), |l| failure_index(l).is_none_or(|i| !done.contains(&i)), &[]);
+    rewrite_log(
+        guard,
+        &layout.failures(),
+        |l| failure_index(l).is_none_or(|i| !done.contains(&i)),
+        &[],
+    );
 }
 
 /// Assets the index or a worker refused go to `skipped_assets.jsonl`, once per dataset and file.
-fn record_skipped(guard: &Mutex<()>, layout: &DatasetLayout, seen: &Mutex<BTreeSet<PathBuf>>, skipped: &[SkippedAsset], index: Option<u64>) {
+fn record_skipped(
+    guard: &Mutex<()>,
+    layout: &DatasetLayout,
+    seen: &Mutex<BTreeSet<PathBuf>>,
+    skipped: &[SkippedAsset],
+    index: Option<u64>,
+) {
     let mut seen = seen.lock().unwrap();
     let mut lines = Vec::new();
     for s in skipped {
         if seen.insert(s.path.clone()) {
             tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);
-            lines.push(serde_json::json!({ "path": s.path, "reason": s.reason, "sample": index }).to_string());
+            lines.push(
+                serde_json::json!({ "path": s.path, "reason": s.reason, "sample": index })
+                    .to_string(),
+            );
         }
     }
     if !lines.is_empty() {
@@ -197,7 +252,15 @@ fn record_skipped(guard: &Mutex<()>, layout: &DatasetLayout, seen: &Mutex<BTreeS
 /// Assets `skipped_assets.jsonl` already lists (warned about by an earlier run).
 fn already_skipped(layout: &DatasetLayout) -> BTreeSet<PathBuf> {
     let text = std::fs::read_to_string(layout.skipped_assets()).unwrap_or_default();
-    text.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()?.get("path")?.as_str().map(PathBuf::from)).collect()
+    text.lines()
+        .filter_map(|l| {
+            serde_json::from_str::<serde_json::Value>(l)
+                .ok()?
+                .get("path")?
+                .as_str()
+                .map(PathBuf::from)
+        })
+        .collect()
 }
 
 fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
@@ -205,7 +268,12 @@ fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
         bail!("--workers must be at least 1");
     }
     if opts.start.checked_add(opts.count).is_none() {
-        bail!("--start {} --count {}: the range ends past the largest index {}", opts.start, opts.count, u64::MAX);
+        bail!(
+            "--start {} --count {}: the range ends past the largest index {}",
+            opts.start,
+            opts.count,
+            u64::MAX
+        );
     }
     if opts.worker_options.render_timeout.is_zero() {
         bail!("--timeout must be at least 1 second");
@@ -235,7 +303,10 @@ fn check_output_kind(opts: &GenerateOptions) -> anyhow::Result<()> {
             out.shards_dir().display()
         ),
         Some(_) if out.manifest().is_file() && !out.merge_info().is_file() => {
-            bail!("{} is a dataset rendered without --shard; a farm's shards need an --out of their own", out.root.display())
+            bail!(
+                "{} is a dataset rendered without --shard; a farm's shards need an --out of their own",
+                out.root.display()
+            )
         }
         _ => Ok(()),
     }
@@ -243,12 +314,27 @@ fn check_output_kind(opts: &GenerateOptions) -> anyhow::Result<()> {
 
 /// `shard.json`: the shard's place in the whole range; a re-run with another range rewrites it
 /// (merge then reports shards that have not caught up).
-fn record_shard(layout: &DatasetLayout, opts: &GenerateOptions, shard: ShardId) -> anyhow::Result<()> {
-    let info = ShardInfo { shard, start: opts.start, count: opts.count };
+fn record_shard(
+    layout: &DatasetLayout,
+    opts: &GenerateOptions,
+    shard: ShardId,
+) -> anyhow::Result<()> {
+    let info = ShardInfo {
+        shard,
+        start: opts.start,
+        count: opts.count,
+    };
     let old = layout.read_shard_info().ok();
     if old != Some(info) {
         if let Some(old) = old {
-            tracing::info!("{}: the farm's range changes from {}..{} to {}..{}", layout.root.display(), old.start, old.start + old.count, info.start, info.start + info.count);
+            tracing::info!(
+                "{}: the farm's range changes from {}..{} to {}..{}",
+                layout.root.display(),
+                old.start,
+                old.start + old.count,
+                info.start,
+                info.start + info.count
+            );
         }
         layout.write_shard_info(&info)?;
     }
@@ -258,7 +344,8 @@ fn record_shard(layout: &DatasetLayout, opts: &GenerateOptions, shard: ShardId) 
 fn open_dataset(opts: &GenerateOptions) -> anyhow::Result<OpenDataset> {
     check_output_kind(opts)?;
     let layout = DatasetLayout::new(opts.dataset_dir());
-    std::fs::create_dir_all(&layout.root).with_context(|| format!("cannot create output directory {}", layout.root.display()))?;
+    std::fs::create_dir_all(&layout.root)
+        .with_context(|| format!("cannot create output directory {}", layout.root.display()))?;
     let lock = DatasetLock::acquire(&layout.lock(), opts.break_lock)?;
     layout.open_or_create(&opts.recipe, opts.seed)?;
     if let Some(shard) = opts.shard {
@@ -272,10 +359,18 @@ fn open_dataset(opts: &GenerateOptions) -> anyhow::Result<OpenDataset> {
     let _ = std::fs::remove_dir_all(layout.root.join(scratch::DATASET_SCRATCH_DIR));
     let (manifest, contents) = Manifest::open(&layout.manifest())?;
     if contents.has_unfinished_line() {
-        tracing::warn!("{}: dropped a torn last line left by an interrupted run", layout.manifest().display());
+        tracing::warn!(
+            "{}: dropped a torn last line left by an interrupted run",
+            layout.manifest().display()
+        );
     }
     let done = contents.entries.iter().map(|e| e.index).collect();
-    Ok(OpenDataset { layout, manifest, done, _lock: lock })
+    Ok(OpenDataset {
+        layout,
+        manifest,
+        done,
+        _lock: lock,
+    })
 }
 
 /// What the worker threads add up.
@@ -314,7 +409,9 @@ impl Run<'_> {
     fn worker_loop(&self, cfg: WorkerConfig) {
         let mut service = RenderService::new(cfg);
         while !self.stop.load(Ordering::SeqCst) && !self.opts.stop.is_set() {
-            let Some(index) = self.queue.lock().unwrap().pop_front() else { break };
+            let Some(index) = self.queue.lock().unwrap().pop_front() else {
+                break;
+            };
             let spec = plan_scene(&self.opts.recipe, &self.assets, self.opts.seed, index);
             let t0 = Instant::now();
             match service.render(&spec, |attempt| self.faults.fault(index, attempt)) {
@@ -332,8 +429,22 @@ impl Run<'_> {
     /// Writes a rendered sample into the dataset and appends its manifest line.
     fn finish_sample(&self, spec: &SceneSpec, rendered: &Rendered, t0: Instant) {
         let reply = &rendered.reply;
-        record_skipped(&self.logs, self.layout, &self.seen_skipped, &reply.skipped_assets, Some(spec.index));
-        let finished = finalize_sample(self.layout, spec, &reply.files, &reply.notes, t0.elapsed().as_secs_f64(), &reply.timings).and_then(|entry| {
+        record_skipped(
+            &self.logs,
+            self.layout,
+            &self.seen_skipped,
+            &reply.skipped_assets,
+            Some(spec.index),
+        );
+        let finished = finalize_sample(
+            self.layout,
+            spec,
+            &reply.files,
+            &reply.notes,
+            t0.elapsed().as_secs_f64(),
+            &reply.timings,
+        )
+        .and_then(|entry| {
             self.append(&entry)?;
             Ok(entry)
         });
@@ -342,9 +453,16 @@ impl Run<'_> {
                 let mut totals = self.totals.lock().unwrap();
                 totals.rendered += 1;
                 totals.busy_seconds += entry.render_seconds;
-                totals.verify_seconds += entry.render_timings.get(VERIFY_TIMING).copied().unwrap_or(0.0);
+                totals.verify_seconds += entry
+                    .render_timings
+                    .get(VERIFY_TIMING)
+                    .copied()
+                    .unwrap_or(0.0);
                 drop(totals);
-                (self.progress)(Progress::Rendered { index: spec.index, seconds: entry.render_seconds });
+                (self.progress)(Progress::Rendered {
+                    index: spec.index,
+                    seconds: entry.render_seconds,
+                });
             }
             // A write failure (disk full, permissions) will hit every sample.
             Err(e) => self.fail_run(e.context(format!("sample {}", spec.id))),
@@ -355,7 +473,9 @@ impl Run<'_> {
     /// rest of the run: its torn last line is cut off by the next run's open.
     fn append(&self, entry: &super::manifest::ManifestEntry) -> anyhow::Result<()> {
         let mut manifest = self.manifest.lock().unwrap();
-        let Some(m) = manifest.as_mut() else { bail!("the manifest is closed after a failed append") };
+        let Some(m) = manifest.as_mut() else {
+            bail!("the manifest is closed after a failed append")
+        };
         if let Err(e) = m.append(entry) {
             *manifest = None;
             return Err(e.into());
@@ -366,8 +486,15 @@ impl Run<'_> {
     fn record_failure(&self, spec: &SceneSpec, error: &WorkerError) {
         let message = error.to_string();
         append_failure(&self.logs, self.layout, spec.index, error);
-        (self.progress)(Progress::Failed { index: spec.index, id: &spec.id, error: &message });
-        self.totals.lock().unwrap().failed.push(FailedSample { index: spec.index, error: message });
+        (self.progress)(Progress::Failed {
+            index: spec.index,
+            id: &spec.id,
+            error: &message,
+        });
+        self.totals.lock().unwrap().failed.push(FailedSample {
+            index: spec.index,
+            error: message,
+        });
     }
 
     fn fail_run(&self, error: anyhow::Error) {
@@ -378,23 +505,39 @@ impl Run<'_> {
 
 /// Runs a generation and returns what happened. Fatal problems (no Blender, unwritable output,
 /// a dataset made with another recipe) are errors; a sample that fails is recorded and skipped.
-pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)) -> anyhow::Result<GenerateSummary> {
+pub fn generate(
+    opts: &GenerateOptions,
+    progress: &(dyn Fn(Progress<'_>) + Sync),
+) -> anyhow::Result<GenerateSummary> {
     let started = Instant::now();
     check_options(opts)?;
     let faults = FaultPlan::from_env()?;
     let dataset = open_dataset(opts)?;
-    let orphaned_scratch_removed = scratch::remove_orphans(&scratch::candidate_bases(Some(&dataset.layout.root)));
+    let orphaned_scratch_removed =
+        scratch::remove_orphans(&scratch::candidate_bases(Some(&dataset.layout.root)));
     if orphaned_scratch_removed > 0 {
-        tracing::info!("removed {orphaned_scratch_removed} scratch folder(s) of runs that are no longer running");
+        tracing::info!(
+            "removed {orphaned_scratch_removed} scratch folder(s) of runs that are no longer running"
+        );
     }
     let logs = Mutex::new(());
     forget_finished_failures(&logs, &dataset.layout);
     let indices = opts.indices();
-    let pending: VecDeque<u64> = indices.iter().copied().filter(|i| !dataset.done.contains(i)).collect();
+    let pending: VecDeque<u64> = indices
+        .iter()
+        .copied()
+        .filter(|i| !dataset.done.contains(i))
+        .collect();
     let skipped = (indices.len() - pending.len()) as u64;
     if pending.is_empty() || opts.stop.is_set() {
         let interrupted = !pending.is_empty();
-        return Ok(GenerateSummary { skipped, seconds: started.elapsed().as_secs_f64(), interrupted, orphaned_scratch_removed, ..Default::default() });
+        return Ok(GenerateSummary {
+            skipped,
+            seconds: started.elapsed().as_secs_f64(),
+            interrupted,
+            orphaned_scratch_removed,
+            ..Default::default()
+        });
     }
 
     let assets = index_sources(&opts.recipe.sources, &stereogen_home())?;
@@ -402,7 +545,11 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
     let seen_skipped = Mutex::new(already_skipped(&dataset.layout));
     record_skipped(&logs, &dataset.layout, &seen_skipped, &assets.skipped, None);
     let mut cfg = opts.worker_options.resolve(opts.workers)?;
-    cfg.scratch = scratch::choose_base(Some(&dataset.layout.root), opts.workers, scratch::bytes_per_render(opts.recipe.camera.width, opts.recipe.camera.height));
+    cfg.scratch = scratch::choose_base(
+        Some(&dataset.layout.root),
+        opts.workers,
+        scratch::bytes_per_render(opts.recipe.camera.width, opts.recipe.camera.height),
+    );
     cfg.stop = opts.stop.clone();
     let threads = opts.workers.min(pending.len());
     let run = Run {
@@ -419,7 +566,10 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
         fatal: Mutex::new(None),
         totals: Mutex::new(Totals::default()),
     };
-    progress(Progress::Started { total: indices.len() as u64, done: skipped });
+    progress(Progress::Started {
+        total: indices.len() as u64,
+        done: skipped,
+    });
     std::thread::scope(|s| {
         for _ in 0..threads {
             s.spawn(|| run.worker_loop(cfg.clone()));
@@ -431,8 +581,15 @@ pub fn generate(opts: &GenerateOptions, progress: &(dyn Fn(Progress<'_>) + Sync)
         return Err(e);
     }
     let totals = run.totals.into_inner().unwrap();
-    let per_sample = |s: f64| if totals.rendered > 0 { s / totals.rendered as f64 } else { 0.0 };
-    let interrupted = opts.stop.is_set() && totals.rendered + skipped + (totals.failed.len() as u64) < indices.len() as u64;
+    let per_sample = |s: f64| {
+        if totals.rendered > 0 {
+            s / totals.rendered as f64
+        } else {
+            0.0
+        }
+    };
+    let interrupted = opts.stop.is_set()
+        && totals.rendered + skipped + (totals.failed.len() as u64) < indices.len() as u64;
     Ok(GenerateSummary {
         rendered: totals.rendered,
         skipped,

@@ -51,7 +51,9 @@ pub struct Interrupted {
 impl Interrupted {
     /// Names the signal that set the process's flag, if one did.
     pub fn now() -> Self {
-        Self { signal: received_signal().unwrap_or("a stop request").to_string() }
+        Self {
+            signal: received_signal().unwrap_or("a stop request").to_string(),
+        }
     }
 }
 
@@ -65,11 +67,18 @@ static HANDLERS: OnceLock<Handlers> = OnceLock::new();
 fn register() -> std::io::Result<Handlers> {
     use signal_hook::consts::{SIGINT, SIGTERM};
     use signal_hook::flag;
-    let handlers = Handlers { flag: StopFlag::new(), signal: Arc::new(AtomicUsize::new(0)) };
+    let handlers = Handlers {
+        flag: StopFlag::new(),
+        signal: Arc::new(AtomicUsize::new(0)),
+    };
     for sig in [SIGTERM, SIGINT] {
         // Registered first, so it sees the flag as it was before this signal: set means a
         // second signal, which ends the process at once.
-        flag::register_conditional_shutdown(sig, i32::from(EXIT_INTERRUPTED), Arc::clone(&handlers.flag.0))?;
+        flag::register_conditional_shutdown(
+            sig,
+            i32::from(EXIT_INTERRUPTED),
+            Arc::clone(&handlers.flag.0),
+        )?;
         flag::register_usize(sig, Arc::clone(&handlers.signal), sig as usize)?;
         flag::register(sig, Arc::clone(&handlers.flag.0))?;
     }
@@ -107,10 +116,17 @@ mod tests {
     fn a_signal_sets_the_flag_and_is_named() {
         let flag = install().unwrap();
         assert!(!flag.is_set());
-        assert!(install().unwrap().0.as_ptr() == flag.0.as_ptr(), "one flag per process");
+        assert!(
+            install().unwrap().0.as_ptr() == flag.0.as_ptr(),
+            "one flag per process"
+        );
         unsafe { libc::raise(libc::SIGTERM) };
         assert!(flag.is_set());
         assert_eq!(received_signal(), Some("SIGTERM"));
-        assert!(Interrupted::now().to_string().contains("stopped by SIGTERM"));
+        assert!(
+            Interrupted::now()
+                .to_string()
+                .contains("stopped by SIGTERM")
+        );
     }
 }

@@ -22,8 +22,10 @@ pub trait CreateDataset {
 
 impl CreateDataset for DatasetLayout {
     fn open_or_create(&self, recipe: &Recipe, seed: u64) -> anyhow::Result<DatasetInfo> {
-        std::fs::create_dir_all(&self.root).with_context(|| format!("cannot create output directory {}", self.root.display()))?;
-        tempfile::tempfile_in(&self.root).with_context(|| format!("output directory {} is not writable", self.root.display()))?;
+        std::fs::create_dir_all(&self.root)
+            .with_context(|| format!("cannot create output directory {}", self.root.display()))?;
+        tempfile::tempfile_in(&self.root)
+            .with_context(|| format!("output directory {} is not writable", self.root.display()))?;
         let info = DatasetInfo {
             stereogen_version: env!("CARGO_PKG_VERSION").to_string(),
             seed,
@@ -34,10 +36,19 @@ impl CreateDataset for DatasetLayout {
         if self.info().exists() {
             let existing: DatasetInfo = self.read_info()?;
             if existing.seed != seed {
-                bail!("{} was generated with --seed {}; resume with that seed or choose another --out", self.root.display(), existing.seed);
+                bail!(
+                    "{} was generated with --seed {}; resume with that seed or choose another --out",
+                    self.root.display(),
+                    existing.seed
+                );
             }
             if existing.recipe_fingerprint != info.recipe_fingerprint {
-                bail!("{} was generated with another recipe ({}, fingerprint {}); resume with that recipe or choose another --out", self.root.display(), existing.recipe.name, existing.recipe_fingerprint);
+                bail!(
+                    "{} was generated with another recipe ({}, fingerprint {}); resume with that recipe or choose another --out",
+                    self.root.display(),
+                    existing.recipe.name,
+                    existing.recipe_fingerprint
+                );
             }
             return Ok(existing);
         }

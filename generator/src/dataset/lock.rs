@@ -60,7 +60,10 @@ impl LockHolder {
 
     /// `pid 1234 on host node7 since 2026-11-23T02:10:00Z`.
     pub fn describe(&self) -> String {
-        format!("pid {} on host {} since {}", self.pid, self.host, self.started)
+        format!(
+            "pid {} on host {} since {}",
+            self.pid, self.host, self.started
+        )
     }
 }
 
@@ -69,30 +72,54 @@ impl LockHolder {
 pub enum LockState {
     Free,
     /// Held by a process that may be running; `heartbeat_age` is how long ago it last touched it.
-    Held { holder: LockHolder, heartbeat_age: Duration },
+    Held {
+        holder: LockHolder,
+        heartbeat_age: Duration,
+    },
     /// Held by a process that cannot be running (why in words).
-    Stale { holder: Option<LockHolder>, why: String },
+    Stale {
+        holder: Option<LockHolder>,
+        why: String,
+    },
     /// An older stereogen's `flock` on an empty lock file is held.
     LegacyHeld,
 }
 
 /// Reads the lock at `path` and judges it.
 pub fn inspect(path: &Path) -> LockState {
-    let Ok(bytes) = std::fs::read(path) else { return LockState::Free };
+    let Ok(bytes) = std::fs::read(path) else {
+        return LockState::Free;
+    };
     if bytes.iter().all(u8::is_ascii_whitespace) {
         return match File::open(path).map(|f| f.try_lock_exclusive()) {
-            Ok(Ok(true)) => LockState::Stale { holder: None, why: "an empty lock file left by an older stereogen".into() },
+            Ok(Ok(true)) => LockState::Stale {
+                holder: None,
+                why: "an empty lock file left by an older stereogen".into(),
+            },
             Ok(_) => LockState::LegacyHeld,
             Err(_) => LockState::Free,
         };
     }
     let Ok(holder) = serde_json::from_slice::<LockHolder>(&bytes) else {
-        return LockState::Stale { holder: None, why: "the lock file is not a stereogen lock (damaged)".into() };
+        return LockState::Stale {
+            holder: None,
+            why: "the lock file is not a stereogen lock (damaged)".into(),
+        };
     };
-    let heartbeat_age = std::fs::metadata(path).ok().and_then(|m| m.modified().ok()).map(|m| age_on_filesystem(path, m)).unwrap_or_default();
+    let heartbeat_age = std::fs::metadata(path)
+        .ok()
+        .and_then(|m| m.modified().ok())
+        .map(|m| age_on_filesystem(path, m))
+        .unwrap_or_default();
     match staleness(&holder, heartbeat_age) {
-        Some(why) => LockState::Stale { holder: Some(holder), why },
-        None => LockState::Held { holder, heartbeat_age },
+        Some(why) => LockState::Stale {
+            holder: Some(holder),
+            why,
+        },
+        None => LockState::Held {
+            holder,
+            heartbeat_age,
+        },
     }
 }
 
@@ -102,11 +129,20 @@ fn staleness(holder: &LockHolder, heartbeat_age: Duration) -> Option<String> {
         return match process_start_unix_s(holder.pid) {
             None => Some(format!("pid {} is not running on this host", holder.pid)),
             // /proc's start time is whole seconds after boot; allow for the rounding.
-            Some(t) if t > holder.started_unix_s + 2 => Some(format!("pid {} now belongs to a process started after the lock", holder.pid)),
+            Some(t) if t > holder.started_unix_s + 2 => Some(format!(
+                "pid {} now belongs to a process started after the lock",
+                holder.pid
+            )),
             Some(_) => None,
         };
     }
-    (heartbeat_age > STALE_AFTER).then(|| format!("no heartbeat from host {} for {} s", holder.host, heartbeat_age.as_secs()))
+    (heartbeat_age > STALE_AFTER).then(|| {
+        format!(
+            "no heartbeat from host {} for {} s",
+            holder.host,
+            heartbeat_age.as_secs()
+        )
+    })
 }
 
 /// A held lock: removed (if still ours) when dropped.
@@ -127,11 +163,18 @@ impl DatasetLock {
         for _ in 0..3 {
             if try_create(path, &contents)? {
                 let heartbeat = start_heartbeat(path.to_path_buf());
-                return Ok(Self { path: path.to_path_buf(), holder, heartbeat: Some(heartbeat) });
+                return Ok(Self {
+                    path: path.to_path_buf(),
+                    holder,
+                    heartbeat: Some(heartbeat),
+                });
             }
             match inspect(path) {
                 LockState::Free => {}
-                LockState::Held { holder: other, heartbeat_age } if !break_lock => bail!(
+                LockState::Held {
+                    holder: other,
+                    heartbeat_age,
+                } if !break_lock => bail!(
                     "{} is being written by {} (lock file {}, heartbeat {} s ago); wait for it to finish, or if that process is gone pass --break-lock",
                     dir_of(path).display(),
                     other.describe(),
@@ -146,7 +189,10 @@ impl DatasetLock {
                 state => break_stale(path, &state)?,
             }
         }
-        bail!("cannot take the lock {}: other processes keep taking it", path.display())
+        bail!(
+            "cannot take the lock {}: other processes keep taking it",
+            path.display()
+        )
     }
 
     pub fn holder(&self) -> &LockHolder {
@@ -162,7 +208,10 @@ impl Drop for DatasetLock {
             let _ = thread.join();
         }
         // Only our own lock: after --break-lock by someone else the file is theirs.
-        let ours = std::fs::read(&self.path).ok().and_then(|b| serde_json::from_slice::<LockHolder>(&b).ok()).is_some_and(|h| h == self.holder);
+        let ours = std::fs::read(&self.path)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<LockHolder>(&b).ok())
+            .is_some_and(|h| h == self.holder);
         if ours {
             let _ = std::fs::remove_file(&self.path);
         }
@@ -175,19 +224,29 @@ fn dir_of(path: &Path) -> &Path {
 
 /// Links a complete lock file into place; `false` when the name is taken.
 fn try_create(path: &Path, contents: &[u8]) -> anyhow::Result<bool> {
-    let tmp = dir_of(path).join(format!(".stereogen.lock.{}.{}.{}", hostname(), std::process::id(), unix_nanos()));
-    let mut file = File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-    file.write_all(contents).and_then(|()| file.sync_all()).with_context(|| format!("cannot write {}", tmp.display()))?;
+    let tmp = dir_of(path).join(format!(
+        ".stereogen.lock.{}.{}.{}",
+        hostname(),
+        std::process::id(),
+        unix_nanos()
+    ));
+    let mut file =
+        File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+    file.write_all(contents)
+        .and_then(|()| file.sync_all())
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
     drop(file);
-    let linked = match std::fs::hard_link(&tmp, path) {
-        Ok(()) => Ok(true),
-        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
-        // NFS may report an error for a link that was made (a lost reply): the link count says.
-        Err(e) => match std::fs::metadata(&tmp) {
-            Ok(m) if m.nlink() == 2 => Ok(true),
-            _ => Err(anyhow::Error::new(e).context(format!("cannot create the lock {}", path.display()))),
-        },
-    };
+    let linked =
+        match std::fs::hard_link(&tmp, path) {
+            Ok(()) => Ok(true),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
+            // NFS may report an error for a link that was made (a lost reply): the link count says.
+            Err(e) => match std::fs::metadata(&tmp) {
+                Ok(m) if m.nlink() == 2 => Ok(true),
+                _ => Err(anyhow::Error::new(e)
+                    .context(format!("cannot create the lock {}", path.display()))),
+            },
+        };
     let _ = std::fs::remove_file(&tmp);
     linked
 }
@@ -196,22 +255,43 @@ fn try_create(path: &Path, contents: &[u8]) -> anyhow::Result<bool> {
 /// processes breaking the same lock cannot remove each other's fresh one.
 fn break_stale(path: &Path, judged: &LockState) -> anyhow::Result<()> {
     let breaker = path.with_extension("lock.break");
-    match OpenOptions::new().write(true).create_new(true).open(&breaker) {
+    match OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&breaker)
+    {
         Ok(_) => {}
         Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-            let old = std::fs::metadata(&breaker).ok().and_then(|m| m.modified().ok()).map(|m| age_on_filesystem(path, m)).unwrap_or_default();
+            let old = std::fs::metadata(&breaker)
+                .ok()
+                .and_then(|m| m.modified().ok())
+                .map(|m| age_on_filesystem(path, m))
+                .unwrap_or_default();
             if old > BREAKER_STALE_AFTER {
                 let _ = std::fs::remove_file(&breaker);
             }
             std::thread::sleep(Duration::from_millis(200));
             return Ok(());
         }
-        Err(e) => return Err(anyhow::Error::new(e).context(format!("cannot create {}", breaker.display()))),
+        Err(e) => {
+            return Err(
+                anyhow::Error::new(e).context(format!("cannot create {}", breaker.display()))
+            );
+        }
     }
     // Still the lock we judged? (Another process may have broken it and taken the lock since.)
     let now = inspect(path);
     let same = match (judged, &now) {
-        (LockState::Held { holder: a, .. } | LockState::Stale { holder: Some(a), .. }, LockState::Held { holder: b, .. } | LockState::Stale { holder: Some(b), .. }) => a == b,
+        (
+            LockState::Held { holder: a, .. }
+            | LockState::Stale {
+                holder: Some(a), ..
+            },
+            LockState::Held { holder: b, .. }
+            | LockState::Stale {
+                holder: Some(b), ..
+            },
+        ) => a == b,
         (a, b) => std::mem::discriminant(a) == std::mem::discriminant(b),
     };
     if same && now != LockState::Free {
@@ -220,7 +300,11 @@ fn break_stale(path: &Path, judged: &LockState) -> anyhow::Result<()> {
             _ => "--break-lock".into(),
         };
         let who = match &now {
-            LockState::Held { holder, .. } | LockState::Stale { holder: Some(holder), .. } => holder.describe(),
+            LockState::Held { holder, .. }
+            | LockState::Stale {
+                holder: Some(holder),
+                ..
+            } => holder.describe(),
             _ => "an older stereogen".into(),
         };
         tracing::warn!("breaking the lock {} held by {who}: {why}", path.display());
@@ -245,7 +329,10 @@ fn start_heartbeat(path: PathBuf) -> Heartbeat {
         let mut stopped = flag.lock().unwrap();
         loop {
             // `_while` checks the flag first: a stop set before this thread waits is not missed.
-            stopped = cvar.wait_timeout_while(stopped, HEARTBEAT, |stop| !*stop).unwrap().0;
+            stopped = cvar
+                .wait_timeout_while(stopped, HEARTBEAT, |stop| !*stop)
+                .unwrap()
+                .0;
             if *stopped {
                 break;
             }
@@ -262,14 +349,25 @@ fn touch(path: &Path) -> std::io::Result<()> {
     let file = File::open(path)?;
     use std::os::fd::AsRawFd;
     // SAFETY: a valid open descriptor; a null `times` means "now" for both times.
-    if unsafe { libc::futimens(file.as_raw_fd(), std::ptr::null()) } == 0 { Ok(()) } else { Err(std::io::Error::last_os_error()) }
+    if unsafe { libc::futimens(file.as_raw_fd(), std::ptr::null()) } == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
 }
 
 /// How long ago `then` was, by the clock of the filesystem holding `near` (a fresh file's mtime),
 /// falling back to this machine's clock.
 fn age_on_filesystem(near: &Path, then: SystemTime) -> Duration {
-    let probe = dir_of(near).join(format!(".stereogen.clock.{}.{}", std::process::id(), unix_nanos()));
-    let now = File::create(&probe).and_then(|f| f.metadata()).and_then(|m| m.modified()).unwrap_or_else(|_| SystemTime::now());
+    let probe = dir_of(near).join(format!(
+        ".stereogen.clock.{}.{}",
+        std::process::id(),
+        unix_nanos()
+    ));
+    let now = File::create(&probe)
+        .and_then(|f| f.metadata())
+        .and_then(|m| m.modified())
+        .unwrap_or_else(|_| SystemTime::now());
     let _ = std::fs::remove_file(&probe);
     now.duration_since(then).unwrap_or_default()
 }
@@ -280,23 +378,42 @@ pub fn hostname() -> String {
     // SAFETY: the buffer is valid for its length; the result is NUL-terminated or truncated.
     let ok = unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } == 0;
     let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
-    if ok && end > 0 { String::from_utf8_lossy(&buf[..end]).into_owned() } else { "unknown-host".into() }
+    if ok && end > 0 {
+        String::from_utf8_lossy(&buf[..end]).into_owned()
+    } else {
+        "unknown-host".into()
+    }
 }
 
 /// When process `pid` started (Unix seconds), or `None` if no such process runs here.
 fn process_start_unix_s(pid: u32) -> Option<u64> {
     // SAFETY: signal 0 only checks that the process exists.
-    let alive = unsafe { libc::kill(pid as libc::pid_t, 0) } == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
+    let alive = unsafe { libc::kill(pid as libc::pid_t, 0) } == 0
+        || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
     if !alive {
         return None;
     }
     let start = || -> Option<u64> {
         let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
         // Field 22 (starttime, clock ticks after boot); the command (field 2) may hold spaces.
-        let ticks: u64 = stat.rsplit_once(')')?.1.split_whitespace().nth(19)?.parse().ok()?;
-        let boot: u64 = std::fs::read_to_string("/proc/stat").ok()?.lines().find_map(|l| l.strip_prefix("btime "))?.trim().parse().ok()?;
+        let ticks: u64 = stat
+            .rsplit_once(')')?
+            .1
+            .split_whitespace()
+            .nth(19)?
+            .parse()
+            .ok()?;
+        let boot: u64 = std::fs::read_to_string("/proc/stat")
+            .ok()?
+            .lines()
+            .find_map(|l| l.strip_prefix("btime "))?
+            .trim()
+            .parse()
+            .ok()?;
         // SAFETY: sysconf has no preconditions.
-        let hz = u64::try_from(unsafe { libc::sysconf(libc::_SC_CLK_TCK) }).ok().filter(|&h| h > 0)?;
+        let hz = u64::try_from(unsafe { libc::sysconf(libc::_SC_CLK_TCK) })
+            .ok()
+            .filter(|&h| h > 0)?;
         Some(boot + ticks / hz)
     };
     // Alive but its start unknown (no /proc): it may be the holder.
@@ -304,11 +421,17 @@ fn process_start_unix_s(pid: u32) -> Option<u64> {
 }
 
 pub fn unix_now() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0)
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0)
 }
 
 fn unix_nanos() -> u128 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0)
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0)
 }
 
 /// `2026-11-23T02:10:00Z` for Unix seconds (proleptic Gregorian calendar, UTC).
@@ -325,7 +448,12 @@ pub fn utc_timestamp(unix_s: u64) -> String {
     let day = doy - (153 * mp + 2) / 5 + 1;
     let month = if mp < 10 { mp + 3 } else { mp - 9 };
     let year = yoe + era * 400 + i64::from(month <= 2);
-    format!("{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z", secs / 3600, secs / 60 % 60, secs % 60)
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
+        secs / 3600,
+        secs / 60 % 60,
+        secs % 60
+    )
 }
 
 #[cfg(test)]
@@ -344,8 +472,16 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(".stereogen.lock");
         let lock = DatasetLock::acquire(&path, false).unwrap();
-        let e = DatasetLock::acquire(&path, false).err().unwrap().to_string();
-        assert!(e.contains(&format!("pid {}", std::process::id())) && e.contains(&hostname()) && e.contains("--break-lock"), "{e}");
+        let e = DatasetLock::acquire(&path, false)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains(&format!("pid {}", std::process::id()))
+                && e.contains(&hostname())
+                && e.contains("--break-lock"),
+            "{e}"
+        );
         assert!(matches!(inspect(&path), LockState::Held { .. }));
         drop(lock);
         assert!(!path.exists());
@@ -363,7 +499,9 @@ mod tests {
         holder.pid = child.id();
         child.wait().unwrap();
         std::fs::write(&path, serde_json::to_vec(&holder).unwrap()).unwrap();
-        assert!(matches!(inspect(&path), LockState::Stale { why, .. } if why.contains("not running")));
+        assert!(
+            matches!(inspect(&path), LockState::Stale { why, .. } if why.contains("not running"))
+        );
         let lock = DatasetLock::acquire(&path, false).unwrap();
         assert_eq!(lock.holder().pid, std::process::id());
         drop(lock);
@@ -372,10 +510,15 @@ mod tests {
         holder.pid = std::process::id();
         holder.started_unix_s = 1000;
         std::fs::write(&path, serde_json::to_vec(&holder).unwrap()).unwrap();
-        assert!(matches!(inspect(&path), LockState::Stale { why, .. } if why.contains("started after")));
+        assert!(
+            matches!(inspect(&path), LockState::Stale { why, .. } if why.contains("started after"))
+        );
 
         std::fs::write(&path, "").unwrap();
-        assert!(matches!(inspect(&path), LockState::Stale { holder: None, .. }));
+        assert!(matches!(
+            inspect(&path),
+            LockState::Stale { holder: None, .. }
+        ));
         drop(DatasetLock::acquire(&path, false).unwrap());
     }
 
@@ -387,11 +530,21 @@ mod tests {
         holder.host = "elsewhere".into();
         std::fs::write(&path, serde_json::to_vec(&holder).unwrap()).unwrap();
         assert!(matches!(inspect(&path), LockState::Held { .. }));
-        let e = DatasetLock::acquire(&path, false).err().unwrap().to_string();
+        let e = DatasetLock::acquire(&path, false)
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("on host elsewhere"), "{e}");
         let old = SystemTime::now() - STALE_AFTER - Duration::from_secs(60);
-        File::options().write(true).open(&path).unwrap().set_modified(old).unwrap();
-        assert!(matches!(inspect(&path), LockState::Stale { why, .. } if why.contains("no heartbeat")));
+        File::options()
+            .write(true)
+            .open(&path)
+            .unwrap()
+            .set_modified(old)
+            .unwrap();
+        assert!(
+            matches!(inspect(&path), LockState::Stale { why, .. } if why.contains("no heartbeat"))
+        );
         std::fs::write(&path, serde_json::to_vec(&holder).unwrap()).unwrap();
         let lock = DatasetLock::acquire(&path, true).unwrap();
         assert_eq!(lock.holder().host, hostname());

@@ -57,19 +57,36 @@ struct Shard {
 /// Reads every shard, checks everything, and writes the merge if nothing is wrong.
 pub fn merge(opts: &MergeOptions) -> anyhow::Result<MergeReport> {
     let out = DatasetLayout::new(&opts.out);
-    let ShardDirs { shards: found, others } = out.shard_dirs()?;
+    let ShardDirs {
+        shards: found,
+        others,
+    } = out.shard_dirs()?;
     if found.is_empty() {
-        bail!("{}: no shard directories (KKKK-of-NNNN) under {}", opts.out.display(), out.shards_dir().display());
+        bail!(
+            "{}: no shard directories (KKKK-of-NNNN) under {}",
+            opts.out.display(),
+            out.shards_dir().display()
+        );
     }
     let mut report = MergeReport::default();
     for o in others {
-        report.notes.push(format!("{} is not a shard directory (KKKK-of-NNNN); ignored", o.display()));
+        report.notes.push(format!(
+            "{} is not a shard directory (KKKK-of-NNNN); ignored",
+            o.display()
+        ));
     }
     let count = farm_size(&found, &mut report);
-    let shards: Vec<Shard> = found.into_iter().filter(|(id, _)| id.count == count).map(|(id, layout)| load_shard(id, layout, &mut report)).collect();
+    let shards: Vec<Shard> = found
+        .into_iter()
+        .filter(|(id, _)| id.count == count)
+        .map(|(id, layout)| load_shard(id, layout, &mut report))
+        .collect();
     report.shards = count;
     for k in (0..count).filter(|k| !shards.iter().any(|s| s.id.index == *k)) {
-        report.problems.push(format!("shards/{} is missing: none of its samples were rendered", ShardId { index: k, count }.dir_name()));
+        report.problems.push(format!(
+            "shards/{} is missing: none of its samples were rendered",
+            ShardId { index: k, count }.dir_name()
+        ));
     }
     let reference = check_provenance(&shards, &mut report);
     let range = check_ranges(&shards, &mut report);
@@ -81,8 +98,18 @@ pub fn merge(opts: &MergeOptions) -> anyhow::Result<MergeReport> {
     if !report.problems.is_empty() {
         return Ok(report);
     }
-    let (Some(info), Some((start, n))) = (reference, range) else { unreachable!("no problem means a reference shard and a range") };
-    write_merge(&out, &shards, &info, start, n, opts.verify, report.files_hashed)?;
+    let (Some(info), Some((start, n))) = (reference, range) else {
+        unreachable!("no problem means a reference shard and a range")
+    };
+    write_merge(
+        &out,
+        &shards,
+        &info,
+        start,
+        n,
+        opts.verify,
+        report.files_hashed,
+    )?;
     Ok(report)
 }
 
@@ -92,9 +119,17 @@ fn farm_size(found: &[(ShardId, DatasetLayout)], report: &mut MergeReport) -> u6
     for (id, _) in found {
         *votes.entry(id.count).or_default() += 1;
     }
-    let count = votes.iter().max_by_key(|(n, v)| (**v, **n)).map(|(n, _)| *n).expect("at least one shard");
+    let count = votes
+        .iter()
+        .max_by_key(|(n, v)| (**v, **n))
+        .map(|(n, _)| *n)
+        .expect("at least one shard");
     for (id, _) in found.iter().filter(|(id, _)| id.count != count) {
-        report.problems.push(format!("shards/{} belongs to a farm of {} shards, the others to {count}", id.dir_name(), id.count));
+        report.problems.push(format!(
+            "shards/{} belongs to a farm of {} shards, the others to {count}",
+            id.dir_name(),
+            id.count
+        ));
     }
     count
 }
@@ -102,10 +137,16 @@ fn farm_size(found: &[(ShardId, DatasetLayout)], report: &mut MergeReport) -> u6
 fn load_shard(id: ShardId, layout: DatasetLayout, report: &mut MergeReport) -> Shard {
     let name = format!("shards/{}", id.dir_name());
     let mut problem = |p: String| report.problems.push(p);
-    let info = layout.read_info().map_err(|e| problem(format!("{name}: {e}"))).ok();
+    let info = layout
+        .read_info()
+        .map_err(|e| problem(format!("{name}: {e}")))
+        .ok();
     let range = match layout.read_shard_info() {
         Ok(r) if r.shard != id => {
-            problem(format!("{name}/shard.json says shard {}, its directory {id}", r.shard));
+            problem(format!(
+                "{name}/shard.json says shard {}, its directory {id}",
+                r.shard
+            ));
             None
         }
         Ok(r) => Some(r),
@@ -116,21 +157,31 @@ fn load_shard(id: ShardId, layout: DatasetLayout, report: &mut MergeReport) -> S
     };
     match inspect(&layout.lock()) {
         LockState::Free => {}
-        LockState::Held { holder, heartbeat_age } => problem(format!(
+        LockState::Held {
+            holder,
+            heartbeat_age,
+        } => problem(format!(
             "{name} is still locked: being written by {} (heartbeat {} s ago); wait for it to finish",
             holder.describe(),
             heartbeat_age.as_secs()
         )),
         LockState::Stale { holder, why } => problem(format!(
             "{name} is still locked by a run that was killed ({}{why}); re-run its task to finish it",
-            holder.map(|h| format!("{}: ", h.describe())).unwrap_or_default()
+            holder
+                .map(|h| format!("{}: ", h.describe()))
+                .unwrap_or_default()
         )),
-        LockState::LegacyHeld => problem(format!("{name} is still locked by an older stereogen process")),
+        LockState::LegacyHeld => problem(format!(
+            "{name} is still locked by an older stereogen process"
+        )),
     }
     let entries = match read_manifest(&layout.manifest()) {
         Ok(c) => {
             if c.has_unfinished_line() {
-                problem(format!("{name}/manifest.jsonl ends in an unfinished line ({} bytes): its run is writing or was killed", c.unfinished_bytes));
+                problem(format!(
+                    "{name}/manifest.jsonl ends in an unfinished line ({} bytes): its run is writing or was killed",
+                    c.unfinished_bytes
+                ));
             }
             c.entries
         }
@@ -139,14 +190,29 @@ fn load_shard(id: ShardId, layout: DatasetLayout, report: &mut MergeReport) -> S
             Vec::new()
         }
     };
-    Shard { id, layout, name, info, range, entries }
+    Shard {
+        id,
+        layout,
+        name,
+        info,
+        range,
+        entries,
+    }
 }
 
 /// Same recipe fingerprint, seed and stereogen version everywhere; returns the reference
 /// (the lowest shard's) description.
 fn check_provenance(shards: &[Shard], report: &mut MergeReport) -> Option<DatasetInfo> {
-    let (first, info) = shards.iter().find_map(|s| s.info.as_ref().map(|i| (s, i)))?;
-    let recipe_name = |i: &DatasetInfo| i.recipe.get("name").and_then(|n| n.as_str()).unwrap_or("?").to_string();
+    let (first, info) = shards
+        .iter()
+        .find_map(|s| s.info.as_ref().map(|i| (s, i)))?;
+    let recipe_name = |i: &DatasetInfo| {
+        i.recipe
+            .get("name")
+            .and_then(|n| n.as_str())
+            .unwrap_or("?")
+            .to_string()
+    };
     for s in shards.iter().filter(|s| s.id != first.id) {
         let Some(other) = &s.info else { continue };
         if other.recipe_fingerprint != info.recipe_fingerprint {
@@ -161,10 +227,16 @@ fn check_provenance(shards: &[Shard], report: &mut MergeReport) -> Option<Datase
             ));
         }
         if other.seed != info.seed {
-            report.problems.push(format!("{} was made with seed {}, {} with seed {}", s.name, other.seed, first.name, info.seed));
+            report.problems.push(format!(
+                "{} was made with seed {}, {} with seed {}",
+                s.name, other.seed, first.name, info.seed
+            ));
         }
         if other.stereogen_version != info.stereogen_version {
-            report.problems.push(format!("{} was made by stereogen {}, {} by {}", s.name, other.stereogen_version, first.name, info.stereogen_version));
+            report.problems.push(format!(
+                "{} was made by stereogen {}, {} by {}",
+                s.name, other.stereogen_version, first.name, info.stereogen_version
+            ));
         }
     }
     Some(info.clone())
@@ -197,33 +269,76 @@ fn check_coverage(shards: &[Shard], start: u64, count: u64, report: &mut MergeRe
     for s in shards {
         for e in &s.entries {
             if !(start..start + count).contains(&e.index) {
-                report.problems.push(format!("{} holds index {} outside the range {start}..{}", s.name, e.index, start + count));
+                report.problems.push(format!(
+                    "{} holds index {} outside the range {start}..{}",
+                    s.name,
+                    e.index,
+                    start + count
+                ));
             } else if !s.id.owns(e.index) {
-                report.problems.push(format!("{} holds index {}, which belongs to shard {}", s.name, e.index, ShardId { index: e.index % s.id.count, count: s.id.count }.dir_name()));
+                report.problems.push(format!(
+                    "{} holds index {}, which belongs to shard {}",
+                    s.name,
+                    e.index,
+                    ShardId {
+                        index: e.index % s.id.count,
+                        count: s.id.count
+                    }
+                    .dir_name()
+                ));
             }
             seen.entry(e.index).or_default().push(&s.name);
         }
     }
     for (index, holders) in seen.iter().filter(|(_, h)| h.len() > 1) {
-        report.problems.push(format!("index {index} is duplicated: {} entries ({})", holders.len(), holders.join(", ")));
+        report.problems.push(format!(
+            "index {index} is duplicated: {} entries ({})",
+            holders.len(),
+            holders.join(", ")
+        ));
     }
-    let missing: Vec<u64> = (start..start + count).filter(|i| !seen.contains_key(i)).collect();
+    let missing: Vec<u64> = (start..start + count)
+        .filter(|i| !seen.contains_key(i))
+        .collect();
     if !missing.is_empty() {
-        report.problems.push(format!("{} of {count} indices are missing: {}", missing.len(), compact_ranges(&missing)));
+        report.problems.push(format!(
+            "{} of {count} indices are missing: {}",
+            missing.len(),
+            compact_ranges(&missing)
+        ));
     }
     for s in shards {
         let failed = failed_indices(&s.layout);
-        let still: Vec<u64> = failed.into_iter().filter(|i| !seen.contains_key(i)).collect();
+        let still: Vec<u64> = failed
+            .into_iter()
+            .filter(|i| !seen.contains_key(i))
+            .collect();
         if !still.is_empty() {
-            report.problems.push(format!("{}: {} sample(s) failed ({}), listed in {}/failures.jsonl", s.name, still.len(), compact_ranges(&still), s.name));
+            report.problems.push(format!(
+                "{}: {} sample(s) failed ({}), listed in {}/failures.jsonl",
+                s.name,
+                still.len(),
+                compact_ranges(&still),
+                s.name
+            ));
         }
     }
 }
 
 /// Indices listed in a shard's `failures.jsonl` (the lines are `{"index": ..., ...}`).
 fn failed_indices(layout: &DatasetLayout) -> Vec<u64> {
-    let Ok(text) = std::fs::read_to_string(layout.failures()) else { return Vec::new() };
-    let mut v: Vec<u64> = text.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()?.get("index")?.as_u64()).collect();
+    let Ok(text) = std::fs::read_to_string(layout.failures()) else {
+        return Vec::new();
+    };
+    let mut v: Vec<u64> = text
+        .lines()
+        .filter_map(|l| {
+            serde_json::from_str::<serde_json::Value>(l)
+                .ok()?
+                .get("index")?
+                .as_u64()
+        })
+        .collect();
     v.sort_unstable();
     v.dedup();
     v
@@ -245,7 +360,11 @@ pub fn compact_ranges(sorted: &[u64]) -> String {
             break;
         }
         let sep = if n > 0 { ", " } else { "" };
-        let _ = if lo == hi { write!(s, "{sep}{lo}") } else { write!(s, "{sep}{lo}-{hi}") };
+        let _ = if lo == hi {
+            write!(s, "{sep}{lo}")
+        } else {
+            write!(s, "{sep}{lo}-{hi}")
+        };
     }
     s
 }
@@ -253,10 +372,21 @@ pub fn compact_ranges(sorted: &[u64]) -> String {
 /// Every file present and non-empty; checksums of all (`verify`) or of a spread sample.
 fn check_files(shards: &[Shard], verify: bool, report: &mut MergeReport) {
     let total: usize = shards.iter().map(|s| s.entries.len()).sum();
-    let every = if verify { 1 } else { (total / MIN_HASHED_SAMPLES.max(total / 100)).max(1) };
-    let jobs: Vec<(&Shard, &ManifestEntry, bool)> =
-        shards.iter().flat_map(|s| s.entries.iter().map(move |e| (s, e))).enumerate().map(|(n, (s, e))| (s, e, n % every == 0)).collect();
-    let results: Vec<(Vec<String>, u64, u64)> = jobs.par_iter().map(|(s, e, hash)| check_sample(s, e, *hash)).collect();
+    let every = if verify {
+        1
+    } else {
+        (total / MIN_HASHED_SAMPLES.max(total / 100)).max(1)
+    };
+    let jobs: Vec<(&Shard, &ManifestEntry, bool)> = shards
+        .iter()
+        .flat_map(|s| s.entries.iter().map(move |e| (s, e)))
+        .enumerate()
+        .map(|(n, (s, e))| (s, e, n % every == 0))
+        .collect();
+    let results: Vec<(Vec<String>, u64, u64)> = jobs
+        .par_iter()
+        .map(|(s, e, hash)| check_sample(s, e, *hash))
+        .collect();
     let mut problems = Vec::new();
     for (p, checked, hashed) in results {
         problems.extend(p);
@@ -264,9 +394,13 @@ fn check_files(shards: &[Shard], verify: bool, report: &mut MergeReport) {
         report.files_hashed += hashed;
     }
     let extra = problems.len().saturating_sub(MAX_FILE_PROBLEMS);
-    report.problems.extend(problems.into_iter().take(MAX_FILE_PROBLEMS));
+    report
+        .problems
+        .extend(problems.into_iter().take(MAX_FILE_PROBLEMS));
     if extra > 0 {
-        report.problems.push(format!("… and {extra} more file problems"));
+        report
+            .problems
+            .push(format!("… and {extra} more file problems"));
     }
 }
 
@@ -278,10 +412,17 @@ fn check_sample(s: &Shard, e: &ManifestEntry, hash: bool) -> (Vec<String>, u64, 
         let shown = format!("{}/{}", s.name, rel.display());
         checked += 1;
         match std::fs::metadata(&path) {
-            Err(_) => problems.push(format!("{shown} is missing (sample {} of {})", e.index, s.name)),
-            Ok(m) if m.len() == 0 => problems.push(format!("{shown} is empty (sample {})", e.index)),
+            Err(_) => problems.push(format!(
+                "{shown} is missing (sample {} of {})",
+                e.index, s.name
+            )),
+            Ok(m) if m.len() == 0 => {
+                problems.push(format!("{shown} is empty (sample {})", e.index))
+            }
             Ok(_) if hash => {
-                let Some(expected) = e.sha256.get(key) else { continue };
+                let Some(expected) = e.sha256.get(key) else {
+                    continue;
+                };
                 hashed += 1;
                 match sha256_file(&path) {
                     Ok(h) if &h == expected => {}
@@ -297,21 +438,50 @@ fn check_sample(s: &Shard, e: &ManifestEntry, hash: bool) -> (Vec<String>, u64, 
 
 fn sha256_file(path: &Path) -> std::io::Result<String> {
     let bytes = std::fs::read(path)?;
-    Ok(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
+    Ok(Sha256::digest(&bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
 }
 
 /// The top-level files: `dataset.json` (the shards' own), `merge.json`, then `manifest.jsonl`
 /// (by index, paths prefixed with the shard directory).
-fn write_merge(out: &DatasetLayout, shards: &[Shard], info: &DatasetInfo, start: u64, count: u64, verify: bool, files_hashed: u64) -> anyhow::Result<()> {
+fn write_merge(
+    out: &DatasetLayout,
+    shards: &[Shard],
+    info: &DatasetInfo,
+    start: u64,
+    count: u64,
+    verify: bool,
+    files_hashed: u64,
+) -> anyhow::Result<()> {
     out.write_info(info)?;
     // merge.json before the manifest: it marks OUT as a farm's output (see generate's checks).
-    let checksums = if verify { ChecksumCheck::All } else { ChecksumCheck::Sampled };
-    out.write_merge_info(&MergeInfo { shards: shards.len() as u64, start, count, checksums, files_hashed, merged_unix_s: unix_now() })?;
-    let mut entries: Vec<ManifestEntry> = Vec::with_capacity(shards.iter().map(|s| s.entries.len()).sum());
+    let checksums = if verify {
+        ChecksumCheck::All
+    } else {
+        ChecksumCheck::Sampled
+    };
+    out.write_merge_info(&MergeInfo {
+        shards: shards.len() as u64,
+        start,
+        count,
+        checksums,
+        files_hashed,
+        merged_unix_s: unix_now(),
+    })?;
+    let mut entries: Vec<ManifestEntry> =
+        Vec::with_capacity(shards.iter().map(|s| s.entries.len()).sum());
     for s in shards {
         let prefix = Path::new(stereo_io::datasets::stereogen::SHARDS_DIR).join(s.id.dir_name());
         entries.extend(s.entries.iter().cloned().map(|mut e| {
-            for p in [&mut e.files.left, &mut e.files.right, &mut e.files.disp_left, &mut e.files.disp_right, &mut e.files.scene] {
+            for p in [
+                &mut e.files.left,
+                &mut e.files.right,
+                &mut e.files.disp_left,
+                &mut e.files.disp_right,
+                &mut e.files.scene,
+            ] {
                 *p = prefix.join(&*p);
             }
             e
@@ -323,7 +493,8 @@ fn write_merge(out: &DatasetLayout, shards: &[Shard], info: &DatasetInfo, start:
         let file = std::fs::File::create(tmp).map_err(|e| stereo_io::Error::io(tmp, e))?;
         let mut w = std::io::BufWriter::new(file);
         for e in &entries {
-            let line = serde_json::to_string(e).map_err(|err| stereo_io::Error::format(tmp, err.to_string()))?;
+            let line = serde_json::to_string(e)
+                .map_err(|err| stereo_io::Error::format(tmp, err.to_string()))?;
             writeln!(w, "{line}").map_err(|err| stereo_io::Error::io(tmp, err))?;
         }
         w.flush().map_err(|err| stereo_io::Error::io(tmp, err))

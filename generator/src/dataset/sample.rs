@@ -21,17 +21,34 @@ pub const WRITE_TIMING: &str = "write_s";
 pub const VERIFY_TIMING: &str = "verify_s";
 
 fn summary(map: &DisparityMap) -> Option<DisparitySummary> {
-    map.stats().map(|s| DisparitySummary { min: s.min, max: s.max, mean: s.mean, valid_fraction: s.valid_pixels as f64 / map.data.len() as f64 })
+    map.stats().map(|s| DisparitySummary {
+        min: s.min,
+        max: s.max,
+        mean: s.mean,
+        valid_fraction: s.valid_pixels as f64 / map.data.len() as f64,
+    })
 }
 
 /// Reads a Cycles depth EXR and converts it to disparity with the spec's rig.
 pub fn disparity_from_depth_exr(path: &Path, spec: &SceneSpec) -> anyhow::Result<DisparityMap> {
     let (w, h, depth) = stereo_io::read_depth_channel(path)?;
     if (w, h) != (spec.rig.width as usize, spec.rig.height as usize) {
-        bail!("{}: depth is {w}x{h}, the spec asks for {}x{}", path.display(), spec.rig.width, spec.rig.height);
+        bail!(
+            "{}: depth is {w}x{h}, the spec asks for {}x{}",
+            path.display(),
+            spec.rig.width,
+            spec.rig.height
+        );
     }
     // Cycles writes 1e10 where a ray escapes; nothing real lies beyond the far clip.
-    Ok(DisparityMap::from_depth(w, h, &depth, spec.rig.f_px(), spec.rig.baseline_m, spec.render.clip_end as f32))
+    Ok(DisparityMap::from_depth(
+        w,
+        h,
+        &depth,
+        spec.rig.f_px(),
+        spec.rig.baseline_m,
+        spec.render.clip_end as f32,
+    ))
 }
 
 /// The worker's PNG decoded. It is re-encoded, not copied: Cycles writes render times into PNG
@@ -39,7 +56,14 @@ pub fn disparity_from_depth_exr(path: &Path, spec: &SceneSpec) -> anyhow::Result
 fn read_worker_png(from: &Path, spec: &SceneSpec) -> anyhow::Result<RgbImage> {
     let img = stereo_io::read_rgb(from)?;
     if (img.width, img.height) != (spec.rig.width as usize, spec.rig.height as usize) {
-        bail!("{}: image is {}x{}, the spec asks for {}x{}", from.display(), img.width, img.height, spec.rig.width, spec.rig.height);
+        bail!(
+            "{}: image is {}x{}, the spec asks for {}x{}",
+            from.display(),
+            img.width,
+            img.height,
+            spec.rig.width,
+            spec.rig.height
+        );
     }
     Ok(img)
 }
@@ -55,13 +79,25 @@ struct SampleContent<'a> {
 
 impl SampleContent<'_> {
     fn meta(&self, view: &str) -> DisparityMeta {
-        DisparityMeta { f_px: Some(self.spec.rig.f_px()), baseline_m: Some(self.spec.rig.baseline_m), view: Some(view.into()) }
+        DisparityMeta {
+            f_px: Some(self.spec.rig.f_px()),
+            baseline_m: Some(self.spec.rig.baseline_m),
+            view: Some(view.into()),
+        }
     }
 
     /// Writes every file durably (each one whole under its final name, or not at all).
     fn write(&self, layout: &DatasetLayout, paths: &SamplePaths) -> anyhow::Result<()> {
-        stereo_io::write_disparity_exr(&layout.abs(&paths.disp_left), &self.disp_left, &self.meta("left"))?;
-        stereo_io::write_disparity_exr(&layout.abs(&paths.disp_right), &self.disp_right, &self.meta("right"))?;
+        stereo_io::write_disparity_exr(
+            &layout.abs(&paths.disp_left),
+            &self.disp_left,
+            &self.meta("left"),
+        )?;
+        stereo_io::write_disparity_exr(
+            &layout.abs(&paths.disp_right),
+            &self.disp_right,
+            &self.meta("right"),
+        )?;
         stereo_io::write_png_rgb(&layout.abs(&paths.left), &self.left)?;
         stereo_io::write_png_rgb(&layout.abs(&paths.right), &self.right)?;
         super::scene_file::write_scene_spec(&layout.abs(&paths.scene), self.spec)
@@ -71,32 +107,59 @@ impl SampleContent<'_> {
     fn check(&self, key: &str, path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
         let same = match key {
             "left" | "right" => {
-                let expected = if key == "left" { &self.left } else { &self.right };
-                let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png).with_context(|| format!("{}: cannot decode the PNG read back", path.display()))?;
-                img.width() as usize == expected.width && img.height() as usize == expected.height && img.to_rgb8().as_raw() == &expected.data
+                let expected = if key == "left" {
+                    &self.left
+                } else {
+                    &self.right
+                };
+                let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+                    .with_context(|| {
+                        format!("{}: cannot decode the PNG read back", path.display())
+                    })?;
+                img.width() as usize == expected.width
+                    && img.height() as usize == expected.height
+                    && img.to_rgb8().as_raw() == &expected.data
             }
             "disp_left" | "disp_right" => {
-                let expected = if key == "disp_left" { &self.disp_left } else { &self.disp_right };
+                let expected = if key == "disp_left" {
+                    &self.disp_left
+                } else {
+                    &self.disp_right
+                };
                 let (map, _) = stereo_io::decode_disparity_exr(bytes, path)?;
                 (map.width, map.height) == (expected.width, expected.height)
                     && map.valid == expected.valid
-                    && map.data.iter().zip(&expected.data).all(|(a, b)| a.to_bits() == b.to_bits())
+                    && map
+                        .data
+                        .iter()
+                        .zip(&expected.data)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
             }
             "scene" => {
-                let text = std::str::from_utf8(bytes).with_context(|| format!("{}: not UTF-8", path.display()))?;
-                crate::plan::SceneSpec::from_json(text).with_context(|| format!("{}: not a SceneSpec", path.display()))? == *self.spec
+                let text = std::str::from_utf8(bytes)
+                    .with_context(|| format!("{}: not UTF-8", path.display()))?;
+                crate::plan::SceneSpec::from_json(text)
+                    .with_context(|| format!("{}: not a SceneSpec", path.display()))?
+                    == *self.spec
             }
             other => bail!("no read-back check for file key {other:?}"),
         };
         if !same {
-            bail!("{}: what was read back differs from what was written", path.display());
+            bail!(
+                "{}: what was read back differs from what was written",
+                path.display()
+            );
         }
         Ok(())
     }
 
     /// Reads every file back from the disk, decodes it fully, compares it with what was
     /// written, and returns its SHA-256 taken from the bytes read.
-    fn verify(&self, layout: &DatasetLayout, paths: &SamplePaths) -> anyhow::Result<BTreeMap<String, String>> {
+    fn verify(
+        &self,
+        layout: &DatasetLayout,
+        paths: &SamplePaths,
+    ) -> anyhow::Result<BTreeMap<String, String>> {
         let mut sha256 = BTreeMap::new();
         for (key, rel) in paths.all() {
             let path = layout.abs(rel);
@@ -117,7 +180,8 @@ fn hex(bytes: &[u8]) -> String {
 /// network filesystem lost shows up here.
 fn read_back(path: &Path) -> anyhow::Result<Vec<u8>> {
     use std::io::Read;
-    let mut file = std::fs::File::open(path).with_context(|| format!("{}: cannot read back", path.display()))?;
+    let mut file = std::fs::File::open(path)
+        .with_context(|| format!("{}: cannot read back", path.display()))?;
     #[cfg(target_os = "linux")]
     {
         use std::os::fd::AsRawFd;
@@ -125,7 +189,8 @@ fn read_back(path: &Path) -> anyhow::Result<Vec<u8>> {
         unsafe { libc::posix_fadvise(file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED) };
     }
     let mut bytes = Vec::new();
-    file.read_to_end(&mut bytes).with_context(|| format!("{}: cannot read back", path.display()))?;
+    file.read_to_end(&mut bytes)
+        .with_context(|| format!("{}: cannot read back", path.display()))?;
     Ok(bytes)
 }
 
@@ -134,9 +199,20 @@ fn read_back(path: &Path) -> anyhow::Result<Vec<u8>> {
 /// entry; the caller appends the entry to the manifest last. On any error nothing of the sample
 /// stays in the dataset. `render_timings` is where the worker says its time went (stage →
 /// seconds); [`WRITE_TIMING`] and [`VERIFY_TIMING`] are added.
-pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &RenderedFiles, notes: &[String], render_seconds: f64, render_timings: &BTreeMap<String, f64>) -> anyhow::Result<ManifestEntry> {
+pub fn finalize_sample(
+    layout: &DatasetLayout,
+    spec: &SceneSpec,
+    files: &RenderedFiles,
+    notes: &[String],
+    render_seconds: f64,
+    render_timings: &BTreeMap<String, f64>,
+) -> anyhow::Result<ManifestEntry> {
     let paths = layout.sample_paths(&spec.category, &spec.id);
-    let dir = layout.abs(&paths.left).parent().expect("category dir").to_path_buf();
+    let dir = layout
+        .abs(&paths.left)
+        .parent()
+        .expect("category dir")
+        .to_path_buf();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
 
     let content = SampleContent {
@@ -150,7 +226,11 @@ pub fn finalize_sample(layout: &DatasetLayout, spec: &SceneSpec, files: &Rendere
     let written = content.write(layout, &paths).and_then(|()| {
         let write_s = t0.elapsed().as_secs_f64();
         let t1 = Instant::now();
-        Ok((write_s, content.verify(layout, &paths)?, t1.elapsed().as_secs_f64()))
+        Ok((
+            write_s,
+            content.verify(layout, &paths)?,
+            t1.elapsed().as_secs_f64(),
+        ))
     });
     let (write_s, sha256, verify_s) = match written {
         Ok(w) => w,

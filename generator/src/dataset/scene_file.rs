@@ -41,7 +41,10 @@ pub fn encode_scene_spec(path: &Path, spec: &SceneSpec) -> Vec<u8> {
 /// Writes `spec` to `path` atomically, stored as its name says ([`encode_scene_spec`]).
 /// Durable: the error names the path and the OS error.
 pub fn write_scene_spec(path: &Path, spec: &SceneSpec) -> anyhow::Result<()> {
-    Ok(stereo_io::write_bytes_atomically(path, &encode_scene_spec(path, spec))?)
+    Ok(stereo_io::write_bytes_atomically(
+        path,
+        &encode_scene_spec(path, spec),
+    )?)
 }
 
 /// Reads the SceneSpec stored at `path` (gzip'd or plain JSON); the error names the file and the
@@ -55,7 +58,9 @@ pub fn read_scene_spec(path: &Path) -> anyhow::Result<SceneSpec> {
 pub fn decode_scene_spec(bytes: &[u8]) -> anyhow::Result<SceneSpec> {
     let text = if bytes.starts_with(&GZIP_MAGIC) {
         let mut text = String::new();
-        GzDecoder::new(bytes).read_to_string(&mut text).context("damaged gzip data")?;
+        GzDecoder::new(bytes)
+            .read_to_string(&mut text)
+            .context("damaged gzip data")?;
         text
     } else {
         String::from_utf8(bytes.to_vec()).context("neither gzip nor UTF-8 JSON")?
@@ -94,10 +99,17 @@ pub fn check_scene_spec(spec: &SceneSpec) -> anyhow::Result<()> {
     positive("render.clip_start", render.clip_start, 1e6)?;
     positive("render.clip_end", render.clip_end, 1e9)?;
     if render.clip_end <= render.clip_start {
-        anyhow::bail!("`render.clip_end` = {} is invalid: it must lie beyond render.clip_start = {}", render.clip_end, render.clip_start);
+        anyhow::bail!(
+            "`render.clip_end` = {} is invalid: it must lie beyond render.clip_start = {}",
+            render.clip_end,
+            render.clip_start
+        );
     }
     if !(1..=65536).contains(&render.samples) {
-        anyhow::bail!("`render.samples` = {} is invalid: need 1..=65536", render.samples);
+        anyhow::bail!(
+            "`render.samples` = {} is invalid: need 1..=65536",
+            render.samples
+        );
     }
     positive("render.filter_width_px", render.filter_width_px, 10.0)?;
     Ok(())
@@ -109,7 +121,12 @@ mod tests {
     use crate::plan::{AssetIndex, Recipe, plan_scene};
 
     fn tree_spec() -> SceneSpec {
-        plan_scene(&Recipe::preset("tree").unwrap(), &AssetIndex::default(), 11, 3)
+        plan_scene(
+            &Recipe::preset("tree").unwrap(),
+            &AssetIndex::default(),
+            11,
+            3,
+        )
     }
 
     #[test]
@@ -121,10 +138,18 @@ mod tests {
             write_scene_spec(&path, &spec).unwrap();
             let back = read_scene_spec(&path).unwrap();
             assert_eq!(back, spec, "{name}");
-            assert_eq!(back.to_json(), spec.to_json(), "{name}: every float survives");
+            assert_eq!(
+                back.to_json(),
+                spec.to_json(),
+                "{name}: every float survives"
+            );
         }
-        let gz = std::fs::metadata(dir.path().join("a.scene.json.gz")).unwrap().len();
-        let plain = std::fs::metadata(dir.path().join("a.scene.json")).unwrap().len();
+        let gz = std::fs::metadata(dir.path().join("a.scene.json.gz"))
+            .unwrap()
+            .len();
+        let plain = std::fs::metadata(dir.path().join("a.scene.json"))
+            .unwrap()
+            .len();
         assert!(gz * 3 < plain, "gzip {gz} B vs plain {plain} B");
     }
 
@@ -139,7 +164,10 @@ mod tests {
         let gz_as_plain = dir.path().join("b.scene.json");
         std::fs::write(&gz_as_plain, encode_scene_spec(Path::new("x.gz"), &spec)).unwrap();
         assert_eq!(read_scene_spec(&gz_as_plain).unwrap(), spec);
-        assert_eq!(encode_scene_spec(Path::new("x.gz"), &spec), encode_scene_spec(Path::new("y.gz"), &spec));
+        assert_eq!(
+            encode_scene_spec(Path::new("x.gz"), &spec),
+            encode_scene_spec(Path::new("y.gz"), &spec)
+        );
     }
 
     #[test]

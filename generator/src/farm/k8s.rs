@@ -145,19 +145,44 @@ const RETRIES_PER_INDEX: u32 = 3;
 const VOLUME: &str = "stereogen-data";
 
 fn meta(opts: &FarmOptions, name: String, role: &str) -> ObjectMeta {
-    ObjectMeta { name, labels: BTreeMap::from([("app.kubernetes.io/name".into(), "stereogen".into()), ("stereogen/job".into(), opts.name.clone()), ("stereogen/role".into(), role.into())]) }
+    ObjectMeta {
+        name,
+        labels: BTreeMap::from([
+            ("app.kubernetes.io/name".into(), "stereogen".into()),
+            ("stereogen/job".into(), opts.name.clone()),
+            ("stereogen/role".into(), role.into()),
+        ]),
+    }
 }
 
-fn container(opts: &FarmOptions, name: &str, command: Vec<String>, cpus: u32, gpus: Option<u32>) -> Container {
-    let mut env: Vec<EnvVar> = opts.env.iter().map(|(k, v)| EnvVar { name: k.clone(), value: v.clone() }).collect();
-    env.push(EnvVar { name: SHARD_COUNT_ENV.into(), value: opts.tasks.to_string() });
+fn container(
+    opts: &FarmOptions,
+    name: &str,
+    command: Vec<String>,
+    cpus: u32,
+    gpus: Option<u32>,
+) -> Container {
+    let mut env: Vec<EnvVar> = opts
+        .env
+        .iter()
+        .map(|(k, v)| EnvVar {
+            name: k.clone(),
+            value: v.clone(),
+        })
+        .collect();
+    env.push(EnvVar {
+        name: SHARD_COUNT_ENV.into(),
+        value: opts.tasks.to_string(),
+    });
     let mut resources = Resources::default();
     resources.requests.insert("cpu".into(), cpus.to_string());
     if let Some(m) = &opts.memory {
         resources.requests.insert("memory".into(), m.clone());
     }
     if let Some(g) = gpus {
-        resources.limits.insert("nvidia.com/gpu".into(), g.to_string());
+        resources
+            .limits
+            .insert("nvidia.com/gpu".into(), g.to_string());
     }
     Container {
         name: name.into(),
@@ -165,11 +190,19 @@ fn container(opts: &FarmOptions, name: &str, command: Vec<String>, cpus: u32, gp
         command,
         env,
         resources,
-        volume_mounts: vec![VolumeMount { name: VOLUME.into(), mount_path: path(&opts.out) }],
+        volume_mounts: vec![VolumeMount {
+            name: VOLUME.into(),
+            mount_path: path(&opts.out),
+        }],
     }
 }
 
-fn pod(opts: &FarmOptions, role: &str, init_containers: Vec<Container>, container: Container) -> PodTemplate {
+fn pod(
+    opts: &FarmOptions,
+    role: &str,
+    init_containers: Vec<Container>,
+    container: Container,
+) -> PodTemplate {
     PodTemplate {
         metadata: meta(opts, format!("{}-{role}", opts.name), role),
         spec: PodSpec {
@@ -177,7 +210,12 @@ fn pod(opts: &FarmOptions, role: &str, init_containers: Vec<Container>, containe
             termination_grace_period_seconds: opts.grace_s,
             init_containers,
             containers: vec![container],
-            volumes: vec![Volume { name: VOLUME.into(), persistent_volume_claim: ClaimSource { claim_name: opts.volume_claim.clone() } }],
+            volumes: vec![Volume {
+                name: VOLUME.into(),
+                persistent_volume_claim: ClaimSource {
+                    claim_name: opts.volume_claim.clone(),
+                },
+            }],
         },
     }
 }
@@ -202,13 +240,20 @@ pub fn render_job(opts: &FarmOptions) -> Job {
                 rules: vec![
                     PodFailurePolicyRule {
                         action: "Ignore".into(),
-                        on_exit_codes: Some(OnExitCodes { container_name: "render".into(), operator: "In".into(), values: vec![INTERRUPTED_EXIT_CODE] }),
+                        on_exit_codes: Some(OnExitCodes {
+                            container_name: "render".into(),
+                            operator: "In".into(),
+                            values: vec![INTERRUPTED_EXIT_CODE],
+                        }),
                         on_pod_conditions: vec![],
                     },
                     PodFailurePolicyRule {
                         action: "Ignore".into(),
                         on_exit_codes: None,
-                        on_pod_conditions: vec![OnPodCondition { kind: "DisruptionTarget".into(), status: "True".into() }],
+                        on_pod_conditions: vec![OnPodCondition {
+                            kind: "DisruptionTarget".into(),
+                            status: "True".into(),
+                        }],
                     },
                 ],
             }),
@@ -220,8 +265,20 @@ pub fn render_job(opts: &FarmOptions) -> Job {
 /// The Job that merges and checks: one pod, `merge` as its init container, then `stats --check`.
 pub fn merge_job(opts: &FarmOptions) -> Job {
     let bin = path(&opts.stereogen);
-    let merge = container(opts, "merge", [vec![bin.clone()], opts.merge_args()].concat(), 2, None);
-    let check = container(opts, "check", [vec![bin], opts.check_args()].concat(), 2, None);
+    let merge = container(
+        opts,
+        "merge",
+        [vec![bin.clone()], opts.merge_args()].concat(),
+        2,
+        None,
+    );
+    let check = container(
+        opts,
+        "check",
+        [vec![bin], opts.check_args()].concat(),
+        2,
+        None,
+    );
     Job {
         api_version: "batch/v1".into(),
         kind: "Job".into(),
@@ -244,12 +301,28 @@ fn yaml(job: &Job, comment: &str) -> anyhow::Result<String> {
 
 pub fn files(opts: &FarmOptions) -> anyhow::Result<Vec<JobFile>> {
     let render = render_job(opts);
-    let head = format!("Written by `stereogen farm k8s` (stereogen {}).", env!("CARGO_PKG_VERSION"));
+    let head = format!(
+        "Written by `stereogen farm k8s` (stereogen {}).",
+        env!("CARGO_PKG_VERSION")
+    );
     Ok(vec![
-        ("k8s-render.yaml".into(), yaml(&render, &format!("{head} kubectl apply -f this; re-apply to resume."))?, false),
+        (
+            "k8s-render.yaml".into(),
+            yaml(
+                &render,
+                &format!("{head} kubectl apply -f this; re-apply to resume."),
+            )?,
+            false,
+        ),
         (
             "k8s-merge.yaml".into(),
-            yaml(&merge_job(opts), &format!("{head} Apply after `kubectl wait --for=condition=complete --timeout=-1s job/{}`.", render.metadata.name))?,
+            yaml(
+                &merge_job(opts),
+                &format!(
+                    "{head} Apply after `kubectl wait --for=condition=complete --timeout=-1s job/{}`.",
+                    render.metadata.name
+                ),
+            )?,
             false,
         ),
     ])

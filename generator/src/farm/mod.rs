@@ -82,16 +82,26 @@ impl FarmOptions {
             bail!("--count must be at least 1");
         }
         if self.tasks > self.count {
-            bail!("--tasks {} is more than --count {}: some tasks would have nothing to render", self.tasks, self.count);
+            bail!(
+                "--tasks {} is more than --count {}: some tasks would have nothing to render",
+                self.tasks,
+                self.count
+            );
         }
         if self.max_parallel == Some(0) {
             bail!("--max-parallel must be at least 1");
         }
         if !self.out.is_absolute() {
-            bail!("--out {} must be an absolute path: every task and the merge step must find the same directory", self.out.display());
+            bail!(
+                "--out {} must be an absolute path: every task and the merge step must find the same directory",
+                self.out.display()
+            );
         }
         for (k, _) in &self.env {
-            if k.is_empty() || !k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') || k.starts_with(|c: char| c.is_ascii_digit()) {
+            if k.is_empty()
+                || !k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+                || k.starts_with(|c: char| c.is_ascii_digit())
+            {
                 bail!("--env {k:?}: not an environment variable name");
             }
         }
@@ -105,13 +115,27 @@ impl FarmOptions {
 
     /// Cores a task asks for.
     pub fn cpus(&self) -> u32 {
-        self.cpus_per_task.unwrap_or_else(|| (self.workers as u32 * self.threads.unwrap_or(1)).max(1))
+        self.cpus_per_task
+            .unwrap_or_else(|| (self.workers as u32 * self.threads.unwrap_or(1)).max(1))
     }
 
     /// `generate` and its arguments, without the shard (each scheduler adds its own).
     pub fn generate_args(&self) -> Vec<String> {
-        let mut a: Vec<String> = vec!["generate".into(), "--recipe".into(), path(&self.recipe_path()), "--out".into(), path(&self.out)];
-        a.extend(["--start".into(), self.start.to_string(), "--count".into(), self.count.to_string(), "--seed".into(), self.seed.to_string()]);
+        let mut a: Vec<String> = vec![
+            "generate".into(),
+            "--recipe".into(),
+            path(&self.recipe_path()),
+            "--out".into(),
+            path(&self.out),
+        ];
+        a.extend([
+            "--start".into(),
+            self.start.to_string(),
+            "--count".into(),
+            self.count.to_string(),
+            "--seed".into(),
+            self.seed.to_string(),
+        ]);
         a.extend(["--workers".into(), self.workers.to_string()]);
         if let Some(t) = self.threads {
             a.extend(["--threads".into(), t.to_string()]);
@@ -154,7 +178,8 @@ pub enum Scheduler {
 /// written, the one to submit first.
 pub fn write_job_files(opts: &FarmOptions, scheduler: Scheduler) -> anyhow::Result<Vec<PathBuf>> {
     opts.check()?;
-    std::fs::create_dir_all(&opts.job_dir).with_context(|| format!("cannot create {}", opts.job_dir.display()))?;
+    std::fs::create_dir_all(&opts.job_dir)
+        .with_context(|| format!("cannot create {}", opts.job_dir.display()))?;
     let recipe = toml::to_string(&opts.recipe).context("cannot write the recipe as TOML")?;
     write(&opts.recipe_path(), recipe.as_bytes(), false)?;
     let files = match scheduler {
@@ -172,10 +197,12 @@ pub fn write_job_files(opts: &FarmOptions, scheduler: Scheduler) -> anyhow::Resu
 }
 
 fn write(path: &Path, bytes: &[u8], executable: bool) -> anyhow::Result<()> {
-    stereo_io::write_bytes_atomically(path, bytes).with_context(|| format!("cannot write {}", path.display()))?;
+    stereo_io::write_bytes_atomically(path, bytes)
+        .with_context(|| format!("cannot write {}", path.display()))?;
     if executable {
         use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o755)).with_context(|| format!("cannot make {} executable", path.display()))?;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o755))
+            .with_context(|| format!("cannot make {} executable", path.display()))?;
     }
     Ok(())
 }

@@ -93,23 +93,48 @@ fn action(opts: &FarmOptions, args: Vec<String>) -> Action {
     Action {
         command: path(&opts.stereogen),
         args,
-        cancelation: Cancelation { mode: "NOTIFY_THEN_TERMINATE".into(), notify_period_in_seconds: opts.grace_s },
+        cancelation: Cancelation {
+            mode: "NOTIFY_THEN_TERMINATE".into(),
+            notify_period_in_seconds: opts.grace_s,
+        },
     }
 }
 
-fn step(name: &str, depends_on: Option<&str>, parameter_space: Option<ParameterSpace>, on_run: Action) -> Step {
+fn step(
+    name: &str,
+    depends_on: Option<&str>,
+    parameter_space: Option<ParameterSpace>,
+    on_run: Action,
+) -> Step {
     Step {
         name: name.into(),
-        dependencies: depends_on.map(|d| vec![Dependency { depends_on: d.into() }]).unwrap_or_default(),
+        dependencies: depends_on
+            .map(|d| {
+                vec![Dependency {
+                    depends_on: d.into(),
+                }]
+            })
+            .unwrap_or_default(),
         parameter_space,
-        script: StepScript { actions: Actions { on_run } },
+        script: StepScript {
+            actions: Actions { on_run },
+        },
     }
 }
 
 pub fn template(opts: &FarmOptions) -> JobTemplate {
     let mut render = opts.generate_args();
-    render.extend(["--shard".into(), format!("{{{{Task.Param.{SHARD_PARAM}}}}}/{}", opts.tasks)]);
-    let shards = ParameterSpace { task_parameter_definitions: vec![TaskParameter { name: SHARD_PARAM.into(), kind: "INT".into(), range: format!("0-{}", opts.tasks - 1) }] };
+    render.extend([
+        "--shard".into(),
+        format!("{{{{Task.Param.{SHARD_PARAM}}}}}/{}", opts.tasks),
+    ]);
+    let shards = ParameterSpace {
+        task_parameter_definitions: vec![TaskParameter {
+            name: SHARD_PARAM.into(),
+            kind: "INT".into(),
+            range: format!("0-{}", opts.tasks - 1),
+        }],
+    };
     JobTemplate {
         specification_version: SPECIFICATION_VERSION.into(),
         name: opts.name.clone(),
@@ -124,16 +149,33 @@ pub fn template(opts: &FarmOptions) -> JobTemplate {
         job_environments: if opts.env.is_empty() {
             vec![]
         } else {
-            vec![Environment { name: "StereogenEnvironment".into(), variables: opts.env.iter().cloned().collect() }]
+            vec![Environment {
+                name: "StereogenEnvironment".into(),
+                variables: opts.env.iter().cloned().collect(),
+            }]
         },
         steps: vec![
             step("Render", None, Some(shards), action(opts, render)),
-            step("Merge", Some("Render"), None, action(opts, opts.merge_args())),
-            step("Check", Some("Merge"), None, action(opts, opts.check_args())),
+            step(
+                "Merge",
+                Some("Render"),
+                None,
+                action(opts, opts.merge_args()),
+            ),
+            step(
+                "Check",
+                Some("Merge"),
+                None,
+                action(opts, opts.check_args()),
+            ),
         ],
     }
 }
 
 pub fn files(opts: &FarmOptions) -> anyhow::Result<Vec<JobFile>> {
-    Ok(vec![("openjd-template.yaml".into(), serde_norway::to_string(&template(opts))?, false)])
+    Ok(vec![(
+        "openjd-template.yaml".into(),
+        serde_norway::to_string(&template(opts))?,
+        false,
+    )])
 }

@@ -72,7 +72,11 @@ impl BatchScript {
         lines.extend(self.comment.iter().map(|c| format!("# {c}")));
         lines.extend(self.options.directives());
         lines.push("set -u".into());
-        lines.extend(self.env.iter().map(|(k, v)| format!("export {k}={}", quote(v))));
+        lines.extend(
+            self.env
+                .iter()
+                .map(|(k, v)| format!("export {k}={}", quote(v))),
+        );
         lines.extend(self.body.iter().cloned());
         lines.join("\n") + "\n"
     }
@@ -84,7 +88,9 @@ pub fn command_line(argv: &[String]) -> String {
 }
 
 fn quote(s: &str) -> String {
-    shlex::try_quote(s).map(|q| q.into_owned()).unwrap_or_else(|_| format!("'{}'", s.replace('\0', "").replace('\'', r"'\''")))
+    shlex::try_quote(s)
+        .map(|q| q.into_owned())
+        .unwrap_or_else(|_| format!("'{}'", s.replace('\0', "").replace('\'', r"'\''")))
 }
 
 fn options(opts: &FarmOptions, job_name: String, cpus: u32, output: &str) -> SbatchOptions {
@@ -106,14 +112,23 @@ fn options(opts: &FarmOptions, job_name: String, cpus: u32, output: &str) -> Sba
 
 /// The render array: one task per shard.
 pub fn render_script(opts: &FarmOptions) -> BatchScript {
-    let mut o = options(opts, format!("{}-render", opts.name), opts.cpus(), "render-%A_%a.out");
+    let mut o = options(
+        opts,
+        format!("{}-render", opts.name),
+        opts.cpus(),
+        "render-%A_%a.out",
+    );
     o.array = Some(match opts.max_parallel {
         Some(m) => format!("0-{}%{m}", opts.tasks - 1),
         None => format!("0-{}", opts.tasks - 1),
     });
     o.gpus_per_task = opts.gpus_per_task;
     o.requeue = true;
-    let mut generate = vec!["srun".to_string(), "--ntasks=1".into(), path(&opts.stereogen)];
+    let mut generate = vec![
+        "srun".to_string(),
+        "--ntasks=1".into(),
+        path(&opts.stereogen),
+    ];
     generate.extend(opts.generate_args());
     generate.extend(["--shard".into(), "auto".into()]);
     let code = INTERRUPTED_EXIT_CODE;
@@ -163,13 +178,19 @@ pub fn submit_script(opts: &FarmOptions) -> String {
     let status = command_line(&[path(&opts.stereogen), "status".into(), path(&opts.out)]);
     [
         "#!/bin/bash".to_string(),
-        format!("# Written by `stereogen farm slurm`: submit with `bash {}`; re-submit to resume.", path(&opts.job_dir.join("submit.sh"))),
+        format!(
+            "# Written by `stereogen farm slurm`: submit with `bash {}`; re-submit to resume.",
+            path(&opts.job_dir.join("submit.sh"))
+        ),
         "set -euo pipefail".into(),
         format!("mkdir -p {}", quote(&path(&opts.job_dir.join("logs")))),
         // `--parsable` prints `id` or `id;cluster`.
         format!("render=$(sbatch --parsable {})", quote(&render)),
         "render=${render%%;*}".into(),
-        format!("merge=$(sbatch --parsable --dependency=afterany:${{render}} {})", quote(&merge)),
+        format!(
+            "merge=$(sbatch --parsable --dependency=afterany:${{render}} {})",
+            quote(&merge)
+        ),
         "merge=${merge%%;*}".into(),
         "echo \"render array: ${render}  merge and check: ${merge}\"".into(),
         format!("echo \"watch progress: {}\"", status.replace('"', "\\\"")),

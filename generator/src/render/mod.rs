@@ -9,4 +9,6 @@ pub mod worker;
 
 pub use protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request};
 pub use runtime::{BlenderRuntime, RuntimeError};
-pub use worker::{ExportedGeometry, RenderService, Rendered, Worker, WorkerConfig, WorkerError, WorkerOptions};
+pub use worker::{
+    ExportedGeometry, RenderService, Rendered, Worker, WorkerConfig, WorkerError, WorkerOptions,
+};

@@ -77,7 +77,10 @@ pub enum Request<'a> {
     /// Build `spec` as for a render, but instead of rendering write its evaluated geometry
     /// (world-space triangles of every rendered object, with what decides a hit) into `out_dir`,
     /// for `stereogen audit`.
-    ExportGeometry { spec: &'a SceneSpec, out_dir: &'a Path },
+    ExportGeometry {
+        spec: &'a SceneSpec,
+        out_dir: &'a Path,
+    },
     /// Exit cleanly.
     Quit,
 }
@@ -181,24 +184,65 @@ mod tests {
     #[test]
     fn replies_parse_by_status() {
         let hello: Reply = serde_json::from_str(r#"{"status":"ready","blender":"4.5.1","python":"3.11.9","spec_format_version":3,"rss_bytes":5}"#).unwrap();
-        assert!(matches!(hello, Reply::Ready(Hello { spec_format_version: Some(3), .. })));
+        assert!(matches!(
+            hello,
+            Reply::Ready(Hello {
+                spec_format_version: Some(3),
+                ..
+            })
+        ));
         let err: Reply = serde_json::from_str(r#"{"status":"error","error":"ValueError: x","traceback":"Traceback ...","rss_bytes":null}"#).unwrap();
-        assert!(matches!(err, Reply::Error(WorkerFailure { traceback: Some(_), .. })));
-        let files = r#"{"left_png":"a","right_png":"b","left_depth_exr":"c","right_depth_exr":"d"}"#;
-        let ok: Reply = serde_json::from_str(&format!(r#"{{"status":"ok","files":{files},"timings":{{"build_s":0.5}}}}"#)).unwrap();
-        assert!(matches!(ok, Reply::Ok(RenderOutput { ref timings, .. }) if timings["build_s"] == 0.5));
-        assert!(serde_json::from_str::<Reply>(r#"{"status":"ok"}"#).is_err(), "an ok reply without files");
+        assert!(matches!(
+            err,
+            Reply::Error(WorkerFailure {
+                traceback: Some(_),
+                ..
+            })
+        ));
+        let files =
+            r#"{"left_png":"a","right_png":"b","left_depth_exr":"c","right_depth_exr":"d"}"#;
+        let ok: Reply = serde_json::from_str(&format!(
+            r#"{{"status":"ok","files":{files},"timings":{{"build_s":0.5}}}}"#
+        ))
+        .unwrap();
+        assert!(
+            matches!(ok, Reply::Ok(RenderOutput { ref timings, .. }) if timings["build_s"] == 0.5)
+        );
+        assert!(
+            serde_json::from_str::<Reply>(r#"{"status":"ok"}"#).is_err(),
+            "an ok reply without files"
+        );
         assert!(serde_json::from_str::<Reply>(r#"{"status":"pong"}"#).is_err());
         let geometry: Reply = serde_json::from_str(r#"{"status":"geometry","file":"g.bin","objects":3,"triangles":40,"renders":0,"timings":{"export_s":0.1}}"#).unwrap();
-        assert!(matches!(geometry, Reply::Geometry(GeometryOutput { objects: 3, renders: 0, .. })));
+        assert!(matches!(
+            geometry,
+            Reply::Geometry(GeometryOutput {
+                objects: 3,
+                renders: 0,
+                ..
+            })
+        ));
     }
 
     #[test]
     fn requests_are_tagged_by_cmd() {
         assert_eq!(Request::Quit.to_line(), "{\"cmd\":\"quit\"}\n");
-        let spec = crate::plan::plan_scene(&crate::plan::Recipe::preset("tree").unwrap(), &Default::default(), 0, 0);
-        let line = Request::ExportGeometry { spec: &spec, out_dir: Path::new("/tmp/x") }.to_line();
-        assert!(line.starts_with("{\"cmd\":\"export_geometry\",\"spec\":{") && line.ends_with("\"out_dir\":\"/tmp/x\"}\n"), "{line}");
+        let spec = crate::plan::plan_scene(
+            &crate::plan::Recipe::preset("tree").unwrap(),
+            &Default::default(),
+            0,
+            0,
+        );
+        let line = Request::ExportGeometry {
+            spec: &spec,
+            out_dir: Path::new("/tmp/x"),
+        }
+        .to_line();
+        assert!(
+            line.starts_with("{\"cmd\":\"export_geometry\",\"spec\":{")
+                && line.ends_with("\"out_dir\":\"/tmp/x\"}\n"),
+            "{line}"
+        );
         assert_eq!("gpu".parse::<Device>(), Ok(Device::Gpu));
         assert!("tpu".parse::<Device>().unwrap_err().contains("tpu"));
     }

@@ -23,9 +23,13 @@ pub const BPY_PYTHON: (u32, u32) = (3, 11);
 pub enum RuntimeError {
     #[error("--blender {0}: no such file; give the path of a Blender {BLENDER_SERIES} executable")]
     MissingBlender(PathBuf),
-    #[error("STEREOGEN_PYTHON={0}: no such file; point it at a Python that can `import bpy`, or unset it")]
+    #[error(
+        "STEREOGEN_PYTHON={0}: no such file; point it at a Python that can `import bpy`, or unset it"
+    )]
     MissingPython(PathBuf),
-    #[error("no Blender runtime installed; run `stereogen setup` (installs bpy {BPY_VERSION} under {0})")]
+    #[error(
+        "no Blender runtime installed; run `stereogen setup` (installs bpy {BPY_VERSION} under {0})"
+    )]
     NotInstalled(PathBuf),
     #[error(
         "cannot run {program}: {message}; bpy {BPY_VERSION} needs Python {}.{}: install it or set \
@@ -41,7 +45,9 @@ pub enum RuntimeError {
         BPY_PYTHON.1
     )]
     WrongPython { program: String, found: String },
-    #[error("setting up the Blender environment failed at `{step}`: {message}; nothing was installed, fix the cause and run `stereogen setup` again")]
+    #[error(
+        "setting up the Blender environment failed at `{step}`: {message}; nothing was installed, fix the cause and run `stereogen setup` again"
+    )]
     SetupFailed { step: String, message: String },
     #[error("{0}")]
     Io(String),
@@ -62,7 +68,16 @@ impl BlenderRuntime {
         match self {
             BlenderRuntime::Executable(blender) => {
                 let mut c = Command::new(blender);
-                c.args(["-b", "--factory-startup", "--python-exit-code", "1", "--python"]).arg(script).arg("--").args(args);
+                c.args([
+                    "-b",
+                    "--factory-startup",
+                    "--python-exit-code",
+                    "1",
+                    "--python",
+                ])
+                .arg(script)
+                .arg("--")
+                .args(args);
                 c
             }
             BlenderRuntime::Python(python) => {
@@ -96,20 +111,38 @@ pub fn managed_python(home: &Path) -> PathBuf {
 }
 
 /// Picks the runtime by the documented order, without installing anything.
-pub fn discover(explicit_blender: Option<&Path>, home: &Path) -> Result<BlenderRuntime, RuntimeError> {
+pub fn discover(
+    explicit_blender: Option<&Path>,
+    home: &Path,
+) -> Result<BlenderRuntime, RuntimeError> {
     if let Some(b) = explicit_blender {
-        return if b.is_file() { Ok(BlenderRuntime::Executable(b.to_path_buf())) } else { Err(RuntimeError::MissingBlender(b.to_path_buf())) };
+        return if b.is_file() {
+            Ok(BlenderRuntime::Executable(b.to_path_buf()))
+        } else {
+            Err(RuntimeError::MissingBlender(b.to_path_buf()))
+        };
     }
     if let Some(p) = std::env::var_os("STEREOGEN_PYTHON").filter(|p| !p.is_empty()) {
         let p = PathBuf::from(p);
-        return if p.is_file() { Ok(BlenderRuntime::Python(p)) } else { Err(RuntimeError::MissingPython(p)) };
+        return if p.is_file() {
+            Ok(BlenderRuntime::Python(p))
+        } else {
+            Err(RuntimeError::MissingPython(p))
+        };
     }
     let managed = managed_python(home);
-    if managed.is_file() { Ok(BlenderRuntime::Python(managed)) } else { Err(RuntimeError::NotInstalled(managed_env_dir(home))) }
+    if managed.is_file() {
+        Ok(BlenderRuntime::Python(managed))
+    } else {
+        Err(RuntimeError::NotInstalled(managed_env_dir(home)))
+    }
 }
 
 /// Like [`discover`], but installs the managed environment when nothing else is configured.
-pub fn discover_or_install(explicit_blender: Option<&Path>, home: &Path) -> Result<BlenderRuntime, RuntimeError> {
+pub fn discover_or_install(
+    explicit_blender: Option<&Path>,
+    home: &Path,
+) -> Result<BlenderRuntime, RuntimeError> {
     match discover(explicit_blender, home) {
         Err(RuntimeError::NotInstalled(_)) => install_managed(home).map(BlenderRuntime::Python),
         other => other,
@@ -118,22 +151,41 @@ pub fn discover_or_install(explicit_blender: Option<&Path>, home: &Path) -> Resu
 
 fn run_step(step: &str, cmd: &mut Command) -> Result<(), RuntimeError> {
     tracing::debug!("setup: {step}: {cmd:?}");
-    let status = cmd.status().map_err(|e| RuntimeError::SetupFailed { step: step.into(), message: e.to_string() })?;
-    if status.success() { Ok(()) } else { Err(RuntimeError::SetupFailed { step: step.into(), message: format!("exited with {status}") }) }
+    let status = cmd.status().map_err(|e| RuntimeError::SetupFailed {
+        step: step.into(),
+        message: e.to_string(),
+    })?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(RuntimeError::SetupFailed {
+            step: step.into(),
+            message: format!("exited with {status}"),
+        })
+    }
 }
 
 fn check_bootstrap_python(program: &str) -> Result<(), RuntimeError> {
     let out = Command::new(program)
         .args(["-c", "import sys; print('%d.%d.%d' % sys.version_info[:3])"])
         .output()
-        .map_err(|e| RuntimeError::NoBootstrapPython { program: program.into(), message: e.to_string() })?;
+        .map_err(|e| RuntimeError::NoBootstrapPython {
+            program: program.into(),
+            message: e.to_string(),
+        })?;
     if !out.status.success() {
-        return Err(RuntimeError::NoBootstrapPython { program: program.into(), message: format!("its version check exited with {}", out.status) });
+        return Err(RuntimeError::NoBootstrapPython {
+            program: program.into(),
+            message: format!("its version check exited with {}", out.status),
+        });
     }
     let found = String::from_utf8_lossy(&out.stdout).trim().to_string();
     let want = format!("{}.{}.", BPY_PYTHON.0, BPY_PYTHON.1);
     if !found.starts_with(&want) {
-        return Err(RuntimeError::WrongPython { program: program.into(), found });
+        return Err(RuntimeError::WrongPython {
+            program: program.into(),
+            found,
+        });
     }
     Ok(())
 }
@@ -146,10 +198,13 @@ fn check_bootstrap_python(program: &str) -> Result<(), RuntimeError> {
 pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
     let io = |what: &str, e: std::io::Error| RuntimeError::Io(format!("{what}: {e}"));
     let parent = home.join("blender");
-    std::fs::create_dir_all(&parent).map_err(|e| io(&format!("cannot create {}", parent.display()), e))?;
+    std::fs::create_dir_all(&parent)
+        .map_err(|e| io(&format!("cannot create {}", parent.display()), e))?;
     let lock_path = parent.join(".setup.lock");
-    let lock = std::fs::File::create(&lock_path).map_err(|e| io(&format!("cannot create {}", lock_path.display()), e))?;
-    lock.lock_exclusive().map_err(|e| io("cannot lock the Blender environment", e))?;
+    let lock = std::fs::File::create(&lock_path)
+        .map_err(|e| io(&format!("cannot create {}", lock_path.display()), e))?;
+    lock.lock_exclusive()
+        .map_err(|e| io("cannot lock the Blender environment", e))?;
 
     let final_dir = managed_env_dir(home);
     let python = managed_python(home);
@@ -159,34 +214,76 @@ pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
     // Leftovers of an install that was killed.
     if let Ok(entries) = std::fs::read_dir(&parent) {
         for e in entries.flatten() {
-            if e.file_name().to_string_lossy().starts_with(&format!(".{}.tmp-", managed_env_name())) {
+            if e.file_name()
+                .to_string_lossy()
+                .starts_with(&format!(".{}.tmp-", managed_env_name()))
+            {
                 let _ = std::fs::remove_dir_all(e.path());
             }
         }
     }
-    let bootstrap = std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").ok().filter(|s| !s.is_empty()).unwrap_or_else(|| {
-        // Prefer an explicit 3.11 when the default python3 is another version.
-        let v311 = format!("python{}.{}", BPY_PYTHON.0, BPY_PYTHON.1);
-        if Command::new(&v311).arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok_and(|s| s.success()) { v311 } else { "python3".into() }
-    });
+    let bootstrap = std::env::var("STEREOGEN_BOOTSTRAP_PYTHON")
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| {
+            // Prefer an explicit 3.11 when the default python3 is another version.
+            let v311 = format!("python{}.{}", BPY_PYTHON.0, BPY_PYTHON.1);
+            if Command::new(&v311)
+                .arg("--version")
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success())
+            {
+                v311
+            } else {
+                "python3".into()
+            }
+        });
     check_bootstrap_python(&bootstrap)?;
 
-    let tmp = parent.join(format!(".{}.tmp-{}", managed_env_name(), std::process::id()));
-    eprintln!("stereogen: installing Blender {BPY_VERSION} (bpy from PyPI, ~370 MB download) into {} ...", final_dir.display());
+    let tmp = parent.join(format!(
+        ".{}.tmp-{}",
+        managed_env_name(),
+        std::process::id()
+    ));
+    eprintln!(
+        "stereogen: installing Blender {BPY_VERSION} (bpy from PyPI, ~370 MB download) into {} ...",
+        final_dir.display()
+    );
     let result = (|| {
-        run_step("python3 -m venv", Command::new(&bootstrap).args(["-m", "venv"]).arg(&tmp))?;
+        run_step(
+            "python3 -m venv",
+            Command::new(&bootstrap).args(["-m", "venv"]).arg(&tmp),
+        )?;
         let tmp_python = tmp.join("bin").join("python");
         run_step(
             "pip install bpy",
             Command::new(&tmp_python)
-                .args(["-m", "pip", "install", "--disable-pip-version-check", "--no-input", "--progress-bar", "on"])
+                .args([
+                    "-m",
+                    "pip",
+                    "install",
+                    "--disable-pip-version-check",
+                    "--no-input",
+                    "--progress-bar",
+                    "on",
+                ])
                 .arg(format!("bpy=={BPY_VERSION}"))
                 .arg(format!("trimesh=={TRIMESH_VERSION}"))
                 .stdout(Stdio::inherit())
                 .stderr(Stdio::inherit()),
         )?;
-        run_step("import bpy, trimesh", Command::new(&tmp_python).args(["-c", "import bpy, trimesh"]).stdout(Stdio::null()))?;
-        std::fs::rename(&tmp, &final_dir).map_err(|e| RuntimeError::SetupFailed { step: "rename into place".into(), message: e.to_string() })
+        run_step(
+            "import bpy, trimesh",
+            Command::new(&tmp_python)
+                .args(["-c", "import bpy, trimesh"])
+                .stdout(Stdio::null()),
+        )?;
+        std::fs::rename(&tmp, &final_dir).map_err(|e| RuntimeError::SetupFailed {
+            step: "rename into place".into(),
+            message: e.to_string(),
+        })
     })();
     if result.is_err() {
         let _ = std::fs::remove_dir_all(&tmp);
@@ -210,7 +307,22 @@ mod tests {
     fn executable_runtime_runs_blender_in_background() {
         let rt = BlenderRuntime::Executable("/opt/blender/blender".into());
         let cmd = rt.command(Path::new("/s/worker.py"), &["--x".into()]);
-        let args: Vec<String> = cmd.get_args().map(|a| a.to_string_lossy().into_owned()).collect();
-        assert_eq!(args, ["-b", "--factory-startup", "--python-exit-code", "1", "--python", "/s/worker.py", "--", "--x"]);
+        let args: Vec<String> = cmd
+            .get_args()
+            .map(|a| a.to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(
+            args,
+            [
+                "-b",
+                "--factory-startup",
+                "--python-exit-code",
+                "1",
+                "--python",
+                "/s/worker.py",
+                "--",
+                "--x"
+            ]
+        );
     }
 }

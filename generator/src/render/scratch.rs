@@ -84,7 +84,9 @@ fn available_memory() -> Option<u64> {
 /// A fresh scratch folder in `base`, owned by this process; removed when dropped.
 pub fn create(base: &Path) -> std::io::Result<tempfile::TempDir> {
     std::fs::create_dir_all(base)?;
-    tempfile::Builder::new().prefix(&format!("{PREFIX}{}-", std::process::id())).tempdir_in(base)
+    tempfile::Builder::new()
+        .prefix(&format!("{PREFIX}{}-", std::process::id()))
+        .tempdir_in(base)
 }
 
 /// The process a scratch folder's name says owns it.
@@ -96,17 +98,26 @@ fn owner(name: &str) -> Option<u32> {
 
 /// Whether process `pid` is running (signal 0 reaches it, or it exists under another user).
 pub fn process_alive(pid: u32) -> bool {
-    let Ok(pid) = libc::pid_t::try_from(pid) else { return false };
+    let Ok(pid) = libc::pid_t::try_from(pid) else {
+        return false;
+    };
     if pid <= 0 {
         return false;
     }
-    unsafe { libc::kill(pid, 0) == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM) }
+    unsafe {
+        libc::kill(pid, 0) == 0
+            || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+    }
 }
 
 /// Every place this machine's runs may have put scratch folders: `$STEREOGEN_SCRATCH`,
 /// `/dev/shm`, the system temp dir and, given one, the dataset's `.scratch`.
 pub fn candidate_bases(dataset: Option<&Path>) -> Vec<PathBuf> {
-    let mut bases: Vec<PathBuf> = std::env::var_os(SCRATCH_ENV).filter(|v| !v.is_empty()).map(PathBuf::from).into_iter().collect();
+    let mut bases: Vec<PathBuf> = std::env::var_os(SCRATCH_ENV)
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from)
+        .into_iter()
+        .collect();
     bases.extend([PathBuf::from("/dev/shm"), std::env::temp_dir()]);
     bases.extend(dataset.map(|d| d.join(DATASET_SCRATCH_DIR)));
     bases.dedup();
@@ -118,11 +129,16 @@ pub fn candidate_bases(dataset: Option<&Path>) -> Vec<PathBuf> {
 pub fn remove_orphans(bases: &[PathBuf]) -> usize {
     let mut removed = 0;
     for base in bases {
-        let Ok(entries) = std::fs::read_dir(base) else { continue };
+        let Ok(entries) = std::fs::read_dir(base) else {
+            continue;
+        };
         for e in entries.flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
             let orphan = owner(&name).is_some_and(|pid| !process_alive(pid));
-            if orphan && e.file_type().is_ok_and(|t| t.is_dir()) && std::fs::remove_dir_all(e.path()).is_ok() {
+            if orphan
+                && e.file_type().is_ok_and(|t| t.is_dir())
+                && std::fs::remove_dir_all(e.path()).is_ok()
+            {
                 removed += 1;
             }
         }
@@ -141,7 +157,12 @@ mod tests {
     fn folders_carry_their_owner_and_orphans_are_removed() {
         let base = tempfile::tempdir().unwrap();
         let mine = create(base.path()).unwrap();
-        let name = mine.path().file_name().unwrap().to_string_lossy().into_owned();
+        let name = mine
+            .path()
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
         assert_eq!(owner(&name), Some(std::process::id()));
         // A process that has exited: a child that is reaped.
         let mut child = std::process::Command::new("true").spawn().unwrap();
@@ -154,12 +175,20 @@ mod tests {
         std::fs::create_dir(&unrelated).unwrap();
         assert_eq!(remove_orphans(&[base.path().to_path_buf()]), 1);
         assert!(!orphan.exists() && mine.path().exists() && unrelated.exists());
-        assert_eq!(owner("stereogen-XytK8w"), None, "names of older versions have no owner");
+        assert_eq!(
+            owner("stereogen-XytK8w"),
+            None,
+            "names of older versions have no owner"
+        );
     }
 
     #[test]
     fn an_explicit_location_wins_and_a_dataset_is_the_fallback() {
         let fallback = choose_base(Some(Path::new("/data/set")), 1, u64::MAX / 4);
-        assert!(fallback == Path::new("/data/set/.scratch") || std::env::var_os(SCRATCH_ENV).is_some(), "{}", fallback.display());
+        assert!(
+            fallback == Path::new("/data/set/.scratch") || std::env::var_os(SCRATCH_ENV).is_some(),
+            "{}",
+            fallback.display()
+        );
     }
 }

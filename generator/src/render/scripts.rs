@@ -6,12 +6,30 @@ use std::path::{Path, PathBuf};
 use sha2::{Digest, Sha256};
 
 const SCRIPTS: &[(&str, &str)] = &[
-    ("worker.py", include_str!("../../../blender_scripts/worker.py")),
-    ("scene_builder.py", include_str!("../../../blender_scripts/scene_builder.py")),
-    ("materials.py", include_str!("../../../blender_scripts/materials.py")),
-    ("geometry.py", include_str!("../../../blender_scripts/geometry.py")),
-    ("render_views.py", include_str!("../../../blender_scripts/render_views.py")),
-    ("export_geometry.py", include_str!("../../../blender_scripts/export_geometry.py")),
+    (
+        "worker.py",
+        include_str!("../../../blender_scripts/worker.py"),
+    ),
+    (
+        "scene_builder.py",
+        include_str!("../../../blender_scripts/scene_builder.py"),
+    ),
+    (
+        "materials.py",
+        include_str!("../../../blender_scripts/materials.py"),
+    ),
+    (
+        "geometry.py",
+        include_str!("../../../blender_scripts/geometry.py"),
+    ),
+    (
+        "render_views.py",
+        include_str!("../../../blender_scripts/render_views.py"),
+    ),
+    (
+        "export_geometry.py",
+        include_str!("../../../blender_scripts/export_geometry.py"),
+    ),
 ];
 
 fn content_hash() -> String {
@@ -20,7 +38,11 @@ fn content_hash() -> String {
         h.update(name.as_bytes());
         h.update(text.as_bytes());
     }
-    h.finalize().iter().take(8).map(|b| format!("{b:02x}")).collect()
+    h.finalize()
+        .iter()
+        .take(8)
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// Writes the scripts (if not already there) and returns the path of `worker.py`.
@@ -28,7 +50,9 @@ pub fn install_scripts(home: &Path) -> std::io::Result<PathBuf> {
     let dir = home.join("scripts").join(content_hash());
     if !dir.join("worker.py").is_file() {
         std::fs::create_dir_all(home.join("scripts"))?;
-        let tmp = tempfile::Builder::new().prefix(".scripts-").tempdir_in(home.join("scripts"))?;
+        let tmp = tempfile::Builder::new()
+            .prefix(".scripts-")
+            .tempdir_in(home.join("scripts"))?;
         for (name, text) in SCRIPTS {
             std::fs::write(tmp.path().join(name), text)?;
         }

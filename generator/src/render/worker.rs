@@ -3,7 +3,7 @@
 use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, ChildStderr, ChildStdout, Stdio};
+use std::process::{Child, ChildStderr, ChildStdin, ChildStdout, Stdio};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -11,10 +11,10 @@ use std::time::Duration;
 use anyhow::Context;
 
 use super::protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request};
-use super::scratch;
-use crate::dataset::interrupt::StopFlag;
 use super::runtime::{BLENDER_SERIES, BlenderRuntime, discover_or_install, stereogen_home};
+use super::scratch;
 use super::scripts::install_scripts;
+use crate::dataset::interrupt::StopFlag;
 use crate::plan::SceneSpec;
 use crate::plan::spec::SPEC_FORMAT_VERSION;
 
@@ -47,12 +47,16 @@ impl WorkerOptions {
     pub fn resolve(&self, workers: usize) -> anyhow::Result<WorkerConfig> {
         let home = stereogen_home();
         let runtime = discover_or_install(self.blender.as_deref(), &home)?;
-        let script = install_scripts(&home).with_context(|| format!("cannot write the Blender scripts under {}", home.display()))?;
+        let script = install_scripts(&home).with_context(|| {
+            format!("cannot write the Blender scripts under {}", home.display())
+        })?;
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u32;
         Ok(WorkerConfig {
             runtime,
             script,
-            threads: self.threads.unwrap_or_else(|| (cores / workers.max(1) as u32).max(1)),
+            threads: self
+                .threads
+                .unwrap_or_else(|| (cores / workers.max(1) as u32).max(1)),
             device: self.device,
             startup_timeout: self.startup_timeout,
             render_timeout: self.render_timeout,
@@ -101,11 +105,17 @@ pub struct WorkerConfig {
 pub enum WorkerError {
     #[error("cannot start Blender ({runtime}): {message}")]
     Start { runtime: String, message: String },
-    #[error("Blender ({runtime}) reports version {found}; stereogen needs Blender {BLENDER_SERIES} LTS")]
+    #[error(
+        "Blender ({runtime}) reports version {found}; stereogen needs Blender {BLENDER_SERIES} LTS"
+    )]
     WrongVersion { runtime: String, found: String },
     #[error("the Blender worker script {script} understands SceneSpec version {}, this stereogen writes version {ours}; \
              the script and the binary come from different builds", .worker.map_or("(none stated)".to_string(), |v| v.to_string()))]
-    SpecVersion { script: PathBuf, worker: Option<u32>, ours: u32 },
+    SpecVersion {
+        script: PathBuf,
+        worker: Option<u32>,
+        ours: u32,
+    },
     #[error("Blender worker died ({status}){tail}")]
     Crashed { status: String, tail: String },
     #[error("Blender worker gave no answer within {0:?} and was killed")]
@@ -113,7 +123,10 @@ pub enum WorkerError {
     #[error("Blender worker broke the protocol: {0}")]
     Protocol(String),
     #[error("scene failed in Blender: {message}")]
-    Scene { message: String, traceback: Option<String> },
+    Scene {
+        message: String,
+        traceback: Option<String>,
+    },
     #[error("cannot create a scratch directory in {0}")]
     Scratch(String),
     #[error("the render was abandoned: the run is stopping")]
@@ -123,7 +136,14 @@ pub enum WorkerError {
 impl WorkerError {
     /// Errors that will happen again for every sample: the whole run should stop.
     pub fn is_fatal(&self) -> bool {
-        matches!(self, WorkerError::Start { .. } | WorkerError::WrongVersion { .. } | WorkerError::SpecVersion { .. } | WorkerError::Scratch(_) | WorkerError::Interrupted)
+        matches!(
+            self,
+            WorkerError::Start { .. }
+                | WorkerError::WrongVersion { .. }
+                | WorkerError::SpecVersion { .. }
+                | WorkerError::Scratch(_)
+                | WorkerError::Interrupted
+        )
     }
 
     /// The worker's Python traceback, for a scene that raised.
@@ -164,7 +184,9 @@ fn for_each_line(stream: impl std::io::Read, mut f: impl FnMut(String) -> bool) 
         match reader.read_until(b'\n', &mut buf) {
             Ok(0) | Err(_) => break,
             Ok(_) => {
-                let line = String::from_utf8_lossy(&buf).trim_end_matches(['\n', '\r']).to_string();
+                let line = String::from_utf8_lossy(&buf)
+                    .trim_end_matches(['\n', '\r'])
+                    .to_string();
                 if !f(line) {
                     break;
                 }
@@ -174,32 +196,74 @@ fn for_each_line(stream: impl std::io::Read, mut f: impl FnMut(String) -> bool) 
 }
 
 fn tail_text(tail: &Mutex<VecDeque<String>>) -> String {
-    let lines = tail.lock().map(|t| t.iter().cloned().collect::<Vec<_>>()).unwrap_or_default();
+    let lines = tail
+        .lock()
+        .map(|t| t.iter().cloned().collect::<Vec<_>>())
+        .unwrap_or_default();
     let interesting: Vec<&String> = lines.iter().filter(|l| !l.starts_with("Fra:")).collect();
-    if interesting.is_empty() { String::new() } else { format!("; last output: {}", interesting.iter().rev().take(6).rev().map(|s| s.as_str()).collect::<Vec<_>>().join(" | ")) }
+    if interesting.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "; last output: {}",
+            interesting
+                .iter()
+                .rev()
+                .take(6)
+                .rev()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(" | ")
+        )
+    }
 }
 
 impl Worker {
     /// Starts a worker and waits for its hello; refuses a wrong Blender or SceneSpec version.
     pub fn spawn(cfg: &WorkerConfig) -> Result<Self, WorkerError> {
         let runtime = cfg.runtime.describe();
-        let mut child = start_process(cfg).map_err(|e| WorkerError::Start { runtime: runtime.clone(), message: e.to_string() })?;
+        let mut child = start_process(cfg).map_err(|e| WorkerError::Start {
+            runtime: runtime.clone(),
+            message: e.to_string(),
+        })?;
         let stdin = child.stdin.take().expect("piped");
         let replies = read_lines_in_background(child.stdout.take().expect("piped"));
         let stderr_tail = collect_stderr_tail(child.stderr.take().expect("piped"));
-        let mut process = Process { child, stdin, replies, stderr_tail, stop: cfg.stop.clone() };
+        let mut process = Process {
+            child,
+            stdin,
+            replies,
+            stderr_tail,
+            stop: cfg.stop.clone(),
+        };
         let hello = read_hello(&mut process, cfg, &runtime)?;
-        tracing::debug!("worker {} ready: Blender {} / Python {}", process.child.id(), hello.blender, hello.python);
+        tracing::debug!(
+            "worker {} ready: Blender {} / Python {}",
+            process.child.id(),
+            hello.blender,
+            hello.python
+        );
         Ok(Worker { process, hello })
     }
 
     /// Renders one spec into `out_dir`.
-    pub fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
+    pub fn render(
+        &mut self,
+        spec: &SceneSpec,
+        out_dir: &Path,
+        fault: Option<Fault>,
+        timeout: Duration,
+    ) -> Result<RenderOutput, WorkerError> {
         self.process.render(spec, out_dir, fault, timeout)
     }
 
     /// Builds one spec and writes its evaluated geometry into `out_dir` (no render).
-    pub fn export_geometry(&mut self, spec: &SceneSpec, out_dir: &Path, timeout: Duration) -> Result<GeometryOutput, WorkerError> {
+    pub fn export_geometry(
+        &mut self,
+        spec: &SceneSpec,
+        out_dir: &Path,
+        timeout: Duration,
+    ) -> Result<GeometryOutput, WorkerError> {
         self.process.export_geometry(spec, out_dir, timeout)
     }
 
@@ -212,30 +276,51 @@ impl Worker {
         let p = &mut self.process;
         let _ = p.stdin.write_all(Request::Quit.to_line().as_bytes());
         let _ = p.stdin.flush();
-        if !matches!(wait_timeout::ChildExt::wait_timeout(&mut p.child, Duration::from_secs(5)), Ok(Some(_))) {
+        if !matches!(
+            wait_timeout::ChildExt::wait_timeout(&mut p.child, Duration::from_secs(5)),
+            Ok(Some(_))
+        ) {
             p.kill();
         }
     }
 }
 
 /// The worker's first line: its hello, checked for the Blender series and the SceneSpec version.
-fn read_hello(process: &mut Process, cfg: &WorkerConfig, runtime: &str) -> Result<Hello, WorkerError> {
-    let start_error = |message: String| WorkerError::Start { runtime: runtime.to_string(), message };
-    let line = process.next_line(cfg.startup_timeout).map_err(|e| match e {
-        WorkerError::Crashed { status, tail } => start_error(format!("exited during start-up ({status}){tail}")),
-        WorkerError::Timeout(d) => start_error(format!("no answer within {d:?} of start-up")),
-        other => other,
-    })?;
+fn read_hello(
+    process: &mut Process,
+    cfg: &WorkerConfig,
+    runtime: &str,
+) -> Result<Hello, WorkerError> {
+    let start_error = |message: String| WorkerError::Start {
+        runtime: runtime.to_string(),
+        message,
+    };
+    let line = process
+        .next_line(cfg.startup_timeout)
+        .map_err(|e| match e {
+            WorkerError::Crashed { status, tail } => {
+                start_error(format!("exited during start-up ({status}){tail}"))
+            }
+            WorkerError::Timeout(d) => start_error(format!("no answer within {d:?} of start-up")),
+            other => other,
+        })?;
     let hello = match serde_json::from_str::<Reply>(&line) {
         Ok(Reply::Ready(hello)) => hello,
         Ok(_) => return Err(start_error(format!("worker says {line}"))),
         Err(e) => return Err(start_error(format!("unexpected first line {line:?}: {e}"))),
     };
     if !hello.blender.starts_with(&format!("{BLENDER_SERIES}.")) {
-        return Err(WorkerError::WrongVersion { runtime: runtime.to_string(), found: hello.blender });
+        return Err(WorkerError::WrongVersion {
+            runtime: runtime.to_string(),
+            found: hello.blender,
+        });
     }
     if hello.spec_format_version != Some(SPEC_FORMAT_VERSION) {
-        return Err(WorkerError::SpecVersion { script: cfg.script.clone(), worker: hello.spec_format_version, ours: SPEC_FORMAT_VERSION });
+        return Err(WorkerError::SpecVersion {
+            script: cfg.script.clone(),
+            worker: hello.spec_format_version,
+            ours: SPEC_FORMAT_VERSION,
+        });
     }
     Ok(hello)
 }
@@ -263,37 +348,77 @@ impl Process {
                 Err(WorkerError::Timeout(timeout))
             }
             Err(RecvTimeoutError::Disconnected) => {
-                let status = self.child.wait().map(|s| describe_status(&s)).unwrap_or_else(|e| e.to_string());
+                let status = self
+                    .child
+                    .wait()
+                    .map(|s| describe_status(&s))
+                    .unwrap_or_else(|e| e.to_string());
                 // Give the stderr thread a moment to collect the last words.
                 std::thread::sleep(Duration::from_millis(50));
-                Err(WorkerError::Crashed { status, tail: tail_text(&self.stderr_tail) })
+                Err(WorkerError::Crashed {
+                    status,
+                    tail: tail_text(&self.stderr_tail),
+                })
             }
         }
     }
 
     /// Sends one request and reads its reply; an error reply becomes [`WorkerError::Scene`].
-    fn exchange(&mut self, request: &Request<'_>, timeout: Duration) -> Result<(Reply, String), WorkerError> {
+    fn exchange(
+        &mut self,
+        request: &Request<'_>,
+        timeout: Duration,
+    ) -> Result<(Reply, String), WorkerError> {
         let line = request.to_line();
-        if self.stdin.write_all(line.as_bytes()).and_then(|()| self.stdin.flush()).is_err() {
+        if self
+            .stdin
+            .write_all(line.as_bytes())
+            .and_then(|()| self.stdin.flush())
+            .is_err()
+        {
             // The pipe is closed: the worker is gone; report how it died.
-            return Err(self.next_line(Duration::from_secs(5)).err().unwrap_or_else(|| WorkerError::Protocol("worker closed its input".into())));
+            return Err(self
+                .next_line(Duration::from_secs(5))
+                .err()
+                .unwrap_or_else(|| WorkerError::Protocol("worker closed its input".into())));
         }
         let reply_line = self.next_line(timeout)?;
         match serde_json::from_str::<Reply>(&reply_line) {
-            Ok(Reply::Error(failure)) => Err(WorkerError::Scene { message: failure.error, traceback: failure.traceback }),
+            Ok(Reply::Error(failure)) => Err(WorkerError::Scene {
+                message: failure.error,
+                traceback: failure.traceback,
+            }),
             Ok(reply) => Ok((reply, reply_line)),
             Err(e) => Err(WorkerError::Protocol(format!("{e} in {reply_line:?}"))),
         }
     }
 
-    fn render(&mut self, spec: &SceneSpec, out_dir: &Path, fault: Option<Fault>, timeout: Duration) -> Result<RenderOutput, WorkerError> {
-        match self.exchange(&Request::Render { spec, out_dir, fault }, timeout)? {
+    fn render(
+        &mut self,
+        spec: &SceneSpec,
+        out_dir: &Path,
+        fault: Option<Fault>,
+        timeout: Duration,
+    ) -> Result<RenderOutput, WorkerError> {
+        match self.exchange(
+            &Request::Render {
+                spec,
+                out_dir,
+                fault,
+            },
+            timeout,
+        )? {
             (Reply::Ok(output), _) => Ok(output),
             (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
         }
     }
 
-    fn export_geometry(&mut self, spec: &SceneSpec, out_dir: &Path, timeout: Duration) -> Result<GeometryOutput, WorkerError> {
+    fn export_geometry(
+        &mut self,
+        spec: &SceneSpec,
+        out_dir: &Path,
+        timeout: Duration,
+    ) -> Result<GeometryOutput, WorkerError> {
         match self.exchange(&Request::ExportGeometry { spec, out_dir }, timeout)? {
             (Reply::Geometry(output), _) => Ok(output),
             (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
@@ -308,9 +433,16 @@ impl Process {
 
 /// Starts the runtime on `worker.py` with piped stdio.
 fn start_process(cfg: &WorkerConfig) -> std::io::Result<Child> {
-    let args = ["--threads".to_string(), cfg.threads.to_string(), "--device".to_string(), cfg.device.to_string()];
+    let args = [
+        "--threads".to_string(),
+        cfg.threads.to_string(),
+        "--device".to_string(),
+        cfg.device.to_string(),
+    ];
     let mut cmd = cfg.runtime.command(&cfg.script, &args);
-    cmd.stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    cmd.stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
     #[cfg(target_os = "linux")]
     {
         use std::os::unix::process::CommandExt;
@@ -320,7 +452,9 @@ fn start_process(cfg: &WorkerConfig) -> std::io::Result<Child> {
         // terminal's Ctrl-C away from it: the orchestrator decides when a worker stops.
         unsafe {
             cmd.pre_exec(|| {
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 || libc::setpgid(0, 0) != 0 {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0
+                    || libc::setpgid(0, 0) != 0
+                {
                     return Err(std::io::Error::last_os_error());
                 }
                 Ok(())
@@ -398,7 +532,11 @@ pub struct ExportedGeometry {
 
 impl RenderService {
     pub fn new(cfg: WorkerConfig) -> Self {
-        Self { cfg, worker: None, restarts: 0 }
+        Self {
+            cfg,
+            worker: None,
+            restarts: 0,
+        }
     }
 
     fn ensure_worker(&mut self) -> Result<&mut Worker, WorkerError> {
@@ -409,28 +547,44 @@ impl RenderService {
     }
 
     /// Renders `spec`, retrying on crashes and hangs. `fault` picks an injected failure per attempt.
-    pub fn render(&mut self, spec: &SceneSpec, fault: impl Fn(u32) -> Option<Fault>) -> Result<Rendered, WorkerError> {
-        let (reply, scratch) = self.with_retries(spec, |worker, dir, attempt, timeout| worker.render(spec, dir, fault(attempt), timeout))?;
+    pub fn render(
+        &mut self,
+        spec: &SceneSpec,
+        fault: impl Fn(u32) -> Option<Fault>,
+    ) -> Result<Rendered, WorkerError> {
+        let (reply, scratch) = self.with_retries(spec, |worker, dir, attempt, timeout| {
+            worker.render(spec, dir, fault(attempt), timeout)
+        })?;
         Ok(Rendered { reply, scratch })
     }
 
     /// Writes the evaluated geometry of `spec` (no render), retrying on crashes and hangs.
     pub fn export_geometry(&mut self, spec: &SceneSpec) -> Result<ExportedGeometry, WorkerError> {
-        let (reply, scratch) = self.with_retries(spec, |worker, dir, _, timeout| worker.export_geometry(spec, dir, timeout))?;
+        let (reply, scratch) = self.with_retries(spec, |worker, dir, _, timeout| {
+            worker.export_geometry(spec, dir, timeout)
+        })?;
         Ok(ExportedGeometry { reply, scratch })
     }
 
     /// Runs `request` on the worker with a fresh scratch directory, restarting the worker and
     /// retrying after a crash, hang or garbled reply.
-    fn with_retries<T>(&mut self, spec: &SceneSpec, request: impl Fn(&mut Worker, &Path, u32, Duration) -> Result<T, WorkerError>) -> Result<(T, tempfile::TempDir), WorkerError> {
+    fn with_retries<T>(
+        &mut self,
+        spec: &SceneSpec,
+        request: impl Fn(&mut Worker, &Path, u32, Duration) -> Result<T, WorkerError>,
+    ) -> Result<(T, tempfile::TempDir), WorkerError> {
         let mut attempt = 0;
         loop {
             if self.cfg.stop.is_set() {
                 return Err(WorkerError::Interrupted);
             }
-            let scratch = scratch::create(&self.cfg.scratch).map_err(|e| WorkerError::Scratch(format!("{}: {e}", self.cfg.scratch.display())))?;
+            let scratch = scratch::create(&self.cfg.scratch).map_err(|e| {
+                WorkerError::Scratch(format!("{}: {e}", self.cfg.scratch.display()))
+            })?;
             let timeout = self.cfg.render_timeout;
-            let outcome = self.ensure_worker().and_then(|w| request(w, scratch.path(), attempt, timeout));
+            let outcome = self
+                .ensure_worker()
+                .and_then(|w| request(w, scratch.path(), attempt, timeout));
             match outcome {
                 Ok(reply) => return Ok((reply, scratch)),
                 Err(WorkerError::Interrupted) => {
@@ -454,7 +608,12 @@ impl RenderService {
                     if attempt >= self.cfg.retries {
                         return Err(e);
                     }
-                    tracing::warn!("sample {}: {e}; restarting the worker (attempt {} of {})", spec.id, attempt + 2, self.cfg.retries + 1);
+                    tracing::warn!(
+                        "sample {}: {e}; restarting the worker (attempt {} of {})",
+                        spec.id,
+                        attempt + 2,
+                        self.cfg.retries + 1
+                    );
                     attempt += 1;
                 }
             }

@@ -30,8 +30,18 @@ pub const FINE_BINS: usize = 16384;
 
 impl Binning {
     /// `support`: the law's support (widened by 0.5 px each side when it is a single value).
-    pub fn new(hi: f64, support: (f64, f64), display_bins: usize, width: usize, height: usize) -> Self {
-        let (lo, up) = if support.1 > support.0 { support } else { (support.0 - 0.5, support.1 + 0.5) };
+    pub fn new(
+        hi: f64,
+        support: (f64, f64),
+        display_bins: usize,
+        width: usize,
+        height: usize,
+    ) -> Self {
+        let (lo, up) = if support.1 > support.0 {
+            support
+        } else {
+            (support.0 - 0.5, support.1 + 0.5)
+        };
         Self {
             hi,
             fine_bins: FINE_BINS,
@@ -60,7 +70,15 @@ pub struct ViewAcc {
 
 impl ViewAcc {
     fn new(b: &Binning) -> Self {
-        Self { fine: UniformHist::new(0.0, b.hi, b.fine_bins), pixels: 0, invalid: 0, nonfinite: 0, sum: 0.0, min: f64::INFINITY, max: f64::NEG_INFINITY }
+        Self {
+            fine: UniformHist::new(0.0, b.hi, b.fine_bins),
+            pixels: 0,
+            invalid: 0,
+            nonfinite: 0,
+            sum: 0.0,
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+        }
     }
 
     fn merge(&mut self, o: &Self) {
@@ -92,7 +110,13 @@ pub struct Coverage {
 impl Coverage {
     fn new(bands: usize, b: &Binning) -> Self {
         let z = vec![0; bands];
-        Self { hists: vec![UniformHist::new(0.0, b.hi, b.coverage_bins); bands], sums: vec![0.0; bands], content: z.clone(), valid: z.clone(), pixels: z }
+        Self {
+            hists: vec![UniformHist::new(0.0, b.hi, b.coverage_bins); bands],
+            sums: vec![0.0; bands],
+            content: z.clone(),
+            valid: z.clone(),
+            pixels: z,
+        }
     }
 
     fn merge(&mut self, o: &Self) {
@@ -239,10 +263,27 @@ mod tests {
 
     #[test]
     fn counts_valid_invalid_and_bands() {
-        let b = Binning { hi: 10.0, fine_bins: 100, support: (0.0, 10.0), display_bins: 10, coverage_bins: 10, rows: 2, cols: 4, content_min: 2.0 };
+        let b = Binning {
+            hi: 10.0,
+            fine_bins: 100,
+            support: (0.0, 10.0),
+            display_bins: 10,
+            coverage_bins: 10,
+            rows: 2,
+            cols: 4,
+            content_min: 2.0,
+        };
         let mut acc = PixelAcc::new(&b, Some(&[0.0, 5.0, 10.0]), None);
         // 4x2 map: top row valid with disparity x+1 (1..4), bottom row invalid except x=3 (NaN).
-        let m = map(4, 2, |x, y| if y == 0 { Some(x as f32 + 1.0) } else if x == 3 { Some(f32::NAN) } else { None });
+        let m = map(4, 2, |x, y| {
+            if y == 0 {
+                Some(x as f32 + 1.0)
+            } else if x == 3 {
+                Some(f32::NAN)
+            } else {
+                None
+            }
+        });
         acc.add_map(0, &m);
         let v = &acc.views[0];
         assert_eq!((v.pixels, v.invalid, v.nonfinite, v.valid()), (8, 3, 1, 4));
@@ -271,7 +312,16 @@ mod tests {
 
     #[test]
     fn bands_follow_relative_position() {
-        let b = Binning { hi: 10.0, fine_bins: 10, support: (0.0, 10.0), display_bins: 10, coverage_bins: 10, rows: 2, cols: 2, content_min: 0.0 };
+        let b = Binning {
+            hi: 10.0,
+            fine_bins: 10,
+            support: (0.0, 10.0),
+            display_bins: 10,
+            coverage_bins: 10,
+            rows: 2,
+            cols: 2,
+            content_min: 0.0,
+        };
         let mut acc = PixelAcc::new(&b, None, None);
         // A 6x3 map: rows 0 and 1 go to band 0 (y*2/3 = 0, 0), row 2 to band 1.
         acc.add_map(1, &map(6, 3, |_, y| Some(y as f32)));

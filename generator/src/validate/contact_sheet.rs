@@ -22,7 +22,12 @@ fn blit(dst: &mut RgbImage, src: &RgbImage, x0: usize, y0: usize) {
 }
 
 /// Writes a sheet of the first `count` samples (by index), `cols` samples per row.
-pub fn write_contact_sheet(dataset: &Path, count: usize, cols: usize, out: &Path) -> anyhow::Result<usize> {
+pub fn write_contact_sheet(
+    dataset: &Path,
+    count: usize,
+    cols: usize,
+    out: &Path,
+) -> anyhow::Result<usize> {
     let layout = DatasetLayout::new(dataset);
     let mut entries = Manifest::read(&layout.manifest())?;
     entries.sort_by_key(|e| e.index);
@@ -34,11 +39,20 @@ pub fn write_contact_sheet(dataset: &Path, count: usize, cols: usize, out: &Path
     let cols = cols.clamp(1, entries.len());
     let rows = entries.len().div_ceil(cols);
     let tile_w = 2 * w + GAP;
-    let mut sheet = RgbImage { width: cols * tile_w + (cols + 1) * GAP * 2, height: rows * h + (rows + 1) * GAP, data: Vec::new() };
+    let mut sheet = RgbImage {
+        width: cols * tile_w + (cols + 1) * GAP * 2,
+        height: rows * h + (rows + 1) * GAP,
+        data: Vec::new(),
+    };
     sheet.data = vec![255; sheet.width * sheet.height * 3];
     for (i, e) in entries.iter().enumerate() {
         if (e.width as usize, e.height as usize) != (w, h) {
-            bail!("sample {} is {}x{}, the sheet is {w}x{h}", e.id, e.width, e.height);
+            bail!(
+                "sample {} is {}x{}, the sheet is {w}x{h}",
+                e.id,
+                e.width,
+                e.height
+            );
         }
         let image = stereo_io::read_rgb(&layout.abs(&e.files.left))?;
         let (disp, _) = stereo_io::read_disparity_exr(&layout.abs(&e.files.disp_left))?;
@@ -48,7 +62,12 @@ pub fn write_contact_sheet(dataset: &Path, count: usize, cols: usize, out: &Path
         let y0 = GAP + r * (h + GAP);
         blit(&mut sheet, &image, x0, y0);
         // Zero to the sample's largest disparity, the shared colour map (`stereo_io::colormap`).
-        blit(&mut sheet, &colourise(&disp, DisparityRange::new(0.0, max)), x0 + w + GAP, y0);
+        blit(
+            &mut sheet,
+            &colourise(&disp, DisparityRange::new(0.0, max)),
+            x0 + w + GAP,
+            y0,
+        );
     }
     stereo_io::write_png_rgb(out, &sheet)?;
     Ok(entries.len())

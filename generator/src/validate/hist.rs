@@ -28,8 +28,19 @@ pub struct Percentiles {
 impl Percentiles {
     /// From a function that maps a fraction in 0..=1 to a value; `None` when it has no data.
     pub fn from_fn(q: impl Fn(f64) -> Option<f64>) -> Option<Self> {
-        let v: Vec<f64> = PERCENTILES.iter().map(|p| q(p / 100.0)).collect::<Option<_>>()?;
-        Some(Self { p1: v[0], p5: v[1], p25: v[2], p50: v[3], p75: v[4], p95: v[5], p99: v[6] })
+        let v: Vec<f64> = PERCENTILES
+            .iter()
+            .map(|p| q(p / 100.0))
+            .collect::<Option<_>>()?;
+        Some(Self {
+            p1: v[0],
+            p5: v[1],
+            p25: v[2],
+            p50: v[3],
+            p75: v[4],
+            p95: v[5],
+            p99: v[6],
+        })
     }
 }
 
@@ -46,8 +57,17 @@ pub struct UniformHist {
 
 impl UniformHist {
     pub fn new(lo: f64, hi: f64, bins: usize) -> Self {
-        assert!(bins > 0 && hi > lo, "a histogram needs bins > 0 and hi > lo");
-        Self { lo, hi, counts: vec![0; bins], below: 0, above: 0 }
+        assert!(
+            bins > 0 && hi > lo,
+            "a histogram needs bins > 0 and hi > lo"
+        );
+        Self {
+            lo,
+            hi,
+            counts: vec![0; bins],
+            below: 0,
+            above: 0,
+        }
     }
 
     pub fn bins(&self) -> usize {
@@ -77,7 +97,10 @@ impl UniformHist {
     }
 
     pub fn merge(&mut self, other: &Self) {
-        assert!(self.lo == other.lo && self.hi == other.hi && self.bins() == other.bins(), "merging histograms with different bins");
+        assert!(
+            self.lo == other.lo && self.hi == other.hi && self.bins() == other.bins(),
+            "merging histograms with different bins"
+        );
         for (a, b) in self.counts.iter_mut().zip(&other.counts) {
             *a += b;
         }
@@ -116,9 +139,18 @@ impl UniformHist {
 
     /// The histogram with `factor` adjacent bins summed (for coarser display).
     pub fn coarsen(&self, factor: usize) -> Self {
-        assert!(factor > 0 && self.bins().is_multiple_of(factor), "coarsening factor must divide the bin count");
+        assert!(
+            factor > 0 && self.bins().is_multiple_of(factor),
+            "coarsening factor must divide the bin count"
+        );
         let counts = self.counts.chunks(factor).map(|c| c.iter().sum()).collect();
-        Self { lo: self.lo, hi: self.hi, counts, below: self.below, above: self.above }
+        Self {
+            lo: self.lo,
+            hi: self.hi,
+            counts,
+            below: self.below,
+            above: self.above,
+        }
     }
 }
 
@@ -132,9 +164,16 @@ pub struct EdgeHist {
 
 impl EdgeHist {
     pub fn new(edges: Vec<f64>) -> Self {
-        assert!(edges.len() >= 2 && edges.windows(2).all(|w| w[1] > w[0]), "edges must increase");
+        assert!(
+            edges.len() >= 2 && edges.windows(2).all(|w| w[1] > w[0]),
+            "edges must increase"
+        );
         let n = edges.len() - 1;
-        Self { edges, counts: vec![0; n], outside: 0 }
+        Self {
+            edges,
+            counts: vec![0; n],
+            outside: 0,
+        }
     }
 
     #[inline]
@@ -150,7 +189,10 @@ impl EdgeHist {
     }
 
     pub fn merge(&mut self, other: &Self) {
-        assert_eq!(self.edges, other.edges, "merging histograms with different edges");
+        assert_eq!(
+            self.edges, other.edges,
+            "merging histograms with different edges"
+        );
         for (a, b) in self.counts.iter_mut().zip(&other.counts) {
             *a += b;
         }
@@ -159,7 +201,12 @@ impl EdgeHist {
 
     /// The `[lo, hi)` ranges of the bins that counted nothing.
     pub fn empty_bins(&self) -> Vec<[f64; 2]> {
-        self.counts.iter().enumerate().filter(|(_, c)| **c == 0).map(|(i, _)| [self.edges[i], self.edges[i + 1]]).collect()
+        self.counts
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| **c == 0)
+            .map(|(i, _)| [self.edges[i], self.edges[i + 1]])
+            .collect()
     }
 }
 
@@ -172,7 +219,11 @@ pub fn quantile_sorted(sorted: &[f64], q: f64) -> Option<f64> {
     let pos = q.clamp(0.0, 1.0) * (n - 1) as f64;
     let i = pos.floor() as usize;
     let frac = pos - i as f64;
-    Some(if i + 1 < n { sorted[i] + frac * (sorted[i + 1] - sorted[i]) } else { sorted[n - 1] })
+    Some(if i + 1 < n {
+        sorted[i] + frac * (sorted[i + 1] - sorted[i])
+    } else {
+        sorted[n - 1]
+    })
 }
 
 /// The law's quantile: the `x` in its support with `cdf(x) = q` (bisection on the CDF).
@@ -214,13 +265,26 @@ pub fn gap_bins_for(n: usize, alpha: f64) -> usize {
         return 0;
     }
     let miss = |k: usize| k as f64 * (1.0 - 1.0 / k as f64).powi(n.min(i32::MAX as usize) as i32);
-    (1..=MAX_GAP_BINS).take_while(|&k| miss(k) <= alpha).last().unwrap_or(1)
+    (1..=MAX_GAP_BINS)
+        .take_while(|&k| miss(k) <= alpha)
+        .last()
+        .unwrap_or(1)
 }
 
 /// Bin edges at the law's quantiles `0, 1/k, …, 1`: each bin holds `1/k` of its mass.
 pub fn equal_mass_edges(law: &Dist, k: usize) -> Vec<f64> {
     let (min, max) = law.support();
-    let mut edges: Vec<f64> = (0..=k).map(|i| if i == 0 { min } else if i == k { max } else { law_quantile(law, i as f64 / k as f64) }).collect();
+    let mut edges: Vec<f64> = (0..=k)
+        .map(|i| {
+            if i == 0 {
+                min
+            } else if i == k {
+                max
+            } else {
+                law_quantile(law, i as f64 / k as f64)
+            }
+        })
+        .collect();
     edges.dedup_by(|b, a| *b <= *a);
     edges
 }

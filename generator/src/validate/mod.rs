@@ -12,9 +12,9 @@
 //! - [`audit`]: `stereogen audit`: the ground truth re-derived from the scene geometry by ray casting.
 //! - [`html_report`]: `stereogen report`: one self-contained HTML page about a dataset.
 
-pub mod contact_sheet;
 pub mod accumulate;
 pub mod audit;
+pub mod contact_sheet;
 pub mod hist;
 pub mod html_report;
 pub mod plots;

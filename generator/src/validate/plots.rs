@@ -55,7 +55,11 @@ fn register() {
 }
 
 /// Draws into an RGB buffer and writes it as a PNG, atomically.
-fn render(path: &Path, (w, h): (u32, u32), draw: impl FnOnce(&Area) -> anyhow::Result<()>) -> anyhow::Result<()> {
+fn render(
+    path: &Path,
+    (w, h): (u32, u32),
+    draw: impl FnOnce(&Area) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     register();
     let mut buf = vec![255u8; w as usize * h as usize * 3];
     {
@@ -64,7 +68,12 @@ fn render(path: &Path, (w, h): (u32, u32), draw: impl FnOnce(&Area) -> anyhow::R
         draw(&root)?;
         root.present().map_err(plot_err)?;
     }
-    let img = stereo_io::Image { width: w as usize, height: h as usize, channels: 3, samples: stereo_io::Samples::U8(buf) };
+    let img = stereo_io::Image {
+        width: w as usize,
+        height: h as usize,
+        channels: 3,
+        samples: stereo_io::Samples::U8(buf),
+    };
     stereo_io::write_png(path, &img)?;
     Ok(())
 }
@@ -73,7 +82,21 @@ fn render(path: &Path, (w, h): (u32, u32), draw: impl FnOnce(&Area) -> anyhow::R
 fn density_bars(h: &UniformHist, norm: u64) -> Vec<(f64, f64, f64)> {
     let w = h.bin_width();
     let edges = h.edges();
-    h.counts.iter().enumerate().map(|(i, &c)| (edges[i], edges[i + 1], if norm == 0 { 0.0 } else { c as f64 / (norm as f64 * w) })).collect()
+    h.counts
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| {
+            (
+                edges[i],
+                edges[i + 1],
+                if norm == 0 {
+                    0.0
+                } else {
+                    c as f64 / (norm as f64 * w)
+                },
+            )
+        })
+        .collect()
 }
 
 fn step_line(bars: &[(f64, f64, f64)]) -> Vec<(f64, f64)> {
@@ -103,14 +126,25 @@ struct Panel<'a> {
 
 fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
     let (x0, x1) = p.x;
-    let law_pts = p.law.map(|(law, scale)| law_density(law, x0, x1, 600).into_iter().map(|(x, y)| (x, y * scale)).collect::<Vec<_>>()).unwrap_or_default();
-    let y_max = [p.bars.as_ref().map(|b| &b.0), p.outline.as_ref().map(|b| &b.0)]
-        .into_iter()
-        .flatten()
-        .flat_map(|v| v.iter().map(|b| b.2))
-        .chain(law_pts.iter().map(|p| p.1))
-        .fold(0.0, f64::max)
-        .max(1e-9)
+    let law_pts = p
+        .law
+        .map(|(law, scale)| {
+            law_density(law, x0, x1, 600)
+                .into_iter()
+                .map(|(x, y)| (x, y * scale))
+                .collect::<Vec<_>>()
+        })
+        .unwrap_or_default();
+    let y_max = [
+        p.bars.as_ref().map(|b| &b.0),
+        p.outline.as_ref().map(|b| &b.0),
+    ]
+    .into_iter()
+    .flatten()
+    .flat_map(|v| v.iter().map(|b| b.2))
+    .chain(law_pts.iter().map(|p| p.1))
+    .fold(0.0, f64::max)
+    .max(1e-9)
         * 1.15;
     let mut chart = ChartBuilder::on(area)
         .caption(&p.title, ("sans-serif", 17))
@@ -131,7 +165,11 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
         .map_err(plot_err)?;
     if !p.empty.is_empty() {
         chart
-            .draw_series(p.empty.iter().map(|[a, b]| Rectangle::new([(*a, 0.0), (*b, y_max)], LAW.mix(0.18).filled())))
+            .draw_series(
+                p.empty
+                    .iter()
+                    .map(|[a, b]| Rectangle::new([(*a, 0.0), (*b, y_max)], LAW.mix(0.18).filled())),
+            )
             .map_err(plot_err)?
             .label(format!("empty gap bin ({})", p.empty.len()))
             .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], LAW.mix(0.18).filled()));
@@ -139,17 +177,31 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
     if !p.gap_edges.is_empty() {
         let grey = RGBColor(150, 60, 170).mix(0.75);
         chart
-            .draw_series(p.gap_edges.iter().map(|&x| PathElement::new(vec![(x, 0.0), (x, y_max)], grey.stroke_width(1))))
+            .draw_series(
+                p.gap_edges
+                    .iter()
+                    .map(|&x| PathElement::new(vec![(x, 0.0), (x, y_max)], grey.stroke_width(1))),
+            )
             .map_err(plot_err)?
-            .label(format!("gap-check bins ({})", p.gap_edges.len().saturating_sub(1)))
-            .legend(move |(x, y)| PathElement::new(vec![(x + 9, y - 6), (x + 9, y + 6)], grey.stroke_width(1)));
+            .label(format!(
+                "gap-check bins ({})",
+                p.gap_edges.len().saturating_sub(1)
+            ))
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x + 9, y - 6), (x + 9, y + 6)], grey.stroke_width(1))
+            });
     }
     if let Some((bars, label)) = &p.bars {
         chart
-            .draw_series(bars.iter().map(|&(a, b, y)| Rectangle::new([(a, 0.0), (b, y)], PIXEL.mix(0.55).filled())))
+            .draw_series(
+                bars.iter()
+                    .map(|&(a, b, y)| Rectangle::new([(a, 0.0), (b, y)], PIXEL.mix(0.55).filled())),
+            )
             .map_err(plot_err)?
             .label(label.as_str())
-            .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], PIXEL.mix(0.55).filled()));
+            .legend(|(x, y)| {
+                Rectangle::new([(x, y - 5), (x + 18, y + 5)], PIXEL.mix(0.55).filled())
+            });
     }
     if let Some((bars, label)) = &p.outline {
         chart
@@ -177,7 +229,12 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
 }
 
 fn object_bars(c: &CategoryStats) -> Bars {
-    c.objects.histogram.as_ref().map(|h| (density_bars(h, c.objects.count as u64), format!("object targets (n={})", c.objects.count)))
+    c.objects.histogram.as_ref().map(|h| {
+        (
+            density_bars(h, c.objects.count as u64),
+            format!("object targets (n={})", c.objects.count),
+        )
+    })
 }
 
 fn ks_text(c: &CategoryStats) -> String {
@@ -205,23 +262,54 @@ fn law_range(report: &StatsReport) -> (f64, f64) {
 /// A panel of one category's pixel-level histogram inside the law's support, normalised over
 /// the pixels inside it (so it compares with the law's density), optionally with its object
 /// histogram.
-fn pixel_panel<'a>(c: &CategoryStats, report: &'a StatsReport, title: String, with_objects: bool) -> Panel<'a> {
+fn pixel_panel<'a>(
+    c: &CategoryStats,
+    report: &'a StatsReport,
+    title: String,
+    with_objects: bool,
+) -> Panel<'a> {
     let (bars, empty, gap_edges) = match &c.pixels {
         Some(p) => {
             let inside: u64 = p.histogram.counts.iter().sum();
             let share = 100.0 * inside as f64 / p.valid.max(1) as f64;
             (
-                Some((density_bars(&p.histogram, inside), format!("pixels in the law's range ({share:.1}% of {:.2e} valid)", p.valid as f64))),
-                p.gap_check.as_ref().map(|g| g.empty.clone()).unwrap_or_default(),
-                p.gap_check.as_ref().map(|g| g.edges.clone()).unwrap_or_default(),
+                Some((
+                    density_bars(&p.histogram, inside),
+                    format!(
+                        "pixels in the law's range ({share:.1}% of {:.2e} valid)",
+                        p.valid as f64
+                    ),
+                )),
+                p.gap_check
+                    .as_ref()
+                    .map(|g| g.empty.clone())
+                    .unwrap_or_default(),
+                p.gap_check
+                    .as_ref()
+                    .map(|g| g.edges.clone())
+                    .unwrap_or_default(),
             )
         }
         None => (None, Vec::new(), Vec::new()),
     };
-    Panel { title, x: law_range(report), bars, outline: if with_objects { object_bars(c) } else { None }, law: Some((&report.law, 1.0)), empty, gap_edges }
+    Panel {
+        title,
+        x: law_range(report),
+        bars,
+        outline: if with_objects { object_bars(c) } else { None },
+        law: Some((&report.law, 1.0)),
+        empty,
+        gap_edges,
+    }
 }
 
-fn coverage_panel(area: &Area, title: &str, x_desc: &str, bands: &[Band], y_max: f64) -> anyhow::Result<()> {
+fn coverage_panel(
+    area: &Area,
+    title: &str,
+    x_desc: &str,
+    bands: &[Band],
+    y_max: f64,
+) -> anyhow::Result<()> {
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", 17))
         .margin(8)
@@ -229,7 +317,15 @@ fn coverage_panel(area: &Area, title: &str, x_desc: &str, bands: &[Band], y_max:
         .y_label_area_size(55)
         .build_cartesian_2d(0.0..1.0, 0.0..y_max)
         .map_err(plot_err)?;
-    chart.configure_mesh().x_desc(x_desc).y_desc("disparity (px)").label_style(("sans-serif", 13)).axis_desc_style(("sans-serif", 14)).light_line_style(WHITE).draw().map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc("disparity (px)")
+        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(plot_err)?;
     let mid = |b: &Band| 0.5 * (b.from + b.to);
     let have: Vec<&Band> = bands.iter().filter(|b| b.p5.is_some()).collect();
     if have.is_empty() {
@@ -243,20 +339,39 @@ fn coverage_panel(area: &Area, title: &str, x_desc: &str, bands: &[Band], y_max:
         .label("p5-p95")
         .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], PIXEL.mix(0.3).filled()));
     chart
-        .draw_series(LineSeries::new(have.iter().map(|b| (mid(b), b.p50.unwrap())), PIXEL.stroke_width(2)))
+        .draw_series(LineSeries::new(
+            have.iter().map(|b| (mid(b), b.p50.unwrap())),
+            PIXEL.stroke_width(2),
+        ))
         .map_err(plot_err)?
         .label("median")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], PIXEL.stroke_width(2)));
     chart
-        .draw_series(LineSeries::new(have.iter().filter_map(|b| b.mean.map(|m| (mid(b), m))), BLACK.stroke_width(1)))
+        .draw_series(LineSeries::new(
+            have.iter().filter_map(|b| b.mean.map(|m| (mid(b), m))),
+            BLACK.stroke_width(1),
+        ))
         .map_err(plot_err)?
         .label("mean")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
-    chart.configure_series_labels().position(SeriesLabelPosition::UpperRight).label_font(("sans-serif", 13)).background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(plot_err)?;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .label_font(("sans-serif", 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
     Ok(())
 }
 
-fn valid_panel(area: &Area, title: &str, x_desc: &str, report: &StatsReport, rows: bool) -> anyhow::Result<()> {
+fn valid_panel(
+    area: &Area,
+    title: &str,
+    x_desc: &str,
+    report: &StatsReport,
+    rows: bool,
+) -> anyhow::Result<()> {
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", 17))
         .margin(8)
@@ -264,27 +379,62 @@ fn valid_panel(area: &Area, title: &str, x_desc: &str, report: &StatsReport, row
         .y_label_area_size(55)
         .build_cartesian_2d(0.0..1.0, 0.0..1.05)
         .map_err(plot_err)?;
-    chart.configure_mesh().x_desc(x_desc).y_desc("fraction of pixels").label_style(("sans-serif", 13)).axis_desc_style(("sans-serif", 14)).light_line_style(WHITE).draw().map_err(plot_err)?;
-    let groups = report.categories.iter().filter(|c| c.pixels.is_some()).enumerate().map(|(i, c)| (c, PALETTE[i % PALETTE.len()], 1)).chain([(&report.overall, BLACK, 3)]);
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc("fraction of pixels")
+        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(plot_err)?;
+    let groups = report
+        .categories
+        .iter()
+        .filter(|c| c.pixels.is_some())
+        .enumerate()
+        .map(|(i, c)| (c, PALETTE[i % PALETTE.len()], 1))
+        .chain([(&report.overall, BLACK, 3)]);
     for (c, color, width) in groups {
         let p = c.pixels.as_ref().expect("filtered");
         let bands = if rows { &p.rows } else { &p.cols };
         chart
-            .draw_series(LineSeries::new(bands.iter().map(|b| (0.5 * (b.from + b.to), b.content_fraction)), color.stroke_width(width)))
+            .draw_series(LineSeries::new(
+                bands
+                    .iter()
+                    .map(|b| (0.5 * (b.from + b.to), b.content_fraction)),
+                color.stroke_width(width),
+            ))
             .map_err(plot_err)?
             .label(format!("{} content", c.name))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(width)));
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(width))
+            });
     }
     if let Some(p) = &report.overall.pixels {
         let grey = RGBColor(150, 150, 150);
         let bands = if rows { &p.rows } else { &p.cols };
         chart
-            .draw_series(LineSeries::new(bands.iter().map(|b| (0.5 * (b.from + b.to), b.valid_fraction)), grey.stroke_width(2)))
+            .draw_series(LineSeries::new(
+                bands
+                    .iter()
+                    .map(|b| (0.5 * (b.from + b.to), b.valid_fraction)),
+                grey.stroke_width(2),
+            ))
             .map_err(plot_err)?
             .label("all valid")
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], grey.stroke_width(2)));
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], grey.stroke_width(2))
+            });
     }
-    chart.configure_series_labels().position(SeriesLabelPosition::MiddleRight).label_font(("sans-serif", 12)).background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(plot_err)?;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::MiddleRight)
+        .label_font(("sans-serif", 12))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
     Ok(())
 }
 
@@ -296,16 +446,37 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
 
     let path = dir.join("stats_objects.png");
     render(&path, (1000, 600), |root| {
-        let title = format!("Object-level target disparity vs recipe law - {}, {}", ks_text(all), status_text(all));
-        let panel = Panel { title, x: law_range(report), bars: None, outline: object_bars(all), law: Some((&report.law, 1.0)), empty: Vec::new(), gap_edges: Vec::new() };
+        let title = format!(
+            "Object-level target disparity vs recipe law - {}, {}",
+            ks_text(all),
+            status_text(all)
+        );
+        let panel = Panel {
+            title,
+            x: law_range(report),
+            bars: None,
+            outline: object_bars(all),
+            law: Some((&report.law, 1.0)),
+            empty: Vec::new(),
+            gap_edges: Vec::new(),
+        };
         draw_panel(root, &panel)
     })?;
     written.push(path);
 
     let path = dir.join("stats_pixels.png");
     render(&path, (1000, 600), |root| {
-        let gaps = all.pixels.as_ref().and_then(|p| p.gap_check.as_ref()).map_or("no gap check".to_string(), |g| format!("{}/{} gap bins empty", g.empty.len(), g.bins));
-        let title = format!("Pixel-level disparity inside the law's range (both views) - {} samples, {gaps}", report.samples);
+        let gaps = all
+            .pixels
+            .as_ref()
+            .and_then(|p| p.gap_check.as_ref())
+            .map_or("no gap check".to_string(), |g| {
+                format!("{}/{} gap bins empty", g.empty.len(), g.bins)
+            });
+        let title = format!(
+            "Pixel-level disparity inside the law's range (both views) - {} samples, {gaps}",
+            report.samples
+        );
         draw_panel(root, &pixel_panel(all, report, title, false))
     })?;
     written.push(path);
@@ -315,7 +486,13 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
     let rows = n.div_ceil(2);
     render(&path, (1400, 420 * rows as u32), |root| {
         for (area, c) in root.split_evenly((rows, 2)).iter().zip(&report.categories) {
-            let title = format!("{} - {} scenes, {}, {}", c.name, c.samples, ks_text(c), status_text(c));
+            let title = format!(
+                "{} - {} scenes, {}, {}",
+                c.name,
+                c.samples,
+                ks_text(c),
+                status_text(c)
+            );
             draw_panel(area, &pixel_panel(c, report, title, true))?;
         }
         Ok(())
@@ -326,11 +503,42 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
     render(&path, (1400, 900), |root| {
         let panels = root.split_evenly((2, 2));
         let Some(p) = &all.pixels else { return Ok(()) };
-        let y_max = p.rows.iter().chain(&p.cols).filter_map(|b| b.p95).fold(0.0, f64::max).max(1e-3) * 1.15;
-        coverage_panel(&panels[0], "Content disparity by image row (pixels at or above the law's min)", "row (0 = top, 1 = bottom)", &p.rows, y_max)?;
-        coverage_panel(&panels[1], "Content disparity by image column", "column (0 = left, 1 = right)", &p.cols, y_max)?;
-        valid_panel(&panels[2], "Content-pixel fraction by row", "row (0 = top, 1 = bottom)", report, true)?;
-        valid_panel(&panels[3], "Content-pixel fraction by column", "column (0 = left, 1 = right)", report, false)?;
+        let y_max = p
+            .rows
+            .iter()
+            .chain(&p.cols)
+            .filter_map(|b| b.p95)
+            .fold(0.0, f64::max)
+            .max(1e-3)
+            * 1.15;
+        coverage_panel(
+            &panels[0],
+            "Content disparity by image row (pixels at or above the law's min)",
+            "row (0 = top, 1 = bottom)",
+            &p.rows,
+            y_max,
+        )?;
+        coverage_panel(
+            &panels[1],
+            "Content disparity by image column",
+            "column (0 = left, 1 = right)",
+            &p.cols,
+            y_max,
+        )?;
+        valid_panel(
+            &panels[2],
+            "Content-pixel fraction by row",
+            "row (0 = top, 1 = bottom)",
+            report,
+            true,
+        )?;
+        valid_panel(
+            &panels[3],
+            "Content-pixel fraction by column",
+            "column (0 = left, 1 = right)",
+            report,
+            false,
+        )?;
         Ok(())
     })?;
     written.push(path);

@@ -181,7 +181,12 @@ fn bands(c: &Coverage) -> Vec<Band> {
 }
 
 fn gap_check(g: &EdgeHist) -> GapCheck {
-    GapCheck { bins: g.counts.len(), edges: g.edges.clone(), counts: g.counts.clone(), empty: g.empty_bins() }
+    GapCheck {
+        bins: g.counts.len(),
+        edges: g.edges.clone(),
+        counts: g.counts.clone(),
+        empty: g.empty_bins(),
+    }
 }
 
 impl PixelStats {
@@ -239,14 +244,31 @@ impl CategoryStats {
                         problems.push("no valid pixels".to_string());
                     }
                     if p.nonfinite_valid > 0 {
-                        problems.push(format!("{} valid pixels are NaN or infinite", p.nonfinite_valid));
+                        problems.push(format!(
+                            "{} valid pixels are NaN or infinite",
+                            p.nonfinite_valid
+                        ));
                     }
                     if let Some(g) = &p.gap_check
                         && !g.empty.is_empty()
                     {
-                        let list: Vec<String> = g.empty.iter().take(6).map(|[a, b]| format!("[{a:.2}, {b:.2})")).collect();
-                        let more = if g.empty.len() > 6 { format!(" and {} more", g.empty.len() - 6) } else { String::new() };
-                        problems.push(format!("gap: {}/{} pixel bins empty inside the law's support: {}{more}", g.empty.len(), g.bins, list.join(" ")));
+                        let list: Vec<String> = g
+                            .empty
+                            .iter()
+                            .take(6)
+                            .map(|[a, b]| format!("[{a:.2}, {b:.2})"))
+                            .collect();
+                        let more = if g.empty.len() > 6 {
+                            format!(" and {} more", g.empty.len() - 6)
+                        } else {
+                            String::new()
+                        };
+                        problems.push(format!(
+                            "gap: {}/{} pixel bins empty inside the law's support: {}{more}",
+                            g.empty.len(),
+                            g.bins,
+                            list.join(" ")
+                        ));
                     }
                 }
             }
@@ -254,7 +276,14 @@ impl CategoryStats {
                 status = Status::Fail;
             }
         }
-        Self { name: name.to_string(), samples, objects, pixels, status, problems }
+        Self {
+            name: name.to_string(),
+            samples,
+            objects,
+            pixels,
+            status,
+            problems,
+        }
     }
 
     /// One line for the terminal: status, the numbers the decision used, and the problems.
@@ -264,7 +293,10 @@ impl CategoryStats {
             Status::Fail => "FAIL",
             Status::Skip => "SKIP",
         };
-        let mut s = format!("{tag} {:<name_width$} {:>6} scenes {:>7} objects", self.name, self.samples, self.objects.count);
+        let mut s = format!(
+            "{tag} {:<name_width$} {:>6} scenes {:>7} objects",
+            self.name, self.samples, self.objects.count
+        );
         if let (Some(d), Some(c)) = (self.objects.ks_distance, self.objects.ks_critical) {
             s += &format!("  KS {d:.4} {} {c:.4}", if d > c { ">" } else { "<=" });
         }

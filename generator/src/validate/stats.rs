@@ -33,29 +33,53 @@ pub struct StatsOptions {
 
 impl StatsOptions {
     pub fn new(dataset: impl Into<PathBuf>) -> Self {
-        Self { dataset: dataset.into(), ks_alpha: 0.01, bins: None, gap_bins: None, verify: false }
+        Self {
+            dataset: dataset.into(),
+            ks_alpha: 0.01,
+            bins: None,
+            gap_bins: None,
+            verify: false,
+        }
     }
 }
 
 /// The SHA-256 of `bytes`, as the manifest writes it.
 fn sha256_hex(bytes: &[u8]) -> String {
     use sha2::{Digest, Sha256};
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// Reads one file of a sample: with `verify`, its checksum is compared with the manifest's and
 /// an image is decoded in full. Returns the bytes read.
-fn read_sample_file(root: &Path, e: &ManifestEntry, key: &str, rel: &Path, verify: bool) -> Result<Vec<u8>, String> {
+fn read_sample_file(
+    root: &Path,
+    e: &ManifestEntry,
+    key: &str,
+    rel: &Path,
+    verify: bool,
+) -> Result<Vec<u8>, String> {
     let path = root.join(rel);
     let bytes = std::fs::read(&path).map_err(|err| format!("{}: {err}", path.display()))?;
     if verify {
-        let Some(recorded) = e.sha256.get(key) else { return Err(format!("{}: the manifest records no checksum for it", path.display())) };
+        let Some(recorded) = e.sha256.get(key) else {
+            return Err(format!(
+                "{}: the manifest records no checksum for it",
+                path.display()
+            ));
+        };
         let actual = sha256_hex(&bytes);
         if &actual != recorded {
-            return Err(format!("{}: SHA-256 {actual} differs from the manifest's {recorded}", path.display()));
+            return Err(format!(
+                "{}: SHA-256 {actual} differs from the manifest's {recorded}",
+                path.display()
+            ));
         }
         if matches!(key, "left" | "right") {
-            image::load_from_memory(&bytes).map_err(|err| format!("{}: cannot decode: {err}", path.display()))?;
+            image::load_from_memory(&bytes)
+                .map_err(|err| format!("{}: cannot decode: {err}", path.display()))?;
         }
     }
     Ok(bytes)
@@ -63,7 +87,14 @@ fn read_sample_file(root: &Path, e: &ManifestEntry, key: &str, rel: &Path, verif
 
 /// Verifies the files the pixel pass does not read (images and the scene file).
 fn verify_other_files(root: &Path, e: &ManifestEntry) -> Vec<String> {
-    [("left", &e.files.left), ("right", &e.files.right), ("scene", &e.files.scene)].into_iter().filter_map(|(key, rel)| read_sample_file(root, e, key, rel, true).err()).collect()
+    [
+        ("left", &e.files.left),
+        ("right", &e.files.right),
+        ("scene", &e.files.scene),
+    ]
+    .into_iter()
+    .filter_map(|(key, rel)| read_sample_file(root, e, key, rel, true).err())
+    .collect()
 }
 
 /// A dataset read for statistics: its description, manifest and category list.
@@ -76,27 +107,47 @@ struct Loaded {
 
 fn load(root: &Path) -> anyhow::Result<Loaded> {
     let layout = DatasetLayout::new(root);
-    let info: DatasetInfo = layout.read_info().with_context(|| format!("{} is not a stereogen dataset", root.display()))?;
+    let info: DatasetInfo = layout
+        .read_info()
+        .with_context(|| format!("{} is not a stereogen dataset", root.display()))?;
     // stats may run while `generate` appends: an unfinished last line is left out, with a note.
     let manifest = read_manifest(&layout.manifest())?;
     if manifest.has_unfinished_line() {
-        eprintln!("stats: {}: ignoring an unfinished last line (generation still running?)", layout.manifest().display());
+        eprintln!(
+            "stats: {}: ignoring an unfinished last line (generation still running?)",
+            layout.manifest().display()
+        );
     }
     let entries = manifest.entries;
-    let mut categories: Vec<String> = info.recipe.categories.iter().map(|c| c.name.clone()).collect();
+    let mut categories: Vec<String> = info
+        .recipe
+        .categories
+        .iter()
+        .map(|c| c.name.clone())
+        .collect();
     for e in &entries {
         if !categories.contains(&e.category) {
             categories.push(e.category.clone());
         }
     }
-    Ok(Loaded { info, entries, categories })
+    Ok(Loaded {
+        info,
+        entries,
+        categories,
+    })
 }
 
 /// Upper end of the pixel histograms: the largest disparity the manifest reports, or the law's
 /// maximum, with 2% headroom. Manifest summaries come from the maps themselves; a value beyond
 /// this range is still counted (as `outside_range`).
 fn pixel_hi(entries: &[ManifestEntry], law: &Dist) -> f64 {
-    let manifest_max = entries.iter().flat_map(|e| [e.disparity_left, e.disparity_right]).flatten().map(|s| f64::from(s.max)).filter(|v| v.is_finite()).fold(0.0, f64::max);
+    let manifest_max = entries
+        .iter()
+        .flat_map(|e| [e.disparity_left, e.disparity_right])
+        .flatten()
+        .map(|s| f64::from(s.max))
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
     let hi = manifest_max.max(law.support().1).max(1.0) * 1.02;
     // Round up to 2 significant digits so bins have readable edges.
     let scale = 10f64.powf(hi.log10().floor() - 1.0);
@@ -114,13 +165,21 @@ struct Progress {
 
 impl Progress {
     fn new(total: usize) -> Self {
-        Self { total, done: AtomicUsize::new(0), start: Instant::now() }
+        Self {
+            total,
+            done: AtomicUsize::new(0),
+            start: Instant::now(),
+        }
     }
 
     fn tick(&self) {
         let n = self.done.fetch_add(1, Ordering::Relaxed) + 1;
         if self.total >= 2000 && n * 10 / self.total != (n - 1) * 10 / self.total {
-            eprintln!("stats: {n}/{} samples read ({:.0} s)", self.total, self.start.elapsed().as_secs_f64());
+            eprintln!(
+                "stats: {n}/{} samples read ({:.0} s)",
+                self.total,
+                self.start.elapsed().as_secs_f64()
+            );
         }
     }
 }
@@ -136,10 +195,19 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         bail!("--gap-bins must lie in 1..=1024, got {k}");
     }
     let root = &opts.dataset;
-    let Loaded { info, entries, categories } = load(root)?;
+    let Loaded {
+        info,
+        entries,
+        categories,
+    } = load(root)?;
     let law = info.recipe.placement.disparity_px.clone();
     let (law_min, law_max) = law.support();
-    let cat_of = |name: &str| categories.iter().position(|c| c == name).expect("every manifest category is listed");
+    let cat_of = |name: &str| {
+        categories
+            .iter()
+            .position(|c| c == name)
+            .expect("every manifest category is listed")
+    };
 
     // Object level: the target disparities of every SceneSpec.
     let specs: Vec<Result<(usize, Vec<f64>), String>> = entries
@@ -165,7 +233,9 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
 
     // Gap-check bins: equal-mass bins of the law, as many as the object count supports.
     let edges_for = |n: usize| -> Option<Vec<f64>> {
-        let k = opts.gap_bins.unwrap_or_else(|| gap_bins_for(n, opts.ks_alpha));
+        let k = opts
+            .gap_bins
+            .unwrap_or_else(|| gap_bins_for(n, opts.ks_alpha));
         (k > 0 && n > 0 && law_max > law_min).then(|| equal_mass_edges(&law, k))
     };
     let gap_edges: Vec<Option<Vec<f64>>> = objects.iter().map(|o| edges_for(o.len())).collect();
@@ -173,7 +243,13 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
 
     let width = entries.iter().map(|e| e.width as usize).max().unwrap_or(1);
     let height = entries.iter().map(|e| e.height as usize).max().unwrap_or(1);
-    let binning = Binning::new(pixel_hi(&entries, &law), (law_min, law_max), opts.bins.unwrap_or(DEFAULT_BINS).clamp(1, 4096), width, height);
+    let binning = Binning::new(
+        pixel_hi(&entries, &law),
+        (law_min, law_max),
+        opts.bins.unwrap_or(DEFAULT_BINS).clamp(1, 4096),
+        width,
+        height,
+    );
 
     // Pixel level: every map once, in parallel, never more than one pair per thread in memory.
     let new_acc = |c: usize| PixelAcc::new(&binning, gap_edges[c].as_deref(), all_edges.as_deref());
@@ -184,14 +260,29 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
             || (vec![None; categories.len()], Vec::new()),
             |(mut accs, mut errs): Fold, e| {
                 let c = cat_of(&e.category);
-                for (view, (key, rel)) in [("disp_left", &e.files.disp_left), ("disp_right", &e.files.disp_right)].into_iter().enumerate() {
+                for (view, (key, rel)) in [
+                    ("disp_left", &e.files.disp_left),
+                    ("disp_right", &e.files.disp_right),
+                ]
+                .into_iter()
+                .enumerate()
+                {
                     let path = root.join(rel);
-                    let read = read_sample_file(root, e, key, rel, opts.verify).and_then(|bytes| stereo_io::decode_disparity_exr(&bytes, &path).map_err(|err| err.to_string()));
+                    let read = read_sample_file(root, e, key, rel, opts.verify).and_then(|bytes| {
+                        stereo_io::decode_disparity_exr(&bytes, &path)
+                            .map_err(|err| err.to_string())
+                    });
                     match read {
-                        Ok((map, _)) => accs[c].get_or_insert_with(|| new_acc(c)).add_map(view, &map),
+                        Ok((map, _)) => accs[c]
+                            .get_or_insert_with(|| new_acc(c))
+                            .add_map(view, &map),
                         Err(msg) => {
                             // Every message names its file; add it only if one does not.
-                            errs.push(if msg.contains(&*path.to_string_lossy()) { msg } else { format!("{}: {msg}", path.display()) });
+                            errs.push(if msg.contains(&*path.to_string_lossy()) {
+                                msg
+                            } else {
+                                format!("{}: {msg}", path.display())
+                            });
                         }
                     }
                 }
@@ -233,13 +324,26 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         cats.push(CategoryStats::new(name, samples[c], obj, pixels));
     }
     let mut all_objects: Vec<f64> = objects.concat();
-    let overall_pixels = total.as_ref().map(|a| PixelStats::new(a, a.gap_all.as_ref()));
-    let overall = CategoryStats::new("all", entries.len() as u64, ObjectStats::new(&mut all_objects, &law, opts.ks_alpha), overall_pixels);
+    let overall_pixels = total
+        .as_ref()
+        .map(|a| PixelStats::new(a, a.gap_all.as_ref()));
+    let overall = CategoryStats::new(
+        "all",
+        entries.len() as u64,
+        ObjectStats::new(&mut all_objects, &law, opts.ks_alpha),
+        overall_pixels,
+    );
     // An empty dataset proves nothing: it does not pass.
-    let pass = !entries.is_empty() && errors.is_empty() && overall.status != Status::Fail && cats.iter().all(|c| c.status != Status::Fail);
+    let pass = !entries.is_empty()
+        && errors.is_empty()
+        && overall.status != Status::Fail
+        && cats.iter().all(|c| c.status != Status::Fail);
     let gap_rule = match opts.gap_bins {
         Some(k) => format!("{k} equal-mass bins of the law (--gap-bins)"),
-        None => format!("largest k <= {MAX_GAP_BINS} with k*(1-1/k)^n <= {} for n objects; equal-mass bins of the law", opts.ks_alpha),
+        None => format!(
+            "largest k <= {MAX_GAP_BINS} with k*(1-1/k)^n <= {} for n objects; equal-mass bins of the law",
+            opts.ks_alpha
+        ),
     };
     Ok(StatsReport {
         dataset: root.display().to_string(),
@@ -268,7 +372,13 @@ pub fn write_json(report: &StatsReport, dir: &Path) -> anyhow::Result<PathBuf> {
 
 /// The terminal summary: one line per category, the overall line, read errors, and the verdict.
 pub fn summary_lines(report: &StatsReport) -> Vec<String> {
-    let w = report.categories.iter().map(|c| c.name.len()).max().unwrap_or(3).max(3);
+    let w = report
+        .categories
+        .iter()
+        .map(|c| c.name.len())
+        .max()
+        .unwrap_or(3)
+        .max(3);
     let (lo, hi) = (report.law_support[0], report.law_support[1]);
     let mut lines = vec![format!(
         "stats of {} ({} samples, recipe {}, law on [{lo}, {hi}] px, KS alpha {})",
@@ -280,18 +390,42 @@ pub fn summary_lines(report: &StatsReport) -> Vec<String> {
         lines.push(format!("ERROR {e}"));
     }
     if report.errors.len() > 10 {
-        lines.push(format!("ERROR ... and {} more unreadable files", report.errors.len() - 10));
+        lines.push(format!(
+            "ERROR ... and {} more unreadable files",
+            report.errors.len() - 10
+        ));
     }
-    let failing: Vec<&str> = report.categories.iter().chain([&report.overall]).filter(|c| c.status == Status::Fail).map(|c| c.name.as_str()).collect();
+    let failing: Vec<&str> = report
+        .categories
+        .iter()
+        .chain([&report.overall])
+        .filter(|c| c.status == Status::Fail)
+        .map(|c| c.name.as_str())
+        .collect();
     lines.push(if report.pass {
-        let tested = report.categories.iter().filter(|c| c.status == Status::Ok).count();
-        format!("verdict: PASS ({tested} of {} categories tested, all follow the law)", report.categories.len())
+        let tested = report
+            .categories
+            .iter()
+            .filter(|c| c.status == Status::Ok)
+            .count();
+        format!(
+            "verdict: PASS ({tested} of {} categories tested, all follow the law)",
+            report.categories.len()
+        )
     } else if report.samples == 0 {
         "verdict: FAIL (the dataset has no samples)".to_string()
     } else if failing.is_empty() {
         format!("verdict: FAIL ({} unreadable file(s))", report.errors.len())
     } else {
-        format!("verdict: FAIL ({} miss the target{})", failing.join(", "), if report.errors.is_empty() { String::new() } else { format!("; {} unreadable file(s)", report.errors.len()) })
+        format!(
+            "verdict: FAIL ({} miss the target{})",
+            failing.join(", "),
+            if report.errors.is_empty() {
+                String::new()
+            } else {
+                format!("; {} unreadable file(s)", report.errors.len())
+            }
+        )
     });
     lines
 }

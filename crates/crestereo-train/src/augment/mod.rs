@@ -69,12 +69,7 @@ pub struct TrainSample {
     pub valid: Vec<f32>,
 }
 
-fn into_train_sample(
-    left: BgrImage,
-    right: BgrImage,
-    disp: &[f32],
-    valid: &[bool],
-) -> TrainSample {
+fn into_train_sample(left: BgrImage, right: BgrImage, disp: &[f32], valid: &[bool]) -> TrainSample {
     let disp_values = disp
         .iter()
         .zip(valid)

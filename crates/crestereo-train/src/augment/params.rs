@@ -139,8 +139,14 @@ mod tests {
     fn parts(p: &AugmentParams) -> [(&'static str, String); 7] {
         [
             (stream::SWAP, format!("{:?}", p.swap)),
-            (stream::LEFT_PHOTOMETRIC, format!("{:?}", p.left_photometric)),
-            (stream::RIGHT_PHOTOMETRIC, format!("{:?}", p.right_photometric)),
+            (
+                stream::LEFT_PHOTOMETRIC,
+                format!("{:?}", p.left_photometric),
+            ),
+            (
+                stream::RIGHT_PHOTOMETRIC,
+                format!("{:?}", p.right_photometric),
+            ),
             (stream::RIGHT_WARP, format!("{:?}", p.right_warp)),
             (stream::SCALE, format!("{:?}", p.scale.to_bits())),
             (stream::CROP, format!("{:?}", p.crop_frac.map(f64::to_bits))),
@@ -159,9 +165,15 @@ mod tests {
         vec![
             (stream::SWAP, with(|c| c.swap_prob = 1.0)),
             (stream::RIGHT_WARP, with(|c| c.right_warp_prob = 0.0)),
-            (stream::RIGHT_WARP, with(|c| (c.right_warp_prob, c.rotation_deg) = (0.9, 1.0))),
+            (
+                stream::RIGHT_WARP,
+                with(|c| (c.right_warp_prob, c.rotation_deg) = (0.9, 1.0)),
+            ),
             (stream::OCCLUSION, with(|c| c.occlusion_prob = 0.0)),
-            (stream::OCCLUSION, with(|c| c.occlusion_half_size = [10.0, 20.0])),
+            (
+                stream::OCCLUSION,
+                with(|c| c.occlusion_half_size = [10.0, 20.0]),
+            ),
             (stream::SCALE, with(|c| c.scale = [0.9, 1.0])),
             // The photometric ranges are shared by both images: both streams may change.
             ("photometric", with(|c| c.brightness = [0.5, 0.6])),
@@ -211,7 +223,11 @@ mod tests {
             .collect();
         firsts.sort_unstable();
         firsts.dedup();
-        assert_eq!(firsts.len(), stream::ALL.len(), "two stream names share draws");
+        assert_eq!(
+            firsts.len(),
+            stream::ALL.len(),
+            "two stream names share draws"
+        );
     }
 
     #[test]

@@ -42,11 +42,7 @@ pub struct Swapped {
 /// `x_r + d` in the left image; after mirroring both, the new left pixel `W−1−x_r` finds it at
 /// `W−1−x_r − d` in the new right image, so the right-view disparity, mirrored, is exactly the
 /// new left-view disparity with `x_right = x_left − d`.
-pub fn swap_and_mirror(
-    left: &BgrImage,
-    right: &BgrImage,
-    disp_right: &DisparityMap,
-) -> Swapped {
+pub fn swap_and_mirror(left: &BgrImage, right: &BgrImage, disp_right: &DisparityMap) -> Swapped {
     Swapped {
         left: mirror_image(right),
         right: mirror_image(left),
@@ -62,7 +58,10 @@ mod tests {
     #[test]
     fn swap_and_mirror_keeps_the_pair_consistent() {
         let scene = two_plane_scene(W, H);
-        let (left, right) = (BgrImage::from_rgb(&scene.left), BgrImage::from_rgb(&scene.right));
+        let (left, right) = (
+            BgrImage::from_rgb(&scene.left),
+            BgrImage::from_rgb(&scene.right),
+        );
         let disp_right = scene.disp_right.as_ref().unwrap();
         let Swapped {
             left: new_left,

@@ -153,10 +153,6 @@ pub(super) fn assert_consistent(s: &TrainSample, tolerance: f32) -> usize {
     checked
 }
 
-pub(super) fn train_sample_of(
-    left: BgrImage,
-    right: BgrImage,
-    disp: DisparityMap,
-) -> TrainSample {
+pub(super) fn train_sample_of(left: BgrImage, right: BgrImage, disp: DisparityMap) -> TrainSample {
     into_train_sample(left, right, &disp.data, &disp.valid)
 }

@@ -25,7 +25,12 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-fn random_images<B: Backend>(n: usize, h: usize, w: usize, device: &B::Device) -> [Tensor<B, 4>; 2] {
+fn random_images<B: Backend>(
+    n: usize,
+    h: usize,
+    w: usize,
+    device: &B::Device,
+) -> [Tensor<B, 4>; 2] {
     use burn::tensor::Distribution::Uniform;
     [0, 1].map(|_| Tensor::random([n, 3, h, w], Uniform(0.0, 255.0), device))
 }
@@ -41,7 +46,11 @@ pub fn bench_train<B: AutodiffBackend>(
     let mut model = CREStereoConfig::new().init::<B>(device);
     let mut optim = AdamConfig::new().init();
     let [l, r] = random_images::<B>(n, h, w, device);
-    let disp = Tensor::<B, 3>::random([n, h, w], burn::tensor::Distribution::Uniform(0.0, 64.0), device);
+    let disp = Tensor::<B, 3>::random(
+        [n, h, w],
+        burn::tensor::Distribution::Uniform(0.0, 64.0),
+        device,
+    );
     let valid = Tensor::<B, 3>::ones([n, h, w], device);
     let (mut fwd, mut bwd, mut total) = (Vec::new(), Vec::new(), Vec::new());
     for rep in 0..=repeats {
@@ -74,7 +83,12 @@ pub fn bench_train<B: AutodiffBackend>(
     Ok(())
 }
 
-pub fn bench_infer<B: Backend>(h: usize, w: usize, repeats: usize, device: &B::Device) -> Result<()> {
+pub fn bench_infer<B: Backend>(
+    h: usize,
+    w: usize,
+    repeats: usize,
+    device: &B::Device,
+) -> Result<()> {
     let model = CREStereoConfig::new().init::<B>(device);
     let [l, r] = random_images::<B>(1, h, w, device);
     let (ph, pw) = (h.div_ceil(32) * 32, w.div_ceil(32) * 32);
@@ -83,7 +97,10 @@ pub fn bench_infer<B: Backend>(h: usize, w: usize, repeats: usize, device: &B::D
         sync::<B>(device);
         let t0 = Instant::now();
         let pad = |t: Tensor<B, 4>| t.pad((0, pw - w, 0, ph - h), PadMode::Edge);
-        let opts = InferenceOptions { iters: 20, stages: 2 };
+        let opts = InferenceOptions {
+            iters: 20,
+            stages: 2,
+        };
         let pred = crestereo::infer::cascade(&model, pad(l.clone()), pad(r.clone()), opts);
         let _ = pred.slice([0..1, 0..1, 0..h, 0..w]).into_data();
         if rep > 0 {
@@ -101,7 +118,13 @@ pub fn bench_infer<B: Backend>(h: usize, w: usize, repeats: usize, device: &B::D
 
 /// `bench --device cuda`: the chosen parts on CUDA device 0, each in this process.
 #[cfg(feature = "cuda")]
-pub fn run_cuda(train: bool, infer: bool, ts: &[usize], is: &[usize], repeats: usize) -> Result<()> {
+pub fn run_cuda(
+    train: bool,
+    infer: bool,
+    ts: &[usize],
+    is: &[usize],
+    repeats: usize,
+) -> Result<()> {
     type C = burn::backend::Cuda;
     let device = Default::default();
     if train {

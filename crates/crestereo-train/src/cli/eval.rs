@@ -55,13 +55,23 @@ fn load_model<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<Evaluated<
     Ok(match (&a.weights, a.untrained_seed) {
         (Some(w), _) => {
             let file = weights_file(w)?;
-            let model = crestereo::weights::load_weights(CREStereoConfig::new().init::<B>(device), &file, device)?;
-            Evaluated { model, weights: file.display().to_string() }
+            let model = crestereo::weights::load_weights(
+                CREStereoConfig::new().init::<B>(device),
+                &file,
+                device,
+            )?;
+            Evaluated {
+                model,
+                weights: file.display().to_string(),
+            }
         }
-        (None, Some(seed)) => {
-            Evaluated { model: crate::train::seeded_model::<B>(seed, device), weights: format!("untrained (seed {seed})") }
-        }
-        (None, None) => bail!("no weights: pass --weights FILE|CHECKPOINT|RUN (or --untrained-seed N for a baseline)"),
+        (None, Some(seed)) => Evaluated {
+            model: crate::train::seeded_model::<B>(seed, device),
+            weights: format!("untrained (seed {seed})"),
+        },
+        (None, None) => bail!(
+            "no weights: pass --weights FILE|CHECKPOINT|RUN (or --untrained-seed N for a baseline)"
+        ),
     })
 }
 
@@ -86,21 +96,39 @@ pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
     let evaluated = load_model::<B>(a, device)?;
     let opts = options(a)?;
     let bar = ProgressBar::new(0);
-    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-    let report = evaluate(&evaluated.model, dataset.as_ref(), &evaluated.weights, &opts, device, |i, n, r| {
-        bar.set_length(n as u64);
-        bar.set_position(i as u64);
-        if let Some(m) = r.all {
-            bar.set_message(format!("{}: EPE {:.3}", r.id, m.epe));
-        }
-    })?;
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let report = evaluate(
+        &evaluated.model,
+        dataset.as_ref(),
+        &evaluated.weights,
+        &opts,
+        device,
+        |i, n, r| {
+            bar.set_length(n as u64);
+            bar.set_position(i as u64);
+            if let Some(m) = r.all {
+                bar.set_message(format!("{}: EPE {:.3}", r.id, m.epe));
+            }
+        },
+    )?;
     bar.finish_and_clear();
-    let csv = a.csv.clone().unwrap_or_else(|| a.json.with_extension("per_image.csv"));
+    let csv = a
+        .csv
+        .clone()
+        .unwrap_or_else(|| a.json.with_extension("per_image.csv"));
     report.write(&a.json, &csv)?;
     print!("{}", report.table());
     eprintln!("wrote {} and {}", a.json.display(), csv.display());
     if report.images == 0 {
-        bail!("no image could be evaluated ({} failed)", report.failed.len());
+        bail!(
+            "no image could be evaluated ({} failed)",
+            report.failed.len()
+        );
     }
     Ok(())
 }

@@ -44,7 +44,10 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
     // Refuse an unknown output format before the slow part.
     let output: &Path = &a.output;
     if DisparityFormat::from_path(output).is_none() {
-        bail!("cannot tell the disparity format of {} from its extension (.exr, .pfm, .npy, .png, .disp.png)", output.display());
+        bail!(
+            "cannot tell the disparity format of {} from its extension (.exr, .pfm, .npy, .png, .disp.png)",
+            output.display()
+        );
     }
     let (l, r) = (read_image(&a.left)?, read_image(&a.right)?);
     if (l.width, l.height) != (r.width, r.height) {
@@ -65,7 +68,10 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
     let model = CREStereoConfig::new().init::<B>(device);
     let model = load_weights(model, weights_file(weights)?, device)?;
     let t0 = Instant::now();
-    let opts = InferenceOptions { iters: a.iters, stages: usize::from(a.stages) };
+    let opts = InferenceOptions {
+        iters: a.iters,
+        stages: usize::from(a.stages),
+    };
     let disp = infer_disparity(&model, &l, &r, opts, device)?;
     eprintln!(
         "inference {}x{} ({} stages, {} iters): {:.2}s",
@@ -117,15 +123,25 @@ mod tests {
     #[test]
     fn an_unknown_output_format_is_refused_before_anything_is_read() {
         let dir = tempfile::tempdir().unwrap();
-        let err = infer::<crestereo::CpuBackend>(&args(dir.path(), "disp.tiff"), &Default::default()).unwrap_err();
+        let err =
+            infer::<crestereo::CpuBackend>(&args(dir.path(), "disp.tiff"), &Default::default())
+                .unwrap_err();
         let msg = format!("{err:#}");
-        assert!(msg.contains("disp.tiff") && msg.contains("extension"), "{msg}");
+        assert!(
+            msg.contains("disp.tiff") && msg.contains("extension"),
+            "{msg}"
+        );
     }
 
     #[test]
     fn outputs_follow_their_extensions() {
         let dir = tempfile::tempdir().unwrap();
-        let disp = DisparityMap { width: 3, height: 2, data: vec![0.5, 1.0, 2.0, 4.0, 8.0, 16.0], valid: vec![true; 6] };
+        let disp = DisparityMap {
+            width: 3,
+            height: 2,
+            data: vec![0.5, 1.0, 2.0, 4.0, 8.0, 16.0],
+            valid: vec![true; 6],
+        };
         for name in ["disp.exr", "disp.pfm", "disp.npy", "disp.disp.png"] {
             write_outputs(&args(dir.path(), name), &disp).unwrap();
             let (back, _) = stereo_io::read_disparity(&dir.path().join(name), None).unwrap();

@@ -13,7 +13,11 @@ use clap::{Parser, Subcommand, ValueEnum};
 use crestereo::{CpuAutodiffBackend, CpuBackend};
 
 #[derive(Parser, Debug)]
-#[command(name = "crestereo", version, about = "CREStereo stereo matching on Burn: inference, training, evaluation")]
+#[command(
+    name = "crestereo",
+    version,
+    about = "CREStereo stereo matching on Burn: inference, training, evaluation"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -147,30 +151,49 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Infer { args, backend } => {
             set_threads(backend.threads);
-            with_backend!(backend.device, false, |B| infer::infer::<B>(&args, &Default::default()))
+            with_backend!(backend.device, false, |B| infer::infer::<B>(
+                &args,
+                &Default::default()
+            ))
         }
         Command::Train { args, backend } => {
             set_threads(backend.threads);
-            with_backend!(backend.device, true, |B| train::run::<B>(&args, &Default::default()))
+            with_backend!(backend.device, true, |B| train::run::<B>(
+                &args,
+                &Default::default()
+            ))
         }
         Command::Eval { args, backend } => {
             set_threads(backend.threads);
-            with_backend!(backend.device, false, |B| eval::run::<B>(&args, &Default::default()))
+            with_backend!(backend.device, false, |B| eval::run::<B>(
+                &args,
+                &Default::default()
+            ))
         }
         Command::Plot { run, out, smooth } => {
             crate::plot::plot_run(&run, &out, smooth)?;
             eprintln!("wrote {}", out.display());
             Ok(())
         }
-        Command::Synth { out, count, size, seed } => {
+        Command::Synth {
+            out,
+            count,
+            size,
+            seed,
+        } => {
             let [h, w] = train::parse_crop(&size)?;
             crate::synthetic::write_crestereo_dataset(&out, count, w, h, seed)?;
             eprintln!("wrote {count} pairs of {w}x{h} to {}", out.display());
             Ok(())
         }
-        Command::Bench { what, threads, train_size, infer_size, device, repeats } => {
-            run_bench(what, threads, train_size, infer_size, device, repeats)
-        }
+        Command::Bench {
+            what,
+            threads,
+            train_size,
+            infer_size,
+            device,
+            repeats,
+        } => run_bench(what, threads, train_size, infer_size, device, repeats),
     }
 }
 
@@ -218,7 +241,10 @@ fn run_bench(
 /// The whole program: parse, run, print the error chain on failure.
 pub fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_env("CRESTEREO_LOG").unwrap_or_else(|_| "info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("CRESTEREO_LOG")
+                .unwrap_or_else(|_| "info".into()),
+        )
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .without_time()

@@ -75,7 +75,11 @@ pub struct TrainArgs {
 
 fn parse_data(spec: &str) -> Result<DatasetEntry> {
     let (rest, weight) = match spec.rsplit_once('@') {
-        Some((r, w)) => (r, w.parse::<f64>().with_context(|| format!("--data {spec}: weight `{w}` is not a number"))?),
+        Some((r, w)) => (
+            r,
+            w.parse::<f64>()
+                .with_context(|| format!("--data {spec}: weight `{w}` is not a number"))?,
+        ),
         None => (spec, 1.0),
     };
     let (path, format) = match rest.rsplit_once(':') {
@@ -83,12 +87,21 @@ fn parse_data(spec: &str) -> Result<DatasetEntry> {
         _ => (rest, None),
     };
     let path = std::path::absolute(path).with_context(|| format!("--data {spec}"))?;
-    Ok(DatasetEntry { path, format, weight })
+    Ok(DatasetEntry {
+        path,
+        format,
+        weight,
+    })
 }
 
 pub fn parse_crop(s: &str) -> Result<[usize; 2]> {
-    let (h, w) = s.split_once(['x', 'X']).with_context(|| format!("--crop {s}: expected HxW, e.g. 384x512"))?;
-    Ok([h.trim().parse().with_context(|| format!("--crop {s}"))?, w.trim().parse().with_context(|| format!("--crop {s}"))?])
+    let (h, w) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("--crop {s}: expected HxW, e.g. 384x512"))?;
+    Ok([
+        h.trim().parse().with_context(|| format!("--crop {s}"))?,
+        w.trim().parse().with_context(|| format!("--crop {s}"))?,
+    ])
 }
 
 /// The config a run uses: file (or the run's stored one on resume) then flags.
@@ -99,11 +112,19 @@ pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
         None => TrainConfig::default(),
     };
     if !a.data.is_empty() {
-        cfg.datasets = a.data.iter().map(|s| parse_data(s)).collect::<Result<_>>()?;
+        cfg.datasets = a
+            .data
+            .iter()
+            .map(|s| parse_data(s))
+            .collect::<Result<_>>()?;
     }
     apply_validation_flags(&mut cfg, a)?;
     apply_recipe_flags(&mut cfg, a)?;
-    if a.steps.is_some() && a.config.is_none() && a.decay_start.is_none() && cfg.schedule.decay_start > cfg.steps {
+    if a.steps.is_some()
+        && a.config.is_none()
+        && a.decay_start.is_none()
+        && cfg.schedule.decay_start > cfg.steps
+    {
         scale_schedule(&mut cfg, a.warmup_steps);
     }
     cfg.validate()?;
@@ -127,7 +148,9 @@ fn apply_validation_flags(cfg: &mut TrainConfig, a: &TrainArgs) -> Result<()> {
             val.limit = l;
         }
     } else if a.val_every.is_some() || a.val_limit.is_some() {
-        bail!("--val-every / --val-limit need validation data (--val DIR or [validation] in the config)");
+        bail!(
+            "--val-every / --val-limit need validation data (--val DIR or [validation] in the config)"
+        );
     }
     Ok(())
 }
@@ -189,7 +212,11 @@ pub fn run<B: AutodiffBackend>(a: &TrainArgs, device: &B::Device) -> Result<()> 
         cfg.schedule.lr,
         a.out.display()
     );
-    let opts = TrainOptions { resume: a.resume, progress: !a.no_progress, stop_at: a.stop_at };
+    let opts = TrainOptions {
+        resume: a.resume,
+        progress: !a.no_progress,
+        stop_at: a.stop_at,
+    };
     let out = train::<B>(&cfg, &a.out, &opts, device)?;
     eprintln!(
         "step {} of {}: loss {} → {}, {:.2} samples/s, {} skipped steps{}",
@@ -199,7 +226,8 @@ pub fn run<B: AutodiffBackend>(a: &TrainArgs, device: &B::Device) -> Result<()> 
         out.last_loss.map_or("-".into(), |l| format!("{l:.4}")),
         out.samples_per_s,
         out.skipped_steps,
-        out.checkpoint.map_or(String::new(), |c| format!(", checkpoint {}", c.display()))
+        out.checkpoint
+            .map_or(String::new(), |c| format!(", checkpoint {}", c.display()))
     );
     Ok(())
 }
@@ -211,10 +239,18 @@ mod tests {
     #[test]
     fn data_specs() {
         let d = parse_data("/x/ours@98").unwrap();
-        assert_eq!((d.path, d.format, d.weight), (PathBuf::from("/x/ours"), None, 98.0));
+        assert_eq!(
+            (d.path, d.format, d.weight),
+            (PathBuf::from("/x/ours"), None, 98.0)
+        );
         let d = parse_data("/x/mb:middlebury@2").unwrap();
         assert_eq!((d.format.as_deref(), d.weight), (Some("middlebury"), 2.0));
-        assert!(parse_data("/x@abc").unwrap_err().to_string().contains("weight"));
+        assert!(
+            parse_data("/x@abc")
+                .unwrap_err()
+                .to_string()
+                .contains("weight")
+        );
         assert_eq!(parse_crop("128x256").unwrap(), [128, 256]);
         assert!(parse_crop("128").is_err());
     }

@@ -51,8 +51,16 @@ impl RunLogs {
         let val_csv = run.join("val_log.csv");
         truncate_csv(&train_csv, TRAIN_CSV_HEADER, step)?;
         truncate_csv(&val_csv, VAL_CSV_HEADER, step)?;
-        let tensorboard = if tensorboard { Some(EventWriter::create(&run.join("tensorboard"))?) } else { None };
-        Ok(Self { train_csv, val_csv, tensorboard })
+        let tensorboard = if tensorboard {
+            Some(EventWriter::create(&run.join("tensorboard"))?)
+        } else {
+            None
+        };
+        Ok(Self {
+            train_csv,
+            val_csv,
+            tensorboard,
+        })
     }
 
     /// One row of the training log, after the step `state` ends at.
@@ -75,7 +83,12 @@ impl RunLogs {
     }
 
     /// One row of the validation log: `all` is the report's mean over all valid pixels.
-    pub fn validation(&mut self, step: u64, report: &EvalReport, all: &DisparityMetrics) -> Result<()> {
+    pub fn validation(
+        &mut self,
+        step: u64,
+        report: &EvalReport,
+        all: &DisparityMetrics,
+    ) -> Result<()> {
         let m = all;
         let nonocc = report.mean_nonocc;
         let row = format!(
@@ -108,7 +121,12 @@ fn truncate_csv(path: &Path, header: &str, step: u64) -> Result<()> {
         Ok(text) => text
             .lines()
             .skip(1)
-            .filter(|l| l.split(',').next().and_then(|s| s.parse::<u64>().ok()).is_some_and(|s| s <= step))
+            .filter(|l| {
+                l.split(',')
+                    .next()
+                    .and_then(|s| s.parse::<u64>().ok())
+                    .is_some_and(|s| s <= step)
+            })
             .map(str::to_string)
             .collect(),
         Err(_) => Vec::new(),
@@ -118,11 +136,16 @@ fn truncate_csv(path: &Path, header: &str, step: u64) -> Result<()> {
         text.push_str(&l);
         text.push('\n');
     }
-    stereo_io::write_bytes_atomically(path, text.as_bytes()).with_context(|| format!("cannot write {}", path.display()))
+    stereo_io::write_bytes_atomically(path, text.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Appends one line to a text file, creating it.
 pub fn append(path: &Path, line: &str) -> Result<()> {
-    let mut f = OpenOptions::new().append(true).create(true).open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let mut f = OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path)
+        .with_context(|| format!("cannot open {}", path.display()))?;
     writeln!(f, "{line}").with_context(|| format!("cannot write {}", path.display()))
 }

@@ -22,7 +22,9 @@ use crestereo::{CREStereo, CREStereoConfig, sequence_loss};
 use indicatif::{ProgressBar, ProgressStyle};
 use stereo_io::StereoDataset;
 
-use crate::checkpoint::{Checkpoint, Learner, TrainState, list_checkpoints, load_checkpoint, save_checkpoint};
+use crate::checkpoint::{
+    Checkpoint, Learner, TrainState, list_checkpoints, load_checkpoint, save_checkpoint,
+};
 use crate::config::{TrainConfig, ValidationSettings};
 use crate::data::{Loader, MixedSource, Planner, collate, open_data};
 use crate::eval::{EvalOptions, evaluate};
@@ -66,11 +68,15 @@ fn identity(cfg: &TrainConfig) -> serde_json::Value {
 /// Prepares the run directory: stores the config on a fresh start, checks it on resume.
 /// Returns the checkpoint to continue from.
 fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Checkpoint>> {
-    std::fs::create_dir_all(run).with_context(|| format!("cannot create run directory {}", run.display()))?;
+    std::fs::create_dir_all(run)
+        .with_context(|| format!("cannot create run directory {}", run.display()))?;
     let stored = run.join("config.toml");
     let latest = list_checkpoints(run)?.pop();
     if !resume && latest.is_some() {
-        bail!("{} already holds checkpoints: pass --resume to continue it, or choose another --out", run.display());
+        bail!(
+            "{} already holds checkpoints: pass --resume to continue it, or choose another --out",
+            run.display()
+        );
     }
     if resume
         && let Some(old) = TrainConfig::stored(run)?
@@ -82,15 +88,22 @@ fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Che
         );
     }
     let text = toml::to_string_pretty(cfg).context("cannot serialise the config")?;
-    stereo_io::write_bytes_atomically(&stored, text.as_bytes()).with_context(|| format!("cannot write {}", stored.display()))?;
+    stereo_io::write_bytes_atomically(&stored, text.as_bytes())
+        .with_context(|| format!("cannot write {}", stored.display()))?;
     Ok(if resume { latest } else { None })
 }
 
 /// Mean absolute disparity error of the last prediction over valid pixels.
 fn batch_epe<B: Backend>(pred: &Tensor<B, 4>, disp: &Tensor<B, 3>, valid: &Tensor<B, 3>) -> f64 {
     let [n, _, h, w] = pred.dims();
-    let d = pred.clone().slice([0..n, 0..1, 0..h, 0..w]).reshape([n, h, w]);
-    let err = ((d - disp.clone()).abs() * valid.clone()).sum().into_scalar().elem::<f64>();
+    let d = pred
+        .clone()
+        .slice([0..n, 0..1, 0..h, 0..w])
+        .reshape([n, h, w]);
+    let err = ((d - disp.clone()).abs() * valid.clone())
+        .sum()
+        .into_scalar()
+        .elem::<f64>();
     let count = valid.clone().sum().into_scalar().elem::<f64>();
     if count > 0.0 { err / count } else { f64::NAN }
 }
@@ -123,12 +136,23 @@ fn start_loader(cfg: &TrainConfig, source: Arc<MixedSource>, position: u64) -> L
     let lens: Vec<usize> = source.datasets.iter().map(|d| d.len()).collect();
     let planner = Planner::new(cfg.seed, &source.weights, &lens);
     let l = &cfg.loader;
-    Loader::start(source, planner, position, cfg.augment.clone(), cfg.workers(), l.prefetch, l.max_bad_retries)
+    Loader::start(
+        source,
+        planner,
+        position,
+        cfg.augment.clone(),
+        cfg.workers(),
+        l.prefetch,
+        l.max_bad_retries,
+    )
 }
 
 /// The network and optimiser a run starts from: a seeded init (or `init_weights`) and a fresh
 /// Adam with the config's settings.
-fn initial_learner<B: AutodiffBackend>(cfg: &TrainConfig, device: &B::Device) -> Result<Learner<B, Adam<B>>> {
+fn initial_learner<B: AutodiffBackend>(
+    cfg: &TrainConfig,
+    device: &B::Device,
+) -> Result<Learner<B, Adam<B>>> {
     let mut model: CREStereo<B> = seeded_model(cfg.seed, device);
     if let Some(w) = &cfg.init_weights {
         model = crestereo::weights::load_weights(model, w, device)?;
@@ -138,19 +162,44 @@ fn initial_learner<B: AutodiffBackend>(cfg: &TrainConfig, device: &B::Device) ->
         .with_beta_2(cfg.adam.beta2 as f32)
         .with_epsilon(cfg.adam.eps as f32)
         .init::<B, CREStereo<B>>();
-    let state = TrainState { step: 0, samples: 0, seed: cfg.seed, skipped_steps: 0, elapsed_s: 0.0 };
-    Ok(Learner { model, optim, state })
+    let state = TrainState {
+        step: 0,
+        samples: 0,
+        seed: cfg.seed,
+        skipped_steps: 0,
+        elapsed_s: 0.0,
+    };
+    Ok(Learner {
+        model,
+        optim,
+        state,
+    })
 }
 
 /// Continues from `checkpoint`: model, optimiser and state, refusing a checkpoint of another run.
-fn resume<B: AutodiffBackend>(cfg: &TrainConfig, checkpoint: &Checkpoint, fresh: Learner<B, Adam<B>>, device: &B::Device) -> Result<Learner<B, Adam<B>>> {
+fn resume<B: AutodiffBackend>(
+    cfg: &TrainConfig,
+    checkpoint: &Checkpoint,
+    fresh: Learner<B, Adam<B>>,
+    device: &B::Device,
+) -> Result<Learner<B, Adam<B>>> {
     let dir = &checkpoint.dir;
     let restored = load_checkpoint(dir, fresh.model, fresh.optim, device)?;
     let state = &restored.state;
     if state.seed != cfg.seed || state.step != checkpoint.step {
-        bail!("checkpoint {} does not belong to this run (seed {} / step {})", dir.display(), state.seed, state.step);
+        bail!(
+            "checkpoint {} does not belong to this run (seed {} / step {})",
+            dir.display(),
+            state.seed,
+            state.step
+        );
     }
-    tracing::info!("resuming from {} (step {}, sample {})", dir.display(), state.step, state.samples);
+    tracing::info!(
+        "resuming from {} (step {}, sample {})",
+        dir.display(),
+        state.step,
+        state.samples
+    );
     Ok(restored)
 }
 
@@ -166,7 +215,10 @@ impl Validation {
             return Ok(None);
         };
         let data = open_data(&settings.path, settings.format.as_deref(), "validation")?;
-        Ok(Some(Self { settings: settings.clone(), data }))
+        Ok(Some(Self {
+            settings: settings.clone(),
+            data,
+        }))
     }
 
     /// Due every `every` steps and at the end.
@@ -176,7 +228,12 @@ impl Validation {
 
     fn options(&self) -> EvalOptions {
         let s = &self.settings;
-        EvalOptions { iters: s.iters, stages: s.stages, limit: s.limit, ..EvalOptions::default() }
+        EvalOptions {
+            iters: s.iters,
+            stages: s.stages,
+            limit: s.limit,
+            ..EvalOptions::default()
+        }
     }
 }
 
@@ -192,13 +249,24 @@ struct Session {
 
 impl Session {
     fn start(opts: &TrainOptions, steps: u64, state: &TrainState) -> Self {
-        let bar = if opts.progress { ProgressBar::new(steps) } else { ProgressBar::hidden() };
+        let bar = if opts.progress {
+            ProgressBar::new(steps)
+        } else {
+            ProgressBar::hidden()
+        };
         bar.set_style(
-            ProgressStyle::with_template("{spinner} step {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+            ProgressStyle::with_template(
+                "{spinner} step {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
         );
         bar.set_position(state.step);
-        Self { bar, started: Instant::now(), elapsed_before: state.elapsed_s, samples: 0 }
+        Self {
+            bar,
+            started: Instant::now(),
+            elapsed_before: state.elapsed_s,
+            samples: 0,
+        }
     }
 
     /// Training time of the whole run so far.
@@ -254,7 +322,12 @@ struct Trainer<'a, B: AutodiffBackend> {
 impl<'a, B: AutodiffBackend> Trainer<'a, B> {
     /// Opens the run: its directory, data, network and optimiser (restored on resume), logs and
     /// data stream.
-    fn open(cfg: &'a TrainConfig, run: &'a Path, opts: &TrainOptions, device: &'a B::Device) -> Result<Self> {
+    fn open(
+        cfg: &'a TrainConfig,
+        run: &'a Path,
+        opts: &TrainOptions,
+        device: &'a B::Device,
+    ) -> Result<Self> {
         let latest = prepare_run(cfg, run, opts.resume)?;
         let source = open_training_data(cfg)?;
         let validation = Validation::open(cfg)?;
@@ -262,7 +335,11 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
         if let Some(checkpoint) = &latest {
             learner = resume(cfg, checkpoint, learner, device)?;
         }
-        let Learner { model, optim, state } = learner;
+        let Learner {
+            model,
+            optim,
+            state,
+        } = learner;
         let logs = RunLogs::open(run, state.step, cfg.log.tensorboard)?;
         let loader = start_loader(cfg, source, state.samples);
         let end = opts.stop_at.map_or(cfg.steps, |s| s.min(cfg.steps));
@@ -276,7 +353,21 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
             samples_per_s: 0.0,
             resumed_from: latest.map(|c| c.step),
         };
-        Ok(Self { cfg, run, device, model, optim, state, loader, logs, validation, session, outcome, last_checkpoint: None, end })
+        Ok(Self {
+            cfg,
+            run,
+            device,
+            model,
+            optim,
+            state,
+            loader,
+            logs,
+            validation,
+            session,
+            outcome,
+            last_checkpoint: None,
+            end,
+        })
     }
 
     fn finished(&self) -> bool {
@@ -303,7 +394,13 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
         }
         self.state.step += 1;
         self.state.elapsed_s = self.session.elapsed_s();
-        let report = StepReport { lr, loss: passes.loss, epe: passes.epe, finite: passes.finite, samples_per_s: self.session.samples_per_s() };
+        let report = StepReport {
+            lr,
+            loss: passes.loss,
+            epe: passes.epe,
+            finite: passes.finite,
+            samples_per_s: self.session.samples_per_s(),
+        };
         self.session.show(self.state.step, &report);
         Ok((self, report))
     }
@@ -313,23 +410,38 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
     /// depends on a skip.
     fn accumulate(&mut self) -> Result<Accumulated<B>> {
         let cfg = self.cfg;
-        let mut acc = Accumulated { grads: GradientsAccumulator::new(), loss: 0.0, epe: 0.0, finite: true };
+        let mut acc = Accumulated {
+            grads: GradientsAccumulator::new(),
+            loss: 0.0,
+            epe: 0.0,
+            finite: true,
+        };
         for _ in 0..cfg.accumulate {
-            let samples: Vec<_> = self.loader.next_batch(cfg.batch_size)?.into_iter().map(|s| s.sample).collect();
+            let samples: Vec<_> = self
+                .loader
+                .next_batch(cfg.batch_size)?
+                .into_iter()
+                .map(|s| s.sample)
+                .collect();
             self.session.samples += samples.len() as u64;
             if !acc.finite {
                 continue;
             }
             let batch = collate::<B>(&samples, self.device)?;
             let preds = self.model.forward(batch.left, batch.right, cfg.iters, None);
-            let loss = sequence_loss(&preds, batch.disp.clone(), batch.valid.clone(), cfg.gamma).div_scalar(cfg.accumulate as f64);
+            let loss = sequence_loss(&preds, batch.disp.clone(), batch.valid.clone(), cfg.gamma)
+                .div_scalar(cfg.accumulate as f64);
             let value = loss.clone().into_scalar().elem::<f64>();
             if !value.is_finite() {
                 acc.finite = false;
                 continue;
             }
             acc.loss += value;
-            acc.epe += batch_epe(preds.last().expect("predictions"), &batch.disp, &batch.valid) / cfg.accumulate as f64;
+            acc.epe += batch_epe(
+                preds.last().expect("predictions"),
+                &batch.disp,
+                &batch.valid,
+            ) / cfg.accumulate as f64;
             let grads = GradientsParams::from_grads(loss.backward(), &self.model);
             acc.grads.accumulate(&self.model, grads);
         }
@@ -351,10 +463,20 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
         let Some(validation) = self.validation.as_ref().filter(|v| v.due(step, self.end)) else {
             return Ok(());
         };
-        let report = evaluate(&self.model.valid(), validation.data.as_ref(), "training", &validation.options(), self.device, |_, _, _| {})?;
+        let report = evaluate(
+            &self.model.valid(),
+            validation.data.as_ref(),
+            "training",
+            &validation.options(),
+            self.device,
+            |_, _, _| {},
+        )?;
         if let Some(m) = report.mean_all {
             self.logs.validation(step, &report, &m)?;
-            self.session.bar.println(format!("step {step}: validation EPE {:.3}, Bad-2 {:.2}% on {} images", m.epe, m.bad_2, report.images));
+            self.session.bar.println(format!(
+                "step {step}: validation EPE {:.3}, Bad-2 {:.2}% on {} images",
+                m.epe, m.bad_2, report.images
+            ));
         }
         Ok(())
     }
@@ -369,7 +491,13 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
     }
 
     fn save(&mut self) -> Result<()> {
-        let dir = save_checkpoint(self.run, &self.model, &self.optim, &self.state, self.cfg.checkpoint.keep)?;
+        let dir = save_checkpoint(
+            self.run,
+            &self.model,
+            &self.optim,
+            &self.state,
+            self.cfg.checkpoint.keep,
+        )?;
         self.outcome.checkpoint = Some(dir);
         self.last_checkpoint = Some(self.state.step);
         Ok(())
@@ -379,7 +507,8 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
     /// samples, and the outcome.
     fn finish(mut self) -> Result<TrainOutcome> {
         let step = self.state.step;
-        if self.last_checkpoint != Some(step) && step > 0 && self.outcome.resumed_from != Some(step) {
+        if self.last_checkpoint != Some(step) && step > 0 && self.outcome.resumed_from != Some(step)
+        {
             self.save()?;
         }
         self.session.bar.finish_and_clear();
@@ -400,16 +529,28 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
         }
         let path = self.run.join("skipped_samples.jsonl");
         for s in &skipped {
-            append(&path, &serde_json::json!({"dataset": s.dataset, "id": s.id, "error": s.error}).to_string())?;
+            append(
+                &path,
+                &serde_json::json!({"dataset": s.dataset, "id": s.id, "error": s.error})
+                    .to_string(),
+            )?;
         }
-        tracing::warn!("{} unreadable training samples were replaced by neighbours (listed in skipped_samples.jsonl)", skipped.len());
+        tracing::warn!(
+            "{} unreadable training samples were replaced by neighbours (listed in skipped_samples.jsonl)",
+            skipped.len()
+        );
         Ok(())
     }
 }
 
 /// Trains (or continues) a run. Generic over the autodiff backend: Flex on CPU, CUDA with the
 /// `cuda` feature.
-pub fn train<B: AutodiffBackend>(cfg: &TrainConfig, run: &Path, opts: &TrainOptions, device: &B::Device) -> Result<TrainOutcome> {
+pub fn train<B: AutodiffBackend>(
+    cfg: &TrainConfig,
+    run: &Path,
+    opts: &TrainOptions,
+    device: &B::Device,
+) -> Result<TrainOutcome> {
     cfg.validate()?;
     let mut trainer = Trainer::<B>::open(cfg, run, opts, device)?;
     while !trainer.finished() {

@@ -17,14 +17,7 @@ use super::{AgclOps, CorrSpec};
 
 /// Bilinear corner value, zero outside the image.
 #[cube]
-fn corner(
-    img: &Tensor<f32>,
-    base: usize,
-    xf: f32,
-    yf: f32,
-    width: usize,
-    height: usize,
-) -> f32 {
+fn corner(img: &Tensor<f32>, base: usize, xf: f32, yf: f32, width: usize, height: usize) -> f32 {
     let inside = xf >= 0.0
         && yf >= 0.0
         && xf <= f32::cast_from(width - 1)
@@ -265,8 +258,7 @@ fn warp_backward_right_kernel(
         d_right[base + corner_index(x0, y0 + 1.0, width, height)].fetch_add(wx0 * wy1 * g);
     }
     if is_inside(x0 + 1.0, y0 + 1.0, width, height) {
-        d_right[base + corner_index(x0 + 1.0, y0 + 1.0, width, height)]
-            .fetch_add(wx1 * wy1 * g);
+        d_right[base + corner_index(x0 + 1.0, y0 + 1.0, width, height)].fetch_add(wx1 * wy1 * g);
     }
 }
 
@@ -316,7 +308,12 @@ fn dims4<R: CubeRuntime>(t: &CubeTensor<R>) -> [usize; 4] {
 }
 
 fn f32_contiguous<R: CubeRuntime>(t: CubeTensor<R>) -> CubeTensor<R> {
-    assert_eq!(t.dtype, DType::F32, "AGCL kernels run in float32, got {:?}", t.dtype);
+    assert_eq!(
+        t.dtype,
+        DType::F32,
+        "AGCL kernels run in float32, got {:?}",
+        t.dtype
+    );
     into_contiguous(t)
 }
 
@@ -330,12 +327,20 @@ fn empty<R: CubeRuntime>(like: &CubeTensor<R>, shape: [usize; 4]) -> CubeTensor<
 }
 
 fn zeros<R: CubeRuntime>(like: &CubeTensor<R>, shape: [usize; 4]) -> CubeTensor<R> {
-    zeros_client(like.client.clone(), like.device.clone(), Shape::new(shape), DType::F32)
+    zeros_client(
+        like.client.clone(),
+        like.device.clone(),
+        Shape::new(shape),
+        DType::F32,
+    )
 }
 
 fn grid<R: CubeRuntime>(t: &CubeTensor<R>, units: usize) -> (CubeCount, CubeDim) {
     let cube_dim = CubeDim::new(&t.client, units);
-    (calculate_cube_count_elemwise(&t.client, units, cube_dim), cube_dim)
+    (
+        calculate_cube_count_elemwise(&t.client, units, cube_dim),
+        cube_dim,
+    )
 }
 
 impl<R: CubeRuntime, F: FloatElement, I: IntElement, BT: BoolElement> AgclOps
@@ -452,7 +457,11 @@ impl<R: CubeRuntime, F: FloatElement, I: IntElement, BT: BoolElement> AgclOps
         need: [bool; 2],
     ) -> [Option<CubeTensor<R>>; 2] {
         let [n, c, h, w] = dims4(&right);
-        let (right, flow, grad) = (f32_contiguous(right), f32_contiguous(flow), f32_contiguous(grad));
+        let (right, flow, grad) = (
+            f32_contiguous(right),
+            f32_contiguous(flow),
+            f32_contiguous(grad),
+        );
         let d_right = need[0].then(|| {
             let d_right = zeros(&right, [n, c, h, w]);
             let units = n * c * h * w;
@@ -506,7 +515,8 @@ mod fusion {
     use super::super::{AgclOps, CorrSpec};
     use burn::tensor::ops::FloatTensor;
 
-    type Handles<B> = HandleContainer<<<B as FusionBackend>::FusionRuntime as FusionRuntime>::FusionHandle>;
+    type Handles<B> =
+        HandleContainer<<<B as FusionBackend>::FusionRuntime as FusionRuntime>::FusionHandle>;
 
     #[derive(Clone, Debug)]
     enum Call {
@@ -635,8 +645,13 @@ mod fusion {
 
         fn agcl_warp(right: FloatTensor<Self>, flow: FloatTensor<Self>) -> FloatTensor<Self> {
             let shape = dims::<Self>(&right);
-            register::<B>("crestereo_agcl_warp", Call::Warp, vec![right, flow], vec![shape])
-                .remove(0)
+            register::<B>(
+                "crestereo_agcl_warp",
+                Call::Warp,
+                vec![right, flow],
+                vec![shape],
+            )
+            .remove(0)
         }
 
         fn agcl_warp_backward(

@@ -397,8 +397,11 @@ pub fn shift_corr_forward(left: &[f32], right: &[f32], d: Dims, spec: CorrSpec) 
                     let r = &right[(n * hw + q) * c..][..c];
                     for g in 0..g_num {
                         let range = g * cg..(g + 1) * cg;
-                        let dot: f32 =
-                            l[range.clone()].iter().zip(&r[range]).map(|(a, b)| a * b).sum();
+                        let dot: f32 = l[range.clone()]
+                            .iter()
+                            .zip(&r[range])
+                            .map(|(a, b)| a * b)
+                            .sum();
                         out_row[x * gk + g * k_num + k] = dot / cg as f32;
                     }
                 }

@@ -229,7 +229,13 @@ pub fn offset_corr_backward<B: Backend>(
     spec: CorrSpec,
 ) -> [Tensor<B, 4>; 4] {
     let device = left.device();
-    let (l, r, f, o, g) = (prim(left), prim(right), prim(flow), prim(offset), prim(grad));
+    let (l, r, f, o, g) = (
+        prim(left),
+        prim(right),
+        prim(flow),
+        prim(offset),
+        prim(grad),
+    );
     let grads: [Option<FloatTensor<B>>; 4] = on_backend!(B, &device, |I| same(
         I::agcl_offset_corr_backward(same(l), same(r), same(f), same(o), same(g), spec, [true; 4])
     ));

@@ -24,7 +24,11 @@ pub fn shift_corr<B: Backend>(
     warped: Tensor<B, 4>,
     spec: CorrSpec,
 ) -> Tensor<B, 4> {
-    assert_eq!(left.dims(), warped.dims(), "AGCL: left/warped shapes differ");
+    assert_eq!(
+        left.dims(),
+        warped.dims(),
+        "AGCL: left/warped shapes differ"
+    );
     let id = TypeId::of::<B>();
     if id == TypeId::of::<Flex>() {
         let (l, r): (FlexTensor, FlexTensor) = (same(prim(left)), same(prim(warped)));
@@ -49,7 +53,9 @@ fn composed<B: Backend>(left: Tensor<B, 4>, warped: Tensor<B, 4>, spec: CorrSpec
             let oy = (dy + ry as i64) as usize;
             let ox = (dx + rx as i64) as usize;
             let crop = padded.clone().slice([0..n, 0..c, oy..oy + h, ox..ox + w]);
-            (left.clone() * crop).reshape([n, g, c / g, h, w]).mean_dim(2)
+            (left.clone() * crop)
+                .reshape([n, g, c / g, h, w])
+                .mean_dim(2)
         })
         .collect();
     Tensor::cat(corrs, 2).reshape([n, g * spec.candidates(), h, w])
@@ -86,7 +92,8 @@ impl Backward<Flex, 2> for ShiftCorrBackward {
         let (left, warped, spec) = ops.state;
         let d = dims(&left);
         let (l, r) = (channel_last(&left), channel_last(&warped));
-        let (dl, dr) = kernels::shift_corr_backward(l.storage(), r.storage(), grad.storage(), d, spec);
+        let (dl, dr) =
+            kernels::shift_corr_backward(l.storage(), r.storage(), grad.storage(), d, spec);
         let [node_l, node_r] = ops.parents;
         if let Some(node) = node_l {
             grads.register::<Flex>(node.id, from_channel_last(dl, d, d.c));

@@ -8,7 +8,10 @@
 use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
-use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, sniff, under, write_png16, write_right_disparity};
+use super::write::{
+    DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, sniff, under,
+    write_png16, write_right_disparity,
+};
 use super::{DispKind, SampleFiles, SampleMeta, StereoSample};
 use crate::error::Result;
 use crate::png_disp::CRESTEREO_SCALE;
@@ -38,7 +41,12 @@ impl CrestereoPaths {
             name.push(suffix);
             PathBuf::from(name)
         };
-        Self { left: with(LEFT_IMAGE_SUFFIX), right: with(RIGHT_IMAGE_SUFFIX), disp_left: with(LEFT_DISPARITY_SUFFIX), disp_right: with(RIGHT_DISPARITY_SUFFIX) }
+        Self {
+            left: with(LEFT_IMAGE_SUFFIX),
+            right: with(RIGHT_IMAGE_SUFFIX),
+            disp_left: with(LEFT_DISPARITY_SUFFIX),
+            disp_right: with(RIGHT_DISPARITY_SUFFIX),
+        }
     }
 }
 
@@ -46,7 +54,9 @@ pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
     let mut out = Vec::new();
     for e in walk(root, 8) {
         let name = file_name(e.path());
-        let Some(stem) = name.strip_suffix(LEFT_IMAGE_SUFFIX) else { continue };
+        let Some(stem) = name.strip_suffix(LEFT_IMAGE_SUFFIX) else {
+            continue;
+        };
         let prefix = e.path().parent().unwrap_or(root).join(stem);
         let paths = CrestereoPaths::new(&prefix);
         let right = require(paths.right, "right image", e.path())?;
@@ -56,7 +66,10 @@ pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
             left: paths.left,
             right,
             disp_left: (disp, DispKind::Png16(CRESTEREO_SCALE)),
-            disp_right: paths.disp_right.is_file().then_some((paths.disp_right, DispKind::Png16(CRESTEREO_SCALE))),
+            disp_right: paths
+                .disp_right
+                .is_file()
+                .then_some((paths.disp_right, DispKind::Png16(CRESTEREO_SCALE))),
             masks: vec![],
             meta: SampleMeta::default(),
         });
@@ -79,23 +92,44 @@ impl CrestereoWriter {
         for category in CATEGORIES {
             mkdir(&root.join(category))?;
         }
-        Ok(Self { root: root.to_path_buf(), images, summary: WriteSummary::default() })
+        Ok(Self {
+            root: root.to_path_buf(),
+            images,
+            summary: WriteSummary::default(),
+        })
     }
 
     /// One view's image: linked where the source is a JPEG and no re-encoding was asked for.
-    fn place(&mut self, source: &Path, pixels: &crate::image_io::RgbImage, dst: &Path) -> Result<()> {
+    fn place(
+        &mut self,
+        source: &Path,
+        pixels: &crate::image_io::RgbImage,
+        dst: &Path,
+    ) -> Result<()> {
         let encoding = match self.images {
-            ImageEncoding::Lossless if !source.as_os_str().is_empty() && sniff(source) == ImageFile::Jpeg => ImageEncoding::Lossless,
+            ImageEncoding::Lossless
+                if !source.as_os_str().is_empty() && sniff(source) == ImageFile::Jpeg =>
+            {
+                ImageEncoding::Lossless
+            }
             other => ImageEncoding::JpegWith(other.jpeg_options().unwrap_or_default()),
         };
-        place_image(source, pixels, dst, &[ImageFile::Jpeg], encoding, &mut self.summary)
+        place_image(
+            source,
+            pixels,
+            dst,
+            &[ImageFile::Jpeg],
+            encoding,
+            &mut self.summary,
+        )
     }
 }
 
 /// Whether a sample named `name` lands in one of the release's category folders (the loaders
 /// that list those folders see only such samples).
 pub fn in_category_folder(name: &str) -> bool {
-    name.split_once('/').is_some_and(|(first, _)| CATEGORIES.contains(&first))
+    name.split_once('/')
+        .is_some_and(|(first, _)| CATEGORIES.contains(&first))
 }
 
 impl DatasetWriter for CrestereoWriter {
@@ -108,8 +142,15 @@ impl DatasetWriter for CrestereoWriter {
         mkdir(paths.left.parent().unwrap_or(&self.root))?;
         self.place(&s.meta.left_path, &s.left, &paths.left)?;
         self.place(&s.meta.right_path, &s.right, &paths.right)?;
-        write_png16(&paths.disp_left, &s.disp_left, CRESTEREO_SCALE, &mut self.summary)?;
-        write_right_disparity(&paths.disp_right, s, &mut self.summary, |d, sum| write_png16(&paths.disp_right, d, CRESTEREO_SCALE, sum))?;
+        write_png16(
+            &paths.disp_left,
+            &s.disp_left,
+            CRESTEREO_SCALE,
+            &mut self.summary,
+        )?;
+        write_right_disparity(&paths.disp_right, s, &mut self.summary, |d, sum| {
+            write_png16(&paths.disp_right, d, CRESTEREO_SCALE, sum)
+        })?;
         self.summary.outside_categories += usize::from(!in_category_folder(name));
         self.summary.samples += 1;
         Ok(())

@@ -3,7 +3,10 @@
 use std::path::Path;
 
 use super::scan::{file_name, walk};
-use super::{DatasetFormat, crestereo, falling_things, instereo2k, kitti, middlebury, sceneflow, sintel, stereogen};
+use super::{
+    DatasetFormat, crestereo, falling_things, instereo2k, kitti, middlebury, sceneflow, sintel,
+    stereogen,
+};
 use crate::error::{Error, Result};
 
 /// Recognises a layout from the files under `root`, most specific first: `manifest.jsonl`
@@ -36,7 +39,9 @@ pub fn detect_format(root: &Path) -> Result<DatasetFormat> {
     };
     for e in walk(root, 6).take(200_000) {
         let name = file_name(e.path());
-        if e.file_type().is_dir() && (name == sceneflow::CLEAN_PASS_DIR || name == sceneflow::FINAL_PASS_DIR) {
+        if e.file_type().is_dir()
+            && (name == sceneflow::CLEAN_PASS_DIR || name == sceneflow::FINAL_PASS_DIR)
+        {
             note(DatasetFormat::SceneFlow, 0);
             break;
         }

@@ -45,10 +45,20 @@ fn export_name(format: DatasetFormat, meta: &SampleMeta) -> String {
 /// in [`EXPORT_INDEX_FILE`], and nothing of the failed one).
 pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result<WriteSummary> {
     if !source.is_dir() {
-        return Err(Error::format(source, "no such dataset directory (a stereogen dataset holds manifest.jsonl; the other layouts are listed by `open_dataset`)"));
+        return Err(Error::format(
+            source,
+            "no such dataset directory (a stereogen dataset holds manifest.jsonl; the other layouts are listed by `open_dataset`)",
+        ));
     }
-    if out.canonicalize().ok().is_some_and(|o| source.canonicalize().ok().is_some_and(|s| o == s)) {
-        return Err(Error::format(out, "the output must differ from the dataset directory"));
+    if out
+        .canonicalize()
+        .ok()
+        .is_some_and(|o| source.canonicalize().ok().is_some_and(|s| o == s))
+    {
+        return Err(Error::format(
+            out,
+            "the output must differ from the dataset directory",
+        ));
     }
     let dataset = open_dataset_with(source, opts.from, &opts.read)?;
     let mut writer = create_writer(opts.to, out, opts.images)?;
@@ -65,7 +75,11 @@ pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result
             Ok(())
         });
         if let Err(e) = exported {
-            let listed = crate::atomic::write_bytes_atomically(&out.join(EXPORT_INDEX_FILE), index.as_bytes()).is_ok();
+            let listed = crate::atomic::write_bytes_atomically(
+                &out.join(EXPORT_INDEX_FILE),
+                index.as_bytes(),
+            )
+            .is_ok();
             let id = dataset.id(n).unwrap_or("?").to_string();
             return Err(Error::format(
                 out,
@@ -73,7 +87,11 @@ pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result
                     "export stopped at sample {id} ({} of {}): {e}; left: the {n} sample(s) before it, complete{}, and nothing of {id}; re-run the same command to finish",
                     n + 1,
                     dataset.len(),
-                    if listed { format!(" (listed in {EXPORT_INDEX_FILE})") } else { String::new() }
+                    if listed {
+                        format!(" (listed in {EXPORT_INDEX_FILE})")
+                    } else {
+                        String::new()
+                    }
                 ),
             ));
         }
@@ -88,12 +106,27 @@ mod tests {
 
     #[test]
     fn names_keep_our_categories_and_flatten_other_ids() {
-        let mut meta = SampleMeta { id: "0000003".into(), ..Default::default() };
+        let mut meta = SampleMeta {
+            id: "0000003".into(),
+            ..Default::default()
+        };
         meta.extra.insert("category".into(), "tree".into());
         assert_eq!(export_name(DatasetFormat::Stereogen, &meta), "tree/0000003");
-        let meta = SampleMeta { id: "FlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png".into(), ..Default::default() };
-        assert_eq!(export_name(DatasetFormat::SceneFlow, &meta), "FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006");
-        let meta = SampleMeta { id: "trainingF/Adirondack".into(), ..Default::default() };
-        assert_eq!(export_name(DatasetFormat::Middlebury, &meta), "trainingF_Adirondack");
+        let meta = SampleMeta {
+            id: "FlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png".into(),
+            ..Default::default()
+        };
+        assert_eq!(
+            export_name(DatasetFormat::SceneFlow, &meta),
+            "FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006"
+        );
+        let meta = SampleMeta {
+            id: "trainingF/Adirondack".into(),
+            ..Default::default()
+        };
+        assert_eq!(
+            export_name(DatasetFormat::Middlebury, &meta),
+            "trainingF_Adirondack"
+        );
     }
 }

@@ -15,9 +15,12 @@ pub const FALLING_THINGS_BASELINE_M: f64 = 0.06;
 
 fn fat_fx(path: &Path) -> Result<(f64, Option<f64>, Option<f64>)> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
     let intr = &v["camera_settings"][0]["intrinsic_settings"];
-    let fx = intr["fx"].as_f64().ok_or_else(|| Error::format(path, "no camera_settings[0].intrinsic_settings.fx"))?;
+    let fx = intr["fx"]
+        .as_f64()
+        .ok_or_else(|| Error::format(path, "no camera_settings[0].intrinsic_settings.fx"))?;
     Ok((fx, intr["cx"].as_f64(), intr["cy"].as_f64()))
 }
 
@@ -26,12 +29,25 @@ pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
     for settings in walk(root, 6).filter(|e| file_name(e.path()) == CAMERA_SETTINGS) {
         let dir = settings.path().parent().unwrap_or(root);
         let (fx, cx, cy) = fat_fx(settings.path())?;
-        let kind = DispKind::FatDepth { fx, baseline_m: FALLING_THINGS_BASELINE_M };
+        let kind = DispKind::FatDepth {
+            fx,
+            baseline_m: FALLING_THINGS_BASELINE_M,
+        };
         for e in walk(dir, 1) {
             let name = file_name(e.path());
-            let Some(stem) = name.strip_suffix(".left.jpg") else { continue };
-            let right = require(dir.join(format!("{stem}.right.jpg")), "right image", e.path())?;
-            let depth = require(dir.join(format!("{stem}.left.depth.png")), "left depth", e.path())?;
+            let Some(stem) = name.strip_suffix(".left.jpg") else {
+                continue;
+            };
+            let right = require(
+                dir.join(format!("{stem}.right.jpg")),
+                "right image",
+                e.path(),
+            )?;
+            let depth = require(
+                dir.join(format!("{stem}.left.depth.png")),
+                "left depth",
+                e.path(),
+            )?;
             let depth_r = dir.join(format!("{stem}.right.depth.png"));
             out.push(SampleFiles {
                 id: rel_id(root, &dir.join(stem)),
@@ -40,7 +56,13 @@ pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
                 disp_left: (depth, kind),
                 disp_right: depth_r.is_file().then_some((depth_r, kind)),
                 masks: vec![],
-                meta: SampleMeta { f_px: Some(fx), baseline_m: Some(FALLING_THINGS_BASELINE_M), cx, cy, ..Default::default() },
+                meta: SampleMeta {
+                    f_px: Some(fx),
+                    baseline_m: Some(FALLING_THINGS_BASELINE_M),
+                    cx,
+                    cy,
+                    ..Default::default()
+                },
             });
         }
     }

@@ -31,7 +31,9 @@ pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
             left,
             right,
             disp_left: (e.path().to_path_buf(), DispKind::Png16(DISPARITY_SCALE)),
-            disp_right: disp_right.is_file().then_some((disp_right, DispKind::Png16(DISPARITY_SCALE))),
+            disp_right: disp_right
+                .is_file()
+                .then_some((disp_right, DispKind::Png16(DISPARITY_SCALE))),
             masks: vec![],
             meta: SampleMeta::default(),
         });

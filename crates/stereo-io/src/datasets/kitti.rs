@@ -16,7 +16,9 @@
 use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
-use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, write_png16};
+use super::write::{
+    DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, write_png16,
+};
 use super::{DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
 use crate::disparity::DisparityMap;
 use crate::error::{Error, Result};
@@ -38,8 +40,18 @@ pub struct KittiFolders {
     pub disp_noc: &'static str,
 }
 
-pub const KITTI_2015: KittiFolders = KittiFolders { left: "image_2", right: "image_3", disp_occ: "disp_occ_0", disp_noc: "disp_noc_0" };
-pub const KITTI_2012: KittiFolders = KittiFolders { left: "colored_0", right: "colored_1", disp_occ: "disp_occ", disp_noc: "disp_noc" };
+pub const KITTI_2015: KittiFolders = KittiFolders {
+    left: "image_2",
+    right: "image_3",
+    disp_occ: "disp_occ_0",
+    disp_noc: "disp_noc_0",
+};
+pub const KITTI_2012: KittiFolders = KittiFolders {
+    left: "colored_0",
+    right: "colored_1",
+    disp_occ: "disp_occ",
+    disp_noc: "disp_noc",
+};
 
 /// The file name of the `n`-th reference frame.
 pub fn frame_name(n: usize) -> String {
@@ -48,11 +60,21 @@ pub fn frame_name(n: usize) -> String {
 
 /// The folder that holds `folders` (`root/training` or `root`), if any.
 pub(crate) fn training_dir(root: &Path, folders: &KittiFolders) -> Option<PathBuf> {
-    [root.join(TRAINING_DIR), root.to_path_buf()].into_iter().find(|d| d.join(folders.left).is_dir() && d.join(folders.disp_occ).is_dir())
+    [root.join(TRAINING_DIR), root.to_path_buf()]
+        .into_iter()
+        .find(|d| d.join(folders.left).is_dir() && d.join(folders.disp_occ).is_dir())
 }
 
 pub(crate) fn scan(root: &Path, f: &KittiFolders) -> Result<Vec<SampleFiles>> {
-    let base = training_dir(root, f).ok_or_else(|| Error::format(root, format!("no {}/ and {}/ folders (here or under {TRAINING_DIR}/)", f.left, f.disp_occ)))?;
+    let base = training_dir(root, f).ok_or_else(|| {
+        Error::format(
+            root,
+            format!(
+                "no {}/ and {}/ folders (here or under {TRAINING_DIR}/)",
+                f.left, f.disp_occ
+            ),
+        )
+    })?;
     let mut out = Vec::new();
     for e in walk(&base.join(f.left), 1) {
         let name = file_name(e.path());
@@ -68,7 +90,11 @@ pub(crate) fn scan(root: &Path, f: &KittiFolders) -> Result<Vec<SampleFiles>> {
             right,
             disp_left: (disp, DispKind::Png16(KITTI_SCALE)),
             disp_right: None,
-            masks: if noc.is_file() { vec![(noc, MaskKind::Png16NonZero)] } else { vec![] },
+            masks: if noc.is_file() {
+                vec![(noc, MaskKind::Png16NonZero)]
+            } else {
+                vec![]
+            },
             meta: SampleMeta::default(),
         });
     }
@@ -89,7 +115,11 @@ pub struct KittiWriter {
 
 impl KittiWriter {
     pub fn new(root: &Path, folders: KittiFolders) -> Self {
-        Self { root: root.to_path_buf(), folders, summary: WriteSummary::default() }
+        Self {
+            root: root.to_path_buf(),
+            folders,
+            summary: WriteSummary::default(),
+        }
     }
 }
 
@@ -116,13 +146,37 @@ impl DatasetWriter for KittiWriter {
             Ok(base.join(d).join(&name))
         };
         let png = [ImageFile::PngRgb8];
-        place_image(&s.meta.left_path, &s.left, &dir(f.left)?, &png, ImageEncoding::Lossless, &mut self.summary)?;
-        place_image(&s.meta.right_path, &s.right, &dir(f.right)?, &png, ImageEncoding::Lossless, &mut self.summary)?;
-        write_png16(&dir(f.disp_occ)?, &s.disp_left, KITTI_SCALE, &mut self.summary)?;
+        place_image(
+            &s.meta.left_path,
+            &s.left,
+            &dir(f.left)?,
+            &png,
+            ImageEncoding::Lossless,
+            &mut self.summary,
+        )?;
+        place_image(
+            &s.meta.right_path,
+            &s.right,
+            &dir(f.right)?,
+            &png,
+            ImageEncoding::Lossless,
+            &mut self.summary,
+        )?;
+        write_png16(
+            &dir(f.disp_occ)?,
+            &s.disp_left,
+            KITTI_SCALE,
+            &mut self.summary,
+        )?;
         if let Some(keep) = &s.valid_left {
             // Pixels dropped from disp_occ are already counted; the same ones here are not.
             let mut noc_summary = WriteSummary::default();
-            write_png16(&dir(f.disp_noc)?, &restricted(&s.disp_left, keep), KITTI_SCALE, &mut noc_summary)?;
+            write_png16(
+                &dir(f.disp_noc)?,
+                &restricted(&s.disp_left, keep),
+                KITTI_SCALE,
+                &mut noc_summary,
+            )?;
             self.summary.written += noc_summary.written;
         }
         self.summary.without_right_disparity += 1;

@@ -26,7 +26,10 @@
 use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
-use super::write::{DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under, write_right_disparity};
+use super::write::{
+    DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under,
+    write_right_disparity,
+};
 use super::{DatasetFormat, DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
 use crate::error::{Error, Result};
 use crate::pixel_coords::{continuous_to_pixel_centres, pixel_centres_to_continuous};
@@ -79,7 +82,10 @@ impl std::fmt::Display for MiddleburyVariant {
 impl std::str::FromStr for MiddleburyVariant {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
-        [Self::Perfect, Self::Imperfect, Self::Both].into_iter().find(|v| v.name().eq_ignore_ascii_case(s)).ok_or_else(|| format!("unknown Middlebury variant {s:?} (perfect, imperfect or both)"))
+        [Self::Perfect, Self::Imperfect, Self::Both]
+            .into_iter()
+            .find(|v| v.name().eq_ignore_ascii_case(s))
+            .ok_or_else(|| format!("unknown Middlebury variant {s:?} (perfect, imperfect or both)"))
     }
 }
 
@@ -103,8 +109,14 @@ fn variant_wanted(dir: &Path, want: MiddleburyVariant) -> bool {
         (None, _) | (_, MiddleburyVariant::Both) => true,
         (Some(v), w) if v == w => true,
         (Some(_), w) => {
-            let wanted_suffix = if w == MiddleburyVariant::Perfect { PERFECT_SUFFIX } else { IMPERFECT_SUFFIX };
-            !dir.with_file_name(format!("{base}{wanted_suffix}")).join(LEFT_DISPARITY).is_file()
+            let wanted_suffix = if w == MiddleburyVariant::Perfect {
+                PERFECT_SUFFIX
+            } else {
+                IMPERFECT_SUFFIX
+            };
+            !dir.with_file_name(format!("{base}{wanted_suffix}"))
+                .join(LEFT_DISPARITY)
+                .is_file()
         }
     }
 }
@@ -114,14 +126,27 @@ fn variant_wanted(dir: &Path, want: MiddleburyVariant) -> bool {
 pub(crate) fn parse_calib(path: &Path, meta: &mut SampleMeta) -> Result<()> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     for line in text.lines() {
-        let Some((k, v)) = line.split_once('=') else { continue };
+        let Some((k, v)) = line.split_once('=') else {
+            continue;
+        };
         let (k, v) = (k.trim(), v.trim());
-        let num = |s: &str| s.parse::<f64>().map_err(|_| Error::format(path, format!("`{k}` value {s:?} is not a number")));
+        let num = |s: &str| {
+            s.parse::<f64>()
+                .map_err(|_| Error::format(path, format!("`{k}` value {s:?} is not a number")))
+        };
         match k {
             "cam0" => {
-                let nums: Vec<f64> = v.trim_matches(['[', ']']).split([' ', ';']).filter(|s| !s.is_empty()).map(num).collect::<Result<_>>()?;
+                let nums: Vec<f64> = v
+                    .trim_matches(['[', ']'])
+                    .split([' ', ';'])
+                    .filter(|s| !s.is_empty())
+                    .map(num)
+                    .collect::<Result<_>>()?;
                 if nums.len() != 9 {
-                    return Err(Error::format(path, format!("cam0 has {} numbers, expected a 3x3 matrix", nums.len())));
+                    return Err(Error::format(
+                        path,
+                        format!("cam0 has {} numbers, expected a 3x3 matrix", nums.len()),
+                    ));
                 }
                 meta.f_px = Some(nums[0]);
                 meta.cx = Some(continuous_to_pixel_centres(nums[2]));
@@ -158,21 +183,56 @@ impl Calibration {
     /// The calibration of `s` as Middlebury states it; an error naming what the sample lacks.
     fn of_sample(s: &StereoSample) -> std::result::Result<Self, String> {
         let m = &s.meta;
-        let missing: Vec<&str> = [("f_px", m.f_px), ("baseline_m", m.baseline_m), ("cx", m.cx), ("cy", m.cy)].into_iter().filter(|(_, v)| v.is_none()).map(|(k, _)| k).collect();
+        let missing: Vec<&str> = [
+            ("f_px", m.f_px),
+            ("baseline_m", m.baseline_m),
+            ("cx", m.cx),
+            ("cy", m.cy),
+        ]
+        .into_iter()
+        .filter(|(_, v)| v.is_none())
+        .map(|(k, _)| k)
+        .collect();
         if !missing.is_empty() {
-            return Err(format!("calib.txt needs the focal length, baseline and principal point; the source gives no {}", missing.join(", ")));
+            return Err(format!(
+                "calib.txt needs the focal length, baseline and principal point; the source gives no {}",
+                missing.join(", ")
+            ));
         }
         let doffs = match m.extra.get("doffs") {
-            Some(t) => t.parse::<f64>().map_err(|_| format!("doffs {t:?} is not a number"))?,
+            Some(t) => t
+                .parse::<f64>()
+                .map_err(|_| format!("doffs {t:?} is not a number"))?,
             None => 0.0,
         };
-        let (vmin, vmax) = s.disp_left.stats().map_or((0.0, 0.0), |st| (f64::from(st.min).floor(), f64::from(st.max).ceil()));
+        let (vmin, vmax) = s.disp_left.stats().map_or((0.0, 0.0), |st| {
+            (f64::from(st.min).floor(), f64::from(st.max).ceil())
+        });
         let ndisp = (vmax as u32 + 1).max(m.ndisp.unwrap_or(1));
-        Ok(Self { f_px: m.f_px.unwrap(), cx: m.cx.unwrap(), cy: m.cy.unwrap(), doffs, baseline_m: m.baseline_m.unwrap(), width: s.left.width, height: s.left.height, ndisp, vmin, vmax })
+        Ok(Self {
+            f_px: m.f_px.unwrap(),
+            cx: m.cx.unwrap(),
+            cy: m.cy.unwrap(),
+            doffs,
+            baseline_m: m.baseline_m.unwrap(),
+            width: s.left.width,
+            height: s.left.height,
+            ndisp,
+            vmin,
+            vmax,
+        })
     }
 
     pub fn to_text(&self) -> String {
-        let cam = |cx: f64| format!("[{} 0 {}; 0 {} {}; 0 0 1]", self.f_px, pixel_centres_to_continuous(cx), self.f_px, pixel_centres_to_continuous(self.cy));
+        let cam = |cx: f64| {
+            format!(
+                "[{} 0 {}; 0 {} {}; 0 0 1]",
+                self.f_px,
+                pixel_centres_to_continuous(cx),
+                self.f_px,
+                pixel_centres_to_continuous(self.cy)
+            )
+        };
         format!(
             "cam0={}\ncam1={}\ndoffs={}\nbaseline={}\nwidth={}\nheight={}\nndisp={}\nisint=0\nvmin={}\nvmax={}\n",
             cam(self.cx),
@@ -196,14 +256,20 @@ fn eth3d_image_dir(gt_dir: &Path) -> Option<PathBuf> {
     }
     let scene = gt_dir.file_name()?;
     let tree = gt_dir.parent()?;
-    let image_tree = file_name(tree).strip_suffix(ETH3D_GT_FOLDER_SUFFIX)?.to_string();
+    let image_tree = file_name(tree)
+        .strip_suffix(ETH3D_GT_FOLDER_SUFFIX)?
+        .to_string();
     Some(tree.with_file_name(image_tree).join(scene))
 }
 
 /// Middlebury (`disp0.pfm`, optional `disp1.pfm`, `calib.txt` required; scene folders chosen by
 /// `variant`) or ETH3D (`disp0GT.pfm` beside the images or in the `_gt` tree, optional
 /// `calib.txt` and `mask0nocc.png`).
-pub(crate) fn scan(root: &Path, format: DatasetFormat, variant: MiddleburyVariant) -> Result<Vec<SampleFiles>> {
+pub(crate) fn scan(
+    root: &Path,
+    format: DatasetFormat,
+    variant: MiddleburyVariant,
+) -> Result<Vec<SampleFiles>> {
     let (disp_name, disp_right_name) = match format {
         DatasetFormat::Eth3d => (ETH3D_LEFT_DISPARITY, None),
         _ => (LEFT_DISPARITY, Some(RIGHT_DISPARITY)),
@@ -228,9 +294,14 @@ pub(crate) fn scan(root: &Path, format: DatasetFormat, variant: MiddleburyVarian
         if calib.is_file() {
             parse_calib(&calib, &mut meta)?;
         } else if format == DatasetFormat::Middlebury {
-            return Err(Error::format(&calib, "missing: Middlebury scenes carry a calib.txt"));
+            return Err(Error::format(
+                &calib,
+                "missing: Middlebury scenes carry a calib.txt",
+            ));
         }
-        let disp_r = disp_right_name.map(|n| gt_dir.join(n)).filter(|p| p.is_file());
+        let disp_r = disp_right_name
+            .map(|n| gt_dir.join(n))
+            .filter(|p| p.is_file());
         let mask = gt_dir.join(NONOCCLUDED_MASK);
         out.push(SampleFiles {
             id: rel_id(root, &dir),
@@ -238,7 +309,11 @@ pub(crate) fn scan(root: &Path, format: DatasetFormat, variant: MiddleburyVarian
             right,
             disp_left: (e.path().to_path_buf(), DispKind::Pfm),
             disp_right: disp_r.map(|p| (p, DispKind::Pfm)),
-            masks: if mask.is_file() { vec![(mask, MaskKind::Is255)] } else { vec![] },
+            masks: if mask.is_file() {
+                vec![(mask, MaskKind::Is255)]
+            } else {
+                vec![]
+            },
             meta,
         });
     }
@@ -258,7 +333,10 @@ pub struct MiddleburyWriter {
 
 impl MiddleburyWriter {
     pub fn new(root: &Path) -> Self {
-        Self { root: root.to_path_buf(), summary: WriteSummary::default() }
+        Self {
+            root: root.to_path_buf(),
+            summary: WriteSummary::default(),
+        }
     }
 }
 
@@ -270,11 +348,26 @@ impl DatasetWriter for MiddleburyWriter {
     fn write(&mut self, _n: usize, name: &str, s: &StereoSample) -> Result<()> {
         let scene = format!("{}{PERFECT_SUFFIX}", name.replace(['/', '-'], "_"));
         let dir = under(&self.root.join(WRITTEN_SCENES_DIR), &scene)?;
-        let calib = Calibration::of_sample(s).map_err(|m| Error::format(dir.join(CALIBRATION), m))?;
+        let calib =
+            Calibration::of_sample(s).map_err(|m| Error::format(dir.join(CALIBRATION), m))?;
         mkdir(&dir)?;
         let png = [ImageFile::PngRgb8];
-        place_image(&s.meta.left_path, &s.left, &dir.join(LEFT_IMAGE), &png, ImageEncoding::Lossless, &mut self.summary)?;
-        place_image(&s.meta.right_path, &s.right, &dir.join(RIGHT_IMAGE), &png, ImageEncoding::Lossless, &mut self.summary)?;
+        place_image(
+            &s.meta.left_path,
+            &s.left,
+            &dir.join(LEFT_IMAGE),
+            &png,
+            ImageEncoding::Lossless,
+            &mut self.summary,
+        )?;
+        place_image(
+            &s.meta.right_path,
+            &s.right,
+            &dir.join(RIGHT_IMAGE),
+            &png,
+            ImageEncoding::Lossless,
+            &mut self.summary,
+        )?;
         crate::pfm::write_disparity_pfm(&dir.join(LEFT_DISPARITY), &s.disp_left)?;
         let right = dir.join(RIGHT_DISPARITY);
         write_right_disparity(&right, s, &mut self.summary, |d, sum| {

@@ -95,7 +95,11 @@ impl fmt::Display for DatasetFormat {
 impl FromStr for DatasetFormat {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
-        let norm: String = s.to_ascii_lowercase().chars().filter(|c| c.is_ascii_alphanumeric()).collect();
+        let norm: String = s
+            .to_ascii_lowercase()
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric())
+            .collect();
         let alias = match norm.as_str() {
             "ours" => "stereogen",
             "flyingthings3d" | "flyingthings" | "driving" | "monkaa" => "sceneflow",
@@ -103,10 +107,16 @@ impl FromStr for DatasetFormat {
             "fat" => "fallingthings",
             other => other,
         };
-        Self::ALL.into_iter().find(|f| f.name() == alias).ok_or_else(|| {
-            let names: Vec<&str> = Self::ALL.iter().map(|f| f.name()).collect();
-            format!("unknown dataset format {s:?} (one of: {})", names.join(", "))
-        })
+        Self::ALL
+            .into_iter()
+            .find(|f| f.name() == alias)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::ALL.iter().map(|f| f.name()).collect();
+                format!(
+                    "unknown dataset format {s:?} (one of: {})",
+                    names.join(", ")
+                )
+            })
     }
 }
 
@@ -182,7 +192,10 @@ pub(crate) enum DispKind {
     Png16(f32),
     Sintel,
     /// Falling Things: 16-bit depth in 1e-4 m, 0 = none; `d = fx · baseline / Z`.
-    FatDepth { fx: f64, baseline_m: f64 },
+    FatDepth {
+        fx: f64,
+        baseline_m: f64,
+    },
 }
 
 /// How a mask file is turned into "keep this pixel".
@@ -216,7 +229,11 @@ pub struct FileListDataset {
 
 impl FileListDataset {
     pub(crate) fn new(format: DatasetFormat, root: &Path, samples: Vec<SampleFiles>) -> Self {
-        Self { format, root: root.to_path_buf(), samples }
+        Self {
+            format,
+            root: root.to_path_buf(),
+            samples,
+        }
     }
 }
 
@@ -229,13 +246,29 @@ pub(crate) fn read_disp(path: &Path, kind: DispKind) -> Result<DisparityMap> {
         DispKind::FatDepth { fx, baseline_m } => {
             let img = crate::image_io::read_image(path)?;
             let crate::image_io::Samples::U16(depth) = img.samples else {
-                return Err(Error::format(path, "a Falling Things depth PNG must be 16-bit"));
+                return Err(Error::format(
+                    path,
+                    "a Falling Things depth PNG must be 16-bit",
+                ));
             };
             if img.channels != 1 {
-                return Err(Error::format(path, format!("a Falling Things depth PNG must be grey, this one has {} channels", img.channels)));
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "a Falling Things depth PNG must be grey, this one has {} channels",
+                        img.channels
+                    ),
+                ));
             }
             let depth_m: Vec<f32> = depth.iter().map(|&v| v as f32 * 1e-4).collect();
-            Ok(DisparityMap::from_depth(img.width, img.height, &depth_m, fx, baseline_m, f32::INFINITY))
+            Ok(DisparityMap::from_depth(
+                img.width,
+                img.height,
+                &depth_m,
+                fx,
+                baseline_m,
+                f32::INFINITY,
+            ))
         }
     }
 }
@@ -244,12 +277,27 @@ fn read_mask(path: &Path, kind: MaskKind) -> Result<(usize, usize, Vec<bool>)> {
     let img = crate::image_io::read_image(path)?;
     let c = img.channels;
     let keep: Vec<bool> = match (&img.samples, kind) {
-        (crate::image_io::Samples::U8(v), MaskKind::Is255) => v.iter().step_by(c).map(|&p| p == 255).collect(),
-        (crate::image_io::Samples::U8(v), MaskKind::IsZero) => v.iter().step_by(c).map(|&p| p == 0).collect(),
-        (crate::image_io::Samples::U16(v), MaskKind::Png16NonZero) => v.iter().step_by(c).map(|&p| p != 0).collect(),
-        (crate::image_io::Samples::U16(v), MaskKind::Is255) => v.iter().step_by(c).map(|&p| p == u16::MAX).collect(),
-        (crate::image_io::Samples::U16(v), MaskKind::IsZero) => v.iter().step_by(c).map(|&p| p == 0).collect(),
-        (crate::image_io::Samples::U8(_), MaskKind::Png16NonZero) => return Err(Error::format(path, "expected a 16-bit disparity PNG as mask")),
+        (crate::image_io::Samples::U8(v), MaskKind::Is255) => {
+            v.iter().step_by(c).map(|&p| p == 255).collect()
+        }
+        (crate::image_io::Samples::U8(v), MaskKind::IsZero) => {
+            v.iter().step_by(c).map(|&p| p == 0).collect()
+        }
+        (crate::image_io::Samples::U16(v), MaskKind::Png16NonZero) => {
+            v.iter().step_by(c).map(|&p| p != 0).collect()
+        }
+        (crate::image_io::Samples::U16(v), MaskKind::Is255) => {
+            v.iter().step_by(c).map(|&p| p == u16::MAX).collect()
+        }
+        (crate::image_io::Samples::U16(v), MaskKind::IsZero) => {
+            v.iter().step_by(c).map(|&p| p == 0).collect()
+        }
+        (crate::image_io::Samples::U8(_), MaskKind::Png16NonZero) => {
+            return Err(Error::format(
+                path,
+                "expected a 16-bit disparity PNG as mask",
+            ));
+        }
     };
     Ok((img.width, img.height, keep))
 }
@@ -261,7 +309,13 @@ fn join<T>(h: std::thread::ScopedJoinHandle<'_, T>) -> T {
 
 fn same_size(path: &Path, what: &str, got: (usize, usize), want: (usize, usize)) -> Result<()> {
     if got != want {
-        return Err(Error::format(path, format!("{what} is {}x{} but the left image is {}x{}", got.0, got.1, want.0, want.1)));
+        return Err(Error::format(
+            path,
+            format!(
+                "{what} is {}x{} but the left image is {}x{}",
+                got.0, got.1, want.0, want.1
+            ),
+        ));
     }
     Ok(())
 }
@@ -280,23 +334,55 @@ impl StereoDataset for FileListDataset {
         self.samples.get(index).map(|s| s.id.as_str())
     }
     fn sample(&self, index: usize) -> Result<StereoSample> {
-        let f = self.samples.get(index).ok_or_else(|| Error::format(&self.root, format!("sample index {index} is out of range: the {} dataset has {} samples", self.format, self.samples.len())))?;
+        let f = self.samples.get(index).ok_or_else(|| {
+            Error::format(
+                &self.root,
+                format!(
+                    "sample index {index} is out of range: the {} dataset has {} samples",
+                    self.format,
+                    self.samples.len()
+                ),
+            )
+        })?;
         // The files are independent: decode them on parallel threads (a sample is 4+ files of
         // which each decoder uses about one core).
         let (left, right, disp_left, disp_right, masks) = std::thread::scope(|sc| {
             let right = sc.spawn(|| read_rgb(&f.right));
             let disp_left = sc.spawn(|| read_disp(&f.disp_left.0, f.disp_left.1));
-            let disp_right = f.disp_right.as_ref().map(|(p, k)| sc.spawn(move || read_disp(p, *k)));
-            let masks: Vec<_> = f.masks.iter().map(|(p, kind)| sc.spawn(move || read_mask(p, *kind))).collect();
+            let disp_right = f
+                .disp_right
+                .as_ref()
+                .map(|(p, k)| sc.spawn(move || read_disp(p, *k)));
+            let masks: Vec<_> = f
+                .masks
+                .iter()
+                .map(|(p, kind)| sc.spawn(move || read_mask(p, *kind)))
+                .collect();
             let left = read_rgb(&f.left);
-            (left, join(right), join(disp_left), disp_right.map(join), masks.into_iter().map(join).collect::<Vec<_>>())
+            (
+                left,
+                join(right),
+                join(disp_left),
+                disp_right.map(join),
+                masks.into_iter().map(join).collect::<Vec<_>>(),
+            )
         });
         let left = left?;
         let size = (left.width, left.height);
         let right = right?;
-        same_size(&f.right, "the right image", (right.width, right.height), size)?;
+        same_size(
+            &f.right,
+            "the right image",
+            (right.width, right.height),
+            size,
+        )?;
         let disp_left = disp_left?;
-        same_size(&f.disp_left.0, "the disparity", (disp_left.width, disp_left.height), size)?;
+        same_size(
+            &f.disp_left.0,
+            "the disparity",
+            (disp_left.width, disp_left.height),
+            size,
+        )?;
         let disp_right = match (&f.disp_right, disp_right) {
             (Some((p, _)), Some(d)) => {
                 let d = d?;
@@ -316,7 +402,14 @@ impl StereoDataset for FileListDataset {
             }
             Some(keep)
         };
-        Ok(StereoSample { left, right, disp_left, disp_right, valid_left, meta: f.meta.clone() })
+        Ok(StereoSample {
+            left,
+            right,
+            disp_left,
+            disp_right,
+            valid_left,
+            meta: f.meta.clone(),
+        })
     }
 }
 
@@ -334,7 +427,11 @@ pub fn open_dataset(root: &Path, format: Option<DatasetFormat>) -> Result<Box<dy
 }
 
 /// [`open_dataset`] with the layout choices of `opts`.
-pub fn open_dataset_with(root: &Path, format: Option<DatasetFormat>, opts: &ReadOptions) -> Result<Box<dyn StereoDataset>> {
+pub fn open_dataset_with(
+    root: &Path,
+    format: Option<DatasetFormat>,
+    opts: &ReadOptions,
+) -> Result<Box<dyn StereoDataset>> {
     if !root.is_dir() {
         return Err(Error::format(root, "is not a directory"));
     }

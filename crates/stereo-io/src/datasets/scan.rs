@@ -8,12 +8,18 @@ use walkdir::WalkDir;
 use super::{DatasetFormat, ReadOptions, SampleFiles};
 use crate::error::{Error, Result};
 
-pub(crate) fn scan(format: DatasetFormat, root: &Path, opts: &ReadOptions) -> Result<Vec<SampleFiles>> {
+pub(crate) fn scan(
+    format: DatasetFormat,
+    root: &Path,
+    opts: &ReadOptions,
+) -> Result<Vec<SampleFiles>> {
     let mut samples = match format {
         DatasetFormat::Stereogen => super::stereogen::scan(root)?,
         DatasetFormat::Crestereo => super::crestereo::scan(root)?,
         DatasetFormat::SceneFlow => super::sceneflow::scan(root)?,
-        DatasetFormat::Middlebury | DatasetFormat::Eth3d => super::middlebury::scan(root, format, opts.middlebury_variant)?,
+        DatasetFormat::Middlebury | DatasetFormat::Eth3d => {
+            super::middlebury::scan(root, format, opts.middlebury_variant)?
+        }
         DatasetFormat::Kitti2012 => super::kitti::scan(root, &super::kitti::KITTI_2012)?,
         DatasetFormat::Kitti2015 => super::kitti::scan(root, &super::kitti::KITTI_2015)?,
         DatasetFormat::Sintel => super::sintel::scan(root)?,
@@ -36,16 +42,26 @@ pub(crate) fn scan(format: DatasetFormat, root: &Path, opts: &ReadOptions) -> Re
 
 /// `path` relative to `root`, as text: the stable id of a sample.
 pub(crate) fn rel_id(root: &Path, path: &Path) -> String {
-    path.strip_prefix(root).unwrap_or(path).to_string_lossy().into_owned()
+    path.strip_prefix(root)
+        .unwrap_or(path)
+        .to_string_lossy()
+        .into_owned()
 }
 
 /// The entries under `root`, sorted by name, following links.
 pub(crate) fn walk(root: &Path, max_depth: usize) -> impl Iterator<Item = walkdir::DirEntry> {
-    WalkDir::new(root).max_depth(max_depth).follow_links(true).sort_by_file_name().into_iter().filter_map(|e| e.ok())
+    WalkDir::new(root)
+        .max_depth(max_depth)
+        .follow_links(true)
+        .sort_by_file_name()
+        .into_iter()
+        .filter_map(|e| e.ok())
 }
 
 pub(crate) fn file_name(p: &Path) -> String {
-    p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 /// `path` if it is a file; else an error naming it as the `what` of `for_`.
@@ -53,6 +69,9 @@ pub(crate) fn require(path: PathBuf, what: &str, for_: &Path) -> Result<PathBuf>
     if path.is_file() {
         Ok(path)
     } else {
-        Err(Error::format(&path, format!("missing: the {what} of {}", for_.display())))
+        Err(Error::format(
+            &path,
+            format!("missing: the {what} of {}", for_.display()),
+        ))
     }
 }

@@ -48,7 +48,10 @@ impl ImageEncoding {
     pub fn jpeg_options(self) -> Option<crate::jpeg::JpegOptions> {
         match self {
             Self::Lossless => None,
-            Self::Jpeg(quality) => Some(crate::jpeg::JpegOptions { quality, ..Default::default() }),
+            Self::Jpeg(quality) => Some(crate::jpeg::JpegOptions {
+                quality,
+                ..Default::default()
+            }),
             Self::JpegWith(opts) => Some(opts),
         }
     }
@@ -89,7 +92,12 @@ pub enum WritableFormat {
 }
 
 impl WritableFormat {
-    pub const ALL: [WritableFormat; 4] = [Self::Crestereo, Self::Kitti2012, Self::Kitti2015, Self::Middlebury];
+    pub const ALL: [WritableFormat; 4] = [
+        Self::Crestereo,
+        Self::Kitti2012,
+        Self::Kitti2015,
+        Self::Middlebury,
+    ];
 
     pub fn dataset_format(self) -> DatasetFormat {
         match self {
@@ -112,26 +120,59 @@ impl FromStr for WritableFormat {
     /// A layout name as [`DatasetFormat`] parses it; `kitti` means KITTI 2015.
     fn from_str(s: &str) -> std::result::Result<Self, String> {
         let names = || Self::ALL.map(|f| f.to_string()).join(", ");
-        let format = if s.eq_ignore_ascii_case("kitti") { DatasetFormat::Kitti2015 } else { s.parse::<DatasetFormat>().map_err(|_| format!("unknown layout {s:?} to write (one of: {})", names()))? };
-        Self::ALL.into_iter().find(|f| f.dataset_format() == format).ok_or_else(|| format!("stereo-io has no writer for the {format} layout (one of: {})", names()))
+        let format = if s.eq_ignore_ascii_case("kitti") {
+            DatasetFormat::Kitti2015
+        } else {
+            s.parse::<DatasetFormat>()
+                .map_err(|_| format!("unknown layout {s:?} to write (one of: {})", names()))?
+        };
+        Self::ALL
+            .into_iter()
+            .find(|f| f.dataset_format() == format)
+            .ok_or_else(|| {
+                format!(
+                    "stereo-io has no writer for the {format} layout (one of: {})",
+                    names()
+                )
+            })
     }
 }
 
 /// A writer of `format` creating its files under `root`.
-pub fn create_writer(format: WritableFormat, root: &Path, images: ImageEncoding) -> Result<Box<dyn DatasetWriter>> {
+pub fn create_writer(
+    format: WritableFormat,
+    root: &Path,
+    images: ImageEncoding,
+) -> Result<Box<dyn DatasetWriter>> {
     if let Some(jpeg) = images.jpeg_options() {
         if format != WritableFormat::Crestereo {
-            return Err(Error::format(root, format!("the {format} layout stores PNG images; JPEG quality applies to crestereo only")));
+            return Err(Error::format(
+                root,
+                format!(
+                    "the {format} layout stores PNG images; JPEG quality applies to crestereo only"
+                ),
+            ));
         }
         if !(1..=100).contains(&jpeg.quality) {
-            return Err(Error::format(root, format!("JPEG quality {} is outside 1..=100", jpeg.quality)));
+            return Err(Error::format(
+                root,
+                format!("JPEG quality {} is outside 1..=100", jpeg.quality),
+            ));
         }
     }
     mkdir(root)?;
     Ok(match format {
-        WritableFormat::Crestereo => Box::new(super::crestereo::CrestereoWriter::new(root, images)?),
-        WritableFormat::Kitti2012 => Box::new(super::kitti::KittiWriter::new(root, super::kitti::KITTI_2012)),
-        WritableFormat::Kitti2015 => Box::new(super::kitti::KittiWriter::new(root, super::kitti::KITTI_2015)),
+        WritableFormat::Crestereo => {
+            Box::new(super::crestereo::CrestereoWriter::new(root, images)?)
+        }
+        WritableFormat::Kitti2012 => Box::new(super::kitti::KittiWriter::new(
+            root,
+            super::kitti::KITTI_2012,
+        )),
+        WritableFormat::Kitti2015 => Box::new(super::kitti::KittiWriter::new(
+            root,
+            super::kitti::KITTI_2015,
+        )),
         WritableFormat::Middlebury => Box::new(super::middlebury::MiddleburyWriter::new(root)),
     })
 }
@@ -144,7 +185,10 @@ pub(crate) fn mkdir(dir: &Path) -> Result<()> {
 pub(crate) fn under(root: &Path, name: &str) -> Result<PathBuf> {
     let rel = Path::new(name);
     if name.is_empty() || !rel.components().all(|c| matches!(c, Component::Normal(_))) {
-        return Err(Error::format(root, format!("sample name {name:?} is not a relative path inside the output")));
+        return Err(Error::format(
+            root,
+            format!("sample name {name:?} is not a relative path inside the output"),
+        ));
     }
     Ok(root.join(rel))
 }
@@ -216,16 +260,31 @@ fn link_or_copy(src: &Path, dst: &Path, summary: &mut WriteSummary) -> Result<()
 
 /// Stores one view's image at `dst`: the source file linked if it is one of `linkable`, else
 /// the pixels encoded as `encoding` says.
-pub(crate) fn place_image(source: &Path, pixels: &RgbImage, dst: &Path, linkable: &[ImageFile], encoding: ImageEncoding, summary: &mut WriteSummary) -> Result<()> {
+pub(crate) fn place_image(
+    source: &Path,
+    pixels: &RgbImage,
+    dst: &Path,
+    linkable: &[ImageFile],
+    encoding: ImageEncoding,
+    summary: &mut WriteSummary,
+) -> Result<()> {
     match encoding {
-        ImageEncoding::Lossless if !source.as_os_str().is_empty() && linkable.contains(&sniff(source)) => link_or_copy(source, dst, summary),
+        ImageEncoding::Lossless
+            if !source.as_os_str().is_empty() && linkable.contains(&sniff(source)) =>
+        {
+            link_or_copy(source, dst, summary)
+        }
         ImageEncoding::Lossless => {
             crate::image_io::write_png_rgb(dst, pixels)?;
             summary.written += 1;
             Ok(())
         }
         ImageEncoding::Jpeg(_) | ImageEncoding::JpegWith(_) => {
-            crate::jpeg::write_jpeg(dst, pixels, encoding.jpeg_options().expect("a JPEG encoding"))?;
+            crate::jpeg::write_jpeg(
+                dst,
+                pixels,
+                encoding.jpeg_options().expect("a JPEG encoding"),
+            )?;
             summary.written += 1;
             Ok(())
         }
@@ -249,7 +308,12 @@ pub(crate) fn representable(map: &DisparityMap, scale: f32) -> (DisparityMap, us
 
 /// The right view's disparity where the sample has one; without, a stale file is removed and the
 /// sample counted.
-pub(crate) fn write_right_disparity(path: &Path, sample: &StereoSample, summary: &mut WriteSummary, write: impl FnOnce(&DisparityMap, &mut WriteSummary) -> Result<()>) -> Result<()> {
+pub(crate) fn write_right_disparity(
+    path: &Path,
+    sample: &StereoSample,
+    summary: &mut WriteSummary,
+    write: impl FnOnce(&DisparityMap, &mut WriteSummary) -> Result<()>,
+) -> Result<()> {
     match &sample.disp_right {
         Some(d) => write(d, summary),
         None => {
@@ -261,7 +325,12 @@ pub(crate) fn write_right_disparity(path: &Path, sample: &StereoSample, summary:
 }
 
 /// Writes a 16-bit disparity PNG, dropping (and counting) what it cannot hold.
-pub(crate) fn write_png16(path: &Path, map: &DisparityMap, scale: f32, summary: &mut WriteSummary) -> Result<()> {
+pub(crate) fn write_png16(
+    path: &Path,
+    map: &DisparityMap,
+    scale: f32,
+    summary: &mut WriteSummary,
+) -> Result<()> {
     let (map, dropped) = representable(map, scale);
     crate::png_disp::write_disparity_png16(path, &map, scale)?;
     summary.dropped_pixels += dropped;
@@ -275,19 +344,43 @@ mod tests {
 
     #[test]
     fn format_names_parse_and_formats_without_writer_are_named() {
-        assert_eq!("kitti".parse::<WritableFormat>(), Ok(WritableFormat::Kitti2015));
-        assert_eq!("KITTI-2015".parse::<WritableFormat>(), Ok(WritableFormat::Kitti2015));
-        assert_eq!("middlebury".parse::<WritableFormat>(), Ok(WritableFormat::Middlebury));
+        assert_eq!(
+            "kitti".parse::<WritableFormat>(),
+            Ok(WritableFormat::Kitti2015)
+        );
+        assert_eq!(
+            "KITTI-2015".parse::<WritableFormat>(),
+            Ok(WritableFormat::Kitti2015)
+        );
+        assert_eq!(
+            "middlebury".parse::<WritableFormat>(),
+            Ok(WritableFormat::Middlebury)
+        );
         let e = "sceneflow".parse::<WritableFormat>().unwrap_err();
-        assert!(e.contains("no writer for the sceneflow layout") && e.contains("crestereo, kitti2012, kitti2015, middlebury"), "{e}");
-        assert_eq!("kitti2012".parse::<WritableFormat>(), Ok(WritableFormat::Kitti2012));
-        assert!("pngs".parse::<WritableFormat>().unwrap_err().contains("unknown layout"));
+        assert!(
+            e.contains("no writer for the sceneflow layout")
+                && e.contains("crestereo, kitti2012, kitti2015, middlebury"),
+            "{e}"
+        );
+        assert_eq!(
+            "kitti2012".parse::<WritableFormat>(),
+            Ok(WritableFormat::Kitti2012)
+        );
+        assert!(
+            "pngs"
+                .parse::<WritableFormat>()
+                .unwrap_err()
+                .contains("unknown layout")
+        );
     }
 
     #[test]
     fn names_cannot_leave_the_output() {
         let root = Path::new("/out");
-        assert_eq!(under(root, "tree/0000001").unwrap(), root.join("tree/0000001"));
+        assert_eq!(
+            under(root, "tree/0000001").unwrap(),
+            root.join("tree/0000001")
+        );
         for bad in ["", "../x", "/etc/x", "a/../../b"] {
             assert!(under(root, bad).is_err(), "{bad}");
         }
@@ -295,7 +388,12 @@ mod tests {
 
     #[test]
     fn unrepresentable_disparities_become_invalid() {
-        let map = DisparityMap { width: 4, height: 1, data: vec![255.99, 256.0, -1.0, 3.0], valid: vec![true, true, true, false] };
+        let map = DisparityMap {
+            width: 4,
+            height: 1,
+            data: vec![255.99, 256.0, -1.0, 3.0],
+            valid: vec![true, true, true, false],
+        };
         let (out, dropped) = representable(&map, 256.0);
         assert_eq!(dropped, 2);
         assert_eq!(out.valid, vec![true, false, false, false]);
@@ -304,8 +402,22 @@ mod tests {
     #[test]
     fn jpeg_quality_is_for_crestereo_only() {
         let dir = tempfile::tempdir().unwrap();
-        let e = create_writer(WritableFormat::Kitti2015, dir.path(), ImageEncoding::Jpeg(90)).err().unwrap().to_string();
+        let e = create_writer(
+            WritableFormat::Kitti2015,
+            dir.path(),
+            ImageEncoding::Jpeg(90),
+        )
+        .err()
+        .unwrap()
+        .to_string();
         assert!(e.contains("crestereo only"), "{e}");
-        assert!(create_writer(WritableFormat::Crestereo, dir.path(), ImageEncoding::Jpeg(0)).is_err());
+        assert!(
+            create_writer(
+                WritableFormat::Crestereo,
+                dir.path(),
+                ImageEncoding::Jpeg(0)
+            )
+            .is_err()
+        );
     }
 }

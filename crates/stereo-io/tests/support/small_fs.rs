@@ -11,7 +11,10 @@ pub struct SmallFs {
 }
 
 fn is_root() -> bool {
-    Command::new("id").arg("-u").output().is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+    Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
 }
 
 fn mount_cmd(sudo: bool, args: &[&str], dir: &Path) -> Command {
@@ -36,14 +39,22 @@ impl SmallFs {
             if !sudo && !is_root() {
                 continue;
             }
-            let out = mount_cmd(sudo, &["mount", "-t", "tmpfs", "-o", &size, "stereogen-test"], dir.path()).output();
+            let out = mount_cmd(
+                sudo,
+                &["mount", "-t", "tmpfs", "-o", &size, "stereogen-test"],
+                dir.path(),
+            )
+            .output();
             match out {
                 Ok(o) if o.status.success() => return Ok(Self { dir, sudo }),
                 Ok(o) => tried.push(String::from_utf8_lossy(&o.stderr).trim().to_string()),
                 Err(e) => tried.push(e.to_string()),
             }
         }
-        Err(format!("cannot mount a {bytes}-byte tmpfs (needs root or passwordless sudo): {}", tried.join("; ")))
+        Err(format!(
+            "cannot mount a {bytes}-byte tmpfs (needs root or passwordless sudo): {}",
+            tried.join("; ")
+        ))
     }
 
     pub fn path(&self) -> &Path {
@@ -52,8 +63,16 @@ impl SmallFs {
 
     /// Bytes still free for files.
     pub fn free(&self) -> u64 {
-        let out = Command::new("df").args(["--output=avail", "-B1"]).arg(self.path()).output().expect("df");
-        String::from_utf8_lossy(&out.stdout).lines().nth(1).and_then(|l| l.trim().parse().ok()).expect("df prints the free bytes")
+        let out = Command::new("df")
+            .args(["--output=avail", "-B1"])
+            .arg(self.path())
+            .output()
+            .expect("df");
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .nth(1)
+            .and_then(|l| l.trim().parse().ok())
+            .expect("df prints the free bytes")
     }
 
     /// Fills the filesystem until `leave` bytes (rounded down to whole pages) are free; returns

@@ -45,7 +45,10 @@ impl Annotation {
     pub fn in_categories(&self, wanted: &[String]) -> bool {
         wanted.is_empty()
             || self.categories.iter().chain(&self.tags).any(|n| {
-                wanted.iter().any(|w| w.eq_ignore_ascii_case(&n.name) || n.slug.as_deref().is_some_and(|s| w.eq_ignore_ascii_case(s)))
+                wanted.iter().any(|w| {
+                    w.eq_ignore_ascii_case(&n.name)
+                        || n.slug.as_deref().is_some_and(|s| w.eq_ignore_ascii_case(s))
+                })
             })
     }
 }
@@ -67,8 +70,11 @@ pub struct ObjectRecord {
 
 pub fn gunzip_json<T: for<'de> Deserialize<'de>>(bytes: &[u8], what: &str) -> anyhow::Result<T> {
     let mut text = Vec::new();
-    flate2::read::GzDecoder::new(bytes).read_to_end(&mut text).with_context(|| format!("{what}: not a gzip file"))?;
-    serde_json::from_slice(&text).with_context(|| format!("{what}: not the JSON Objaverse publishes"))
+    flate2::read::GzDecoder::new(bytes)
+        .read_to_end(&mut text)
+        .with_context(|| format!("{what}: not a gzip file"))?;
+    serde_json::from_slice(&text)
+        .with_context(|| format!("{what}: not the JSON Objaverse publishes"))
 }
 
 /// uid → shard (`000-023`) and path, from `object-paths.json.gz`.

@@ -16,7 +16,11 @@ pub fn normalise(name: &str) -> String {
     {
         s = head.to_string();
     }
-    if s == "cc0-1.0" || s == "zero" { "cc0".into() } else { s }
+    if s == "cc0-1.0" || s == "zero" {
+        "cc0".into()
+    } else {
+        s
+    }
 }
 
 /// Whether a licence forbids commercial use or derivatives (renders are derivatives).
@@ -59,7 +63,10 @@ mod tests {
         assert_eq!(normalise("CC0-1.0"), "cc0");
         assert_eq!(normalise("by-nc-sa"), "by-nc-sa");
         assert!(is_restricted("by-nc") && is_restricted("by-nd") && !is_restricted("by-sa"));
-        assert_eq!(accepted(&["cc0".into(), "cc-by".into()], false).unwrap(), ["cc0", "by"]);
+        assert_eq!(
+            accepted(&["cc0".into(), "cc-by".into()], false).unwrap(),
+            ["cc0", "by"]
+        );
         let err = accepted(&["by-nc".into()], false).unwrap_err().to_string();
         assert!(err.contains("--allow-nc-nd"), "{err}");
         assert_eq!(accepted(&["by-nc".into()], true).unwrap(), ["by-nc"]);

@@ -60,10 +60,18 @@ impl FetchOptions {
 #[derive(Debug, Clone, Copy)]
 pub enum FetchEvent<'a> {
     /// The objects are chosen: `total` to have, `present` of them already there.
-    Selected { total: usize, present: usize },
+    Selected {
+        total: usize,
+        present: usize,
+    },
     Bytes(u64),
-    Done { uid: &'a str },
-    Failed { uid: &'a str, error: &'a str },
+    Done {
+        uid: &'a str,
+    },
+    Failed {
+        uid: &'a str,
+        error: &'a str,
+    },
 }
 
 #[derive(Debug, Clone, Default)]
@@ -80,8 +88,12 @@ pub struct FetchSummary {
 
 fn read_url(agent: &ureq::Agent, url: &str) -> anyhow::Result<Vec<u8>> {
     let mut buf = Vec::new();
-    let resp = agent.get(url).call().map_err(|e| anyhow::anyhow!("cannot fetch {url}: {e}"))?;
-    std::io::Read::read_to_end(&mut resp.into_reader(), &mut buf).with_context(|| format!("cannot fetch {url}"))?;
+    let resp = agent
+        .get(url)
+        .call()
+        .map_err(|e| anyhow::anyhow!("cannot fetch {url}: {e}"))?;
+    std::io::Read::read_to_end(&mut resp.into_reader(), &mut buf)
+        .with_context(|| format!("cannot fetch {url}"))?;
     Ok(buf)
 }
 
@@ -91,7 +103,10 @@ fn index_file(agent: &ureq::Agent, opts: &FetchOptions, rel: &str) -> anyhow::Re
     if let Ok(bytes) = std::fs::read(&cache) {
         return Ok(bytes);
     }
-    let bytes = read_url(agent, &format!("{}/{rel}", opts.base_url.trim_end_matches('/')))?;
+    let bytes = read_url(
+        agent,
+        &format!("{}/{rel}", opts.base_url.trim_end_matches('/')),
+    )?;
     if let Some(dir) = cache.parent() {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -103,7 +118,11 @@ fn index_file(agent: &ureq::Agent, opts: &FetchOptions, rel: &str) -> anyhow::Re
 pub fn check_glb(path: &Path) -> Result<(), String> {
     let mut head = [0u8; 12];
     let len = std::fs::metadata(path).map_err(|e| e.to_string())?.len();
-    std::io::Read::read_exact(&mut std::fs::File::open(path).map_err(|e| e.to_string())?, &mut head).map_err(|_| format!("not a GLB: {len} bytes"))?;
+    std::io::Read::read_exact(
+        &mut std::fs::File::open(path).map_err(|e| e.to_string())?,
+        &mut head,
+    )
+    .map_err(|_| format!("not a GLB: {len} bytes"))?;
     if &head[..4] != b"glTF" {
         return Err("not a GLB: no glTF magic".into());
     }
@@ -113,20 +132,32 @@ pub fn check_glb(path: &Path) -> Result<(), String> {
         return Err(format!("not a GLB 2.0 file: version {version}"));
     }
     if declared != len {
-        return Err(format!("truncated or padded GLB: header says {declared} bytes, the file has {len}"));
+        return Err(format!(
+            "truncated or padded GLB: header says {declared} bytes, the file has {len}"
+        ));
     }
     Ok(())
 }
 
 /// An object already fetched: its GLB matches the checksum its record states.
 fn is_present(out: &Path, uid: &str) -> bool {
-    let Ok(text) = std::fs::read_to_string(out.join(format!("{uid}.json"))) else { return false };
-    let Ok(record) = serde_json::from_str::<ObjectRecord>(&text) else { return false };
-    download::sha256_file(&out.join(format!("{uid}.glb"))).is_ok_and(|(sha, _)| sha == record.sha256)
+    let Ok(text) = std::fs::read_to_string(out.join(format!("{uid}.json"))) else {
+        return false;
+    };
+    let Ok(record) = serde_json::from_str::<ObjectRecord>(&text) else {
+        return false;
+    };
+    download::sha256_file(&out.join(format!("{uid}.glb")))
+        .is_ok_and(|(sha, _)| sha == record.sha256)
 }
 
 /// Picks the first `count` objects, in shard and uid order, whose licence and category pass.
-fn select(agent: &ureq::Agent, opts: &FetchOptions, accepted: &[String], summary: &mut FetchSummary) -> anyhow::Result<Vec<(String, String, Annotation)>> {
+fn select(
+    agent: &ureq::Agent,
+    opts: &FetchOptions,
+    accepted: &[String],
+    summary: &mut FetchSummary,
+) -> anyhow::Result<Vec<(String, String, Annotation)>> {
     let paths = parse_object_paths(&index_file(agent, opts, "object-paths.json.gz")?)?;
     let mut by_shard: BTreeMap<&str, Vec<(&str, &str)>> = BTreeMap::new();
     for (uid, (shard, path)) in &paths {
@@ -138,12 +169,15 @@ fn select(agent: &ureq::Agent, opts: &FetchOptions, accepted: &[String], summary
             break;
         }
         let rel = format!("metadata/{shard}.json.gz");
-        let annotations: BTreeMap<String, Annotation> = gunzip_json(&index_file(agent, opts, &rel)?, &rel)?;
+        let annotations: BTreeMap<String, Annotation> =
+            gunzip_json(&index_file(agent, opts, &rel)?, &rel)?;
         for (uid, path) in objects {
             if chosen.len() >= opts.count {
                 break;
             }
-            let Some(a) = annotations.get(uid) else { continue };
+            let Some(a) = annotations.get(uid) else {
+                continue;
+            };
             let slug = licence::normalise(a.license.as_deref().unwrap_or(""));
             if !accepted.contains(&slug) {
                 summary.skipped_licence += 1;
@@ -159,39 +193,67 @@ fn select(agent: &ureq::Agent, opts: &FetchOptions, accepted: &[String], summary
 
 /// Downloads one object and writes its record; the record is written last, so an object is
 /// either complete or absent.
-fn fetch_one(agent: &ureq::Agent, opts: &FetchOptions, uid: &str, path: &str, a: &Annotation, progress: &(dyn Fn(FetchEvent<'_>) + Sync)) -> Result<(), String> {
+fn fetch_one(
+    agent: &ureq::Agent,
+    opts: &FetchOptions,
+    uid: &str,
+    path: &str,
+    a: &Annotation,
+    progress: &(dyn Fn(FetchEvent<'_>) + Sync),
+) -> Result<(), String> {
     let url = format!("{}/{path}", opts.base_url.trim_end_matches('/'));
     let glb = opts.out.join(format!("{uid}.glb"));
-    let (sha256, bytes) = download::download(agent, &url, &glb, opts.retries, &|n| progress(FetchEvent::Bytes(n)), &check_glb)?;
+    let (sha256, bytes) = download::download(
+        agent,
+        &url,
+        &glb,
+        opts.retries,
+        &|n| progress(FetchEvent::Bytes(n)),
+        &check_glb,
+    )?;
     let record = ObjectRecord {
         uid: uid.to_string(),
         name: a.name.clone(),
         licence: licence::normalise(a.license.as_deref().unwrap_or("")),
-        author: a.user.as_ref().map(|u| u.username.clone()).filter(|u| !u.is_empty()),
+        author: a
+            .user
+            .as_ref()
+            .map(|u| u.username.clone())
+            .filter(|u| !u.is_empty()),
         source: a.viewer_url.clone(),
         url,
         sha256,
         bytes,
     };
     let json = serde_json::to_string_pretty(&record).expect("a record serialises");
-    stereo_io::write_bytes_atomically(&opts.out.join(format!("{uid}.json")), json.as_bytes()).map_err(|e| e.to_string())
+    stereo_io::write_bytes_atomically(&opts.out.join(format!("{uid}.json")), json.as_bytes())
+        .map_err(|e| e.to_string())
 }
 
 /// Fetches `opts.count` objects into `opts.out`. Objects that fail are reported in the summary
 /// (and leave nothing behind); an unreachable or malformed index is an error.
-pub fn fetch(opts: &FetchOptions, progress: &(dyn Fn(FetchEvent<'_>) + Sync)) -> anyhow::Result<FetchSummary> {
+pub fn fetch(
+    opts: &FetchOptions,
+    progress: &(dyn Fn(FetchEvent<'_>) + Sync),
+) -> anyhow::Result<FetchSummary> {
     if opts.count == 0 {
         bail!("--count must be at least 1");
     }
     let accepted = licence::accepted(&opts.licences, opts.allow_restricted)?;
-    std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
+    std::fs::create_dir_all(&opts.out)
+        .with_context(|| format!("cannot create {}", opts.out.display()))?;
     let agent = download::agent(opts.timeout);
     let mut summary = FetchSummary::default();
     let chosen = select(&agent, opts, &accepted, &mut summary)?;
     summary.selected = chosen.len();
-    let (present, todo): (Vec<_>, Vec<_>) = chosen.into_iter().partition(|(uid, _, _)| is_present(&opts.out, uid));
+    let (present, todo): (Vec<_>, Vec<_>) = chosen
+        .into_iter()
+        .partition(|(uid, _, _)| is_present(&opts.out, uid));
     summary.present = present.len();
-    progress(FetchEvent::Selected { total: summary.selected, present: summary.present });
+    progress(FetchEvent::Selected {
+        total: summary.selected,
+        present: summary.present,
+    });
     let queue = Mutex::new(todo.into_iter().collect::<VecDeque<_>>());
     let results = Mutex::new((0usize, Vec::new()));
     std::thread::scope(|s| {
@@ -204,7 +266,10 @@ pub fn fetch(opts: &FetchOptions, progress: &(dyn Fn(FetchEvent<'_>) + Sync)) ->
                             progress(FetchEvent::Done { uid: &uid });
                         }
                         Err(error) => {
-                            progress(FetchEvent::Failed { uid: &uid, error: &error });
+                            progress(FetchEvent::Failed {
+                                uid: &uid,
+                                error: &error,
+                            });
                             results.lock().unwrap().1.push((uid, error));
                         }
                     }

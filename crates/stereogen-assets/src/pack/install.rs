@@ -12,23 +12,34 @@ use std::process::{Command, Stdio};
 use anyhow::{Context, bail};
 use fs4::fs_std::FileExt;
 
-use super::{FILES, PACKAGES, PackIndex, index_file, index_pack, pack_dir, pack_name, requirements, site_dir};
+use super::{
+    FILES, PACKAGES, PackIndex, index_file, index_pack, pack_dir, pack_name, requirements, site_dir,
+};
 
 /// The wheel of `package` in `dir` (`<name>-<version>-*.whl`, the name normalised as wheels
 /// spell it).
 fn find_wheel(dir: &Path, name: &str, version: &str) -> Option<PathBuf> {
     let prefix = format!("{}-{version}-", name.replace('-', "_").to_ascii_lowercase());
-    std::fs::read_dir(dir).ok()?.flatten().map(|e| e.path()).find(|p| {
-        let file = p.file_name().map(|f| f.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-        file.starts_with(&prefix) && file.ends_with(".whl")
-    })
+    std::fs::read_dir(dir)
+        .ok()?
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| {
+            let file = p
+                .file_name()
+                .map(|f| f.to_string_lossy().to_ascii_lowercase())
+                .unwrap_or_default();
+            file.starts_with(&prefix) && file.ends_with(".whl")
+        })
 }
 
 /// Takes the pack's files of package `package` out of its wheel into `site`. Files the wheel
 /// lacks are left out (the index reports them as missing).
 fn extract(wheel: &Path, package: usize, site: &Path) -> anyhow::Result<usize> {
-    let file = std::fs::File::open(wheel).with_context(|| format!("cannot open {}", wheel.display()))?;
-    let mut archive = zip::ZipArchive::new(file).with_context(|| format!("{}: not a wheel (zip) file", wheel.display()))?;
+    let file =
+        std::fs::File::open(wheel).with_context(|| format!("cannot open {}", wheel.display()))?;
+    let mut archive = zip::ZipArchive::new(file)
+        .with_context(|| format!("{}: not a wheel (zip) file", wheel.display()))?;
     let mut n = 0;
     for f in FILES.iter().filter(|f| f.package == package) {
         let Ok(mut entry) = archive.by_name(f.path) else {
@@ -36,10 +47,14 @@ fn extract(wheel: &Path, package: usize, site: &Path) -> anyhow::Result<usize> {
             continue;
         };
         let mut bytes = Vec::with_capacity(entry.size() as usize);
-        entry.read_to_end(&mut bytes).with_context(|| format!("{}: cannot read {}", wheel.display(), f.path))?;
+        entry
+            .read_to_end(&mut bytes)
+            .with_context(|| format!("{}: cannot read {}", wheel.display(), f.path))?;
         let dest = site.join(f.path);
-        std::fs::create_dir_all(dest.parent().expect("pack paths have a folder")).with_context(|| format!("cannot create the folder of {}", dest.display()))?;
-        std::fs::write(&dest, &bytes).with_context(|| format!("cannot write {}", dest.display()))?;
+        std::fs::create_dir_all(dest.parent().expect("pack paths have a folder"))
+            .with_context(|| format!("cannot create the folder of {}", dest.display()))?;
+        std::fs::write(&dest, &bytes)
+            .with_context(|| format!("cannot write {}", dest.display()))?;
         n += 1;
     }
     Ok(n)
@@ -47,7 +62,18 @@ fn extract(wheel: &Path, package: usize, site: &Path) -> anyhow::Result<usize> {
 
 fn download_wheels(python: &Path, dest: &Path) -> anyhow::Result<()> {
     let status = Command::new(python)
-        .args(["-m", "pip", "download", "--no-deps", "--only-binary=:all:", "--disable-pip-version-check", "--no-input", "--progress-bar", "on", "-d"])
+        .args([
+            "-m",
+            "pip",
+            "download",
+            "--no-deps",
+            "--only-binary=:all:",
+            "--disable-pip-version-check",
+            "--no-input",
+            "--progress-bar",
+            "on",
+            "-d",
+        ])
         .arg(dest)
         .args(requirements())
         .stdout(Stdio::inherit())
@@ -55,7 +81,10 @@ fn download_wheels(python: &Path, dest: &Path) -> anyhow::Result<()> {
         .status()
         .with_context(|| format!("cannot run {} -m pip", python.display()))?;
     if !status.success() {
-        bail!("`pip download {}` exited with {status}; nothing was installed, fix the cause and run `stereogen setup` again", requirements().join(" "));
+        bail!(
+            "`pip download {}` exited with {status}; nothing was installed, fix the cause and run `stereogen setup` again",
+            requirements().join(" ")
+        );
     }
     Ok(())
 }
@@ -64,10 +93,13 @@ fn download_wheels(python: &Path, dest: &Path) -> anyhow::Result<()> {
 /// managed Blender environment's), unless it is there already. Returns its index.
 pub fn install_pack(home: &Path, python: &Path) -> anyhow::Result<PackIndex> {
     let content = home.join("content");
-    std::fs::create_dir_all(&content).with_context(|| format!("cannot create {}", content.display()))?;
+    std::fs::create_dir_all(&content)
+        .with_context(|| format!("cannot create {}", content.display()))?;
     let lock_path = content.join(".install.lock");
-    let lock = std::fs::File::create(&lock_path).with_context(|| format!("cannot create {}", lock_path.display()))?;
-    lock.lock_exclusive().with_context(|| format!("cannot lock {}", lock_path.display()))?;
+    let lock = std::fs::File::create(&lock_path)
+        .with_context(|| format!("cannot create {}", lock_path.display()))?;
+    lock.lock_exclusive()
+        .with_context(|| format!("cannot lock {}", lock_path.display()))?;
 
     let dir = pack_dir(home);
     if index_file(&dir).is_file() {
@@ -79,15 +111,28 @@ pub fn install_pack(home: &Path, python: &Path) -> anyhow::Result<PackIndex> {
     let _ = std::fs::remove_dir_all(&tmp);
     let result = (|| {
         let wheels = tmp.join("wheels");
-        std::fs::create_dir_all(&wheels).with_context(|| format!("cannot create {}", wheels.display()))?;
-        eprintln!("stereogen: downloading the content pack ({}) ...", requirements().join(", "));
+        std::fs::create_dir_all(&wheels)
+            .with_context(|| format!("cannot create {}", wheels.display()))?;
+        eprintln!(
+            "stereogen: downloading the content pack ({}) ...",
+            requirements().join(", ")
+        );
         download_wheels(python, &wheels)?;
         for (i, p) in PACKAGES.iter().enumerate() {
-            let wheel = find_wheel(&wheels, p.name, p.version).with_context(|| format!("pip downloaded no wheel of {}=={} into {}", p.name, p.version, wheels.display()))?;
+            let wheel = find_wheel(&wheels, p.name, p.version).with_context(|| {
+                format!(
+                    "pip downloaded no wheel of {}=={} into {}",
+                    p.name,
+                    p.version,
+                    wheels.display()
+                )
+            })?;
             extract(&wheel, i, &site_dir(&tmp))?;
         }
-        std::fs::remove_dir_all(&wheels).with_context(|| format!("cannot remove {}", wheels.display()))?;
-        std::fs::rename(&tmp, &dir).with_context(|| format!("cannot move the pack into {}", dir.display()))
+        std::fs::remove_dir_all(&wheels)
+            .with_context(|| format!("cannot remove {}", wheels.display()))?;
+        std::fs::rename(&tmp, &dir)
+            .with_context(|| format!("cannot move the pack into {}", dir.display()))
     })();
     if result.is_err() {
         let _ = std::fs::remove_dir_all(&tmp);
@@ -105,7 +150,13 @@ pub fn default_pip_python(home: &Path) -> PathBuf {
     if let Some(p) = std::env::var_os("STEREOGEN_PYTHON").filter(|p| !p.is_empty()) {
         return PathBuf::from(p);
     }
-    let managed = std::fs::read_dir(home.join("blender")).into_iter().flatten().flatten().map(|e| e.path().join("bin").join("python")).filter(|p| p.is_file()).max();
+    let managed = std::fs::read_dir(home.join("blender"))
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path().join("bin").join("python"))
+        .filter(|p| p.is_file())
+        .max();
     managed.unwrap_or_else(|| PathBuf::from("python3"))
 }
 
@@ -123,7 +174,10 @@ pub fn ensure_installed(home: &Path) -> anyhow::Result<PathBuf> {
 pub fn installed_index(home: &Path, exclude_licences: &[String]) -> anyhow::Result<PackIndex> {
     let dir = pack_dir(home);
     if !index_file(&dir).is_file() {
-        bail!("the built-in content pack is not installed in {}; run `stereogen setup`", dir.display());
+        bail!(
+            "the built-in content pack is not installed in {}; run `stereogen setup`",
+            dir.display()
+        );
     }
     Ok(index_pack(&dir, exclude_licences))
 }

@@ -26,7 +26,12 @@ pub fn pack_name() -> String {
     for f in FILES {
         h.update(format!("{} {}\n", f.path, f.sha256));
     }
-    let digest: String = h.finalize().iter().take(6).map(|b| format!("{b:02x}")).collect();
+    let digest: String = h
+        .finalize()
+        .iter()
+        .take(6)
+        .map(|b| format!("{b:02x}"))
+        .collect();
     format!("pack-{digest}")
 }
 
@@ -83,7 +88,10 @@ pub struct PackIndex {
 }
 
 fn photo_size(path: &Path) -> Result<[u32; 2], String> {
-    let reader = image::ImageReader::open(path).map_err(|e| e.to_string())?.with_guessed_format().map_err(|e| e.to_string())?;
+    let reader = image::ImageReader::open(path)
+        .map_err(|e| e.to_string())?
+        .with_guessed_format()
+        .map_err(|e| e.to_string())?;
     let (w, h) = reader.into_dimensions().map_err(|e| e.to_string())?;
     if w == 0 || h == 0 {
         return Err("image has no pixels".into());
@@ -95,14 +103,21 @@ fn photo_size(path: &Path) -> Result<[u32; 2], String> {
 fn check(root: &Path, f: &PackFile) -> Result<PackEntry, String> {
     let path = root.join(f.path);
     if !path.is_file() {
-        return Err("missing from the installed pack (run `stereogen setup` to reinstall it)".into());
+        return Err(
+            "missing from the installed pack (run `stereogen setup` to reinstall it)".into(),
+        );
     }
     let (sha256, bytes) = sha256_file(&path).map_err(|e| format!("cannot read it: {e}"))?;
     if sha256 != f.sha256 {
-        return Err(format!("corrupt: SHA-256 {sha256} is not the pinned {} (run `stereogen setup` to reinstall the pack)", f.sha256));
+        return Err(format!(
+            "corrupt: SHA-256 {sha256} is not the pinned {} (run `stereogen setup` to reinstall the pack)",
+            f.sha256
+        ));
     }
     let size = match f.kind {
-        PackKind::Photo => Some(photo_size(&path).map_err(|e| format!("not a readable image: {e}"))?),
+        PackKind::Photo => {
+            Some(photo_size(&path).map_err(|e| format!("not a readable image: {e}"))?)
+        }
         PackKind::Mesh => None,
     };
     let package = &PACKAGES[f.package];
@@ -124,8 +139,19 @@ fn check(root: &Path, f: &PackFile) -> Result<PackEntry, String> {
 /// regard to case). Every pinned file is checked (present, the pinned bytes, a readable image).
 pub fn index_pack(pack_dir: &Path, exclude_licences: &[String]) -> PackIndex {
     let root = site_dir(pack_dir);
-    let excluded_licence = |l: &str| exclude_licences.iter().any(|x| x.trim().eq_ignore_ascii_case(l));
-    let mut index = PackIndex { name: pack_name(), root: root.clone(), entries: Vec::new(), skipped: Vec::new(), excluded: Vec::new(), fingerprint: String::new() };
+    let excluded_licence = |l: &str| {
+        exclude_licences
+            .iter()
+            .any(|x| x.trim().eq_ignore_ascii_case(l))
+    };
+    let mut index = PackIndex {
+        name: pack_name(),
+        root: root.clone(),
+        entries: Vec::new(),
+        skipped: Vec::new(),
+        excluded: Vec::new(),
+        fingerprint: String::new(),
+    };
     for f in FILES {
         if excluded_licence(f.licence) {
             index.excluded.push(f.path.to_string());
@@ -133,24 +159,50 @@ pub fn index_pack(pack_dir: &Path, exclude_licences: &[String]) -> PackIndex {
         }
         match check(&root, f) {
             Ok(entry) => index.entries.push(entry),
-            Err(reason) => index.skipped.push(SkippedAsset { path: root.join(f.path), reason }),
+            Err(reason) => index.skipped.push(SkippedAsset {
+                path: root.join(f.path),
+                reason,
+            }),
         }
     }
     let mut h = Sha256::new();
     for e in &index.entries {
-        h.update(format!("{:?} {} {} {}\n", e.kind, e.file, e.licence, e.sha256));
+        h.update(format!(
+            "{:?} {} {} {}\n",
+            e.kind, e.file, e.licence, e.sha256
+        ));
     }
-    index.fingerprint = h.finalize().iter().take(8).map(|b| format!("{b:02x}")).collect();
+    index.fingerprint = h
+        .finalize()
+        .iter()
+        .take(8)
+        .map(|b| format!("{b:02x}"))
+        .collect();
     index
 }
 
 impl PackIndex {
     pub fn photos(&self) -> Vec<TextureAsset> {
-        self.entries.iter().filter(|e| e.kind == PackKind::Photo).map(|e| TextureAsset { path: e.path.clone(), size: e.size }).collect()
+        self.entries
+            .iter()
+            .filter(|e| e.kind == PackKind::Photo)
+            .map(|e| TextureAsset {
+                path: e.path.clone(),
+                size: e.size,
+            })
+            .collect()
     }
 
     pub fn meshes(&self) -> Vec<MeshAsset> {
-        self.entries.iter().filter(|e| e.kind == PackKind::Mesh).map(|e| MeshAsset { path: e.path.clone(), synset: None, label: None }).collect()
+        self.entries
+            .iter()
+            .filter(|e| e.kind == PackKind::Mesh)
+            .map(|e| MeshAsset {
+                path: e.path.clone(),
+                synset: None,
+                label: None,
+            })
+            .collect()
     }
 
     /// Counts of usable files per (kind, licence).
@@ -177,9 +229,17 @@ mod tests {
             assert!(seen.insert(f.path), "{} listed twice", f.path);
             // No licence that forbids commercial use or derivatives goes into the default pack.
             let l = f.licence.to_ascii_uppercase();
-            assert!(!l.contains("NC") && !l.contains("ND"), "{}: {}", f.path, f.licence);
+            assert!(
+                !l.contains("NC") && !l.contains("ND"),
+                "{}: {}",
+                f.path,
+                f.licence
+            );
         }
-        assert!(FILES.iter().any(|f| f.kind == PackKind::Photo) && FILES.iter().any(|f| f.kind == PackKind::Mesh));
+        assert!(
+            FILES.iter().any(|f| f.kind == PackKind::Photo)
+                && FILES.iter().any(|f| f.kind == PackKind::Mesh)
+        );
     }
 
     #[test]
@@ -193,9 +253,20 @@ mod tests {
         let index = index_pack(dir.path(), &[]);
         assert!(index.entries.is_empty());
         assert_eq!(index.skipped.len(), FILES.len());
-        assert!(index.skipped[0].reason.starts_with("corrupt: SHA-256"), "{}", index.skipped[0].reason);
-        assert!(index.skipped[1].reason.starts_with("missing"), "{}", index.skipped[1].reason);
+        assert!(
+            index.skipped[0].reason.starts_with("corrupt: SHA-256"),
+            "{}",
+            index.skipped[0].reason
+        );
+        assert!(
+            index.skipped[1].reason.starts_with("missing"),
+            "{}",
+            index.skipped[1].reason
+        );
         let excluded = index_pack(dir.path(), &["cc-by-4.0".into()]);
-        assert_eq!(excluded.excluded, vec!["pyvista/examples/2k_earth_daymap.jpg".to_string()]);
+        assert_eq!(
+            excluded.excluded,
+            vec!["pyvista/examples/2k_earth_daymap.jpg".to_string()]
+        );
     }
 }

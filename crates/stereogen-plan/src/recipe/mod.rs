@@ -81,12 +81,25 @@ pub const DEFAULT_PRESET: &str = "crestereo";
 
 #[derive(Debug, thiserror::Error)]
 pub enum RecipeError {
-    #[error("cannot read recipe {path}: {source} (built-in presets: crestereo, shapenet, tree, hole, reflective)")]
-    Read { path: String, source: std::io::Error },
+    #[error(
+        "cannot read recipe {path}: {source} (built-in presets: crestereo, shapenet, tree, hole, reflective)"
+    )]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("recipe {source_name}: {message}{location}")]
-    Parse { source_name: String, message: String, location: String },
+    Parse {
+        source_name: String,
+        message: String,
+        location: String,
+    },
     #[error("recipe {source_name}: key `{key}` is invalid: {allowed}")]
-    Invalid { source_name: String, key: String, allowed: String },
+    Invalid {
+        source_name: String,
+        key: String,
+        allowed: String,
+    },
 }
 
 /// Where shapes come from.
@@ -133,10 +146,16 @@ pub struct CameraRecipe {
     pub sensor_width_mm: f64,
     pub baseline_m: Dist,
     /// Near clipping plane as a fraction of the nearest depth the disparity law allows.
-    #[serde(default = "default::clip_start_factor", skip_serializing_if = "is_default::clip_start_factor")]
+    #[serde(
+        default = "default::clip_start_factor",
+        skip_serializing_if = "is_default::clip_start_factor"
+    )]
     pub clip_start_factor: f64,
     /// Far clipping plane as a multiple of the back wall's depth.
-    #[serde(default = "default::clip_end_factor", skip_serializing_if = "is_default::clip_end_factor")]
+    #[serde(
+        default = "default::clip_end_factor",
+        skip_serializing_if = "is_default::clip_end_factor"
+    )]
     pub clip_end_factor: f64,
 }
 
@@ -162,7 +181,10 @@ pub struct PlacementRecipe {
     /// Disparity of the textured back wall (px); must stay below the law's minimum.
     pub background_disparity_px: Dist,
     /// Size of the back wall relative to the region both views see at its depth.
-    #[serde(default = "default::background_oversize", skip_serializing_if = "is_default::background_oversize")]
+    #[serde(
+        default = "default::background_oversize",
+        skip_serializing_if = "is_default::background_oversize"
+    )]
     pub background_oversize: f64,
 }
 
@@ -181,38 +203,74 @@ pub struct LightsRecipe {
     pub temperature_k: Dist,
     pub world_strength: Dist,
     /// Lights sit at depths from `near_factor` × the nearest depth the law allows ...
-    #[serde(default = "default::light_near_factor", skip_serializing_if = "is_default::light_near_factor")]
+    #[serde(
+        default = "default::light_near_factor",
+        skip_serializing_if = "is_default::light_near_factor"
+    )]
     pub near_factor: f64,
     /// ... to `far_factor` × the back wall's depth.
-    #[serde(default = "default::light_far_factor", skip_serializing_if = "is_default::light_far_factor")]
+    #[serde(
+        default = "default::light_far_factor",
+        skip_serializing_if = "is_default::light_far_factor"
+    )]
     pub far_factor: f64,
     /// Where a light sits across the view, as a fraction of the image width and height
     /// (outside 0..1: beside the view, lighting it from the side).
-    #[serde(default = "default::light_image_position", skip_serializing_if = "is_default::light_image_position")]
+    #[serde(
+        default = "default::light_image_position",
+        skip_serializing_if = "is_default::light_image_position"
+    )]
     pub image_position: UniformRange,
     /// Each channel of a light colour that is not a blackbody.
-    #[serde(default = "default::light_color_channel", skip_serializing_if = "is_default::light_color_channel")]
+    #[serde(
+        default = "default::light_color_channel",
+        skip_serializing_if = "is_default::light_color_channel"
+    )]
     pub color_channel: UniformRange,
     /// Radius of point and spot lights (soft shadows) per metre of depth.
-    #[serde(default = "default::light_radius_factor", skip_serializing_if = "is_default::light_radius_factor")]
+    #[serde(
+        default = "default::light_radius_factor",
+        skip_serializing_if = "is_default::light_radius_factor"
+    )]
     pub radius_factor: f64,
     /// Side of area lights per metre of depth.
-    #[serde(default = "default::light_area_size_factor", skip_serializing_if = "is_default::light_area_size_factor")]
+    #[serde(
+        default = "default::light_area_size_factor",
+        skip_serializing_if = "is_default::light_area_size_factor"
+    )]
     pub area_size_factor: UniformRange,
     /// Full cone angle of spot lights (radians).
-    #[serde(default = "default::light_spot_size_rad", skip_serializing_if = "is_default::light_spot_size_rad")]
+    #[serde(
+        default = "default::light_spot_size_rad",
+        skip_serializing_if = "is_default::light_spot_size_rad"
+    )]
     pub spot_size_rad: UniformRange,
-    #[serde(default = "default::light_spot_blend", skip_serializing_if = "is_default::light_spot_blend")]
+    #[serde(
+        default = "default::light_spot_blend",
+        skip_serializing_if = "is_default::light_spot_blend"
+    )]
     pub spot_blend: UniformRange,
     /// Tilt of directed lights away from the view direction, about X and Y (radians).
-    #[serde(default = "default::light_tilt_rad", skip_serializing_if = "is_default::light_tilt_rad")]
+    #[serde(
+        default = "default::light_tilt_rad",
+        skip_serializing_if = "is_default::light_tilt_rad"
+    )]
     pub tilt_rad: UniformRange,
     /// World colour: grey level, then green and blue as fractions of it.
-    #[serde(default = "default::world_grey", skip_serializing_if = "is_default::world_grey")]
+    #[serde(
+        default = "default::world_grey",
+        skip_serializing_if = "is_default::world_grey"
+    )]
     pub world_grey: UniformRange,
-    #[serde(default = "default::world_green_ratio", skip_serializing_if = "is_default::world_green_ratio")]
+    #[serde(
+        default = "default::world_green_ratio",
+        skip_serializing_if = "is_default::world_green_ratio"
+    )]
     pub world_green_ratio: UniformRange,
-    #[serde(default = "default::world_blue_ratio", skip_serializing_if = "is_default::world_blue_ratio")]
+    #[serde(
+        default = "default::world_blue_ratio",
+        skip_serializing_if = "is_default::world_blue_ratio"
+    )]
     pub world_blue_ratio: UniformRange,
 }
 
@@ -243,20 +301,32 @@ pub struct SourcesRecipe {
     /// Meshes with more triangles are skipped.
     pub max_triangles: u64,
     /// Mesh files drawn per object: the worker falls back along them when one fails to load.
-    #[serde(default = "default::mesh_candidates", skip_serializing_if = "is_default::mesh_candidates")]
+    #[serde(
+        default = "default::mesh_candidates",
+        skip_serializing_if = "is_default::mesh_candidates"
+    )]
     pub mesh_candidates: u32,
     /// Use the built-in content pack (real photos and meshes installed by `stereogen setup` from
     /// PyPI wheels): its photos texture surfaces when `textures` is unset, its meshes stand in for
     /// `shapenet`/`meshes` when those are unset. Off: procedural textures and primitives only.
-    #[serde(default = "default::builtin_pack", skip_serializing_if = "is_default::builtin_pack")]
+    #[serde(
+        default = "default::builtin_pack",
+        skip_serializing_if = "is_default::builtin_pack"
+    )]
     pub builtin_pack: bool,
     /// Licences of the built-in pack to leave out, as `stereogen assets list` names them
     /// (e.g. `["CC-BY-4.0"]`).
-    #[serde(default = "default::exclude_licences", skip_serializing_if = "is_default::exclude_licences")]
+    #[serde(
+        default = "default::exclude_licences",
+        skip_serializing_if = "is_default::exclude_licences"
+    )]
     pub exclude_licences: Vec<String>,
     /// Share of `shapenet`/`meshes` draws that the pack's meshes serve when no folder is given;
     /// the rest are varied primitives.
-    #[serde(default = "default::pack_mesh_share", skip_serializing_if = "is_default::pack_mesh_share")]
+    #[serde(
+        default = "default::pack_mesh_share",
+        skip_serializing_if = "is_default::pack_mesh_share"
+    )]
     pub pack_mesh_share: f64,
 }
 
@@ -292,12 +362,21 @@ pub struct TreeRecipe {
     /// Leaf length relative to tree height.
     pub leaf_size: Dist,
     /// Leaf colour, per channel (red, green, blue).
-    #[serde(default = "default::leaf_rgb", skip_serializing_if = "is_default::leaf_rgb")]
+    #[serde(
+        default = "default::leaf_rgb",
+        skip_serializing_if = "is_default::leaf_rgb"
+    )]
     pub leaf_rgb: [UniformRange; 3],
-    #[serde(default = "default::leaf_roughness", skip_serializing_if = "is_default::leaf_roughness")]
+    #[serde(
+        default = "default::leaf_roughness",
+        skip_serializing_if = "is_default::leaf_roughness"
+    )]
     pub leaf_roughness: f64,
     /// Lean of a tree from upright, about X and Z (radians).
-    #[serde(default = "default::tree_lean_rad", skip_serializing_if = "is_default::tree_lean_rad")]
+    #[serde(
+        default = "default::tree_lean_rad",
+        skip_serializing_if = "is_default::tree_lean_rad"
+    )]
     pub lean_rad: UniformRange,
 }
 
@@ -324,33 +403,63 @@ pub struct MaterialRecipe {
     pub background: BTreeMap<MaterialClass, f64>,
     /// The back wall's `texture_scale` is clamped to [min, max]: it is large, and many repeats
     /// would turn its texture into noise.
-    #[serde(default = "default::background_texture_scale", skip_serializing_if = "is_default::background_texture_scale")]
+    #[serde(
+        default = "default::background_texture_scale",
+        skip_serializing_if = "is_default::background_texture_scale"
+    )]
     pub background_texture_scale: [f64; 2],
     /// Detail of procedural textures (Blender's noise detail).
-    #[serde(default = "default::procedural_detail", skip_serializing_if = "is_default::procedural_detail")]
+    #[serde(
+        default = "default::procedural_detail",
+        skip_serializing_if = "is_default::procedural_detail"
+    )]
     pub procedural_detail: UniformRange,
     /// Probability that a glossy surface is textured rather than flat.
-    #[serde(default = "default::glossy_textured_probability", skip_serializing_if = "is_default::glossy_textured_probability")]
+    #[serde(
+        default = "default::glossy_textured_probability",
+        skip_serializing_if = "is_default::glossy_textured_probability"
+    )]
     pub glossy_textured_probability: f64,
-    #[serde(default = "default::glossy_roughness", skip_serializing_if = "is_default::glossy_roughness")]
+    #[serde(
+        default = "default::glossy_roughness",
+        skip_serializing_if = "is_default::glossy_roughness"
+    )]
     pub glossy_roughness: UniformRange,
-    #[serde(default = "default::metallic_roughness", skip_serializing_if = "is_default::metallic_roughness")]
+    #[serde(
+        default = "default::metallic_roughness",
+        skip_serializing_if = "is_default::metallic_roughness"
+    )]
     pub metallic_roughness: UniformRange,
     /// Each channel of a metal's tint.
-    #[serde(default = "default::metallic_tint", skip_serializing_if = "is_default::metallic_tint")]
+    #[serde(
+        default = "default::metallic_tint",
+        skip_serializing_if = "is_default::metallic_tint"
+    )]
     pub metallic_tint: UniformRange,
-    #[serde(default = "default::glass_roughness", skip_serializing_if = "is_default::glass_roughness")]
+    #[serde(
+        default = "default::glass_roughness",
+        skip_serializing_if = "is_default::glass_roughness"
+    )]
     pub glass_roughness: UniformRange,
     /// Each channel of a glass's tint.
-    #[serde(default = "default::glass_tint", skip_serializing_if = "is_default::glass_tint")]
+    #[serde(
+        default = "default::glass_tint",
+        skip_serializing_if = "is_default::glass_tint"
+    )]
     pub glass_tint: UniformRange,
     /// Share of textured surfaces that keep a procedural texture when photos are available.
-    #[serde(default = "default::procedural_share", skip_serializing_if = "is_default::procedural_share")]
+    #[serde(
+        default = "default::procedural_share",
+        skip_serializing_if = "is_default::procedural_share"
+    )]
     pub procedural_share: f64,
     /// Screen pixels per photo pixel allowed, [min, max]: above max a photo is tiled more often
     /// (no blurry, stretched photos), below min the worker uses a downsampled copy (no moiré).
     /// Unset: photos keep the drawn repeats at full resolution.
-    #[serde(default = "default::photo_texel_px", skip_serializing_if = "is_default::photo_texel_px")]
+    #[serde(
+        default = "default::photo_texel_px",
+        skip_serializing_if = "is_default::photo_texel_px"
+    )]
     pub photo_texel_px: Option<[f64; 2]>,
 }
 
@@ -379,7 +488,8 @@ impl Recipe {
     /// A built-in preset by name.
     pub fn preset(name: &str) -> Option<Self> {
         PRESETS.iter().find(|(n, _)| *n == name).map(|(n, text)| {
-            Self::from_toml_str(text, &format!("<preset {n}>")).unwrap_or_else(|e| panic!("built-in preset {n} is invalid: {e}"))
+            Self::from_toml_str(text, &format!("<preset {n}>"))
+                .unwrap_or_else(|e| panic!("built-in preset {n} is invalid: {e}"))
         })
     }
 
@@ -394,7 +504,10 @@ impl Recipe {
     }
 
     pub fn load(path: &Path) -> Result<Self, RecipeError> {
-        let text = std::fs::read_to_string(path).map_err(|source| RecipeError::Read { path: path.display().to_string(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| RecipeError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
         Self::from_toml_str(&text, &path.display().to_string())
     }
 
@@ -418,7 +531,11 @@ impl Recipe {
     /// A digest of the resolved recipe: datasets remember it so a resumed run cannot mix recipes.
     pub fn fingerprint(&self) -> String {
         let json = serde_json::to_string(self).expect("a Recipe always serialises");
-        Sha256::digest(json.as_bytes()).iter().take(8).map(|b| format!("{b:02x}")).collect()
+        Sha256::digest(json.as_bytes())
+            .iter()
+            .take(8)
+            .map(|b| format!("{b:02x}"))
+            .collect()
     }
 
     pub fn category(&self, name: &str) -> Option<&CategoryRecipe> {
@@ -449,68 +566,166 @@ mod tests {
     #[test]
     fn unknown_key_is_named_with_its_line() {
         let text = default_text().replace("[render]", "[render]\nspp = 3");
-        let err = Recipe::from_toml_str(&text, "x.toml").unwrap_err().to_string();
-        assert!(err.contains("unknown field `spp`") && err.contains("line"), "{err}");
+        let err = Recipe::from_toml_str(&text, "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("unknown field `spp`") && err.contains("line"),
+            "{err}"
+        );
         assert!(!err.contains('\n'), "{err}");
     }
 
     #[test]
     fn missing_key_is_named() {
         let text = default_text().replace("samples = ", "# samples = ");
-        let err = Recipe::from_toml_str(&text, "x.toml").unwrap_err().to_string();
+        let err = Recipe::from_toml_str(&text, "x.toml")
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("missing field `samples`"), "{err}");
     }
 
     #[test]
     fn bad_distribution_is_named() {
-        let text = default_text().replace("focal_mm = { dist = \"uniform\"", "focal_mm = { dist = \"cauchy\"");
-        let err = Recipe::from_toml_str(&text, "x.toml").unwrap_err().to_string();
+        let text = default_text().replace(
+            "focal_mm = { dist = \"uniform\"",
+            "focal_mm = { dist = \"cauchy\"",
+        );
+        let err = Recipe::from_toml_str(&text, "x.toml")
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("unknown variant `cauchy`"), "{err}");
     }
 
     #[test]
     fn out_of_range_values_name_key_and_bounds() {
-        let err = Recipe::from_toml_str(&default_text().replace("width = 960", "width = 4"), "x.toml").unwrap_err().to_string();
-        assert!(err.contains("camera.width") && err.contains("16..=16384"), "{err}");
-        let err = Recipe::from_toml_str(&default_text().replace("boolean_probability = 0.25", "boolean_probability = 1.5"), "x.toml").unwrap_err().to_string();
+        let err = Recipe::from_toml_str(
+            &default_text().replace("width = 960", "width = 4"),
+            "x.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("camera.width") && err.contains("16..=16384"),
+            "{err}"
+        );
+        let err = Recipe::from_toml_str(
+            &default_text().replace("boolean_probability = 0.25", "boolean_probability = 1.5"),
+            "x.toml",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("primitives.boolean_probability"), "{err}");
         // A bound derived from the width prints as the number a person would write.
-        let err = Recipe::from_toml_str(&default_text().replace("width = 960", "width = 96"), "x.toml").unwrap_err().to_string();
-        assert!(err.contains("placement.disparity_px") && err.contains("76.8") && !err.contains("76.80000"), "{err}");
+        let err = Recipe::from_toml_str(
+            &default_text().replace("width = 960", "width = 96"),
+            "x.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("placement.disparity_px")
+                && err.contains("76.8")
+                && !err.contains("76.80000"),
+            "{err}"
+        );
     }
 
     /// A preset with the keys of `added_keys!` removed: what recipes written before them look like.
     fn without_added_keys(text: &str) -> String {
-        let added = ["clip_start_factor", "clip_end_factor", "background_oversize", "mesh_candidates", "near_factor", "far_factor", "image_position", "color_channel",
-            "radius_factor", "area_size_factor", "spot_size_rad", "spot_blend", "tilt_rad", "world_grey", "world_green_ratio", "world_blue_ratio", "leaf_rgb",
-            "leaf_roughness", "lean_rad", "background_texture_scale", "procedural_detail", "glossy_textured_probability", "glossy_roughness", "metallic_roughness",
-            "metallic_tint", "glass_roughness", "glass_tint", "exclude_licences", "pack_mesh_share"];
-        text.lines().filter(|l| !added.iter().any(|k| l.trim_start().starts_with(&format!("{k} =")))).collect::<Vec<_>>().join("\n")
+        let added = [
+            "clip_start_factor",
+            "clip_end_factor",
+            "background_oversize",
+            "mesh_candidates",
+            "near_factor",
+            "far_factor",
+            "image_position",
+            "color_channel",
+            "radius_factor",
+            "area_size_factor",
+            "spot_size_rad",
+            "spot_blend",
+            "tilt_rad",
+            "world_grey",
+            "world_green_ratio",
+            "world_blue_ratio",
+            "leaf_rgb",
+            "leaf_roughness",
+            "lean_rad",
+            "background_texture_scale",
+            "procedural_detail",
+            "glossy_textured_probability",
+            "glossy_roughness",
+            "metallic_roughness",
+            "metallic_tint",
+            "glass_roughness",
+            "glass_tint",
+            "exclude_licences",
+            "pack_mesh_share",
+        ];
+        text.lines()
+            .filter(|l| {
+                !added
+                    .iter()
+                    .any(|k| l.trim_start().starts_with(&format!("{k} =")))
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
     }
 
     #[test]
     fn recipes_without_the_added_keys_read_as_the_presets_and_keep_their_fingerprint() {
         for (name, text) in PRESETS {
             let old = without_added_keys(text);
-            assert_ne!(old.len(), text.len(), "{name}: the preset states the added keys");
+            assert_ne!(
+                old.len(),
+                text.len(),
+                "{name}: the preset states the added keys"
+            );
             let old = Recipe::from_toml_str(&old, name).unwrap();
             let preset = Recipe::preset(name).unwrap();
             assert_eq!(old, preset, "{name}");
             // Defaults are not serialised, so the fingerprint is the one of the recipe before the keys existed.
             let json = serde_json::to_string(&preset).unwrap();
-            assert!(!json.contains("clip_end_factor") && !json.contains("leaf_rgb"), "{json}");
+            assert!(
+                !json.contains("clip_end_factor") && !json.contains("leaf_rgb"),
+                "{json}"
+            );
         }
     }
 
     #[test]
     fn added_keys_are_checked_and_named() {
-        let err = Recipe::from_toml_str(&default_text().replace("color_channel = [0.2, 1.0]", "color_channel = [0.2, 1.5]"), "x.toml").unwrap_err().to_string();
-        assert!(err.contains("lights.color_channel") && err.contains("1.5"), "{err}");
-        let err = Recipe::from_toml_str(&default_text().replace("clip_end_factor = 2.0", "clip_end_factor = 0.5"), "x.toml").unwrap_err().to_string();
+        let err = Recipe::from_toml_str(
+            &default_text().replace("color_channel = [0.2, 1.0]", "color_channel = [0.2, 1.5]"),
+            "x.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("lights.color_channel") && err.contains("1.5"),
+            "{err}"
+        );
+        let err = Recipe::from_toml_str(
+            &default_text().replace("clip_end_factor = 2.0", "clip_end_factor = 0.5"),
+            "x.toml",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("camera.clip_end_factor"), "{err}");
-        let err = Recipe::from_toml_str(&default_text().replace("mesh_candidates = 3", "mesh_candidates = 0"), "x.toml").unwrap_err().to_string();
+        let err = Recipe::from_toml_str(
+            &default_text().replace("mesh_candidates = 3", "mesh_candidates = 0"),
+            "x.toml",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("sources.mesh_candidates"), "{err}");
-        let set = Recipe::from_toml_str(&default_text().replace("background_oversize = 1.15", "background_oversize = 1.5"), "x.toml").unwrap();
+        let set = Recipe::from_toml_str(
+            &default_text().replace("background_oversize = 1.15", "background_oversize = 1.5"),
+            "x.toml",
+        )
+        .unwrap();
         assert_ne!(set.fingerprint(), Recipe::builtin_default().fingerprint());
     }
 }

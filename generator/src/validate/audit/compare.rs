@@ -34,7 +34,12 @@ impl Camera<'_> {
     /// The first surface through image position (u, v) of `view`; `t` is the planar depth.
     fn hit(&self, scene: &RayScene, view: View, u: f64, v: f64) -> Option<Hit> {
         let origin = [self.rig.camera_x(view), 0.0, 0.0];
-        scene.first_hit(origin, self.rig.ray_direction(u, v), self.clip_start, self.clip_end)
+        scene.first_hit(
+            origin,
+            self.rig.ray_direction(u, v),
+            self.clip_start,
+            self.clip_end,
+        )
     }
 
     fn disparity(&self, h: Option<Hit>) -> Option<f64> {
@@ -51,7 +56,20 @@ struct Centres {
 
 impl Centres {
     fn compute(cam: &Camera, scene: &RayScene, view: View, width: usize, needed: &[bool]) -> Self {
-        let hits = needed.par_iter().enumerate().map(|(i, &n)| n.then(|| cam.hit(scene, view, (i % width) as f64 + 0.5, (i / width) as f64 + 0.5))).collect();
+        let hits = needed
+            .par_iter()
+            .enumerate()
+            .map(|(i, &n)| {
+                n.then(|| {
+                    cam.hit(
+                        scene,
+                        view,
+                        (i % width) as f64 + 0.5,
+                        (i / width) as f64 + 0.5,
+                    )
+                })
+            })
+            .collect();
         Self { width, hits }
     }
 
@@ -116,17 +134,26 @@ impl SampleCheck<'_> {
             let (x, y) = (i % w, i / w);
             mark_neighbourhood(&mut needed[0], w, h, x, y);
             mark_neighbourhood(&mut needed[1], w, h, x, y);
-            if let Some((x0, x1, _)) = rendered(self.left, x, y).and_then(|d| right_partners(x, d, w)) {
+            if let Some((x0, x1, _)) =
+                rendered(self.left, x, y).and_then(|d| right_partners(x, d, w))
+            {
                 needed[1][y * w + x0] = true;
                 needed[1][y * w + x1] = true;
             }
         }
         let left = Centres::compute(&self.camera, self.scene, View::Left, w, &needed[0]);
         let right = Centres::compute(&self.camera, self.scene, View::Right, w, &needed[1]);
-        let views = [(View::Left, self.left, &left), (View::Right, self.right, &right)];
+        let views = [
+            (View::Left, self.left, &left),
+            (View::Right, self.right, &right),
+        ];
         let (tally, mut worst) = pixels
             .par_iter()
-            .flat_map_iter(|&i| views.iter().map(move |&(view, map, centres)| (i, view, map, centres)))
+            .flat_map_iter(|&i| {
+                views
+                    .iter()
+                    .map(move |&(view, map, centres)| (i, view, map, centres))
+            })
             .map(|(i, view, map, centres)| self.pixel(view, map, centres, &right, i % w, i / w))
             .fold(
                 || (Tally::default(), Vec::new()),
@@ -152,12 +179,21 @@ impl SampleCheck<'_> {
     }
 
     /// One pixel of one view.
-    fn pixel(&self, view: View, map: &DisparityMap, centres: &Centres, right: &Centres, x: usize, y: usize) -> Outcome {
+    fn pixel(
+        &self,
+        view: View,
+        map: &DisparityMap,
+        centres: &Centres,
+        right: &Centres,
+        x: usize,
+        y: usize,
+    ) -> Outcome {
         let cam = &self.camera;
         let (u, v) = (x as f64 + 0.5, y as f64 + 0.5);
         let centre = centres.at(x, y);
         let o = SILHOUETTE_OFFSET_PX;
-        let around = [(-o, 0.0), (o, 0.0), (0.0, -o), (0.0, o)].map(|(du, dv)| cam.hit(self.scene, view, u + du, v + dv));
+        let around = [(-o, 0.0), (o, 0.0), (0.0, -o), (0.0, o)]
+            .map(|(du, dv)| cam.hit(self.scene, view, u + du, v + dv));
         let value = rendered(map, x, y);
         let expected = cam.disparity(centre);
         let mut out = Outcome::default();
@@ -178,7 +214,10 @@ impl SampleCheck<'_> {
             (Some(d), Some(e)) => (d - e).abs() / o > GRAZING_GRADIENT,
             _ => false,
         });
-        let silhouette = steep || around.iter().any(|a| a.map(|h| h.object) != centre.map(|h| h.object));
+        let silhouette = steep
+            || around
+                .iter()
+                .any(|a| a.map(|h| h.object) != centre.map(|h| h.object));
         if silhouette {
             out.tally.silhouette = 1;
             let matches = |h: &Option<Hit>| match (value, cam.disparity(*h)) {
@@ -186,7 +225,8 @@ impl SampleCheck<'_> {
                 (None, None) => true,
                 _ => false,
             };
-            out.tally.silhouette_disagree = u64::from(!matches(&centre) && !around.iter().any(matches));
+            out.tally.silhouette_disagree =
+                u64::from(!matches(&centre) && !around.iter().any(matches));
         } else {
             let (error, validity) = match (value, expected) {
                 (Some(r), Some(e)) => ((f64::from(r) - e).abs(), false),
@@ -198,7 +238,14 @@ impl SampleCheck<'_> {
             // Every non-zero error is a candidate for the worst list, so it names the largest
             // errors of a sound dataset too, not only those beyond the tolerance.
             if validity || error > 0.0 {
-                out.issue = Some(issue(if validity { IssueKind::Validity } else { IssueKind::Value }, error));
+                out.issue = Some(issue(
+                    if validity {
+                        IssueKind::Validity
+                    } else {
+                        IssueKind::Value
+                    },
+                    error,
+                ));
             }
             if view == View::Left
                 && let (Some(r), Some(c)) = (value, centre)
@@ -220,10 +267,20 @@ impl SampleCheck<'_> {
 
     /// Whether value `r` lies between the surfaces ray casting sees at the pixel (centre and the
     /// rays around it) and at its 8 neighbours' centres, on none of them. Background counts as 0.
-    fn flying(&self, centres: &Centres, around: &[Option<Hit>; 4], x: usize, y: usize, r: f64) -> bool {
+    fn flying(
+        &self,
+        centres: &Centres,
+        around: &[Option<Hit>; 4],
+        x: usize,
+        y: usize,
+        r: f64,
+    ) -> bool {
         let (w, h) = (self.left.width, self.left.height);
         let cam = &self.camera;
-        let mut seen: Vec<f64> = around.iter().map(|a| cam.disparity(*a).unwrap_or(0.0)).collect();
+        let mut seen: Vec<f64> = around
+            .iter()
+            .map(|a| cam.disparity(*a).unwrap_or(0.0))
+            .collect();
         for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
             for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
                 seen.push(cam.disparity(centres.at(nx, ny)).unwrap_or(0.0));
@@ -237,7 +294,14 @@ impl SampleCheck<'_> {
 
     /// |d_R(x − d_L) − d_L| for an interior left pixel whose point the right camera sees and whose
     /// two right neighbours show the same object (bilinear along the row); `None` when not checked.
-    fn left_right(&self, right: &Centres, x: usize, y: usize, d_left: f32, centre: Hit) -> Option<f64> {
+    fn left_right(
+        &self,
+        right: &Centres,
+        x: usize,
+        y: usize,
+        d_left: f32,
+        centre: Hit,
+    ) -> Option<f64> {
         let rig = self.camera.rig;
         let (u, v) = (x as f64 + 0.5, y as f64 + 0.5);
         let point = rig.unproject_left(u, v, centre.t);

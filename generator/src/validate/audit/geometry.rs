@@ -97,13 +97,28 @@ pub struct SceneGeometry {
 }
 
 /// A little-endian array of `n` records of `width` values each.
-fn values<const W: usize, T: Copy + Default>(payload: &[u8], r: &ArrayRef, n: usize, decode: impl Fn(&[u8]) -> T, what: &str) -> anyhow::Result<Vec<[T; W]>> {
+fn values<const W: usize, T: Copy + Default>(
+    payload: &[u8],
+    r: &ArrayRef,
+    n: usize,
+    decode: impl Fn(&[u8]) -> T,
+    what: &str,
+) -> anyhow::Result<Vec<[T; W]>> {
     let size = std::mem::size_of::<T>();
     if r.bytes != n * W * size {
-        bail!("{what}: {} bytes, expected {} for {n} records", r.bytes, n * W * size);
+        bail!(
+            "{what}: {} bytes, expected {} for {n} records",
+            r.bytes,
+            n * W * size
+        );
     }
-    let bytes = payload.get(r.offset..r.offset + r.bytes).with_context(|| format!("{what}: lies beyond the end of the file"))?;
-    Ok(bytes.chunks_exact(W * size).map(|rec| std::array::from_fn(|k| decode(&rec[k * size..(k + 1) * size]))).collect())
+    let bytes = payload
+        .get(r.offset..r.offset + r.bytes)
+        .with_context(|| format!("{what}: lies beyond the end of the file"))?;
+    Ok(bytes
+        .chunks_exact(W * size)
+        .map(|rec| std::array::from_fn(|k| decode(&rec[k * size..(k + 1) * size])))
+        .collect())
 }
 
 fn f64_le(b: &[u8]) -> f64 {
@@ -117,25 +132,61 @@ fn u32_le(b: &[u8]) -> u32 {
 /// Splits the file into its header and payload.
 fn split(bytes: &[u8]) -> anyhow::Result<(Header, &[u8])> {
     if bytes.len() < 16 || &bytes[..8] != MAGIC {
-        bail!("not a stereogen geometry file (no {:?} magic)", std::str::from_utf8(MAGIC).unwrap_or_default());
+        bail!(
+            "not a stereogen geometry file (no {:?} magic)",
+            std::str::from_utf8(MAGIC).unwrap_or_default()
+        );
     }
     let len = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes")) as usize;
     let head = bytes.get(16..16 + len).context("the header is cut short")?;
     let header: Header = serde_json::from_slice(head).context("unreadable header")?;
     if header.format_version != FORMAT_VERSION {
-        bail!("format version {}, this stereogen reads {FORMAT_VERSION}", header.format_version);
+        bail!(
+            "format version {}, this stereogen reads {FORMAT_VERSION}",
+            header.format_version
+        );
     }
     Ok((header, &bytes[16 + len..]))
 }
 
 /// Appends the triangles of one object (index `object`) to `tris` and its cut-outs to `cutouts`.
-fn add_object(o: &ObjectHeader, object: usize, payload: &[u8], tris: &mut Vec<Triangle>, cutouts: &mut Vec<CutoutUv>) -> anyhow::Result<()> {
+fn add_object(
+    o: &ObjectHeader,
+    object: usize,
+    payload: &[u8],
+    tris: &mut Vec<Triangle>,
+    cutouts: &mut Vec<CutoutUv>,
+) -> anyhow::Result<()> {
     let name = &o.name;
-    let verts = values::<3, f64>(payload, &o.vertices, o.vertex_count, f64_le, &format!("{name}: vertices"))?;
-    let faces = values::<3, u32>(payload, &o.triangles, o.triangle_count, u32_le, &format!("{name}: triangles"))?;
-    let mats = values::<1, u32>(payload, &o.triangle_material, o.triangle_count, u32_le, &format!("{name}: triangle materials"))?;
+    let verts = values::<3, f64>(
+        payload,
+        &o.vertices,
+        o.vertex_count,
+        f64_le,
+        &format!("{name}: vertices"),
+    )?;
+    let faces = values::<3, u32>(
+        payload,
+        &o.triangles,
+        o.triangle_count,
+        u32_le,
+        &format!("{name}: triangles"),
+    )?;
+    let mats = values::<1, u32>(
+        payload,
+        &o.triangle_material,
+        o.triangle_count,
+        u32_le,
+        &format!("{name}: triangle materials"),
+    )?;
     let uvs = match &o.uv {
-        Some(r) => Some(values::<6, f64>(payload, r, o.triangle_count, f64_le, &format!("{name}: UVs"))?),
+        Some(r) => Some(values::<6, f64>(
+            payload,
+            r,
+            o.triangle_count,
+            f64_le,
+            &format!("{name}: UVs"),
+        )?),
         None => None,
     };
     if let Some(bad) = verts.iter().flatten().find(|x| !x.is_finite()) {
@@ -143,19 +194,41 @@ fn add_object(o: &ObjectHeader, object: usize, payload: &[u8], tris: &mut Vec<Tr
     }
     for (k, (f, m)) in faces.iter().zip(&mats).enumerate() {
         if f.iter().any(|&i| i as usize >= verts.len()) {
-            bail!("{name}: triangle {k} indexes a vertex beyond the {} there are", verts.len());
+            bail!(
+                "{name}: triangle {k} indexes a vertex beyond the {} there are",
+                verts.len()
+            );
         }
-        let material = o.materials.get(m[0] as usize).with_context(|| format!("{name}: triangle {k} has material {} of {}", m[0], o.materials.len()))?;
+        let material = o.materials.get(m[0] as usize).with_context(|| {
+            format!(
+                "{name}: triangle {k} has material {} of {}",
+                m[0],
+                o.materials.len()
+            )
+        })?;
         let cutout = match (&material.cutout, &uvs) {
             (None, _) => NO_CUTOUT,
             (Some(CutoutDef::UvDisc { centre, radius }), Some(uvs)) => {
                 let c = uvs[k];
-                cutouts.push(CutoutUv { uv: [[c[0], c[1]], [c[2], c[3]], [c[4], c[5]]], mask: UvDisc { centre: *centre, radius: *radius } });
+                cutouts.push(CutoutUv {
+                    uv: [[c[0], c[1]], [c[2], c[3]], [c[4], c[5]]],
+                    mask: UvDisc {
+                        centre: *centre,
+                        radius: *radius,
+                    },
+                });
                 (cutouts.len() - 1) as u32
             }
-            (Some(_), None) => bail!("{name}: material {:?} has a cut-out but the object has no UVs", material.name),
+            (Some(_), None) => bail!(
+                "{name}: material {:?} has a cut-out but the object has no UVs",
+                material.name
+            ),
         };
-        tris.push(Triangle { v: f.map(|i| verts[i as usize]), object, cutout });
+        tris.push(Triangle {
+            v: f.map(|i| verts[i as usize]),
+            object,
+            cutout,
+        });
     }
     Ok(())
 }
@@ -172,8 +245,21 @@ fn parse(bytes: &[u8]) -> anyhow::Result<SceneGeometry> {
     for (i, o) in header.objects.iter().enumerate() {
         add_object(o, i, payload, &mut tris, &mut cutouts)?;
     }
-    let objects = header.objects.into_iter().map(|o| ObjectSummary { name: o.name, triangles: o.triangle_count, materials: o.materials }).collect();
-    Ok(SceneGeometry { blender: header.blender, cameras: header.cameras, objects, scene: RayScene::new(tris, cutouts) })
+    let objects = header
+        .objects
+        .into_iter()
+        .map(|o| ObjectSummary {
+            name: o.name,
+            triangles: o.triangle_count,
+            materials: o.materials,
+        })
+        .collect();
+    Ok(SceneGeometry {
+        blender: header.blender,
+        cameras: header.cameras,
+        objects,
+        scene: RayScene::new(tris, cutouts),
+    })
 }
 
 #[cfg(test)]
@@ -189,10 +275,27 @@ mod tests {
             payload.resize(payload.len().div_ceil(8) * 8, 0);
             r
         };
-        let verts: Vec<u8> = [[-1.0, -1.0, -2.0], [1.0, -1.0, -2.0], [1.0, 1.0, -2.0], [-1.0, 1.0, -2.0f64]].iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
-        let tris: Vec<u8> = [0u32, 1, 2, 0, 2, 3].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let verts: Vec<u8> = [
+            [-1.0, -1.0, -2.0],
+            [1.0, -1.0, -2.0],
+            [1.0, 1.0, -2.0],
+            [-1.0, 1.0, -2.0f64],
+        ]
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+        let tris: Vec<u8> = [0u32, 1, 2, 0, 2, 3]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
         let mats: Vec<u8> = [0u32, 0].iter().flat_map(|x| x.to_le_bytes()).collect();
-        let uv: Vec<u8> = [0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 1.0f64].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let uv: Vec<u8> = [
+            0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 1.0f64,
+        ]
+        .iter()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
         let (v, t, m, u) = (put(verts), put(tris), put(mats), put(uv));
         let cam = serde_json::json!({"matrix_world": [[1.0,0.0,0.0,-0.05],[0.0,1.0,0.0,0.0],[0.0,0.0,1.0,0.0],[0.0,0.0,0.0,1.0]],
             "lens_mm": 35.0, "sensor_width_mm": 36.0, "sensor_fit": "HORIZONTAL", "shift_x": 0.0, "shift_y": 0.0, "clip_start": 0.01, "clip_end": 100.0});
@@ -216,14 +319,27 @@ mod tests {
         assert_eq!(g.scene.cutouts.len(), 2);
         assert!(g.objects[0].materials[0].has_cutout());
         // Through the disc's centre the leaf is there; near its corner it is cut out.
-        assert!(g.scene.first_hit([0.0; 3], [0.0, 0.0, -1.0], 1e-9, f64::INFINITY).is_some());
-        assert!(g.scene.first_hit([0.0; 3], [0.45, 0.45, -1.0], 1e-9, f64::INFINITY).is_none());
+        assert!(
+            g.scene
+                .first_hit([0.0; 3], [0.0, 0.0, -1.0], 1e-9, f64::INFINITY)
+                .is_some()
+        );
+        assert!(
+            g.scene
+                .first_hit([0.0; 3], [0.45, 0.45, -1.0], 1e-9, f64::INFINITY)
+                .is_none()
+        );
     }
 
     #[test]
     fn damaged_files_are_refused_with_the_reason() {
         let file = leaf_file();
-        assert!(parse(&file[..10]).unwrap_err().to_string().contains("magic"));
+        assert!(
+            parse(&file[..10])
+                .unwrap_err()
+                .to_string()
+                .contains("magic")
+        );
         let e = format!("{:#}", parse(&file[..file.len() - 16]).unwrap_err());
         assert!(e.contains("beyond the end"), "{e}");
         let mut bad = file.clone();

@@ -82,14 +82,20 @@ pub fn sha256_file(path: &Path) -> std::io::Result<String> {
         }
         hasher.update(&buf[..n]);
     }
-    Ok(hasher.finalize().iter().map(|b| format!("{b:02x}")).collect())
+    Ok(hasher
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
 }
 
 /// Files of `entry` whose checksum differs from the manifest's, and files that cannot be read.
 fn verify_checksums(layout: &DatasetLayout, entry: &ManifestEntry) -> (Vec<String>, Vec<String>) {
     let (mut mismatches, mut problems) = (Vec::new(), Vec::new());
     for (key, rel) in entry.files.all() {
-        let Some(expected) = entry.sha256.get(key) else { continue };
+        let Some(expected) = entry.sha256.get(key) else {
+            continue;
+        };
         match sha256_file(&layout.abs(rel)) {
             Ok(actual) if &actual == expected => {}
             Ok(_) => mismatches.push(format!("{key} ({})", rel.display())),
@@ -101,8 +107,13 @@ fn verify_checksums(layout: &DatasetLayout, entry: &ManifestEntry) -> (Vec<Strin
 
 /// Rebuilds one sample's scene in the worker and reads its geometry. `Err(Ok(msg))`: this sample
 /// cannot be audited; `Err(Err(e))`: no sample can (Blender does not start).
-fn rebuild(service: &mut RenderService, layout: &DatasetLayout, entry: &ManifestEntry) -> Result<Rebuilt, Result<String, WorkerError>> {
-    let spec = read_scene_spec(&layout.abs(&entry.files.scene)).map_err(|e| Ok(format!("{e:#}")))?;
+fn rebuild(
+    service: &mut RenderService,
+    layout: &DatasetLayout,
+    entry: &ManifestEntry,
+) -> Result<Rebuilt, Result<String, WorkerError>> {
+    let spec =
+        read_scene_spec(&layout.abs(&entry.files.scene)).map_err(|e| Ok(format!("{e:#}")))?;
     let exported = match service.export_geometry(&spec) {
         Ok(x) => x,
         Err(e) if e.is_fatal() => return Err(Err(e)),
@@ -110,10 +121,16 @@ fn rebuild(service: &mut RenderService, layout: &DatasetLayout, entry: &Manifest
     };
     let reply = &exported.reply;
     if reply.renders != 0 {
-        return Err(Ok(format!("the worker ran {} render(s) during the geometry export", reply.renders)));
+        return Err(Ok(format!(
+            "the worker ran {} render(s) during the geometry export",
+            reply.renders
+        )));
     }
     if reply.notes != entry.notes {
-        return Err(Ok(format!("the scene was built differently than when it was rendered: now {:?}, then {:?}", reply.notes, entry.notes)));
+        return Err(Ok(format!(
+            "the scene was built differently than when it was rendered: now {:?}, then {:?}",
+            reply.notes, entry.notes
+        )));
     }
     let geometry = read_geometry(&reply.file).map_err(|e| Ok(format!("{e:#}")))?;
     Ok(Rebuilt { spec, geometry })
@@ -123,14 +140,21 @@ fn rebuild(service: &mut RenderService, layout: &DatasetLayout, entry: &Manifest
 fn camera_problems(spec: &SceneSpec, geometry: &SceneGeometry) -> Vec<String> {
     let facts = spec.cameras();
     let mut out = Vec::new();
-    for (name, built, stated) in [("left", &geometry.cameras.left, &facts.left), ("right", &geometry.cameras.right, &facts.right)] {
+    for (name, built, stated) in [
+        ("left", &geometry.cameras.left, &facts.left),
+        ("right", &geometry.cameras.right, &facts.right),
+    ] {
         let m = &built.matrix_world;
         let position = [m[0][3], m[1][3], m[2][3]];
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * a.abs().max(b.abs()).max(1.0);
-        let identity = (0..3).all(|i| (0..3).all(|j| close(m[i][j], if i == j { 1.0 } else { 0.0 })));
+        let identity =
+            (0..3).all(|i| (0..3).all(|j| close(m[i][j], if i == j { 1.0 } else { 0.0 })));
         let b = &facts.blender;
         let same = identity
-            && position.iter().zip(&stated.position).all(|(a, b)| close(*a, *b))
+            && position
+                .iter()
+                .zip(&stated.position)
+                .all(|(a, b)| close(*a, *b))
             && close(built.lens_mm, b.lens_mm)
             && close(built.sensor_width_mm, b.sensor_width_mm)
             && close(built.shift_x, b.shift_x)
@@ -143,25 +167,47 @@ fn camera_problems(spec: &SceneSpec, geometry: &SceneGeometry) -> Vec<String> {
     out
 }
 
-fn read_map(layout: &DatasetLayout, rel: &Path, spec: &SceneSpec) -> Result<stereo_io::DisparityMap, String> {
+fn read_map(
+    layout: &DatasetLayout,
+    rel: &Path,
+    spec: &SceneSpec,
+) -> Result<stereo_io::DisparityMap, String> {
     let path = layout.abs(rel);
     let (map, _) = stereo_io::read_disparity_exr(&path).map_err(|e| {
         let msg = e.to_string();
-        if msg.contains(&*path.to_string_lossy()) { msg } else { format!("{}: {msg}", path.display()) }
+        if msg.contains(&*path.to_string_lossy()) {
+            msg
+        } else {
+            format!("{}: {msg}", path.display())
+        }
     })?;
     if (map.width, map.height) != (spec.rig.width as usize, spec.rig.height as usize) {
-        return Err(format!("{}: {}x{}, the spec says {}x{}", path.display(), map.width, map.height, spec.rig.width, spec.rig.height));
+        return Err(format!(
+            "{}: {}x{}, the spec says {}x{}",
+            path.display(),
+            map.width,
+            map.height,
+            spec.rig.width,
+            spec.rig.height
+        ));
     }
     Ok(map)
 }
 
 /// Casts and compares one rebuilt sample (its checksum results already in `audit`).
-fn check_sample(opts: &AuditOptions, layout: &DatasetLayout, entry: &ManifestEntry, rebuilt: &Rebuilt, audit: &mut SampleAudit) {
+fn check_sample(
+    opts: &AuditOptions,
+    layout: &DatasetLayout,
+    entry: &ManifestEntry,
+    rebuilt: &Rebuilt,
+    audit: &mut SampleAudit,
+) {
     let Rebuilt { spec, geometry } = rebuilt;
     audit.objects = geometry.objects.len();
     audit.triangles = geometry.scene.triangles.len();
     audit.problems.extend(camera_problems(spec, geometry));
-    let maps = read_map(layout, &entry.files.disp_left, spec).and_then(|l| Ok((l, read_map(layout, &entry.files.disp_right, spec)?)));
+    let maps = read_map(layout, &entry.files.disp_left, spec)
+        .and_then(|l| Ok((l, read_map(layout, &entry.files.disp_right, spec)?)));
     let (left, right) = match maps {
         Ok(m) => m,
         Err(e) => return audit.problems.push(e),
@@ -169,12 +215,17 @@ fn check_sample(opts: &AuditOptions, layout: &DatasetLayout, entry: &ManifestEnt
     let check = SampleCheck {
         id: &entry.id,
         category: &entry.category,
-        camera: Camera { rig: &spec.rig, clip_start: spec.render.clip_start, clip_end: spec.render.clip_end },
+        camera: Camera {
+            rig: &spec.rig,
+            clip_start: spec.render.clip_start,
+            clip_end: spec.render.clip_end,
+        },
         scene: &geometry.scene,
         left: &left,
         right: &right,
     };
-    let pixels = select::choose_pixels(left.width, left.height, opts.pixels, opts.seed, entry.index);
+    let pixels =
+        select::choose_pixels(left.width, left.height, opts.pixels, opts.seed, entry.index);
     let t0 = Instant::now();
     let outcome = check.run(&pixels);
     audit.seconds = t0.elapsed().as_secs_f64();
@@ -204,24 +255,44 @@ fn finished_samples(layout: &DatasetLayout) -> anyhow::Result<(Vec<ManifestEntry
     let contents = if !layout.manifest().exists() && layout.info().exists() {
         Default::default()
     } else {
-        read_manifest(&layout.manifest()).with_context(|| format!("{} is not a stereogen dataset", layout.root.display()))?
+        read_manifest(&layout.manifest())
+            .with_context(|| format!("{} is not a stereogen dataset", layout.root.display()))?
     };
     if contents.entries.is_empty() {
-        let failures = std::fs::read_to_string(layout.failures()).map(|t| t.lines().filter(|l| !l.trim().is_empty()).count()).unwrap_or(0);
-        let why = if failures > 0 { format!("; {failures} sample(s) failed, see {}", layout.failures().display()) } else { String::new() };
-        bail!("{} has no finished samples to audit ({} is empty){why}", layout.root.display(), layout.manifest().display());
+        let failures = std::fs::read_to_string(layout.failures())
+            .map(|t| t.lines().filter(|l| !l.trim().is_empty()).count())
+            .unwrap_or(0);
+        let why = if failures > 0 {
+            format!(
+                "; {failures} sample(s) failed, see {}",
+                layout.failures().display()
+            )
+        } else {
+            String::new()
+        };
+        bail!(
+            "{} has no finished samples to audit ({} is empty){why}",
+            layout.root.display(),
+            layout.manifest().display()
+        );
     }
     let unfinished = contents.has_unfinished_line();
     Ok((contents.entries, unfinished))
 }
 
 /// Audits the dataset at `opts.dataset`; `progress(done, total, sample)` after each sample.
-pub fn audit(opts: &AuditOptions, progress: &(dyn Fn(usize, usize, &SampleAudit) + Sync)) -> anyhow::Result<AuditReport> {
+pub fn audit(
+    opts: &AuditOptions,
+    progress: &(dyn Fn(usize, usize, &SampleAudit) + Sync),
+) -> anyhow::Result<AuditReport> {
     let started = Instant::now();
     let layout = DatasetLayout::new(&opts.dataset);
     let (entries, unfinished) = finished_samples(&layout)?;
     let chosen = select::choose_samples(&entries, opts.samples, opts.seed);
-    let checksums: Vec<(Vec<String>, Vec<String>)> = chosen.par_iter().map(|&i| verify_checksums(&layout, &entries[i])).collect();
+    let checksums: Vec<(Vec<String>, Vec<String>)> = chosen
+        .par_iter()
+        .map(|&i| verify_checksums(&layout, &entries[i]))
+        .collect();
     let cfg = opts.worker_options.resolve(1)?;
 
     let (tx, rx) = mpsc::sync_channel::<(usize, Result<Rebuilt, Result<String, WorkerError>>)>(1);
@@ -233,7 +304,10 @@ pub fn audit(opts: &AuditOptions, progress: &(dyn Fn(usize, usize, &SampleAudit)
         s.spawn(move || {
             let mut service = RenderService::new(cfg);
             for (k, &i) in order.iter().enumerate() {
-                if tx.send((k, rebuild(&mut service, producer_layout, &entries[i]))).is_err() {
+                if tx
+                    .send((k, rebuild(&mut service, producer_layout, &entries[i])))
+                    .is_err()
+                {
                     break;
                 }
             }
@@ -246,7 +320,10 @@ pub fn audit(opts: &AuditOptions, progress: &(dyn Fn(usize, usize, &SampleAudit)
             match rebuilt {
                 Ok(r) => check_sample(opts, &layout, entry, &r, &mut audit),
                 Err(Ok(problem)) => audit.problems.push(problem),
-                Err(Err(fatal)) => return Err(anyhow::Error::new(fatal).context("cannot start the Blender worker for the geometry export")),
+                Err(Err(fatal)) => {
+                    return Err(anyhow::Error::new(fatal)
+                        .context("cannot start the Blender worker for the geometry export"));
+                }
             }
             audit.pass = audit.reasons(&opts.bars).is_empty();
             progress(samples.len() + 1, chosen.len(), &audit);
@@ -254,20 +331,44 @@ pub fn audit(opts: &AuditOptions, progress: &(dyn Fn(usize, usize, &SampleAudit)
         }
         Ok(())
     })?;
-    Ok(assemble(opts, &entries, unfinished, samples, started.elapsed().as_secs_f64()))
+    Ok(assemble(
+        opts,
+        &entries,
+        unfinished,
+        samples,
+        started.elapsed().as_secs_f64(),
+    ))
 }
 
 /// Groups the sample audits by category and decides the verdict.
-fn assemble(opts: &AuditOptions, entries: &[ManifestEntry], unfinished: bool, samples: Vec<SampleAudit>, seconds: f64) -> AuditReport {
+fn assemble(
+    opts: &AuditOptions,
+    entries: &[ManifestEntry],
+    unfinished: bool,
+    samples: Vec<SampleAudit>,
+    seconds: f64,
+) -> AuditReport {
     let mut names: Vec<&str> = samples.iter().map(|s| s.category.as_str()).collect();
     names.sort_unstable();
     names.dedup();
     let categories: Vec<GroupAudit> = names
         .iter()
-        .map(|name| GroupAudit::new(name, &samples.iter().filter(|s| s.category == *name).collect::<Vec<_>>(), &opts.bars))
+        .map(|name| {
+            GroupAudit::new(
+                name,
+                &samples
+                    .iter()
+                    .filter(|s| s.category == *name)
+                    .collect::<Vec<_>>(),
+                &opts.bars,
+            )
+        })
         .collect();
     let overall = GroupAudit::new("all", &samples.iter().collect::<Vec<_>>(), &opts.bars);
-    let mut worst: Vec<_> = samples.iter().flat_map(|s| s.worst.iter().cloned()).collect();
+    let mut worst: Vec<_> = samples
+        .iter()
+        .flat_map(|s| s.worst.iter().cloned())
+        .collect();
     keep_worst(&mut worst, WORST_OVERALL);
     let cast_seconds: f64 = samples.iter().map(|s| s.seconds).sum();
     let megapixels = overall.tally.pixels as f64 / 1e6;
@@ -305,11 +406,13 @@ pub fn write_json(report: &AuditReport, path: &Path) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let json = serde_json::to_string_pretty(report)?;
-    stereo_io::write_bytes_atomically(path, json.as_bytes()).with_context(|| format!("cannot write {}", path.display()))
+    stereo_io::write_bytes_atomically(path, json.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Reads an `audit.json`.
 pub fn read_json(path: &Path) -> anyhow::Result<AuditReport> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{}: not an audit report", path.display()))
 }

@@ -15,7 +15,11 @@ fn sub(a: V3, b: V3) -> V3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 fn cross(a: V3, b: V3) -> V3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 fn dot(a: V3, b: V3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -75,7 +79,13 @@ pub struct RayScene {
 
 /// Möller–Trumbore, two-sided: (t, b1, b2) of a hit with t in (t_min, t_max).
 #[inline]
-fn intersect(tri: &[V3; 3], origin: V3, dir: V3, t_min: f64, t_max: f64) -> Option<(f64, f64, f64)> {
+fn intersect(
+    tri: &[V3; 3],
+    origin: V3,
+    dir: V3,
+    t_min: f64,
+    t_max: f64,
+) -> Option<(f64, f64, f64)> {
     let e1 = sub(tri[1], tri[0]);
     let e2 = sub(tri[2], tri[0]);
     let p = cross(dir, e2);
@@ -101,7 +111,11 @@ fn intersect(tri: &[V3; 3], origin: V3, dir: V3, t_min: f64, t_max: f64) -> Opti
 impl RayScene {
     pub fn new(triangles: Vec<Triangle>, cutouts: Vec<CutoutUv>) -> Self {
         let boxes: Vec<Aabb> = triangles.iter().map(|t| Aabb::of_points(&t.v)).collect();
-        Self { bvh: Bvh::build(&boxes), triangles, cutouts }
+        Self {
+            bvh: Bvh::build(&boxes),
+            triangles,
+            cutouts,
+        }
     }
 
     /// The first surface along `origin + t·dir` with t in (t_min, t_max), passing cut-outs.
@@ -115,7 +129,10 @@ impl RayScene {
                 }
                 Some(t)
             })
-            .map(|(t, p)| Hit { t, object: self.triangles[p].object })
+            .map(|(t, p)| Hit {
+                t,
+                object: self.triangles[p].object,
+            })
     }
 }
 
@@ -132,7 +149,11 @@ fn rotate_xyz(p: V3, r: V3) -> V3 {
 fn to_world(o: &ObjectSpec, p: V3) -> V3 {
     let s = [p[0] * o.scale[0], p[1] * o.scale[1], p[2] * o.scale[2]];
     let r = rotate_xyz(s, o.rotation);
-    [r[0] + o.location[0], r[1] + o.location[1], r[2] + o.location[2]]
+    [
+        r[0] + o.location[0],
+        r[1] + o.location[1],
+        r[2] + o.location[2],
+    ]
 }
 
 /// Object-space triangles of the shapes whose geometry a SceneSpec states exactly (planes and
@@ -140,10 +161,29 @@ fn to_world(o: &ObjectSpec, p: V3) -> V3 {
 fn spec_triangles(shape: &Shape) -> Option<Vec<[V3; 3]>> {
     match shape {
         Shape::Plane => {
-            let q = [[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]];
+            let q = [
+                [-1.0, -1.0, 0.0],
+                [1.0, -1.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [-1.0, 1.0, 0.0],
+            ];
             Some(vec![[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
         }
-        Shape::Mesh { vertices, triangles } => Some(triangles.iter().map(|t| [vertices[t[0] as usize], vertices[t[1] as usize], vertices[t[2] as usize]]).collect()),
+        Shape::Mesh {
+            vertices,
+            triangles,
+        } => Some(
+            triangles
+                .iter()
+                .map(|t| {
+                    [
+                        vertices[t[0] as usize],
+                        vertices[t[1] as usize],
+                        vertices[t[2] as usize],
+                    ]
+                })
+                .collect(),
+        ),
         _ => None,
     }
 }
@@ -154,18 +194,39 @@ fn spec_triangles(shape: &Shape) -> Option<Vec<[V3; 3]>> {
 pub fn scene_triangles(spec: &SceneSpec) -> RayScene {
     let mut out = Vec::new();
     for (i, o) in spec.objects.iter().enumerate() {
-        assert!(o.modifiers.is_empty(), "{}: modifiers need Blender's evaluated geometry", o.name);
-        let local = spec_triangles(&o.shape).unwrap_or_else(|| panic!("{}: the spec does not state the triangles of {:?}", o.name, o.shape));
-        out.extend(local.into_iter().map(|t| Triangle { v: t.map(|p| to_world(o, p)), object: i, cutout: NO_CUTOUT }));
+        assert!(
+            o.modifiers.is_empty(),
+            "{}: modifiers need Blender's evaluated geometry",
+            o.name
+        );
+        let local = spec_triangles(&o.shape).unwrap_or_else(|| {
+            panic!(
+                "{}: the spec does not state the triangles of {:?}",
+                o.name, o.shape
+            )
+        });
+        out.extend(local.into_iter().map(|t| Triangle {
+            v: t.map(|p| to_world(o, p)),
+            object: i,
+            cutout: NO_CUTOUT,
+        }));
     }
     RayScene::new(out, Vec::new())
 }
 
 /// Ground truth for pixel position (u, v) of a view: (disparity, object), `None` for background.
 /// The ray direction has z = −1, so the hit distance is the planar depth itself.
-pub fn disparity_at(rig: &StereoRig, scene: &RayScene, view: View, u: f64, v: f64) -> Option<(f64, usize)> {
+pub fn disparity_at(
+    rig: &StereoRig,
+    scene: &RayScene,
+    view: View,
+    u: f64,
+    v: f64,
+) -> Option<(f64, usize)> {
     let origin = [rig.camera_x(view), 0.0, 0.0];
-    scene.first_hit(origin, rig.ray_direction(u, v), 1e-9, f64::INFINITY).map(|h| (rig.disparity_at_depth(h.t), h.object))
+    scene
+        .first_hit(origin, rig.ray_direction(u, v), 1e-9, f64::INFINITY)
+        .map(|h| (rig.disparity_at_depth(h.t), h.object))
 }
 
 /// Whether the point seen by the left pixel (u, v) at disparity `d` is visible from the right camera.
@@ -177,7 +238,9 @@ pub fn visible_in_right(rig: &StereoRig, scene: &RayScene, u: f64, v: f64, d: f6
 /// Whether nothing opaque lies between the camera of `view` and the point `p`.
 pub fn visible_from(rig: &StereoRig, scene: &RayScene, view: View, p: V3) -> bool {
     let origin = [rig.camera_x(view), 0.0, 0.0];
-    scene.first_hit(origin, sub(p, origin), 1e-9, 1.0 - 1e-7).is_none()
+    scene
+        .first_hit(origin, sub(p, origin), 1e-9, 1.0 - 1e-7)
+        .is_none()
 }
 
 #[cfg(test)]
@@ -189,34 +252,87 @@ mod tests {
         // 90° about X takes +Y to +Z; then 90° about Z takes +X to +Y.
         let p = rotate_xyz([0.0, 1.0, 0.0], [std::f64::consts::FRAC_PI_2, 0.0, 0.0]);
         assert!((p[2] - 1.0).abs() < 1e-12);
-        let q = rotate_xyz([1.0, 0.0, 0.0], [std::f64::consts::FRAC_PI_2, 0.0, std::f64::consts::FRAC_PI_2]);
+        let q = rotate_xyz(
+            [1.0, 0.0, 0.0],
+            [
+                std::f64::consts::FRAC_PI_2,
+                0.0,
+                std::f64::consts::FRAC_PI_2,
+            ],
+        );
         assert!((q[1] - 1.0).abs() < 1e-12);
     }
 
     fn quad(z: f64, half: f64, object: usize, cutout: u32) -> [Triangle; 2] {
-        let q = [[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]];
-        [Triangle { v: [q[0], q[1], q[2]], object, cutout }, Triangle { v: [q[0], q[2], q[3]], object, cutout }]
+        let q = [
+            [-half, -half, z],
+            [half, -half, z],
+            [half, half, z],
+            [-half, half, z],
+        ];
+        [
+            Triangle {
+                v: [q[0], q[1], q[2]],
+                object,
+                cutout,
+            },
+            Triangle {
+                v: [q[0], q[2], q[3]],
+                object,
+                cutout,
+            },
+        ]
     }
 
     #[test]
     fn cut_outs_let_the_ray_through_to_the_next_surface() {
         // A leaf quad at z = -1 (UV square over [-1, 1]²) in front of a wall at z = -3.
         let uv = |t: &Triangle| t.v.map(|p| [(p[0] + 1.0) / 2.0, (p[1] + 1.0) / 2.0]);
-        let mask = UvDisc { centre: [0.5, 0.5], radius: 0.5 };
+        let mask = UvDisc {
+            centre: [0.5, 0.5],
+            radius: 0.5,
+        };
         let leaf = quad(-1.0, 1.0, 1, 0);
-        let cutouts = vec![CutoutUv { uv: uv(&leaf[0]), mask }, CutoutUv { uv: uv(&leaf[1]), mask }];
-        let leaf = [Triangle { cutout: 0, ..leaf[0].clone() }, Triangle { cutout: 1, ..leaf[1].clone() }];
+        let cutouts = vec![
+            CutoutUv {
+                uv: uv(&leaf[0]),
+                mask,
+            },
+            CutoutUv {
+                uv: uv(&leaf[1]),
+                mask,
+            },
+        ];
+        let leaf = [
+            Triangle {
+                cutout: 0,
+                ..leaf[0].clone()
+            },
+            Triangle {
+                cutout: 1,
+                ..leaf[1].clone()
+            },
+        ];
         let mut tris = quad(-3.0, 10.0, 0, NO_CUTOUT).to_vec();
         tris.extend(leaf);
         let scene = RayScene::new(tris, cutouts);
-        let at = |x: f64, y: f64| scene.first_hit([0.0; 3], [x, y, -1.0], 1e-9, f64::INFINITY).map(|h| (h.t, h.object));
+        let at = |x: f64, y: f64| {
+            scene
+                .first_hit([0.0; 3], [x, y, -1.0], 1e-9, f64::INFINITY)
+                .map(|h| (h.t, h.object))
+        };
         assert_eq!(at(0.0, 0.0), Some((1.0, 1)), "the disc's centre is leaf");
         // UV (0.8, 0.8): 0.3² + 0.3² < 0.5², inside the disc.
         assert_eq!(at(0.6, 0.6), Some((1.0, 1)));
         // UV (0.95, 0.95): outside the disc but on the quad, cut out: the wall at t = 3.
         assert_eq!(at(0.9, 0.9), Some((3.0, 0)));
         // Clip: a leaf nearer than t_min is not seen.
-        assert_eq!(scene.first_hit([0.0; 3], [0.0, 0.0, -1.0], 1.5, f64::INFINITY).map(|h| h.object), Some(0));
+        assert_eq!(
+            scene
+                .first_hit([0.0; 3], [0.0, 0.0, -1.0], 1.5, f64::INFINITY)
+                .map(|h| h.object),
+            Some(0)
+        );
         assert_eq!(scene.first_hit([0.0; 3], [0.0, 0.0, -1.0], 1e-9, 0.5), None);
     }
 }

@@ -17,7 +17,11 @@ pub struct Bars {
 
 impl Default for Bars {
     fn default() -> Self {
-        Self { min_share_within_0_01: 0.9999, max_flying: 0, max_checksum_mismatches: 0 }
+        Self {
+            min_share_within_0_01: 0.9999,
+            max_flying: 0,
+            max_checksum_mismatches: 0,
+        }
     }
 }
 
@@ -96,7 +100,10 @@ impl GroupAudit {
     pub fn new(name: &str, samples: &[&SampleAudit], bars: &Bars) -> Self {
         let mut tally = Tally::default();
         samples.iter().for_each(|s| tally.merge(&s.tally));
-        let checksum_mismatches = samples.iter().map(|s| s.checksum_mismatches.len() as u64).sum();
+        let checksum_mismatches = samples
+            .iter()
+            .map(|s| s.checksum_mismatches.len() as u64)
+            .sum();
         let problems = samples.iter().filter(|s| !s.problems.is_empty()).count() as u64;
         let share = tally.share_within_0_01();
         let pass = !samples.is_empty()
@@ -135,7 +142,11 @@ impl GroupAudit {
             t.flying,
             pct(self.lr_share_within_0_1),
             self.checksum_mismatches,
-            if self.problems > 0 { format!("  {} sample(s) not audited", self.problems) } else { String::new() }
+            if self.problems > 0 {
+                format!("  {} sample(s) not audited", self.problems)
+            } else {
+                String::new()
+            }
         )
     }
 }
@@ -149,17 +160,38 @@ impl SampleAudit {
             && s < bars.min_share_within_0_01
         {
             let off = t.interior - t.interior_within_0_01;
-            let at = self.worst.iter().find(|w| w.kind != super::tally::IssueKind::Flying);
-            let at = at.map_or(String::new(), |w| format!(", worst {:.4} px at {} ({}, {})", w.error, w.view, w.x, w.y));
-            r.push(format!("{off} of {} non-silhouette pixels off by more than 0.01 px{at}", t.interior));
+            let at = self
+                .worst
+                .iter()
+                .find(|w| w.kind != super::tally::IssueKind::Flying);
+            let at = at.map_or(String::new(), |w| {
+                format!(", worst {:.4} px at {} ({}, {})", w.error, w.view, w.x, w.y)
+            });
+            r.push(format!(
+                "{off} of {} non-silhouette pixels off by more than 0.01 px{at}",
+                t.interior
+            ));
         }
         if t.flying > bars.max_flying {
-            let at = self.worst.iter().find(|w| w.kind == super::tally::IssueKind::Flying);
-            let at = at.map_or(String::new(), |w| format!(", e.g. {} ({}, {}) = {:.3} px", w.view, w.x, w.y, w.rendered.unwrap_or(0.0)));
+            let at = self
+                .worst
+                .iter()
+                .find(|w| w.kind == super::tally::IssueKind::Flying);
+            let at = at.map_or(String::new(), |w| {
+                format!(
+                    ", e.g. {} ({}, {}) = {:.3} px",
+                    w.view,
+                    w.x,
+                    w.y,
+                    w.rendered.unwrap_or(0.0)
+                )
+            });
             r.push(format!("{} flying pixel(s){at}", t.flying));
         }
         for f in &self.checksum_mismatches {
-            r.push(format!("{f} changed since the manifest was written (SHA-256 differs)"));
+            r.push(format!(
+                "{f} changed since the manifest was written (SHA-256 differs)"
+            ));
         }
         r.extend(self.problems.iter().cloned());
         r
@@ -168,17 +200,30 @@ impl SampleAudit {
 
 /// The terminal summary: the categories, the overall line, failing samples by name, the verdict.
 pub fn summary_lines(report: &AuditReport) -> Vec<String> {
-    let w = report.categories.iter().map(|c| c.name.len()).max().unwrap_or(3).max(3);
+    let w = report
+        .categories
+        .iter()
+        .map(|c| c.name.len())
+        .max()
+        .unwrap_or(3)
+        .max(3);
     let mut lines = vec![format!(
         "audit of {} ({} of {} samples, {} per sample, seed {})",
         report.dataset,
         report.samples.len(),
         report.manifest_samples,
-        if report.pixels_requested == "every" { "every pixel".to_string() } else { format!("{} pixels", report.pixels_requested) },
+        if report.pixels_requested == "every" {
+            "every pixel".to_string()
+        } else {
+            format!("{} pixels", report.pixels_requested)
+        },
         report.seed
     )];
     if report.unfinished_manifest_line {
-        lines.push("note: the manifest's unfinished last line was left out (generation still running?)".to_string());
+        lines.push(
+            "note: the manifest's unfinished last line was left out (generation still running?)"
+                .to_string(),
+        );
     }
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
@@ -186,17 +231,34 @@ pub fn summary_lines(report: &AuditReport) -> Vec<String> {
         lines.push(format!("ERROR {p}"));
     }
     for w in report.worst.iter().take(3) {
-        lines.push(format!("worst: {:.3e} px ({:?}) in sample {} ({}), {} view, pixel ({}, {})", w.error, w.kind, w.sample, w.category, w.view, w.x, w.y));
+        lines.push(format!(
+            "worst: {:.3e} px ({:?}) in sample {} ({}), {} view, pixel ({}, {})",
+            w.error, w.kind, w.sample, w.category, w.view, w.x, w.y
+        ));
     }
     let failing: Vec<&SampleAudit> = report.samples.iter().filter(|s| !s.pass).collect();
     for s in failing.iter().take(20) {
-        lines.push(format!("FAIL sample {} ({}, index {}): {}", s.id, s.category, s.index, s.reasons(&report.bars).join("; ")));
+        lines.push(format!(
+            "FAIL sample {} ({}, index {}): {}",
+            s.id,
+            s.category,
+            s.index,
+            s.reasons(&report.bars).join("; ")
+        ));
     }
     if failing.len() > 20 {
-        lines.push(format!("FAIL ... and {} more samples (see audit.json)", failing.len() - 20));
+        lines.push(format!(
+            "FAIL ... and {} more samples (see audit.json)",
+            failing.len() - 20
+        ));
     }
     if let Some(s) = report.cast_seconds_per_megapixel {
-        lines.push(format!("ray casting: {:.1} s for {:.2} Mpx ({s:.2} s per Mpx); whole audit {:.1} s", report.cast_seconds, report.overall.tally.pixels as f64 / 1e6, report.seconds));
+        lines.push(format!(
+            "ray casting: {:.1} s for {:.2} Mpx ({s:.2} s per Mpx); whole audit {:.1} s",
+            report.cast_seconds,
+            report.overall.tally.pixels as f64 / 1e6,
+            report.seconds
+        ));
     }
     let b = &report.bars;
     lines.push(format!(

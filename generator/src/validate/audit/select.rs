@@ -27,7 +27,11 @@ pub enum PixelSelection {
 
 /// Positions in `entries` of the samples to audit, in manifest order. With a count, categories
 /// take turns (each in its own seeded shuffle), so a small audit still covers every category.
-pub fn choose_samples(entries: &[ManifestEntry], selection: SampleSelection, seed: u64) -> Vec<usize> {
+pub fn choose_samples(
+    entries: &[ManifestEntry],
+    selection: SampleSelection,
+    seed: u64,
+) -> Vec<usize> {
     let k = match selection {
         SampleSelection::All => return (0..entries.len()).collect(),
         SampleSelection::Count(k) => k.min(entries.len()),
@@ -59,13 +63,20 @@ pub fn choose_samples(entries: &[ManifestEntry], selection: SampleSelection, see
 }
 
 /// Pixel indices (y·width + x) to audit in a `width`×`height` sample, sorted.
-pub fn choose_pixels(width: usize, height: usize, selection: PixelSelection, seed: u64, sample_index: u64) -> Vec<usize> {
+pub fn choose_pixels(
+    width: usize,
+    height: usize,
+    selection: PixelSelection,
+    seed: u64,
+    sample_index: u64,
+) -> Vec<usize> {
     let n = width * height;
     match selection {
         PixelSelection::Every => (0..n).collect(),
         PixelSelection::Count(p) if p >= n => (0..n).collect(),
         PixelSelection::Count(p) => {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed ^ sample_index.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let mut rng =
+                ChaCha8Rng::seed_from_u64(seed ^ sample_index.wrapping_mul(0x9E37_79B9_7F4A_7C15));
             let mut v = rand::seq::index::sample(&mut rng, n, p).into_vec();
             v.sort_unstable();
             v
@@ -104,15 +115,42 @@ mod tests {
 
     #[test]
     fn a_small_audit_covers_every_category_and_repeats() {
-        let cats = ["tree", "tree", "tree", "tree", "hole", "shapenet", "shapenet", "reflective", "tree", "tree"];
-        let entries: Vec<ManifestEntry> = cats.iter().enumerate().map(|(i, c)| entry(i as u64, c)).collect();
+        let cats = [
+            "tree",
+            "tree",
+            "tree",
+            "tree",
+            "hole",
+            "shapenet",
+            "shapenet",
+            "reflective",
+            "tree",
+            "tree",
+        ];
+        let entries: Vec<ManifestEntry> = cats
+            .iter()
+            .enumerate()
+            .map(|(i, c)| entry(i as u64, c))
+            .collect();
         let chosen = choose_samples(&entries, SampleSelection::Count(4), 7);
-        let mut seen: Vec<&str> = chosen.iter().map(|&i| entries[i].category.as_str()).collect();
+        let mut seen: Vec<&str> = chosen
+            .iter()
+            .map(|&i| entries[i].category.as_str())
+            .collect();
         seen.sort();
         assert_eq!(seen, ["hole", "reflective", "shapenet", "tree"]);
-        assert_eq!(chosen, choose_samples(&entries, SampleSelection::Count(4), 7));
-        assert_eq!(choose_samples(&entries, SampleSelection::Count(99), 7).len(), 10);
-        assert_eq!(choose_samples(&entries, SampleSelection::All, 7), (0..10).collect::<Vec<_>>());
+        assert_eq!(
+            chosen,
+            choose_samples(&entries, SampleSelection::Count(4), 7)
+        );
+        assert_eq!(
+            choose_samples(&entries, SampleSelection::Count(99), 7).len(),
+            10
+        );
+        assert_eq!(
+            choose_samples(&entries, SampleSelection::All, 7),
+            (0..10).collect::<Vec<_>>()
+        );
     }
 
     #[test]
@@ -122,6 +160,9 @@ mod tests {
         assert!(p.windows(2).all(|w| w[0] < w[1]) && p[19] < 128);
         assert_eq!(p, choose_pixels(16, 8, PixelSelection::Count(20), 3, 5));
         assert_ne!(p, choose_pixels(16, 8, PixelSelection::Count(20), 3, 6));
-        assert_eq!(choose_pixels(4, 2, PixelSelection::Count(20), 3, 5).len(), 8);
+        assert_eq!(
+            choose_pixels(4, 2, PixelSelection::Count(20), 3, 5).len(),
+            8
+        );
     }
 }

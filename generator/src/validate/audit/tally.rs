@@ -101,7 +101,11 @@ impl Tally {
         self.interior_within_0_5 += u64::from(!validity_mismatch && error <= LOOSE_PX);
         self.validity_mismatch += u64::from(validity_mismatch);
         self.max_error = self.max_error.max(error);
-        let bin = if error < FIRST_DECADE_PX { 0 } else { ((error / FIRST_DECADE_PX).log10().floor() as usize + 1).min(ERROR_DECADES - 1) };
+        let bin = if error < FIRST_DECADE_PX {
+            0
+        } else {
+            ((error / FIRST_DECADE_PX).log10().floor() as usize + 1).min(ERROR_DECADES - 1)
+        };
         self.error_decades[bin] += 1;
     }
 
@@ -160,7 +164,11 @@ pub struct PixelIssue {
 
 /// Keeps the `n` largest issues (by error; ties by position so the choice is deterministic).
 pub fn keep_worst(issues: &mut Vec<PixelIssue>, n: usize) {
-    issues.sort_by(|a, b| b.error.total_cmp(&a.error).then_with(|| (&a.sample, &a.view, a.y, a.x).cmp(&(&b.sample, &b.view, b.y, b.x))));
+    issues.sort_by(|a, b| {
+        b.error
+            .total_cmp(&a.error)
+            .then_with(|| (&a.sample, &a.view, a.y, a.x).cmp(&(&b.sample, &b.view, b.y, b.x)))
+    });
     issues.truncate(n);
 }
 
@@ -175,7 +183,15 @@ mod tests {
         t.add_interior(5e-6, false);
         t.add_interior(0.02, false);
         t.add_interior(3.0, true);
-        assert_eq!((t.interior, t.interior_within_0_01, t.interior_within_0_5, t.validity_mismatch), (4, 2, 3, 1));
+        assert_eq!(
+            (
+                t.interior,
+                t.interior_within_0_01,
+                t.interior_within_0_5,
+                t.validity_mismatch
+            ),
+            (4, 2, 3, 1)
+        );
         assert_eq!(t.error_decades, vec![1, 0, 1, 0, 0, 0, 1, 0, 1, 0]);
         assert_eq!(t.max_error, 3.0);
         let mut twice = t.clone();

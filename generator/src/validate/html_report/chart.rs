@@ -70,7 +70,11 @@ impl BarChart {
     /// An empty chart over `x_range` with values up to `y_max`.
     pub fn new(title: &str, x_label: &str, x_range: (f64, f64), y_max: f64) -> Self {
         let (plot_w, plot_h) = (WIDTH - LEFT - RIGHT, HEIGHT - TOP - BOTTOM);
-        let y_max = if y_max > 0.0 && y_max.is_finite() { y_max * 1.05 } else { 1.0 };
+        let y_max = if y_max > 0.0 && y_max.is_finite() {
+            y_max * 1.05
+        } else {
+            1.0
+        };
         let mut chart = Self {
             width: WIDTH,
             height: HEIGHT,
@@ -92,8 +96,14 @@ impl BarChart {
         for k in 0..=4 {
             let f = k as f64 / 4.0;
             let xv = x_range.0 + f * (x_range.1 - x_range.0);
-            chart.x_ticks.push(Tick { pos: r2(chart.px(xv)), label: short(xv) });
-            chart.y_ticks.push(Tick { pos: r2(chart.py(f * y_max)), label: short(f * y_max) });
+            chart.x_ticks.push(Tick {
+                pos: r2(chart.px(xv)),
+                label: short(xv),
+            });
+            chart.y_ticks.push(Tick {
+                pos: r2(chart.py(f * y_max)),
+                label: short(f * y_max),
+            });
         }
         chart
     }
@@ -111,18 +121,34 @@ impl BarChart {
     /// A bar over [x0, x1] up to `y`.
     pub fn bar(&mut self, x0: f64, x1: f64, y: f64, fill: &'static str, label: String) {
         let (a, b, top) = (self.px(x0), self.px(x1), self.py(y));
-        self.bars.push(Bar { x: r2(a), y: r2(top), w: r2((b - a).max(0.5)), h: r2(self.axis_y - top), fill, label });
+        self.bars.push(Bar {
+            x: r2(a),
+            y: r2(top),
+            w: r2((b - a).max(0.5)),
+            h: r2(self.axis_y - top),
+            fill,
+            label,
+        });
     }
 
     /// A curve through `points` (x, y), named in the legend.
     pub fn curve(&mut self, points: &[(f64, f64)], legend: &str) {
-        self.curve = points.iter().map(|&(x, y)| format!("{},{}", r2(self.px(x)), r2(self.py(y)))).collect::<Vec<_>>().join(" ");
+        self.curve = points
+            .iter()
+            .map(|&(x, y)| format!("{},{}", r2(self.px(x)), r2(self.py(y))))
+            .collect::<Vec<_>>()
+            .join(" ");
         self.legend = legend.into();
     }
 
     /// The SVG element.
     pub fn svg(&self) -> String {
-        self.render().unwrap_or_else(|e| format!("<p class=\"problem\">chart {:?} could not be drawn: {e}</p>", self.title))
+        self.render().unwrap_or_else(|e| {
+            format!(
+                "<p class=\"problem\">chart {:?} could not be drawn: {e}</p>",
+                self.title
+            )
+        })
     }
 }
 
@@ -132,7 +158,18 @@ mod tests {
 
     #[test]
     fn axis_labels_are_short_and_distinct() {
-        assert_eq!([short(0.0), short(0.0124), short(0.0093), short(0.5), short(2.5), short(120.0), short(2e6)], ["0", "0.012", "0.0093", "0.50", "2.5", "120", "2.0e6"]);
+        assert_eq!(
+            [
+                short(0.0),
+                short(0.0124),
+                short(0.0093),
+                short(0.5),
+                short(2.5),
+                short(120.0),
+                short(2e6)
+            ],
+            ["0", "0.012", "0.0093", "0.50", "2.5", "120", "2.0e6"]
+        );
     }
 
     #[test]
@@ -143,7 +180,14 @@ mod tests {
         c.curve(&[(0.0, 1.0), (10.0, 1.0)], "law");
         let svg = c.svg();
         assert_eq!(svg.matches("<rect").count(), 3, "{svg}");
-        assert!(svg.contains("<polyline") && svg.contains("law") && svg.starts_with("<svg"), "{svg}");
-        assert!(c.bars.iter().all(|b| b.y >= TOP && b.y + b.h <= TOP + c.plot_h + 1e-9));
+        assert!(
+            svg.contains("<polyline") && svg.contains("law") && svg.starts_with("<svg"),
+            "{svg}"
+        );
+        assert!(
+            c.bars
+                .iter()
+                .all(|b| b.y >= TOP && b.y + b.h <= TOP + c.plot_h + 1e-9)
+        );
     }
 }

@@ -27,14 +27,30 @@ pub struct Facts {
 }
 
 fn truncate(s: &str, n: usize) -> String {
-    if s.chars().count() <= n { s.to_string() } else { format!("{}…", s.chars().take(n).collect::<String>()) }
+    if s.chars().count() <= n {
+        s.to_string()
+    } else {
+        format!("{}…", s.chars().take(n).collect::<String>())
+    }
 }
 
 /// Reads a JSONL side file; `label`/`text` pick what to show of each line.
 fn listed(path: &Path, label: &str, text: &str, problems: &mut Vec<String>) -> Listed {
-    let Ok(content) = std::fs::read_to_string(path) else { return Listed { lines: Vec::new(), total: 0 } };
-    let mut out = Listed { lines: Vec::new(), total: 0 };
-    for (n, line) in content.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+    let Ok(content) = std::fs::read_to_string(path) else {
+        return Listed {
+            lines: Vec::new(),
+            total: 0,
+        };
+    };
+    let mut out = Listed {
+        lines: Vec::new(),
+        total: 0,
+    };
+    for (n, line) in content
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+    {
         out.total += 1;
         if out.lines.len() >= MAX_LISTED {
             continue;
@@ -56,7 +72,11 @@ fn listed(path: &Path, label: &str, text: &str, problems: &mut Vec<String>) -> L
 
 /// Everything but the pixels. Fails only when `root` is not a directory.
 pub fn read(root: &Path) -> anyhow::Result<Facts> {
-    anyhow::ensure!(root.is_dir(), "{}: no such dataset directory", root.display());
+    anyhow::ensure!(
+        root.is_dir(),
+        "{}: no such dataset directory",
+        root.display()
+    );
     let layout = DatasetLayout::new(root);
     let mut problems = Vec::new();
     let info = match layout.read_info() {
@@ -70,7 +90,10 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
         Err(_) if !layout.manifest().exists() => Vec::new(),
         Ok(m) => {
             if m.has_unfinished_line() {
-                problems.push(format!("{}: the unfinished last line was left out (generation still running?)", layout.manifest().display()));
+                problems.push(format!(
+                    "{}: the unfinished last line was left out (generation still running?)",
+                    layout.manifest().display()
+                ));
             }
             let mut e = m.entries;
             e.sort_by_key(|e| e.index);
@@ -82,12 +105,22 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
         }
     };
     if entries.is_empty() && problems.is_empty() {
-        let none = if layout.manifest().exists() { "holds no finished samples" } else { "does not exist: no finished samples" };
+        let none = if layout.manifest().exists() {
+            "holds no finished samples"
+        } else {
+            "does not exist: no finished samples"
+        };
         problems.push(format!("{} {none}", layout.manifest().display()));
     }
     let failures = listed(&layout.failures(), "index", "error", &mut problems);
     let skipped = listed(&layout.skipped_assets(), "path", "reason", &mut problems);
-    Ok(Facts { info, entries, failures, skipped, problems })
+    Ok(Facts {
+        info,
+        entries,
+        failures,
+        skipped,
+        problems,
+    })
 }
 
 /// Finished samples per category: (name, count), recipe categories first.
@@ -125,9 +158,23 @@ pub fn render_times(entries: &[ManifestEntry]) -> Vec<(String, String)> {
     let total: f64 = t.iter().sum();
     let mut rows = vec![
         ("samples timed".to_string(), t.len().to_string()),
-        ("seconds per sample: mean".into(), format!("{:.2}", total / t.len() as f64)),
-        ("median / p95 / max".into(), format!("{:.2} / {:.2} / {:.2}", quantile(&t, 0.5), quantile(&t, 0.95), t[t.len() - 1])),
-        ("worker time in all".into(), format!("{:.2} h", total / 3600.0)),
+        (
+            "seconds per sample: mean".into(),
+            format!("{:.2}", total / t.len() as f64),
+        ),
+        (
+            "median / p95 / max".into(),
+            format!(
+                "{:.2} / {:.2} / {:.2}",
+                quantile(&t, 0.5),
+                quantile(&t, 0.95),
+                t[t.len() - 1]
+            ),
+        ),
+        (
+            "worker time in all".into(),
+            format!("{:.2} h", total / 3600.0),
+        ),
     ];
     let mut stages: BTreeMap<&str, (f64, usize)> = BTreeMap::new();
     for e in entries {
@@ -137,13 +184,22 @@ pub fn render_times(entries: &[ManifestEntry]) -> Vec<(String, String)> {
             s.1 += 1;
         }
     }
-    rows.extend(stages.into_iter().map(|(k, (sum, n))| (format!("step {k}: mean"), format!("{:.3} s", sum / n as f64))));
+    rows.extend(stages.into_iter().map(|(k, (sum, n))| {
+        (
+            format!("step {k}: mean"),
+            format!("{:.3} s", sum / n as f64),
+        )
+    }));
     rows
 }
 
 /// What a sample is measured by when looking for ones that stand out, with the least spread
 /// that counts (so a dataset whose samples all agree flags none for a hair's difference).
-const MEASURES: [(&str, f64); 3] = [("valid fraction", 0.02), ("largest disparity (px)", 1.0), ("render seconds", 0.5)];
+const MEASURES: [(&str, f64); 3] = [
+    ("valid fraction", 0.02),
+    ("largest disparity (px)", 1.0),
+    ("render seconds", 0.5),
+];
 
 fn measures(e: &ManifestEntry) -> [Option<f64>; 3] {
     let (l, r) = (e.disparity_left.as_ref(), e.disparity_right.as_ref());
@@ -151,7 +207,12 @@ fn measures(e: &ManifestEntry) -> [Option<f64>; 3] {
         (Some(a), Some(b)) => Some(a.valid_fraction.min(b.valid_fraction)),
         _ => Some(0.0),
     };
-    let max = l.into_iter().chain(r).map(|s| f64::from(s.max)).filter(|v| v.is_finite()).reduce(f64::max);
+    let max = l
+        .into_iter()
+        .chain(r)
+        .map(|s| f64::from(s.max))
+        .filter(|v| v.is_finite())
+        .reduce(f64::max);
     [valid, max, Some(e.render_seconds)]
 }
 
@@ -169,13 +230,24 @@ pub fn outliers(entries: &[ManifestEntry], limit: usize) -> Vec<(usize, String)>
             continue;
         }
         let median = quantile(&values, 0.5);
-        let mad = quantile(&sorted(values.iter().map(|v| (v - median).abs()).collect()), 0.5);
+        let mad = quantile(
+            &sorted(values.iter().map(|v| (v - median).abs()).collect()),
+            0.5,
+        );
         let scale = (1.4826 * mad).max(*floor);
         for (i, v) in all.iter().enumerate() {
             if let Some(x) = v[m] {
                 let z = (x - median) / scale;
                 if z.abs() > OUTLIER_Z {
-                    found.push((z.abs(), i, format!("{name} {} (median {})", super::chart::short(x), super::chart::short(median))));
+                    found.push((
+                        z.abs(),
+                        i,
+                        format!(
+                            "{name} {} (median {})",
+                            super::chart::short(x),
+                            super::chart::short(median)
+                        ),
+                    ));
                 }
             }
         }
@@ -198,7 +270,8 @@ mod tests {
 
     /// A manifest entry with the figures the outlier search reads.
     pub fn entry(index: u64, category: &str, valid: f64, max: f32, seconds: f64) -> ManifestEntry {
-        let summary = serde_json::json!({"min": 0.5, "max": max, "mean": 3.0, "valid_fraction": valid});
+        let summary =
+            serde_json::json!({"min": 0.5, "max": max, "mean": 3.0, "valid_fraction": valid});
         let id = format!("{index:07}");
         serde_json::from_value(serde_json::json!({
             "id": id, "category": category, "seed": 0, "index": index,
@@ -212,28 +285,62 @@ mod tests {
 
     #[test]
     fn samples_far_from_the_rest_stand_out_and_close_ones_do_not() {
-        let mut entries: Vec<ManifestEntry> = (0..40).map(|i| entry(i, "tree", 0.99 + 0.0002 * i as f64, 20.0 + 0.1 * i as f32, 2.0 + 0.01 * i as f64)).collect();
-        assert!(outliers(&entries, 5).is_empty(), "{:?}", outliers(&entries, 5));
+        let mut entries: Vec<ManifestEntry> = (0..40)
+            .map(|i| {
+                entry(
+                    i,
+                    "tree",
+                    0.99 + 0.0002 * i as f64,
+                    20.0 + 0.1 * i as f32,
+                    2.0 + 0.01 * i as f64,
+                )
+            })
+            .collect();
+        assert!(
+            outliers(&entries, 5).is_empty(),
+            "{:?}",
+            outliers(&entries, 5)
+        );
         entries[7].disparity_left.as_mut().unwrap().valid_fraction = 0.4;
         entries[12].render_seconds = 60.0;
         entries[12].disparity_right.as_mut().unwrap().max = 400.0;
         let found = outliers(&entries, 5);
-        assert_eq!(found.iter().map(|f| f.0).collect::<Vec<_>>(), [12, 7], "{found:?}");
-        assert!(found[0].1.contains("render seconds") && found[0].1.contains("largest disparity"), "{found:?}");
+        assert_eq!(
+            found.iter().map(|f| f.0).collect::<Vec<_>>(),
+            [12, 7],
+            "{found:?}"
+        );
+        assert!(
+            found[0].1.contains("render seconds") && found[0].1.contains("largest disparity"),
+            "{found:?}"
+        );
         assert_eq!(outliers(&entries, 1).len(), 1);
         let rows = render_times(&entries);
         assert_eq!(rows[0], ("samples timed".to_string(), "40".to_string()));
-        assert!(rows.iter().any(|(k, v)| k == "step build_s: mean" && v == "0.500 s"));
+        assert!(
+            rows.iter()
+                .any(|(k, v)| k == "step build_s: mean" && v == "0.500 s")
+        );
     }
 
     #[test]
     fn the_gallery_takes_every_category_in_turn() {
-        let cats = ["tree", "tree", "tree", "tree", "tree", "tree", "hole", "hole", "shapenet"];
-        let entries: Vec<ManifestEntry> = cats.iter().enumerate().map(|(i, c)| entry(i as u64, c, 1.0, 10.0, 1.0)).collect();
+        let cats = [
+            "tree", "tree", "tree", "tree", "tree", "tree", "hole", "hole", "shapenet",
+        ];
+        let entries: Vec<ManifestEntry> = cats
+            .iter()
+            .enumerate()
+            .map(|(i, c)| entry(i as u64, c, 1.0, 10.0, 1.0))
+            .collect();
         let chosen = super::super::gallery::choose(&entries, 5);
         // Turns: each category one, then hole and tree another (shapenet has no more); tree's two spread over its range.
         assert_eq!(chosen, [0, 3, 6, 7, 8]);
         assert_eq!(super::super::gallery::choose(&entries, 99).len(), 9);
-        assert_eq!(chosen, super::super::gallery::choose(&entries, 5), "deterministic");
+        assert_eq!(
+            chosen,
+            super::super::gallery::choose(&entries, 5),
+            "deterministic"
+        );
     }
 }

@@ -8,8 +8,8 @@ use std::path::Path;
 use base64::Engine;
 use image::imageops::FilterType;
 
-use stereo_io::colormap::{DisparityRange, colourise};
 use crate::dataset::{DatasetLayout, ManifestEntry};
+use stereo_io::colormap::{DisparityRange, colourise};
 
 /// Widest thumbnail (px); smaller images keep their size.
 pub const THUMB_WIDTH: u32 = 256;
@@ -51,25 +51,47 @@ pub fn choose(entries: &[ManifestEntry], n: usize) -> Vec<usize> {
             }
         }
     }
-    let mut out: Vec<usize> = groups.iter().zip(&share).flat_map(|(g, &m)| (0..m).map(move |j| g[j * g.len() / m.max(1)])).collect();
+    let mut out: Vec<usize> = groups
+        .iter()
+        .zip(&share)
+        .flat_map(|(g, &m)| (0..m).map(move |j| g[j * g.len() / m.max(1)]))
+        .collect();
     out.sort_unstable();
     out
 }
 
 fn data_uri(mime: &str, bytes: &[u8]) -> String {
-    format!("data:{mime};base64,{}", base64::engine::general_purpose::STANDARD.encode(bytes))
+    format!(
+        "data:{mime};base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(bytes)
+    )
 }
 
 fn thumb_size(w: u32, h: u32) -> (u32, u32) {
-    if w <= THUMB_WIDTH { (w, h) } else { (THUMB_WIDTH, ((h as f64 * THUMB_WIDTH as f64 / w as f64).round() as u32).max(1)) }
+    if w <= THUMB_WIDTH {
+        (w, h)
+    } else {
+        (
+            THUMB_WIDTH,
+            ((h as f64 * THUMB_WIDTH as f64 / w as f64).round() as u32).max(1),
+        )
+    }
 }
 
 fn photo(path: &Path) -> Result<String, String> {
-    let img = image::open(path).map_err(|e| format!("{}: {e}", path.display()))?.to_rgb8();
+    let img = image::open(path)
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .to_rgb8();
     let (w, h) = thumb_size(img.width(), img.height());
-    let small = if (w, h) == img.dimensions() { img } else { image::imageops::resize(&img, w, h, FilterType::Triangle) };
+    let small = if (w, h) == img.dimensions() {
+        img
+    } else {
+        image::imageops::resize(&img, w, h, FilterType::Triangle)
+    };
     let mut out = Vec::new();
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY).encode_image(&small).map_err(|e| format!("{}: {e}", path.display()))?;
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY)
+        .encode_image(&small)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(data_uri("image/jpeg", &out))
 }
 
@@ -78,11 +100,18 @@ fn disparity(path: &Path) -> Result<(String, f32), String> {
     let (map, _) = stereo_io::read_disparity_exr(path).map_err(|e| e.to_string())?;
     let max = map.stats().map_or(1.0, |s| s.max).max(1e-3);
     let rgb = colourise(&map, DisparityRange::new(0.0, max));
-    let img = image::RgbImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data).ok_or_else(|| format!("{}: bad size", path.display()))?;
+    let img = image::RgbImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data)
+        .ok_or_else(|| format!("{}: bad size", path.display()))?;
     let (w, h) = thumb_size(img.width(), img.height());
-    let small = if (w, h) == img.dimensions() { img } else { image::imageops::resize(&img, w, h, FilterType::Nearest) };
+    let small = if (w, h) == img.dimensions() {
+        img
+    } else {
+        image::imageops::resize(&img, w, h, FilterType::Nearest)
+    };
     let mut out = std::io::Cursor::new(Vec::new());
-    small.write_to(&mut out, image::ImageFormat::Png).map_err(|e| format!("{}: {e}", path.display()))?;
+    small
+        .write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     Ok((data_uri("image/png", out.get_ref()), max))
 }
 
@@ -99,7 +128,17 @@ pub fn tile(layout: &DatasetLayout, e: &ManifestEntry, caption: String) -> Tile 
             (None, "-".into())
         }
     };
-    Tile { id: e.id.clone(), category: e.category.clone(), index: e.index, caption, left, disparity, right, scale_max, problems }
+    Tile {
+        id: e.id.clone(),
+        category: e.category.clone(),
+        index: e.index,
+        caption,
+        left,
+        disparity,
+        right,
+        scale_max,
+        problems,
+    }
 }
 
 #[cfg(test)]

@@ -85,11 +85,21 @@ fn describe(facts: &Facts, page: &mut Page) {
         page.fingerprint = info.recipe_fingerprint.clone();
         page.seed = info.seed.to_string();
         page.version = info.stereogen_version.clone();
-        page.recipe_toml = toml::to_string(&info.recipe).unwrap_or_else(|e| format!("(the recipe cannot be shown as TOML: {e})"));
+        page.recipe_toml = toml::to_string(&info.recipe)
+            .unwrap_or_else(|e| format!("(the recipe cannot be shown as TOML: {e})"));
     }
     let counts = facts::counts(facts);
     page.total = facts.entries.len();
-    page.counts = counts.into_iter().map(|(n, c)| (n, c, format!("{:.1}%", 100.0 * c as f64 / page.total.max(1) as f64))).collect();
+    page.counts = counts
+        .into_iter()
+        .map(|(n, c)| {
+            (
+                n,
+                c,
+                format!("{:.1}%", 100.0 * c as f64 / page.total.max(1) as f64),
+            )
+        })
+        .collect();
     page.failures = facts.failures.lines.clone();
     page.failures_total = facts.failures.total;
     page.skipped = facts.skipped.lines.clone();
@@ -104,9 +114,17 @@ fn stats(dataset: &Path, facts: &Facts, problems: &mut Vec<String>) -> Option<St
     }
     match compute(&StatsOptions::new(dataset)) {
         Ok(s) => {
-            problems.extend(s.errors.iter().take(facts::MAX_LISTED).map(|e| format!("statistics: {e}")));
+            problems.extend(
+                s.errors
+                    .iter()
+                    .take(facts::MAX_LISTED)
+                    .map(|e| format!("statistics: {e}")),
+            );
             if s.errors.len() > facts::MAX_LISTED {
-                problems.push(format!("statistics: ... and {} more samples that could not be read", s.errors.len() - facts::MAX_LISTED));
+                problems.push(format!(
+                    "statistics: ... and {} more samples that could not be read",
+                    s.errors.len() - facts::MAX_LISTED
+                ));
             }
             Some(sections::stats_section(&s))
         }
@@ -165,13 +183,20 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
     let layout = DatasetLayout::new(&opts.dataset);
     let n = opts.thumbnails.min(MAX_THUMBNAILS);
     if opts.thumbnails > MAX_THUMBNAILS {
-        problems.push(format!("--thumbnails {} capped at {MAX_THUMBNAILS}", opts.thumbnails));
+        problems.push(format!(
+            "--thumbnails {} capped at {MAX_THUMBNAILS}",
+            opts.thumbnails
+        ));
     }
     let entries = &facts.entries;
     let chosen = gallery::choose(entries, n);
-    page.gallery = rayon_map(&chosen, |&i| gallery::tile(&layout, &entries[i], format!("index {}", entries[i].index)));
+    page.gallery = rayon_map(&chosen, |&i| {
+        gallery::tile(&layout, &entries[i], format!("index {}", entries[i].index))
+    });
     let odd = facts::outliers(entries, MAX_OUTLIERS);
-    page.outliers = rayon_map(&odd, |(i, why)| gallery::tile(&layout, &entries[*i], why.clone()));
+    page.outliers = rayon_map(&odd, |(i, why)| {
+        gallery::tile(&layout, &entries[*i], why.clone())
+    });
     for t in page.gallery.iter().chain(&page.outliers) {
         problems.extend(t.problems.iter().map(|p| format!("sample {}: {p}", t.id)));
     }
@@ -186,7 +211,8 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
     if let Some(dir) = opts.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    stereo_io::write_bytes_atomically(&opts.out, html.as_bytes()).with_context(|| format!("cannot write {}", opts.out.display()))?;
+    stereo_io::write_bytes_atomically(&opts.out, html.as_bytes())
+        .with_context(|| format!("cannot write {}", opts.out.display()))?;
     Ok(ReportSummary {
         path: opts.out.clone(),
         bytes: html.len() as u64,

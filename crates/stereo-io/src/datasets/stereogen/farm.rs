@@ -139,7 +139,9 @@ impl DatasetLayout {
         let mut others = Vec::new();
         let entries = match std::fs::read_dir(&dir) {
             Ok(entries) => entries,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(ShardDirs { shards, others }),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Ok(ShardDirs { shards, others });
+            }
             Err(e) => return Err(Error::io(&dir, e)),
         };
         for entry in entries {
@@ -202,11 +204,13 @@ impl DatasetLayout {
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not a stereogen {what}: {e}")))
+    serde_json::from_str(&text)
+        .map_err(|e| Error::format(path, format!("not a stereogen {what}: {e}")))
 }
 
 fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
-    let json = serde_json::to_string_pretty(value).map_err(|e| Error::format(path, format!("cannot encode: {e}")))?;
+    let json = serde_json::to_string_pretty(value)
+        .map_err(|e| Error::format(path, format!("cannot encode: {e}")))?;
     crate::atomic::write_bytes_atomically(path, json.as_bytes())
 }
 
@@ -220,7 +224,14 @@ mod tests {
         assert_eq!(a.dir_name(), "0007-of-0064");
         assert_eq!(ShardId::parse_dir_name("0007-of-0064"), Some(a));
         assert_eq!(ShardId::new(3, 12000).unwrap().dir_name(), "00003-of-12000");
-        for bad in ["7-of-64", "0064-of-0064", "0001-of-0000", "0001_of_0004", "x001-of-0004", "shard"] {
+        for bad in [
+            "7-of-64",
+            "0064-of-0064",
+            "0001-of-0000",
+            "0001_of_0004",
+            "x001-of-0004",
+            "shard",
+        ] {
             assert_eq!(ShardId::parse_dir_name(bad), None, "{bad}");
         }
     }
@@ -235,8 +246,14 @@ mod tests {
         assert_eq!(layout.unmerged_shards(), Some(1));
         let ShardDirs { shards, others } = layout.shard_dirs().unwrap();
         assert_eq!((shards.len(), others.len()), (1, 1));
-        let e = layout.unmerged_error(&layout.manifest()).unwrap().to_string();
-        assert!(e.contains("stereogen merge") && e.contains("1 shard directory"), "{e}");
+        let e = layout
+            .unmerged_error(&layout.manifest())
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("stereogen merge") && e.contains("1 shard directory"),
+            "{e}"
+        );
         std::fs::write(layout.manifest(), "").unwrap();
         assert_eq!(layout.unmerged_shards(), None);
     }

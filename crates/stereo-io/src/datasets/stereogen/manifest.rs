@@ -95,7 +95,8 @@ impl ManifestContents {
 
 /// Reads the finished entries of the manifest at `path` (see the module docs for the rule).
 pub fn read_manifest(path: &Path) -> Result<ManifestContents> {
-    let file = File::open(path).map_err(|e| unmerged_farm_error(path).unwrap_or(Error::io(path, e)))?;
+    let file =
+        File::open(path).map_err(|e| unmerged_farm_error(path).unwrap_or(Error::io(path, e)))?;
     read_from(BufReader::new(file), path)
 }
 
@@ -109,7 +110,9 @@ fn read_from(mut reader: impl BufRead, path: &Path) -> Result<ManifestContents> 
     let mut line = Vec::new();
     for number in 1.. {
         line.clear();
-        let n = reader.read_until(b'\n', &mut line).map_err(|e| Error::io(path, e))?;
+        let n = reader
+            .read_until(b'\n', &mut line)
+            .map_err(|e| Error::io(path, e))?;
         if n == 0 {
             break;
         }
@@ -117,11 +120,14 @@ fn read_from(mut reader: impl BufRead, path: &Path) -> Result<ManifestContents> 
             contents.unfinished_bytes = n as u64;
             break;
         }
-        let text = std::str::from_utf8(&line).map_err(|_| Error::format(path, format!("line {number} is not UTF-8 text")))?;
+        let text = std::str::from_utf8(&line)
+            .map_err(|_| Error::format(path, format!("line {number} is not UTF-8 text")))?;
         if text.trim().is_empty() {
             continue;
         }
-        let entry = serde_json::from_str(text).map_err(|e| Error::format(path, format!("line {number} is not a manifest entry: {e}")))?;
+        let entry = serde_json::from_str(text).map_err(|e| {
+            Error::format(path, format!("line {number} is not a manifest entry: {e}"))
+        })?;
         contents.entries.push(entry);
     }
     Ok(contents)
@@ -138,22 +144,39 @@ impl Manifest {
     /// unfinished last line can only be a torn append here (the caller holds the dataset's
     /// lock, so nobody else writes): it is cut off the file, and reported in the contents.
     pub fn open(path: &Path) -> Result<(Self, ManifestContents)> {
-        let mut file = OpenOptions::new().create(true).read(true).append(true).open(path).map_err(|e| Error::io(path, e))?;
+        let mut file = OpenOptions::new()
+            .create(true)
+            .read(true)
+            .append(true)
+            .open(path)
+            .map_err(|e| Error::io(path, e))?;
         let contents = read_from(BufReader::new(&file), path)?;
         if contents.has_unfinished_line() {
             let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-            file.set_len(len - contents.unfinished_bytes).map_err(|e| Error::io(path, e))?;
-            file.seek(SeekFrom::End(0)).map_err(|e| Error::io(path, e))?;
+            file.set_len(len - contents.unfinished_bytes)
+                .map_err(|e| Error::io(path, e))?;
+            file.seek(SeekFrom::End(0))
+                .map_err(|e| Error::io(path, e))?;
         }
-        Ok((Self { path: path.to_path_buf(), file }, contents))
+        Ok((
+            Self {
+                path: path.to_path_buf(),
+                file,
+            },
+            contents,
+        ))
     }
 
     /// Appends one entry as one line and syncs it to disk before returning.
     pub fn append(&mut self, entry: &ManifestEntry) -> Result<()> {
-        let mut line = serde_json::to_string(entry).map_err(|e| Error::format(&self.path, format!("cannot encode entry {}: {e}", entry.id)))?;
+        let mut line = serde_json::to_string(entry).map_err(|e| {
+            Error::format(&self.path, format!("cannot encode entry {}: {e}", entry.id))
+        })?;
         line.push('\n');
         // One write of the whole line: a reader sees the line entire or unfinished, never two halves.
-        self.file.write_all(line.as_bytes()).map_err(|e| Error::io(&self.path, e))?;
+        self.file
+            .write_all(line.as_bytes())
+            .map_err(|e| Error::io(&self.path, e))?;
         self.file.sync_data().map_err(|e| Error::io(&self.path, e))
     }
 
@@ -182,7 +205,12 @@ mod tests {
             cx: 4.0,
             cy: 3.0,
             disparity_left: None,
-            disparity_right: Some(DisparitySummary { min: 1.0, max: 2.0, mean: 1.5, valid_fraction: 0.5 }),
+            disparity_right: Some(DisparitySummary {
+                min: 1.0,
+                max: 2.0,
+                mean: 1.5,
+                valid_fraction: 0.5,
+            }),
             render_seconds: 1.25,
             render_timings: BTreeMap::from([("save".to_string(), 0.25)]),
             notes: vec![],
@@ -214,7 +242,10 @@ mod tests {
         let path = dir.path().join("manifest.jsonl");
         std::fs::write(&path, line(&entry(0)) + "\n{\"id\": \"x\"}\n").unwrap();
         let e = read_manifest(&path).unwrap_err().to_string();
-        assert!(e.contains("manifest.jsonl") && e.contains("line 3") && e.contains("missing field"), "{e}");
+        assert!(
+            e.contains("manifest.jsonl") && e.contains("line 3") && e.contains("missing field"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -226,7 +257,10 @@ mod tests {
         let (mut m, done) = Manifest::open(&path).unwrap();
         assert_eq!((done.entries.len(), done.unfinished_bytes), (1, 20));
         m.append(&entry(2)).unwrap();
-        assert_eq!(std::fs::read_to_string(&path).unwrap(), line(&entry(0)) + &line(&entry(2)));
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            line(&entry(0)) + &line(&entry(2))
+        );
         assert_eq!(Manifest::read(&path).unwrap(), vec![entry(0), entry(2)]);
     }
 

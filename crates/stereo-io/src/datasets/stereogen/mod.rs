@@ -26,7 +26,9 @@ use std::path::{Path, PathBuf};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-pub use farm::{ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo};
+pub use farm::{
+    ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
+};
 pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
 
 use super::{DispKind, SampleFiles, SampleMeta};
@@ -72,7 +74,13 @@ impl SamplePaths {
 
     /// Every file with its key (the keys of the manifest's `files` and `sha256`).
     pub fn all(&self) -> [(&'static str, &Path); 5] {
-        [("left", &self.left), ("right", &self.right), ("disp_left", &self.disp_left), ("disp_right", &self.disp_right), ("scene", &self.scene)]
+        [
+            ("left", &self.left),
+            ("right", &self.right),
+            ("disp_left", &self.disp_left),
+            ("disp_right", &self.disp_right),
+            ("scene", &self.scene),
+        ]
     }
 }
 
@@ -133,14 +141,18 @@ impl DatasetLayout {
     /// Reads `dataset.json`, with the recipe as `R`.
     pub fn read_info<R: DeserializeOwned>(&self) -> Result<DatasetInfo<R>> {
         let path = self.info();
-        let text = std::fs::read_to_string(&path).map_err(|e| self.unmerged_error(&path).unwrap_or(Error::io(&path, e)))?;
-        serde_json::from_str(&text).map_err(|e| Error::format(&path, format!("not a stereogen dataset description: {e}")))
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| self.unmerged_error(&path).unwrap_or(Error::io(&path, e)))?;
+        serde_json::from_str(&text)
+            .map_err(|e| Error::format(&path, format!("not a stereogen dataset description: {e}")))
     }
 
     /// Writes `dataset.json` atomically.
     pub fn write_info<R: Serialize>(&self, info: &DatasetInfo<R>) -> Result<()> {
         let path = self.info();
-        let json = serde_json::to_string_pretty(info).map_err(|e| Error::format(&path, format!("cannot encode the dataset description: {e}")))?;
+        let json = serde_json::to_string_pretty(info).map_err(|e| {
+            Error::format(&path, format!("cannot encode the dataset description: {e}"))
+        })?;
         crate::atomic::write_bytes_atomically(&path, json.as_bytes())
     }
 
@@ -148,11 +160,21 @@ impl DatasetLayout {
     /// root and its category folders; returns how many.
     pub fn remove_partial_files(&self) -> usize {
         let mut removed = 0;
-        let Ok(dirs) = std::fs::read_dir(&self.root) else { return 0 };
-        for dir in dirs.flatten().map(|e| e.path()).chain(std::iter::once(self.root.clone())) {
-            let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        let Ok(dirs) = std::fs::read_dir(&self.root) else {
+            return 0;
+        };
+        for dir in dirs
+            .flatten()
+            .map(|e| e.path())
+            .chain(std::iter::once(self.root.clone()))
+        {
+            let Ok(entries) = std::fs::read_dir(&dir) else {
+                continue;
+            };
             for e in entries.flatten() {
-                if crate::atomic::is_temp_name(&e.file_name().to_string_lossy()) && std::fs::remove_file(e.path()).is_ok() {
+                if crate::atomic::is_temp_name(&e.file_name().to_string_lossy())
+                    && std::fs::remove_file(e.path()).is_ok()
+                {
                     removed += 1;
                 }
             }
@@ -173,7 +195,12 @@ fn sample_meta(e: &ManifestEntry) -> SampleMeta {
         ..Default::default()
     };
     meta.extra.insert("category".into(), e.category.clone());
-    for (k, v) in [("index", e.index), ("seed", e.seed), ("width", u64::from(e.width)), ("height", u64::from(e.height))] {
+    for (k, v) in [
+        ("index", e.index),
+        ("seed", e.seed),
+        ("width", u64::from(e.width)),
+        ("height", u64::from(e.height)),
+    ] {
         meta.extra.insert(k.into(), v.to_string());
     }
     meta
