@@ -207,6 +207,7 @@ fn re_exporting_into_the_same_folder_is_idempotent_and_leaves_no_temp_links() {
         from: None,
         to: WritableFormat::Crestereo,
         images: ImageEncoding::Lossless,
+        read: Default::default(),
     };
     let first = export_dataset(&src, &out, &opts).unwrap();
     let listing = names(&out);
@@ -244,6 +245,7 @@ fn an_export_onto_a_full_disk_leaves_whole_samples_and_says_so() {
         from: None,
         to: WritableFormat::Crestereo,
         images: ImageEncoding::Lossless,
+        read: Default::default(),
     };
     let filler = fs.fill_leaving(200 * 1024);
     let e = export_dataset(&src, &out, &opts).unwrap_err().to_string();

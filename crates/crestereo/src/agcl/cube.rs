@@ -626,7 +626,7 @@ mod fusion {
             spec: CorrSpec,
             need: [bool; 4],
         ) -> [Option<FloatTensor<Self>>; 4] {
-            let shapes = [&left, &right, &flow, &offset].map(|t| dims::<Self>(t));
+            let shapes = [&left, &right, &flow, &offset].map(dims::<Self>);
             let wanted: Vec<[usize; 4]> = shapes
                 .iter()
                 .zip(need)
