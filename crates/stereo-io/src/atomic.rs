@@ -312,7 +312,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let target = dir.path().join("missing").join("a.bin");
         let e = write_bytes_atomically(&target, b"x").unwrap_err();
-        let text = format!("{}", anyhow_like(&e));
+        let text = anyhow_like(&e).to_string();
         assert!(
             text.contains("missing/a.bin") && !text.contains(TEMP_MARK),
             "{text}"

@@ -261,7 +261,7 @@ fn an_export_onto_a_full_disk_leaves_whole_samples_and_says_so() {
     );
     let ds = open_dataset(&out, Some(DatasetFormat::Crestereo)).unwrap();
     assert!(
-        ds.len() > 0 && ds.len() < 12,
+        !ds.is_empty() && ds.len() < 12,
         "the disk filled mid-way: {} samples",
         ds.len()
     );

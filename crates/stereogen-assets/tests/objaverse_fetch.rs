@@ -17,7 +17,7 @@ fn glb(name: &str) -> Vec<u8> {
     let mut text = json!({"asset": {"version": "2.0", "generator": name}})
         .to_string()
         .into_bytes();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let total = 12 + 8 + text.len();
