@@ -37,9 +37,11 @@ fn names(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = walkdir::WalkDir::new(dir)
         .min_depth(1)
         .into_iter()
+        .map(|e| e.unwrap())
+        // Files only: a CREStereo export also makes its four (possibly empty) category folders.
+        .filter(|e| !e.file_type().is_dir())
         .map(|e| {
-            e.unwrap()
-                .path()
+            e.path()
                 .strip_prefix(dir)
                 .unwrap()
                 .to_string_lossy()
