@@ -136,9 +136,8 @@ impl SampleContent<'_> {
                         .all(|(a, b)| a.to_bits() == b.to_bits())
             }
             "scene" => {
-                let text = std::str::from_utf8(bytes)
-                    .with_context(|| format!("{}: not UTF-8", path.display()))?;
-                crate::plan::SceneSpec::from_json(text)
+                // Gzip'd or plain, decoded the way every reader decodes it.
+                super::scene_file::decode_scene_spec(bytes)
                     .with_context(|| format!("{}: not a SceneSpec", path.display()))?
                     == *self.spec
             }
