@@ -517,7 +517,8 @@ fn two_writers(sweep: &mut Sweep, out: &Path, count: u64) {
     );
     let refused = if sa.success() { eb } else { ea };
     assert!(
-        refused.contains("another stereogen process is writing to"),
+        // The lock names its holder (issue 12's lock file: host, pid, start time).
+        refused.contains("is being written by pid") && refused.contains("--break-lock"),
         "{refused}"
     );
     println!("two writers: one refused");
