@@ -180,21 +180,17 @@ pub fn write_png_rgb(path: &Path, img: &RgbImage) -> Result<()> {
     )
 }
 
-/// Writes an RGB8 JPEG with `quality` 1..=100, durably.
+/// Writes an RGB8 JPEG with `quality` 1..=100 (clamped), 4:4:4, durably: the one JPEG encoder
+/// ([`crate::jpeg`], libjpeg-turbo's codec), so every JPEG we write decodes like OpenCV's.
 pub fn write_jpeg_rgb(path: &Path, img: &RgbImage, quality: u8) -> Result<()> {
     if img.data.len() != img.width * img.height * 3 {
         return Err(Error::format(path, "image buffer does not match its size"));
     }
-    let mut out = Cursor::new(Vec::new());
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
-        .encode(
-            &img.data,
-            img.width as u32,
-            img.height as u32,
-            image::ExtendedColorType::Rgb8,
-        )
-        .map_err(|e| Error::format(path, format!("cannot encode JPEG: {e}")))?;
-    crate::atomic::write_bytes_atomically(path, &out.into_inner())
+    let opts = crate::jpeg::JpegOptions {
+        quality: quality.clamp(1, 100),
+        ..Default::default()
+    };
+    crate::jpeg::write_jpeg(path, img, opts)
 }
 
 #[cfg(test)]
