@@ -147,3 +147,24 @@ pub fn generate_tiny_dataset(dir: &std::path::Path, name: &str, count: u64, seed
     );
     out
 }
+
+/// SHA-256 of a file as lowercase hex, recomputed with coreutils' `sha256sum`: independent of the
+/// generator's own hashing, so the manifest's checksums are checked by code nobody here wrote.
+pub fn sha256_hex(path: &std::path::Path) -> String {
+    let out = std::process::Command::new("sha256sum")
+        .arg(path)
+        .output()
+        .expect("sha256sum");
+    assert!(
+        out.status.success(),
+        "sha256sum {}: {}",
+        path.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_string()
+}

@@ -11,7 +11,7 @@ use serde_json::Value;
 use stereo_io::DisparityMap;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::recipe::PRESETS;
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{sha256_hex, stereogen_bin, write_tiny_recipe};
 
 /// With seed 3 the first 8 scenes of the tiny `crestereo` mix cover all four categories.
 const MIX_SCENES: u64 = 8;
@@ -67,20 +67,6 @@ fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
 
 fn audit_json(data: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(data.join("audit.json")).unwrap()).unwrap()
-}
-
-/// Checksums are recomputed with coreutils' sha256sum, independently of the generator.
-fn sha256_hex(path: &Path) -> String {
-    let out = Command::new("sha256sum")
-        .arg(path)
-        .output()
-        .expect("sha256sum");
-    String::from_utf8(out.stdout)
-        .unwrap()
-        .split_whitespace()
-        .next()
-        .unwrap()
-        .to_string()
 }
 
 fn copy_dir(from: &Path, to: &Path) {

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::render::scratch;
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{sha256_hex, stereogen_bin, write_tiny_recipe};
 
 #[path = "../crates/stereo-io/tests/support/small_fs.rs"]
 #[macro_use]
@@ -244,20 +244,6 @@ fn manifest_lines(out: &Path) -> usize {
     std::fs::read_to_string(out.join("manifest.jsonl"))
         .map(|t| t.lines().count())
         .unwrap_or(0)
-}
-
-/// Checksums are recomputed with coreutils' sha256sum, independently of the generator.
-fn sha256_hex(path: &Path) -> String {
-    let out = Command::new("sha256sum")
-        .arg(path)
-        .output()
-        .expect("sha256sum");
-    String::from_utf8(out.stdout)
-        .unwrap()
-        .split_whitespace()
-        .next()
-        .unwrap()
-        .to_string()
 }
 
 /// Every file under `dir`, recursively.

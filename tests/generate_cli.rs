@@ -7,21 +7,7 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::plan::recipe::PRESETS;
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
-
-/// Checksums are recomputed with coreutils' sha256sum, independently of the generator.
-fn sha256_hex(path: &Path) -> String {
-    let out = Command::new("sha256sum")
-        .arg(path)
-        .output()
-        .expect("sha256sum");
-    String::from_utf8(out.stdout)
-        .unwrap()
-        .split_whitespace()
-        .next()
-        .unwrap()
-        .to_string()
-}
+use stereogen_e2e::{sha256_hex, stereogen_bin, write_tiny_recipe};
 
 /// The default preset shrunk so a sample renders in about a second.
 fn tiny_recipe(dir: &Path) -> PathBuf {
