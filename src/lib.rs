@@ -1,7 +1,7 @@
-//! Support for the end-to-end tests in `tests/`: an independent ray caster, the analytic test
-//! scenes, and helpers that run the real renderer and the real CLI.
+//! Support for the end-to-end tests in `tests/`: the analytic test scenes and helpers that run the
+//! real renderer and the real CLI. The ray caster the tests compare against is the audit's
+//! (`stereogen::validate::audit::raycast`), so the analytic scenes also check the audit itself.
 
-pub mod raycast;
 pub mod scenes;
 
 use std::path::PathBuf;

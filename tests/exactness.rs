@@ -4,7 +4,9 @@
 use stereo_io::DisparityMap;
 use stereogen::plan::rig::View;
 use stereogen::render::RenderService;
-use stereogen_e2e::raycast::{Triangle, disparity_at, scene_triangles, visible_in_right};
+use stereogen::validate::audit::raycast::{
+    RayScene, disparity_at, scene_triangles, visible_in_right,
+};
 use stereogen_e2e::{render, scenes, worker_config};
 
 /// Steepest disparity change (px per px) tolerated before a pixel counts as grazing: there a
@@ -18,7 +20,7 @@ const GRAZING_GRADIENT: f64 = 10.0;
 fn compare(
     map: &DisparityMap,
     rig: &stereogen::plan::StereoRig,
-    tris: &[Triangle],
+    tris: &RayScene,
     view: View,
 ) -> (f64, usize, usize) {
     let (mut max_err, mut grazing, mut wrong_validity) = (0f64, 0usize, 0usize);
