@@ -223,6 +223,12 @@ def load_mesh_file(name, candidates, max_triangles, skipped):
             if not (radius > 1e-12 and math.isfinite(radius)):
                 raise AssetError("degenerate: all vertices coincide")
             co = (co - centre) / radius
+            a, b, c = co[tris[:, 0]], co[tris[:, 1]], co[tris[:, 2]]
+            area = 0.5 * float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+            # A unit-sphere mesh whose faces add up to less than this draws no pixel at any size
+            # we place: every vertex on a line, or all triangles collapsed.
+            if not area > 1e-9:
+                raise AssetError("degenerate: its triangles have zero area")
             mesh = bpy.data.meshes.new(name)
             mesh.vertices.add(len(co))
             mesh.vertices.foreach_set("co", co.astype(np.float32).ravel())

@@ -47,6 +47,11 @@ fn every_mesh_format_loads_and_broken_candidates_fall_back() {
     write(&p("octa.off"), OCTA_OFF.as_bytes());
     write(&p("broken.obj"), GARBAGE);
     write(&p("broken.ply"), GARBAGE);
+    // Distinct vertices, but every triangle collapsed onto one line: zero area.
+    write(
+        &p("flat.obj"),
+        b"v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n",
+    );
     let flat = MaterialSpec::flat([0.6, 0.5, 0.4], 0.5);
     let mut objects = vec![plane("wall", [0.0, 0.0, -6.0], [0.0; 3], 40.0)];
     for (i, name) in ["cube.obj", "tetra.ply", "tetra.stl", "octa.off"]
@@ -68,6 +73,7 @@ fn every_mesh_format_loads_and_broken_candidates_fall_back() {
             p("broken.obj"),
             p("missing.obj"),
             p("broken.ply"),
+            p("flat.obj"),
             p("cube.obj"),
         ]),
         [0.0, 0.6, -3.0],
@@ -119,6 +125,11 @@ fn every_mesh_format_loads_and_broken_candidates_fall_back() {
         );
     }
     assert_eq!(skipped["missing.obj"], "file not found");
+    assert_eq!(
+        skipped.get("flat.obj").map(String::as_str),
+        Some("degenerate: its triangles have zero area"),
+        "{skipped:?}"
+    );
 }
 
 fn generate(recipe: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
@@ -220,6 +231,13 @@ fn shapenet_layouts_and_a_texture_folder_with_broken_files() {
     assert!(
         skipped.contains("corrupt.jpg"),
         "corrupt photo listed: {skipped}"
+    );
+    // Listed and warned about once each, however many samples drew them.
+    assert_eq!(skipped.matches("corrupt.jpg").count(), 1, "{skipped}");
+    assert_eq!(
+        err.matches("corrupt.jpg").count(),
+        1,
+        "one warning for the bad photo:\n{err}"
     );
     assert!(
         skipped.contains("chair02"),

@@ -332,6 +332,16 @@ fn assert_complete(out: &Path, count: u64) {
     );
 }
 
+/// Extends the run's sample count so that at least `ahead` samples are still to render: a kill
+/// must find the run busy however fast this machine renders (a quiet CI machine renders the tiny
+/// samples several times faster than a loaded one).
+fn keep_work_ahead(out: &Path, count: &mut u64, ahead: u64) {
+    let done = manifest_lines(out) as u64;
+    if *count < done + ahead {
+        *count = done + ahead;
+    }
+}
+
 fn send(pid: u32, signal: i32) {
     assert_eq!(
         unsafe { libc::kill(pid as i32, signal) },
@@ -344,9 +354,11 @@ fn send(pid: u32, signal: i32) {
 /// (during Blender's start-up or the first samples), the others a random time after the manifest
 /// gained a line (at every stage of a sample). After each kill the manifest must be sound; the
 /// next run resumes.
-fn kill_generate(sweep: &mut Sweep, out: &Path, count: u64, kills: usize) {
+fn kill_generate(sweep: &mut Sweep, out: &Path, count: &mut u64, kills: usize) {
     for k in 1..=kills {
-        let mut run = sweep.start(out, count, &[]);
+        // Up to 4 s of rendering: a quiet 2-core machine lists ~4 tiny samples a second.
+        keep_work_ahead(out, count, 40);
+        let mut run = sweep.start(out, *count, &[]);
         let lines = manifest_lines(out);
         let (delay, after) = if k % 2 == 1 {
             (
@@ -386,8 +398,9 @@ fn kill_generate(sweep: &mut Sweep, out: &Path, count: u64, kills: usize) {
 }
 
 /// kill -9 of the worker while it renders: the run restarts it and completes.
-fn kill_worker(sweep: &mut Sweep, out: &Path, count: u64) {
-    let mut run = sweep.start(out, count, &[]);
+fn kill_worker(sweep: &mut Sweep, out: &Path, count: &mut u64) {
+    keep_work_ahead(out, count, 12);
+    let mut run = sweep.start(out, *count, &[]);
     let pid = run.child.id();
     // Past its start-up: it has finished a sample of this run.
     let lines = manifest_lines(out);
@@ -411,8 +424,9 @@ fn kill_worker(sweep: &mut Sweep, out: &Path, count: u64) {
 }
 
 /// SIGTERM or SIGINT: the run stops within seconds with [`EXIT_INTERRUPTED`], its worker gone.
-fn interrupt(sweep: &mut Sweep, out: &Path, count: u64, signal: i32, name: &str) {
-    let mut run = sweep.start(out, count, &[]);
+fn interrupt(sweep: &mut Sweep, out: &Path, count: &mut u64, signal: i32, name: &str) {
+    keep_work_ahead(out, count, 12);
+    let mut run = sweep.start(out, *count, &[]);
     let pid = run.child.id();
     let lines = manifest_lines(out);
     let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| {
@@ -513,10 +527,11 @@ fn two_writers(sweep: &mut Sweep, out: &Path, count: u64) {
 fn sweep(kills: usize, count: u64, fill_levels: &[u64]) {
     let mut sweep = Sweep::new();
     let out = sweep.dir.path().join("data");
-    kill_generate(&mut sweep, &out, count, kills);
-    interrupt(&mut sweep, &out, count, libc::SIGTERM, "SIGTERM");
-    interrupt(&mut sweep, &out, count, libc::SIGINT, "SIGINT");
-    kill_worker(&mut sweep, &out, count);
+    let mut count = count;
+    kill_generate(&mut sweep, &out, &mut count, kills);
+    interrupt(&mut sweep, &out, &mut count, libc::SIGTERM, "SIGTERM");
+    interrupt(&mut sweep, &out, &mut count, libc::SIGINT, "SIGINT");
+    kill_worker(&mut sweep, &out, &mut count);
     sweep.complete(&out, count);
     assert_complete(&out, count);
     let other = sweep.dir.path().join("other");

@@ -1,13 +1,14 @@
 //! Checkpoints: `<run>/checkpoints/step-NNNNNNNN/` holding the model, the optimiser state and
-//! the training state (step, data position, seed). A checkpoint is written into a hidden temp
-//! directory and renamed into place, so a crash mid-save never leaves a half checkpoint that
-//! `--resume` would pick; older checkpoints are pruned only after the new one is complete.
+//! the training state (step, data position, seed). Each file goes through the project's
+//! durable-write path (`stereo_io::write_bytes_atomically`: checked writes, fsync, rename), into a
+//! hidden temp directory that is renamed into place once all three are whole, so neither a crash
+//! nor a full disk mid-save leaves a half checkpoint that `--resume` would pick; older checkpoints
+//! are pruned only after the new one is complete.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use burn::optim::Optimizer;
-use burn::record::{FullPrecisionSettings, NamedMpkFileRecorder, Recorder};
 use burn::tensor::backend::AutodiffBackend;
 use crestereo::CREStereo;
 use serde::{Deserialize, Serialize};
@@ -44,10 +45,6 @@ pub struct Learner<B: AutodiffBackend, O> {
 const MODEL: &str = "model";
 const OPTIMIZER: &str = "optimizer";
 const STATE: &str = "state.json";
-
-fn recorder() -> NamedMpkFileRecorder<FullPrecisionSettings> {
-    NamedMpkFileRecorder::<FullPrecisionSettings>::new()
-}
 
 pub fn checkpoints_dir(run: &Path) -> PathBuf {
     run.join("checkpoints")
@@ -92,6 +89,7 @@ where
 {
     let dir = checkpoints_dir(run);
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    remove_orphaned_temp_checkpoints(&dir);
     let name = format!("step-{:08}", state.step);
     let tmp = dir.join(format!(".tmp-{name}-{}", std::process::id()));
     if tmp.exists() {
@@ -100,13 +98,9 @@ where
     std::fs::create_dir(&tmp)?;
     let write = || -> Result<()> {
         crestereo::weights::save_record(model, tmp.join(MODEL))?;
-        Recorder::<B>::record(&recorder(), optim.to_record(), tmp.join(OPTIMIZER))
-            .map_err(|e| anyhow::anyhow!("saving optimiser state: {e}"))?;
+        crestereo::weights::save_any_record::<B, _>(optim.to_record(), tmp.join(OPTIMIZER))?;
         let json = serde_json::to_vec_pretty(state)?;
-        std::fs::write(tmp.join(STATE), json)?;
-        for f in std::fs::read_dir(&tmp)? {
-            std::fs::File::open(f?.path())?.sync_all()?;
-        }
+        stereo_io::write_bytes_atomically(&tmp.join(STATE), &json)?;
         Ok(())
     };
     if let Err(e) = write() {
@@ -133,6 +127,25 @@ where
     Ok(target)
 }
 
+/// Removes the temp directories (`.tmp-step-N-PID`) of saves whose process died mid-save.
+fn remove_orphaned_temp_checkpoints(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let owner = name
+            .strip_prefix(".tmp-")
+            .and_then(|rest| rest.rsplit('-').next())
+            .and_then(|pid| pid.parse::<u32>().ok());
+        if let Some(pid) = owner
+            && !stereo_io::atomic::process_alive(pid)
+        {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
+}
+
 /// Reads a checkpoint's training state.
 pub fn read_state(checkpoint: &Path) -> Result<TrainState> {
     let path = checkpoint.join(STATE);
@@ -155,10 +168,8 @@ where
     let state = read_state(checkpoint)?;
     let model =
         crestereo::weights::load_record(model, checkpoint.join(format!("{MODEL}.mpk")), device)?;
-    let record =
-        Recorder::<B>::load(&recorder(), checkpoint.join(OPTIMIZER), device).map_err(|e| {
-            anyhow::anyhow!("loading optimiser state from {}: {e}", checkpoint.display())
-        })?;
+    let record = crestereo::weights::load_any_record::<B, _>(checkpoint.join(OPTIMIZER), device)
+        .with_context(|| format!("loading optimiser state from {}", checkpoint.display()))?;
     Ok(Learner {
         model,
         optim: optim.load_record(record),

@@ -107,9 +107,14 @@ impl EventWriter {
             .with_context(|| format!("cannot write {}", self.path.display()))
     }
 
+    /// Writes out what is buffered and makes it durable. An event file is an append-only log
+    /// (TensorBoard reads it while it grows), so it cannot take the temp-and-rename path of
+    /// finished files; instead every write and this flush are checked, and a record torn by a
+    /// crash is one TensorBoard's reader drops by its checksum.
     pub fn flush(&mut self) -> Result<()> {
         self.out
             .flush()
+            .and_then(|()| self.out.get_ref().sync_data())
             .with_context(|| format!("cannot write {}", self.path.display()))
     }
 }

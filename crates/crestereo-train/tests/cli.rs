@@ -108,6 +108,35 @@ fn infer_cli_errors_are_clear() {
         missing.as_os_str(),
     ]);
     assert!(msg.contains("does not exist"), "{msg}");
+    // a file that is not weights is named as such, not as a missing file
+    let msg = run_err(&[
+        "infer".as_ref(),
+        e.join("left.png").as_os_str(),
+        e.join("right.png").as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "--weights".as_ref(),
+        bogus.as_os_str(),
+    ]);
+    assert!(
+        msg.contains("bogus.png") && msg.contains("is not a Burn record"),
+        "{msg}"
+    );
+    // an output folder that does not exist is refused before the images are read
+    let nowhere = dir.path().join("nowhere").join("disp.exr");
+    let msg = run_err(&[
+        "infer".as_ref(),
+        bogus.as_os_str(),
+        e.join("right.png").as_os_str(),
+        "-o".as_ref(),
+        nowhere.as_os_str(),
+        "--weights".as_ref(),
+        weights.as_os_str(),
+    ]);
+    assert!(
+        msg.contains("nowhere") && msg.contains("does not exist") && !msg.contains("bogus"),
+        "{msg}"
+    );
 }
 
 #[test]

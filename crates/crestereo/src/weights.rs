@@ -1,10 +1,10 @@
 //! Weight import from a reference PyTorch state dict and Burn record save/load.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use burn::record::{FullPrecisionSettings, NamedMpkFileRecorder};
+use burn::record::{FullPrecisionSettings, NamedMpkBytesRecorder, Recorder};
 use burn::store::{ModuleSnapshot, PytorchStore};
 
 use crate::model::CREStereo;
@@ -114,6 +114,12 @@ pub fn load_weights<B: Backend>(
     let path = path.as_ref();
     match path.extension().and_then(|e| e.to_str()) {
         Some("pt") | Some("pth") | Some("bin") => {
+            if !path.is_file() {
+                bail!(
+                    "cannot read weights {}: the file does not exist",
+                    path.display()
+                );
+            }
             let mut model = model;
             let report = load_pytorch(&mut model, path, false)?;
             eprint!("{}: {report}", path.display());
@@ -123,13 +129,55 @@ pub fn load_weights<B: Backend>(
     }
 }
 
-/// Saves the model as a Burn named-MessagePack record (full precision). `path` gets `.mpk`.
-pub fn save_record<B: Backend>(model: &CREStereo<B>, path: impl AsRef<Path>) -> Result<()> {
-    let recorder = NamedMpkFileRecorder::<FullPrecisionSettings>::new();
-    model
-        .clone()
-        .save_file(path.as_ref().to_path_buf(), &recorder)
-        .map_err(|e| anyhow::anyhow!("saving record {}: {e}", path.as_ref().display()))
+fn recorder() -> NamedMpkBytesRecorder<FullPrecisionSettings> {
+    NamedMpkBytesRecorder::<FullPrecisionSettings>::new()
+}
+
+/// The file of a record saved under `path`: `path` with the extension `.mpk` (the convention of
+/// Burn's file recorder, kept so that records saved by earlier versions load).
+pub fn record_file(path: impl AsRef<Path>) -> PathBuf {
+    path.as_ref().with_extension("mpk")
+}
+
+/// Encodes any Burn record as named MessagePack (byte-identical to Burn's `NamedMpkFileRecorder`
+/// files) and writes it through the project's durable-write path ([`stereo_io::write_bytes_atomically`]):
+/// a full disk leaves no short record under the final name.
+pub fn save_any_record<B: Backend, R: burn::record::Record<B>>(
+    record: R,
+    path: impl AsRef<Path>,
+) -> Result<PathBuf> {
+    let file = record_file(path);
+    let bytes = Recorder::<B>::record(&recorder(), record, ())
+        .map_err(|e| anyhow::anyhow!("encoding record {}: {e}", file.display()))?;
+    stereo_io::write_bytes_atomically(&file, &bytes)?;
+    Ok(file)
+}
+
+/// Reads a record written by [`save_any_record`]: `path` itself when it is a file, else
+/// [`record_file`]`(path)`. A file that is not a record is named in the error.
+pub fn load_any_record<B: Backend, R: burn::record::Record<B>>(
+    path: impl AsRef<Path>,
+    device: &B::Device,
+) -> Result<R> {
+    let path = path.as_ref();
+    let file = if path.is_file() {
+        path.to_path_buf()
+    } else {
+        record_file(path)
+    };
+    let bytes =
+        std::fs::read(&file).with_context(|| format!("cannot read weights {}", file.display()))?;
+    Recorder::<B>::load(&recorder(), bytes, device).map_err(|e| {
+        anyhow::anyhow!(
+            "{} is not a Burn record (.mpk) of this network, nor PyTorch weights (.pt/.pth): {e}",
+            file.display()
+        )
+    })
+}
+
+/// Saves the model as a Burn named-MessagePack record (full precision) at [`record_file`]`(path)`.
+pub fn save_record<B: Backend>(model: &CREStereo<B>, path: impl AsRef<Path>) -> Result<PathBuf> {
+    save_any_record::<B, _>(model.clone().into_record(), path)
 }
 
 /// Loads a Burn record saved by [`save_record`].
@@ -138,10 +186,8 @@ pub fn load_record<B: Backend>(
     path: impl AsRef<Path>,
     device: &B::Device,
 ) -> Result<CREStereo<B>> {
-    let recorder = NamedMpkFileRecorder::<FullPrecisionSettings>::new();
-    model
-        .load_file(path.as_ref().to_path_buf(), &recorder, device)
-        .map_err(|e| anyhow::anyhow!("loading record {}: {e}", path.as_ref().display()))
+    let record = load_any_record::<B, _>(path, device)?;
+    Ok(model.load_record(record))
 }
 
 /// The reference (PyTorch) key of a Burn parameter path (inverse of the import remapping).

@@ -50,3 +50,78 @@ fn record_round_trip() {
     let p2 = values(loaded.forward(left, right, 2, None).pop().unwrap());
     assert_eq!(p1, p2);
 }
+
+/// Records are encoded in memory and written through the durable-write path, in Burn's named
+/// MessagePack format: a record saved by Burn's own file recorder (every checkpoint of earlier
+/// versions) loads through ours, and ours through Burn's. (The bytes differ only in the
+/// recorder's type name in the metadata, which loading does not check.)
+#[test]
+fn records_interchange_with_burns_file_recorder() {
+    use burn::record::{FullPrecisionSettings, NamedMpkFileRecorder};
+    let device = Default::default();
+    let m = model::<B>(&device);
+    let dir = tempfile::tempdir().unwrap();
+    let ours = save_record(&m, dir.path().join("ours")).unwrap();
+    assert_eq!(ours, dir.path().join("ours.mpk"));
+    let recorder = NamedMpkFileRecorder::<FullPrecisionSettings>::new();
+    m.clone()
+        .save_file(dir.path().join("burns"), &recorder)
+        .unwrap();
+    let same = |other: &crestereo::CREStereo<B>| {
+        let a = crestereo::weights::named_parameters(&m);
+        let b = crestereo::weights::named_parameters(other);
+        a.len() == b.len()
+            && a.iter()
+                .zip(&b)
+                .all(|(x, y)| x.name == y.name && x.data == y.data)
+    };
+    let fresh = || CREStereoConfig::new().init::<B>(&device);
+    assert!(same(
+        &load_record(fresh(), dir.path().join("burns.mpk"), &device).unwrap()
+    ));
+    assert!(same(
+        &fresh()
+            .load_file(dir.path().join("ours"), &recorder, &device)
+            .unwrap()
+    ));
+    let names: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names.len(), 2, "temp files left: {names:?}");
+}
+
+/// A file that is not weights is named as such (not "file not found"), and a missing one too.
+#[test]
+fn a_file_that_is_not_weights_is_named() {
+    let device = Default::default();
+    let dir = tempfile::tempdir().unwrap();
+    let text = dir.path().join("notes.txt");
+    std::fs::write(&text, "these are not weights").unwrap();
+    let fresh = || CREStereoConfig::new().init::<B>(&device);
+    let msg = format!(
+        "{:#}",
+        crestereo::weights::load_weights(fresh(), &text, &device).unwrap_err()
+    );
+    assert!(
+        msg.contains("notes.txt") && msg.contains("is not a Burn record"),
+        "{msg}"
+    );
+    let missing = dir.path().join("missing.pt");
+    let msg = format!(
+        "{:#}",
+        crestereo::weights::load_weights(fresh(), &missing, &device).unwrap_err()
+    );
+    assert!(
+        msg.contains("missing.pt") && msg.contains("does not exist"),
+        "{msg}"
+    );
+    let msg = format!(
+        "{:#}",
+        load_record(fresh(), dir.path().join("absent.mpk"), &device).unwrap_err()
+    );
+    assert!(
+        msg.contains("absent.mpk") && msg.contains("cannot read"),
+        "{msg}"
+    );
+}

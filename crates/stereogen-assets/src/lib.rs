@@ -115,8 +115,7 @@ pub fn index_sources(sources: &SourcesRecipe, home: &Path) -> anyhow::Result<Ass
                 .collect(),
         );
     }
-    for s in &index.skipped {
-        tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);
-    }
+    // Skipped files are reported by the caller (`generate` once per dataset and file, in
+    // `skipped_assets.jsonl` too), not here: a warning here would print each of them twice.
     Ok(index)
 }

@@ -74,7 +74,8 @@ pub fn index_textures(
                         Err(reason) => {
                             skipped.push(SkippedAsset {
                                 path: entry.path().to_path_buf(),
-                                reason,
+                                // Decoders end some messages with a newline.
+                                reason: reason.trim().to_string(),
                             });
                             continue;
                         }

@@ -327,6 +327,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         } => {
             let recipe = recipe.load()?;
             let assets = index_sources(&recipe.sources, &stereogen_home())?;
+            for s in &assets.skipped {
+                tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);
+            }
             println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
         }
         Command::Render { spec, out, runtime } => {

@@ -54,7 +54,8 @@ pub fn install_scripts(home: &Path) -> std::io::Result<PathBuf> {
             .prefix(".scripts-")
             .tempdir_in(home.join("scripts"))?;
         for (name, text) in SCRIPTS {
-            std::fs::write(tmp.path().join(name), text)?;
+            stereo_io::write_bytes_atomically(&tmp.path().join(name), text.as_bytes())
+                .map_err(std::io::Error::other)?;
         }
         let tmp = tmp.keep();
         // Another process may have won the race; its copy is identical.

@@ -49,6 +49,9 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
             output.display()
         );
     }
+    for path in std::iter::once(&a.output).chain(&a.pfm).chain(&a.viz) {
+        check_writable(path)?;
+    }
     let (l, r) = (read_image(&a.left)?, read_image(&a.right)?);
     if (l.width, l.height) != (r.width, r.height) {
         bail!(
@@ -82,6 +85,30 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
         t0.elapsed().as_secs_f64()
     );
     write_outputs(a, &disp)
+}
+
+/// Refuses, before the slow part, an output whose folder is missing or not writable: creates and
+/// removes a temp file where the durable write will put its own.
+fn check_writable(path: &Path) -> Result<()> {
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if !folder.is_dir() {
+        bail!(
+            "cannot write {}: the folder {} does not exist",
+            path.display(),
+            folder.display()
+        );
+    }
+    let probe = stereo_io::temp_sibling(path);
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
 }
 
 /// The one image path into the network: `stereo-io` decodes to 8-bit RGB, then planar BGR.
@@ -130,6 +157,35 @@ mod tests {
         assert!(
             msg.contains("disp.tiff") && msg.contains("extension"),
             "{msg}"
+        );
+    }
+
+    #[test]
+    fn a_missing_output_folder_is_refused_before_anything_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        for (output, viz) in [
+            ("nowhere/disp.exr", "viz.png"),
+            ("disp.exr", "nowhere/viz.png"),
+        ] {
+            let mut a = args(dir.path(), output);
+            a.viz = Some(dir.path().join(viz));
+            let msg = format!(
+                "{:#}",
+                infer::<crestereo::CpuBackend>(&a, &Default::default()).unwrap_err()
+            );
+            assert!(
+                msg.contains("nowhere") && msg.contains("does not exist"),
+                "{msg}"
+            );
+            assert!(
+                !msg.contains("missing_left"),
+                "checked after the images: {msg}"
+            );
+        }
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            0,
+            "the write probe left a file"
         );
     }
 
