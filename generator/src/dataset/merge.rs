@@ -6,7 +6,6 @@
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::bail;
@@ -489,16 +488,12 @@ fn write_merge(
     }
     entries.sort_by_key(|e| e.index);
     let path = out.manifest();
-    stereo_io::write_atomically(&path, |tmp| {
-        let file = std::fs::File::create(tmp).map_err(|e| stereo_io::Error::io(tmp, e))?;
-        let mut w = std::io::BufWriter::new(file);
-        for e in &entries {
-            let line = serde_json::to_string(e)
-                .map_err(|err| stereo_io::Error::format(tmp, err.to_string()))?;
-            writeln!(w, "{line}").map_err(|err| stereo_io::Error::io(tmp, err))?;
-        }
-        w.flush().map_err(|err| stereo_io::Error::io(tmp, err))
-    })?;
+    let mut text = String::new();
+    for e in &entries {
+        text.push_str(&serde_json::to_string(e)?);
+        text.push('\n');
+    }
+    stereo_io::write_bytes_atomically(&path, text.as_bytes())?;
     Ok(())
 }
 

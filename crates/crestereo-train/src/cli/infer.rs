@@ -125,7 +125,7 @@ fn write_outputs(a: &InferArgs, disp: &DisparityMap) -> Result<()> {
     }
     if let Some(v) = &a.viz {
         let image = colourise_with_bar(disp, DisparityRange::of(disp));
-        stereo_io::write_atomically(v, |tmp| stereo_io::write_png_rgb(tmp, &image))?;
+        stereo_io::write_png_rgb(v, &image)?; // durable: encoded in memory, then atomic
     }
     Ok(())
 }
