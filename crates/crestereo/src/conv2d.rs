@@ -21,6 +21,7 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
+use burn::module::{Param, ParamId};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
@@ -65,6 +66,52 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
         }
         None => y,
     }
+}
+
+/// Several convolutions of one input with the same geometry (kernel, stride, padding, dilation),
+/// as one: their outputs concatenated along channels, in order. On the GEMM path this is one
+/// matrix product over one unfolded input (a GRU's update and reset gates read the same input),
+/// instead of one unfolding and one product per convolution; elsewhere it is the convolutions
+/// one by one. Same numbers either way up to float32 summation order.
+pub fn forward_stacked<B: Backend>(convs: &[&Conv2d<B>], x: Tensor<B, 4>) -> Tensor<B, 4> {
+    let first = convs[0];
+    let same_geometry = convs.iter().all(|c| {
+        c.weight.dims()[1..] == first.weight.dims()[1..]
+            && c.stride == first.stride
+            && c.dilation == first.dilation
+            && c.groups == first.groups
+            && c.padding == first.padding
+            && c.bias.is_some() == first.bias.is_some()
+    });
+    if convs.len() == 1 || !same_geometry {
+        return Tensor::cat(convs.iter().map(|c| forward(c, x.clone())).collect(), 1);
+    }
+    let stacked = Conv2d {
+        // `Param::initialized`, not `from_tensor`: the stacked tensors stay in the autodiff graph
+        // of the parameters they are made of (from_tensor would mark them as new leaves).
+        weight: Param::initialized(
+            ParamId::new(),
+            Tensor::cat(convs.iter().map(|c| c.weight.val()).collect(), 0),
+        ),
+        bias: first.bias.as_ref().map(|_| {
+            Param::initialized(
+                ParamId::new(),
+                Tensor::cat(
+                    convs
+                        .iter()
+                        .map(|c| c.bias.as_ref().expect("checked above").val())
+                        .collect(),
+                    0,
+                ),
+            )
+        }),
+        stride: first.stride,
+        kernel_size: first.kernel_size,
+        dilation: first.dilation,
+        groups: first.groups,
+        padding: first.padding.clone(),
+    };
+    forward(&stacked, x)
 }
 
 fn same<S: 'static, T: 'static>(value: S) -> T {
@@ -368,6 +415,43 @@ mod tests {
                 &values(conv_f.forward(xf)),
             );
             assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
+        }
+    }
+    /// Stacked convolutions (a GRU's z and r gates) against the convolutions one by one: the
+    /// outputs and the gradients of the input, both weights and both biases.
+    #[test]
+    fn stacked_convolutions_match_separate_ones() {
+        let device = Default::default();
+        let make = || {
+            Conv2dConfig::new([6, 4], [1, 5])
+                .with_padding(PaddingConfig2d::Explicit(0, 2, 0, 2))
+                .init::<Ad>(&device)
+        };
+        let (a, b) = (make(), make());
+        let x = Tensor::<Ad, 4>::random([2, 6, 5, 7], Distribution::Normal(0.0, 1.0), &device)
+            .require_grad();
+        let stacked = forward_stacked(&[&a, &b], x.clone());
+        let separate = Tensor::cat(vec![a.forward(x.clone()), b.forward(x.clone())], 1);
+        assert_eq!(stacked.dims(), [2, 8, 5, 7]);
+        let fwd = max_diff(&values(stacked.clone()), &values(separate.clone()));
+        assert!(fwd <= 1e-5, "forward differs by {fwd}");
+        let up = Tensor::<Ad, 4>::random([2, 8, 5, 7], Distribution::Normal(0.0, 1.0), &device);
+        let g1 = (stacked * up.clone()).sum().backward();
+        let g2 = (separate * up).sum().backward();
+        let grad4 = |t: Tensor<Ad, 4>| (values(t.grad(&g1).unwrap()), values(t.grad(&g2).unwrap()));
+        for (name, (p, q)) in [
+            ("dx", grad4(x.clone())),
+            ("dw a", grad4(a.weight.val())),
+            ("dw b", grad4(b.weight.val())),
+        ] {
+            let diff = max_diff(&p, &q);
+            assert!(diff <= 1e-4, "{name} differs by {diff}");
+        }
+        for (name, conv) in [("db a", &a), ("db b", &b)] {
+            let bias = conv.bias.as_ref().unwrap().val();
+            let as4 = |t: Tensor<Flex, 1>| values(t.reshape([1, 1, 1, 4]));
+            let diff = max_diff(&as4(bias.grad(&g1).unwrap()), &as4(bias.grad(&g2).unwrap()));
+            assert!(diff <= 1e-4, "{name} differs by {diff}");
         }
     }
 }

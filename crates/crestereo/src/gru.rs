@@ -50,10 +50,15 @@ fn gru_step<B: Backend>(
     cq: &Conv2d<B>,
 ) -> Tensor<B, 4> {
     let hx = Tensor::cat(vec![h.clone(), x.clone()], 1);
-    let conv = crate::conv2d::forward;
-    let z = sigmoid(conv(cz, hx.clone()));
-    let r = sigmoid(conv(cr, hx));
-    let q = tanh(conv(cq, Tensor::cat(vec![r * h.clone(), x], 1)));
+    // z and r read the same input: one stacked convolution, then split.
+    let hidden = h.dims()[1];
+    let zr = sigmoid(crate::conv2d::forward_stacked(&[cz, cr], hx));
+    let z = zr.clone().narrow(1, 0, hidden);
+    let r = zr.narrow(1, hidden, hidden);
+    let q = tanh(crate::conv2d::forward(
+        cq,
+        Tensor::cat(vec![r * h.clone(), x], 1),
+    ));
     // (1 - z) * h + z * q
     (z.clone().neg().add_scalar(1.0)) * h + z * q
 }
