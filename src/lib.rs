@@ -119,7 +119,18 @@ pub fn write_tiny_recipe(dir: &std::path::Path, preset: &str) -> PathBuf {
 
 /// Renders `count` scenes of the tiny `crestereo` recipe with the real CLI into `dir/<name>`.
 pub fn generate_tiny_dataset(dir: &std::path::Path, name: &str, count: u64, seed: u64) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, "crestereo");
+    generate_tiny_preset(dir, "crestereo", name, count, seed)
+}
+
+/// Renders `count` scenes of the tiny version of `preset` with the real CLI into `dir/<name>`.
+pub fn generate_tiny_preset(
+    dir: &std::path::Path,
+    preset: &str,
+    name: &str,
+    count: u64,
+    seed: u64,
+) -> PathBuf {
+    let recipe = write_tiny_recipe(dir, preset);
     let out = dir.join(name);
     let o = std::process::Command::new(stereogen_bin())
         .args([
@@ -142,8 +153,37 @@ pub fn generate_tiny_dataset(dir: &std::path::Path, name: &str, count: u64, seed
         .expect("run stereogen");
     assert!(
         o.status.success(),
-        "generate failed: {}",
+        "generate {preset} failed: {}",
         String::from_utf8_lossy(&o.stderr)
+    );
+    out
+}
+
+/// A dataset whose only sample failed: `generate` of one tiny scene into `dir/<name>` with the
+/// worker made to raise on it (`STEREOGEN_FAULT=raise@0`); the run must fail.
+pub fn generate_failed_dataset(dir: &std::path::Path, name: &str) -> PathBuf {
+    let recipe = write_tiny_recipe(dir, "crestereo");
+    let out = dir.join(name);
+    let o = std::process::Command::new(stereogen_bin())
+        .args([
+            "generate",
+            "--no-progress",
+            "--threads",
+            "1",
+            "--count",
+            "1",
+            "--recipe",
+        ])
+        .arg(&recipe)
+        .arg("--out")
+        .arg(&out)
+        .env("STEREOGEN_FAULT", "raise@0")
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("run stereogen");
+    assert!(
+        !o.status.success(),
+        "a run whose only sample raised succeeded"
     );
     out
 }

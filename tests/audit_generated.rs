@@ -11,40 +11,14 @@ use serde_json::Value;
 use stereo_io::DisparityMap;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::recipe::PRESETS;
-use stereogen_e2e::{sha256_hex, stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{sha256_hex, stereogen_bin};
 
 /// With seed 3 the first 8 scenes of the tiny `crestereo` mix cover all four categories.
 const MIX_SCENES: u64 = 8;
 const MIX_SEED: u64 = 3;
 
 fn generate(dir: &Path, preset: &str, count: u64, seed: u64) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, preset);
-    let out = dir.join(preset);
-    let o = Command::new(stereogen_bin())
-        .args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--seed",
-            &seed.to_string(),
-            "--count",
-            &count.to_string(),
-            "--recipe",
-        ])
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&out)
-        .env_remove("STEREOGEN_FAULT")
-        .stdin(Stdio::null())
-        .output()
-        .expect("run stereogen");
-    assert!(
-        o.status.success(),
-        "generate {preset} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    out
+    stereogen_e2e::generate_tiny_preset(dir, preset, preset, count, seed)
 }
 
 fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
@@ -315,27 +289,8 @@ fn audit_check_fails_on_corrupted_ground_truth_and_names_the_samples() {
 #[test]
 fn audit_explains_datasets_it_cannot_audit() {
     let tmp = tempfile::tempdir().unwrap();
-    let recipe = write_tiny_recipe(tmp.path(), "crestereo");
     // An empty dataset: the generator made its directory, then every sample failed.
-    let data = tmp.path().join("only-failures");
-    let o = Command::new(stereogen_bin())
-        .args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--count",
-            "1",
-            "--recipe",
-        ])
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&data)
-        .env("STEREOGEN_FAULT", "raise@0")
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
+    let data = stereogen_e2e::generate_failed_dataset(tmp.path(), "only-failures");
     let (o, text) = audit(&data, &[]);
     assert!(!o.status.success());
     assert!(

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen_e2e::{generate_tiny_dataset, stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{generate_tiny_dataset, stereogen_bin};
 
 const SCENES: u64 = 8;
 const THUMBNAILS: usize = 6;
@@ -280,26 +280,7 @@ fn report_of_a_generated_dataset_loads_in_a_real_browser() {
 fn report_lists_what_is_wrong_and_renders_the_rest() {
     let tmp = tempfile::tempdir().unwrap();
     // A dataset whose only sample failed.
-    let recipe = write_tiny_recipe(tmp.path(), "crestereo");
-    let failed = tmp.path().join("failed");
-    let o = Command::new(stereogen_bin())
-        .args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--count",
-            "1",
-            "--recipe",
-        ])
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&failed)
-        .env("STEREOGEN_FAULT", "raise@0")
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
+    let failed = stereogen_e2e::generate_failed_dataset(tmp.path(), "failed");
     let html = report(&failed, &tmp.path().join("failed.html"), 4);
     assert!(
         html.contains("id=\"problems\"") && html.contains("no finished samples"),
