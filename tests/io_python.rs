@@ -11,56 +11,11 @@ use std::process::Command;
 use serde_json::json;
 use stereo_io::*;
 
+#[path = "../crates/stereo-io/tests/support/pinned_venv.rs"]
+mod pinned_venv;
+use pinned_venv::{ensure_venv, run};
+
 const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
-
-fn run(cmd: &mut Command, what: &str) {
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
-    assert!(
-        out.status.success(),
-        "{what} failed ({}):\n{}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-/// A venv with the pinned packages, made once (under a file lock) and reused.
-pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
-    let base = ::stereogen::render::runtime::stereogen_home().join("python");
-    std::fs::create_dir_all(&base).unwrap();
-    let lock = std::fs::File::create(base.join(".lock")).unwrap();
-    // SAFETY: flock on an open descriptor; released when `lock` is dropped.
-    assert_eq!(
-        unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX) },
-        0
-    );
-    let venv = base.join(format!("{name}-{}", pins.join("-").replace("==", "")));
-    if !venv.join(".complete").is_file() {
-        let _ = std::fs::remove_dir_all(&venv);
-        let python =
-            std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").unwrap_or_else(|_| "python3".into());
-        run(
-            Command::new(&python).args(["-m", "venv"]).arg(&venv),
-            "python3 -m venv",
-        );
-        run(
-            Command::new(venv.join("bin/python"))
-                .args([
-                    "-m",
-                    "pip",
-                    "install",
-                    "--quiet",
-                    "--disable-pip-version-check",
-                ])
-                .args(pins),
-            "pip install",
-        );
-        std::fs::write(venv.join(".complete"), pins.join("\n")).unwrap();
-    }
-    venv
-}
 
 fn target_dir() -> PathBuf {
     let exe = std::env::current_exe().unwrap();

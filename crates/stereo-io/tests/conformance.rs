@@ -6,10 +6,14 @@
 //! rule. The same script writes real-looking JPEGs with OpenCV, which our decoder must read
 //! bit-identically.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use stereo_io::*;
+
+#[path = "support/pinned_venv.rs"]
+mod pinned_venv;
+use pinned_venv::{ensure_venv, run};
 
 const PINS: &[&str] = &[
     "opencv-python-headless==5.0.0.93",
@@ -18,64 +22,6 @@ const PINS: &[&str] = &[
 ];
 const W: usize = 72;
 const H: usize = 53;
-
-fn run(cmd: &mut Command, what: &str) -> String {
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
-    assert!(
-        out.status.success(),
-        "{what} failed ({}):\n{}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-/// A venv with [`PINS`], made once (built beside, then renamed into place) and reused.
-fn venv() -> PathBuf {
-    let home = std::env::var_os("STEREOGEN_HOME")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(std::env::var("HOME").expect("HOME")).join(".cache/stereogen")
-        });
-    let base = home.join("python");
-    std::fs::create_dir_all(&base).unwrap();
-    let venv = base.join(format!(
-        "venv-conformance-{}",
-        PINS.join("-").replace("==", "")
-    ));
-    if !venv.join(".complete").is_file() {
-        let python =
-            std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").unwrap_or_else(|_| "python3".into());
-        let tmp = base.join(format!(".venv-conformance-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&tmp);
-        run(
-            Command::new(&python).args(["-m", "venv"]).arg(&tmp),
-            "python3 -m venv",
-        );
-        run(
-            Command::new(tmp.join("bin/python"))
-                .args([
-                    "-m",
-                    "pip",
-                    "install",
-                    "--quiet",
-                    "--disable-pip-version-check",
-                ])
-                .args(PINS),
-            "pip install",
-        );
-        std::fs::write(tmp.join(".complete"), PINS.join("\n")).unwrap();
-        // Another test process may have won the race; its venv is as good.
-        if std::fs::rename(&tmp, &venv).is_err() {
-            let _ = std::fs::remove_dir_all(&tmp);
-        }
-        // A venv's python finds its packages relative to pyvenv.cfg, so the move is harmless.
-    }
-    venv
-}
 
 /// Shaded surfaces, a texture, sharp edges and noise: what JPEG quantisation has to work on.
 fn photo(seed: u32) -> RgbImage {
@@ -168,7 +114,7 @@ fn image_as_f32(img: &RgbImage) -> Vec<f32> {
 
 #[test]
 fn every_export_target_reads_back_through_opencv_and_pillow() {
-    let venv = venv();
+    let venv = ensure_venv("venv-conformance", PINS);
     let t = tempfile::tempdir().unwrap();
     let exports = t.path().join("exports");
     let want = samples();

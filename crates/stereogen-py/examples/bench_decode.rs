@@ -13,6 +13,10 @@ use std::time::Instant;
 
 use stereo_io::*;
 
+#[path = "../../stereo-io/tests/support/pinned_venv.rs"]
+mod pinned_venv;
+use pinned_venv::{ensure_venv, run};
+
 const PINS: &[&str] = &[
     "maturin==1.16.0",
     "numpy==2.4.6",
@@ -21,51 +25,6 @@ const PINS: &[&str] = &[
 ];
 const W: usize = 1920;
 const H: usize = 1080;
-
-fn run(cmd: &mut Command, what: &str) -> String {
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("{what}: cannot start: {e}"));
-    assert!(
-        out.status.success(),
-        "{what} failed ({}):\n{}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn stereogen_home() -> PathBuf {
-    stereogen_assets::stereogen_home()
-}
-
-fn venv() -> PathBuf {
-    let base = stereogen_home().join("python");
-    std::fs::create_dir_all(&base).unwrap();
-    let venv = base.join(format!("venv-bench-{}", PINS.join("-").replace("==", "")));
-    if !venv.join(".complete").is_file() {
-        let _ = std::fs::remove_dir_all(&venv);
-        run(
-            Command::new("python3").args(["-m", "venv"]).arg(&venv),
-            "python3 -m venv",
-        );
-        run(
-            Command::new(venv.join("bin/python"))
-                .args([
-                    "-m",
-                    "pip",
-                    "install",
-                    "--quiet",
-                    "--disable-pip-version-check",
-                ])
-                .args(PINS),
-            "pip install",
-        );
-        std::fs::write(venv.join(".complete"), PINS.join("\n")).unwrap();
-    }
-    venv
-}
 
 fn install_module(venv: &Path) {
     let crate_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -237,7 +196,7 @@ fn main() {
         );
         return;
     }
-    let venv = venv();
+    let venv = ensure_venv("venv-bench", PINS);
     install_module(&venv);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/bench_decode.py");
     let out = run(
