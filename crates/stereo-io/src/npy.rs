@@ -255,18 +255,7 @@ pub fn read_disparity_npy(path: &Path) -> Result<DisparityMap> {
 
 /// Writes a map as float32 (H, W) with `inf` where invalid.
 pub fn write_disparity_npy(path: &Path, map: &DisparityMap) -> Result<()> {
-    if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
-        return Err(Error::format(
-            path,
-            "disparity map buffers do not match its size",
-        ));
-    }
-    let data = map
-        .data
-        .iter()
-        .zip(&map.valid)
-        .map(|(&d, &v)| if v { d } else { f32::INFINITY })
-        .collect();
+    let data = crate::pfm::disparity_to_floats(path, map)?;
     write_npy(
         path,
         &NpyArray {

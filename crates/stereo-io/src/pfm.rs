@@ -197,21 +197,27 @@ pub fn read_disparity_pfm(path: &Path) -> Result<DisparityMap> {
     floats_to_disparity(path, img.width, img.height, data)
 }
 
-/// Writes a little-endian 1-channel disparity PFM with `inf` where the map is invalid
-/// (the Middlebury convention), atomically.
-pub fn write_disparity_pfm(path: &Path, map: &DisparityMap) -> Result<()> {
+/// A map's values with `inf` where it is invalid (the Middlebury convention of PFM and NPY
+/// disparities; [`floats_to_disparity`] is the inverse).
+pub(crate) fn disparity_to_floats(path: &Path, map: &DisparityMap) -> Result<Vec<f32>> {
     if map.data.len() != map.width * map.height || map.valid.len() != map.data.len() {
         return Err(Error::format(
             path,
             "disparity map buffers do not match its size",
         ));
     }
-    let data = map
+    Ok(map
         .data
         .iter()
         .zip(&map.valid)
         .map(|(&d, &v)| if v { d } else { f32::INFINITY })
-        .collect();
+        .collect())
+}
+
+/// Writes a little-endian 1-channel disparity PFM with `inf` where the map is invalid
+/// (the Middlebury convention), atomically.
+pub fn write_disparity_pfm(path: &Path, map: &DisparityMap) -> Result<()> {
+    let data = disparity_to_floats(path, map)?;
     write_pfm(
         path,
         &FloatImage {
