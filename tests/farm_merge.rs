@@ -1,13 +1,16 @@
 //! `stereogen generate --shard`, `merge` and `status` with the real CLI and renderer: shards
-//! rendered by separate processes merge into one dataset that `stats`, `export` and the readers
-//! take like any other; hand-made broken shard sets give one line per problem and a non-zero exit;
-//! a second `generate` on a shard fails at once naming the holder, and a killed holder's lock is
-//! detected as stale.
+//! rendered by separate processes merge into one dataset that `stats`, `export`, the readers,
+//! the audit, the report and the trainer take like any other; hand-made broken shard sets give
+//! one line per problem and a non-zero exit; a second `generate` on a shard fails at once naming
+//! the holder, and a killed holder's lock is detected as stale.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use crestereo::CpuAutodiffBackend;
+use crestereo_train::config::{DatasetEntry, TrainConfig};
+use crestereo_train::train::{TrainOptions, train};
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
 
@@ -86,6 +89,38 @@ fn problems(o: &Output) -> Vec<String> {
         .filter_map(|l| l.strip_prefix("problem: "))
         .map(str::to_string)
         .collect()
+}
+
+/// `crestereo train` on a merged dataset: the library call the CLI makes, two steps on 32×48
+/// crops of the 64×48 samples, every sample drawn once.
+fn train_two_steps_on(data: &Path, run: &Path) {
+    let mut cfg = TrainConfig {
+        datasets: vec![DatasetEntry {
+            path: data.to_path_buf(),
+            format: None,
+            weight: 1.0,
+        }],
+        steps: 2,
+        batch_size: 2,
+        accumulate: 1,
+        iters: 2,
+        ..TrainConfig::default()
+    };
+    cfg.augment.crop = [32, 48];
+    cfg.schedule.warmup_steps = 1;
+    cfg.schedule.decay_start = 1;
+    cfg.loader.workers = 2;
+    let opts = TrainOptions {
+        progress: false,
+        ..TrainOptions::default()
+    };
+    let done = train::<CpuAutodiffBackend>(&cfg, run, &opts, &Default::default())
+        .expect("crestereo train on the merged dataset");
+    assert_eq!(done.step, 2);
+    assert!(
+        done.last_loss.is_some_and(f64::is_finite) && done.skipped_steps == 0,
+        "{done:?}"
+    );
 }
 
 #[test]
@@ -174,6 +209,7 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
         text(&o)
     );
     assert_eq!(stereo_io::open_dataset(&out, None).unwrap().len(), 4);
+    train_two_steps_on(&out, &dir.path().join("train-run"));
     // The audit and the report take the merged dataset too (paths into the shards).
     let o = run({
         let mut c = stereogen(&["audit", "--all", "--every-pixel", "--check"]);

@@ -281,6 +281,25 @@ fn walk(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// Task logs are files people read with `less` or a web viewer: no terminal colour codes.
+fn assert_plain_text_logs(out: &Path, tasks: u64) {
+    let logs: Vec<_> = std::fs::read_dir(out.join("jobs/logs"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    // One log per render task (render-%A_%a.out) and the merge job's.
+    assert_eq!(logs.len() as u64, tasks + 1, "logs: {logs:?}");
+    for log in logs {
+        let text = std::fs::read(&log).unwrap();
+        assert!(
+            !text.contains(&0x1b),
+            "{} holds terminal escape codes:\n{}",
+            log.display(),
+            String::from_utf8_lossy(&text)
+        );
+    }
+}
+
 fn stats_check(out: &Path) -> Output {
     Command::new(stereogen_bin())
         .args(["stats", "--check"])
@@ -327,6 +346,7 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
         );
     }
     assert_complete_farm(&out, count, tasks);
+    assert_plain_text_logs(&out, tasks);
     let stats = stats_check(&out);
     assert!(
         stats.status.success(),

@@ -97,15 +97,13 @@ fn npy(path: PathBuf, h: usize, w: usize, c: usize, data: Vec<f32>) {
     .unwrap();
 }
 
-/// Writes the fixture datasets and the Rust readers' results; returns the expectations.
-fn fixtures(dir: &Path) -> serde_json::Value {
-    let (w, h) = (5, 4);
-    // Ours: two samples.
-    let ours = dir.join("ours");
-    let cat = ours.join("primitives");
-    std::fs::create_dir_all(&cat).unwrap();
+/// Our layout with two samples; sample i's files in the folder `folder(i)` under `root`.
+fn write_ours(root: &Path, folder: impl Fn(usize) -> String, w: usize, h: usize) {
     let mut manifest = String::new();
     for (i, id) in ["0000000", "0000001"].iter().enumerate() {
+        let rel = folder(i);
+        let cat = root.join(&rel);
+        std::fs::create_dir_all(&cat).unwrap();
         write_png_rgb(&cat.join(format!("{id}_left.png")), &rgb(w, h, i as u8)).unwrap();
         write_png_rgb(
             &cat.join(format!("{id}_right.png")),
@@ -129,10 +127,25 @@ fn fixtures(dir: &Path) -> serde_json::Value {
             &meta,
         )
         .unwrap();
-        let files = json!({"left": format!("primitives/{id}_left.png"), "right": format!("primitives/{id}_right.png"), "disp_left": format!("primitives/{id}_left.disp.exr"), "disp_right": format!("primitives/{id}_right.disp.exr"), "scene": format!("primitives/{id}.scene.json")});
+        let files = json!({"left": format!("{rel}/{id}_left.png"), "right": format!("{rel}/{id}_right.png"), "disp_left": format!("{rel}/{id}_left.disp.exr"), "disp_right": format!("{rel}/{id}_right.disp.exr"), "scene": format!("{rel}/{id}.scene.json")});
         manifest += &(json!({"id": id, "category": "primitives", "index": i, "files": files, "width": w, "height": h, "f_px": 80.0, "baseline_m": 0.12, "cx": 2.5, "cy": 2.0}).to_string() + "\n");
     }
-    std::fs::write(ours.join("manifest.jsonl"), manifest).unwrap();
+    std::fs::write(root.join("manifest.jsonl"), manifest).unwrap();
+}
+
+/// Writes the fixture datasets and the Rust readers' results; returns the expectations.
+fn fixtures(dir: &Path) -> serde_json::Value {
+    let (w, h) = (5, 4);
+    // Ours: two samples.
+    let ours = dir.join("ours");
+    write_ours(&ours, |_| "primitives".into(), w, h);
+    // A merged farm output: the top-level manifest points into the shards' folders.
+    write_ours(
+        &dir.join("merged"),
+        |i| format!("shards/{i:04}-of-0002/primitives"),
+        w,
+        h,
+    );
     // Middlebury: inf = invalid, calib.txt.
     let mb = dir.join("middlebury/Piano");
     std::fs::create_dir_all(&mb).unwrap();
@@ -161,7 +174,7 @@ fn fixtures(dir: &Path) -> serde_json::Value {
     let refs = dir.join("ref");
     std::fs::create_dir_all(&refs).unwrap();
     let mut datasets = serde_json::Map::new();
-    for name in ["ours", "middlebury", "kitti"] {
+    for name in ["ours", "merged", "middlebury", "kitti"] {
         let ds = open_dataset(&dir.join(name), None).unwrap();
         let mut ids = vec![];
         let mut meta = serde_json::Map::new();
@@ -213,6 +226,18 @@ fn fixtures(dir: &Path) -> serde_json::Value {
         datasets.insert(
             name.into(),
             json!({"format": ds.format().name(), "len": ds.len(), "ids": ids, "meta": meta}),
+        );
+    }
+    // The merged view reads the same pixels from inside the shards.
+    let (a, b) = (
+        open_dataset(&ours, None).unwrap(),
+        open_dataset(&dir.join("merged"), None).unwrap(),
+    );
+    for i in 0..a.len() {
+        let (x, y) = (a.sample(i).unwrap(), b.sample(i).unwrap());
+        assert_eq!(
+            (x.left.data, x.disp_left.data),
+            (y.left.data, y.disp_left.data)
         );
     }
     let exr = "primitives/0000001_left.disp.exr";

@@ -5,7 +5,8 @@
 //! markup, and a damaged or empty dataset still gets a page that lists what is wrong.
 //!
 //! Chromium is looked for on PATH and, where missing, installed with apt-get (Debian's
-//! `chromium`) when the test runs as root; without it the browser part is skipped with a note.
+//! `chromium`) when the test runs as root; without it the browser part is skipped with a note,
+//! unless `CI` or `STEREOGEN_REQUIRE_BROWSER` is set (as `.ci/run` does): then it fails.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -242,6 +243,12 @@ fn report_of_a_generated_dataset_loads_in_a_real_browser() {
     assert!(html.len() < 2_000_000, "{} bytes", html.len());
 
     let Some(chromium) = chromium() else {
+        assert!(
+            std::env::var_os("CI").is_none()
+                && std::env::var_os("STEREOGEN_REQUIRE_BROWSER").is_none(),
+            "a browser is required here (CI or STEREOGEN_REQUIRE_BROWSER is set) but no chromium \
+             is on PATH and apt-get could not install Debian's chromium package"
+        );
         eprintln!(
             "report_browser: SKIPPED the browser checks: no chromium on PATH and none could be installed"
         );
