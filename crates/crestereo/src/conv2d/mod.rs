@@ -10,8 +10,9 @@
 //! * `dX = col2im(Wᵀ · dY)`, scattered back per input channel (no two tasks write one plane).
 //!
 //! The forward (on `Flex` too) is one matrix product per image, `Y_b = W · cols_b`, written
-//! in NCHW directly. Every other backend, float64 tensors and grouped convolutions use
-//! `Conv2d::forward` unchanged.
+//! in NCHW directly. Stride-1 convolutions with enough input channels skip the unfolding
+//! altogether: a sum of products over shifted views of the padded input (`shifted`). Every
+//! other backend, float64 tensors and grouped convolutions use `Conv2d::forward` unchanged.
 
 use std::any::TypeId;
 
@@ -28,6 +29,8 @@ use burn::prelude::*;
 use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
 use burn::tensor::{DType, TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
+
+mod shifted;
 
 /// `conv.forward(x)`; on `Autodiff<Flex>` (float32, groups 1, symmetric padding) with the GEMM
 /// backward described in the module docs.
@@ -289,6 +292,10 @@ fn flex(data: Vec<f32>, shape: [usize; 3]) -> FlexTensor {
 /// change (1×1 stride-1 convolutions multiply the input planes directly).
 fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry) -> FlexTensor {
     let x = x.to_contiguous();
+    if shifted::applies(g) {
+        let y = shifted::forward(x.storage(), w.to_contiguous().storage(), g);
+        return FlexTensor::from_data(TensorData::new(y, [g.n, g.cout, g.ho, g.wo]));
+    }
     let (p, k) = (g.p(), g.k());
     let wm = w.to_contiguous().reshape([1, g.cout, k].into());
     let pointwise = g.kh == 1 && g.kw == 1 && g.stride == [1, 1] && g.pad == [0, 0];
@@ -313,6 +320,10 @@ fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry) -> FlexTensor {
 /// `dW = Σ_b dY_b · cols_bᵀ`, (C_out, C_in, kh, kw).
 fn weight_grad(x: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
     let x = x.to_contiguous();
+    if shifted::applies(g) {
+        let dw = shifted::weight_grad(x.storage(), dy.to_contiguous().storage(), g);
+        return FlexTensor::from_data(TensorData::new(dw, [g.cout, g.cin, g.kh, g.kw]));
+    }
     let (p, k) = (g.p(), g.k());
     let mut acc: Option<FlexTensor> = None;
     for b in 0..g.n {
@@ -330,6 +341,10 @@ fn weight_grad(x: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
 
 /// `dX = col2im(Wᵀ · dY_b)` for every image b, (N, C_in, H, W).
 fn input_grad(w: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
+    if shifted::applies(g) {
+        let dx = shifted::input_grad(w.to_contiguous().storage(), dy.to_contiguous().storage(), g);
+        return FlexTensor::from_data(TensorData::new(dx, [g.n, g.cin, g.h, g.w]));
+    }
     let (p, k) = (g.p(), g.k());
     let wt = Flex::float_swap_dims(w.to_contiguous().reshape([1, g.cout, k].into()), 1, 2); // 1, k, cout
     let mut dx = vec![0f32; g.n * g.cin * g.h * g.w];
@@ -376,6 +391,11 @@ mod tests {
             (2, 2, 1, 1, 0, 1, 3, 4),
             (3, 2, 3, 2, 1, 1, 6, 5),
             (2, 3, 3, 1, 2, 2, 4, 4),
+            // stride 1 with 16+ input channels: the shifted-view path
+            (16, 5, 3, 1, 1, 1, 5, 7),
+            (17, 3, 3, 1, 2, 2, 4, 6),
+            (16, 4, 5, 1, 2, 1, 2, 3),
+            (20, 6, 3, 1, 0, 1, 4, 5),
         ];
         for (cin, cout, k, s, p, d, h, w) in cases {
             let conv = Conv2dConfig::new([cin, cout], [k, k])
@@ -417,18 +437,57 @@ mod tests {
             assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
         }
     }
+    /// The GRU's separable kernels (1×5 and 5×1, 16+ channels: the shifted-view path) against
+    /// Burn's convolution, forward and both gradients, also on maps narrower than the kernel.
+    #[test]
+    fn separable_kernels_match_burn_forward_and_gradients() {
+        let device = Default::default();
+        // (kernel, padding, h, w)
+        let cases = [
+            ([1, 5], [0, 2], 4, 6),
+            ([5, 1], [2, 0], 6, 3),
+            ([1, 5], [0, 2], 3, 2),
+            ([5, 1], [2, 0], 1, 4),
+        ];
+        for (kernel, [ph, pw], h, w) in cases {
+            let conv = Conv2dConfig::new([16, 3], kernel)
+                .with_padding(PaddingConfig2d::Explicit(ph, pw, ph, pw))
+                .init::<Ad>(&device);
+            let x = Tensor::<Ad, 4>::random([2, 16, h, w], Distribution::Normal(0.0, 1.0), &device)
+                .require_grad();
+            let (ours, theirs) = (forward(&conv, x.clone()), conv.forward(x.clone()));
+            let case = format!("kernel {kernel:?} on {h}x{w}");
+            let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
+            assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");
+            let up = Tensor::<Ad, 4>::random(ours.dims(), Distribution::Normal(0.0, 1.0), &device);
+            let g_ours = (ours * up.clone()).sum().backward();
+            let g_theirs = (theirs * up).sum().backward();
+            for (a, b, name) in [
+                (x.grad(&g_ours).unwrap(), x.grad(&g_theirs).unwrap(), "dx"),
+                (
+                    conv.weight.val().grad(&g_ours).unwrap(),
+                    conv.weight.val().grad(&g_theirs).unwrap(),
+                    "dw",
+                ),
+            ] {
+                let diff = max_diff(&values(a), &values(b));
+                assert!(diff <= 1e-4, "{case}: {name} differs by {diff}");
+            }
+        }
+    }
+
     /// Stacked convolutions (a GRU's z and r gates) against the convolutions one by one: the
     /// outputs and the gradients of the input, both weights and both biases.
     #[test]
     fn stacked_convolutions_match_separate_ones() {
         let device = Default::default();
         let make = || {
-            Conv2dConfig::new([6, 4], [1, 5])
+            Conv2dConfig::new([16, 4], [1, 5])
                 .with_padding(PaddingConfig2d::Explicit(0, 2, 0, 2))
                 .init::<Ad>(&device)
         };
         let (a, b) = (make(), make());
-        let x = Tensor::<Ad, 4>::random([2, 6, 5, 7], Distribution::Normal(0.0, 1.0), &device)
+        let x = Tensor::<Ad, 4>::random([2, 16, 5, 7], Distribution::Normal(0.0, 1.0), &device)
             .require_grad();
         let stacked = forward_stacked(&[&a, &b], x.clone());
         let separate = Tensor::cat(vec![a.forward(x.clone()), b.forward(x.clone())], 1);

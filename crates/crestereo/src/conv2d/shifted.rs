@@ -1,0 +1,274 @@
+//! Stride-1 convolutions as sums of shifted matrix products, without an unfolded input.
+//!
+//! Pad each input plane once to `hp × wp` and flatten it. For kernel tap `(a, c)` the input
+//! pixels an output row needs are then the same flat array read from offset
+//! `a·dil_y·wp + c·dil_x`: an ordinary strided matrix view. An output computed on the padded
+//! width (`ho` rows of `wp` columns, of which the first `wo` are real) is therefore
+//!
+//! ```text
+//! Y_wide = Σ_taps W_tap · Xpad[:, offset(tap) .. offset(tap) + span]     (C_out × span)
+//! ```
+//!
+//! with `span = (ho − 1)·wp + wo`, and no column of the sum ever wraps into the next row (the
+//! padding holds the zeros a wrap would need). The backward is the same trick twice:
+//! `dW_tap = dY_wide · Xpad_tapᵀ` and `dXpad[:, offset(tap)..] += W_tapᵀ · dY_wide`, where
+//! `dY_wide` has zeros in the `wp − wo` columns that are not real outputs.
+//!
+//! Compared with `im2col` this never writes the `C_in·kh·kw × P` unfolded matrix (for the
+//! GRU's 1×5 and 5×1 gates at the paper's crop, 190 MB per call and the same again in the
+//! backward); each tap is a GEMM with `K = C_in`, so it is used where `C_in` is large enough
+//! to keep the kernel efficient.
+
+use gemm::{Parallelism, gemm};
+use rayon::prelude::*;
+
+use super::Geometry;
+
+/// Below this many input channels each tap's product is too thin to beat one unfolded GEMM.
+const MIN_CIN: usize = 16;
+
+/// Whether `g` takes this path: stride 1, more than one tap, enough input channels.
+pub(super) fn applies(g: &Geometry) -> bool {
+    g.stride == [1, 1] && g.kh * g.kw > 1 && g.cin >= MIN_CIN && g.ho > 0 && g.wo > 0
+}
+
+/// Sizes of the padded, flattened planes.
+struct Padded {
+    hp: usize,
+    wp: usize,
+    /// Columns of a wide output row block that a product computes: `(ho − 1)·wp + wo`.
+    span: usize,
+}
+
+impl Padded {
+    fn new(g: &Geometry) -> Self {
+        let (hp, wp) = (g.h + 2 * g.pad[0], g.w + 2 * g.pad[1]);
+        Padded {
+            hp,
+            wp,
+            span: (g.ho - 1) * wp + g.wo,
+        }
+    }
+
+    /// Flat offset of tap `(a, c)` in a padded plane.
+    fn offset(&self, g: &Geometry, a: usize, c: usize) -> usize {
+        a * g.dil[0] * self.wp + c * g.dil[1]
+    }
+
+    fn plane(&self) -> usize {
+        self.hp * self.wp
+    }
+}
+
+/// A strided matrix view into a slice: element (i, j) at `offset + i·rs + j·cs`.
+#[derive(Clone, Copy)]
+struct View {
+    offset: usize,
+    rs: usize,
+    cs: usize,
+}
+
+impl View {
+    fn new(offset: usize, rs: usize, cs: usize) -> Self {
+        View { offset, rs, cs }
+    }
+
+    fn last(&self, rows: usize, cols: usize) -> usize {
+        self.offset + (rows - 1) * self.rs + (cols - 1) * self.cs
+    }
+}
+
+/// `dst (m × n) = [dst +] lhs (m × k) · rhs (k × n)` on strided views, bounds checked.
+#[allow(clippy::too_many_arguments)]
+fn matmul_into(
+    (m, n, k): (usize, usize, usize),
+    dst: &mut [f32],
+    d: View,
+    accumulate: bool,
+    lhs: &[f32],
+    l: View,
+    rhs: &[f32],
+    r: View,
+) {
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    assert!(
+        d.last(m, n) < dst.len() && l.last(m, k) < lhs.len() && r.last(k, n) < rhs.len(),
+        "shifted convolution: a view reaches past its buffer"
+    );
+    let parallelism = if m * n * k >= 1 << 18 {
+        Parallelism::Rayon(0)
+    } else {
+        Parallelism::None
+    };
+    // SAFETY: the three views lie inside their slices (checked above); `dst` is borrowed
+    // mutably and does not alias `lhs` or `rhs`.
+    unsafe {
+        gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr().add(d.offset),
+            d.cs as isize,
+            d.rs as isize,
+            accumulate,
+            lhs.as_ptr().add(l.offset),
+            l.cs as isize,
+            l.rs as isize,
+            rhs.as_ptr().add(r.offset),
+            r.cs as isize,
+            r.rs as isize,
+            1.0,
+            1.0,
+            false,
+            false,
+            false,
+            parallelism,
+        );
+    }
+}
+
+/// Copies `planes` planes of `rows × cols` from `src` into `dst`, whose planes are
+/// `dst_rows × dst_cols`, at row `r0` and column `c0` of each (the rest of `dst` untouched).
+#[allow(clippy::too_many_arguments)]
+fn place(
+    src: &[f32],
+    (rows, cols): (usize, usize),
+    dst: &mut [f32],
+    (dst_rows, dst_cols): (usize, usize),
+    (r0, c0): (usize, usize),
+) {
+    dst.par_chunks_mut(dst_rows * dst_cols)
+        .zip(src.par_chunks(rows * cols))
+        .for_each(|(d, s)| {
+            for y in 0..rows {
+                d[(y + r0) * dst_cols + c0..][..cols].copy_from_slice(&s[y * cols..][..cols]);
+            }
+        });
+}
+
+/// The inverse of [`place`]: the `rows × cols` window at (`r0`, `c0`) of each `src` plane.
+fn take(
+    src: &[f32],
+    (src_rows, src_cols): (usize, usize),
+    dst: &mut [f32],
+    (rows, cols): (usize, usize),
+    (r0, c0): (usize, usize),
+) {
+    dst.par_chunks_mut(rows * cols)
+        .zip(src.par_chunks(src_rows * src_cols))
+        .for_each(|(d, s)| {
+            for y in 0..rows {
+                d[y * cols..][..cols].copy_from_slice(&s[(y + r0) * src_cols + c0..][..cols]);
+            }
+        });
+}
+
+/// Image `b` of `x` (N, C_in, H, W), zero-padded and flattened: (C_in, hp·wp).
+fn padded_input(x: &[f32], g: &Geometry, p: &Padded, b: usize) -> Vec<f32> {
+    let mut xp = vec![0f32; g.cin * p.plane()];
+    let image = &x[b * g.cin * g.h * g.w..][..g.cin * g.h * g.w];
+    place(
+        image,
+        (g.h, g.w),
+        &mut xp,
+        (p.hp, p.wp),
+        (g.pad[0], g.pad[1]),
+    );
+    xp
+}
+
+/// Image `b` of `dy` (N, C_out, ho, wo) on the padded width into `wide` (C_out, ho·wp), whose
+/// extra columns stay zero.
+fn widen_output_grad(dy: &[f32], g: &Geometry, p: &Padded, b: usize, wide: &mut [f32]) {
+    let image = &dy[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
+    place(image, (g.ho, g.wo), wide, (g.ho, p.wp), (0, 0));
+}
+
+fn taps(g: &Geometry) -> impl Iterator<Item = (usize, usize)> + '_ {
+    (0..g.kh).flat_map(move |a| (0..g.kw).map(move |c| (a, c)))
+}
+
+/// The weight's tap `(a, c)` as a (C_out × C_in) view of `w` (C_out, C_in, kh, kw).
+fn weight_tap(g: &Geometry, a: usize, c: usize) -> View {
+    View::new(a * g.kw + c, g.cin * g.kh * g.kw, g.kh * g.kw)
+}
+
+/// `Y` (N, C_out, ho, wo) of input `x` and weight `w`, both contiguous.
+pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
+    let p = Padded::new(g);
+    let mut y = vec![0f32; g.n * g.cout * g.ho * g.wo];
+    let mut wide = vec![0f32; g.cout * g.ho * p.wp];
+    for b in 0..g.n {
+        let xp = padded_input(x, g, &p, b);
+        for (t, (a, c)) in taps(g).enumerate() {
+            matmul_into(
+                (g.cout, p.span, g.cin),
+                &mut wide,
+                View::new(0, g.ho * p.wp, 1),
+                t > 0,
+                w,
+                weight_tap(g, a, c),
+                &xp,
+                View::new(p.offset(g, a, c), p.plane(), 1),
+            );
+        }
+        let out = &mut y[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
+        take(&wide, (g.ho, p.wp), out, (g.ho, g.wo), (0, 0));
+    }
+    y
+}
+
+/// `dW` (C_out, C_in, kh, kw) = Σ_b Σ_taps dY_wide · Xpad_tapᵀ.
+pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
+    let p = Padded::new(g);
+    let mut dw = vec![0f32; g.cout * g.cin * g.kh * g.kw];
+    let mut dy_wide = vec![0f32; g.cout * g.ho * p.wp];
+    for b in 0..g.n {
+        let xp = padded_input(x, g, &p, b);
+        widen_output_grad(dy, g, &p, b, &mut dy_wide);
+        for (a, c) in taps(g) {
+            matmul_into(
+                (g.cout, g.cin, p.span),
+                &mut dw,
+                weight_tap(g, a, c),
+                b > 0,
+                &dy_wide,
+                View::new(0, g.ho * p.wp, 1),
+                &xp,
+                View::new(p.offset(g, a, c), 1, p.plane()),
+            );
+        }
+    }
+    dw
+}
+
+/// `dX` (N, C_in, H, W): per image, `dXpad[:, offset(tap)..] += W_tapᵀ · dY_wide`, then the
+/// interior of `dXpad`.
+pub(super) fn input_grad(w: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
+    let p = Padded::new(g);
+    let mut dx = vec![0f32; g.n * g.cin * g.h * g.w];
+    let mut dy_wide = vec![0f32; g.cout * g.ho * p.wp];
+    let mut dxp = vec![0f32; g.cin * p.plane()];
+    for b in 0..g.n {
+        widen_output_grad(dy, g, &p, b, &mut dy_wide);
+        dxp.fill(0.0);
+        for (a, c) in taps(g) {
+            let tap = weight_tap(g, a, c);
+            matmul_into(
+                (g.cin, p.span, g.cout),
+                &mut dxp,
+                View::new(p.offset(g, a, c), p.plane(), 1),
+                true,
+                w,
+                View::new(tap.offset, tap.cs, tap.rs),
+                &dy_wide,
+                View::new(0, g.ho * p.wp, 1),
+            );
+        }
+        let out = &mut dx[b * g.cin * g.h * g.w..][..g.cin * g.h * g.w];
+        take(&dxp, (p.hp, p.wp), out, (g.h, g.w), (g.pad[0], g.pad[1]));
+    }
+    dx
+}
