@@ -291,6 +291,18 @@ fn assert_plain_text_logs(out: &Path, tasks: u64) {
     assert_eq!(logs.len() as u64, tasks + 1, "logs: {logs:?}");
     for log in logs {
         let text = std::fs::read(&log).unwrap();
+        // A render task logs where its shard came from: the line tracing would colour.
+        let render = log
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .starts_with("render-");
+        assert!(
+            !render || String::from_utf8_lossy(&text).contains("INFO shard "),
+            "{} lacks the plain `INFO shard` line of --shard auto:\n{}",
+            log.display(),
+            String::from_utf8_lossy(&text)
+        );
         assert!(
             !text.contains(&0x1b),
             "{} holds terminal escape codes:\n{}",
