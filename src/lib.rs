@@ -122,6 +122,27 @@ pub fn generate_tiny_dataset(dir: &std::path::Path, name: &str, count: u64, seed
     generate_tiny_preset(dir, "crestereo", name, count, seed)
 }
 
+/// `stereogen generate` of `count` scenes of the tiny version of `preset` into `dir/<name>`
+/// (one Cycles thread, no progress bar, no stdin), and that output folder.
+fn tiny_generate(
+    dir: &std::path::Path,
+    preset: &str,
+    name: &str,
+    count: u64,
+) -> (std::process::Command, PathBuf) {
+    let recipe = write_tiny_recipe(dir, preset);
+    let out = dir.join(name);
+    let mut c = std::process::Command::new(stereogen_bin());
+    c.args(["generate", "--no-progress", "--threads", "1", "--count"])
+        .arg(count.to_string())
+        .arg("--recipe")
+        .arg(&recipe)
+        .arg("--out")
+        .arg(&out)
+        .stdin(std::process::Stdio::null());
+    (c, out)
+}
+
 /// Renders `count` scenes of the tiny version of `preset` with the real CLI into `dir/<name>`.
 pub fn generate_tiny_preset(
     dir: &std::path::Path,
@@ -130,25 +151,10 @@ pub fn generate_tiny_preset(
     count: u64,
     seed: u64,
 ) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, preset);
-    let out = dir.join(name);
-    let o = std::process::Command::new(stereogen_bin())
-        .args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--seed",
-            &seed.to_string(),
-            "--count",
-            &count.to_string(),
-            "--recipe",
-        ])
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&out)
+    let (mut c, out) = tiny_generate(dir, preset, name, count);
+    let o = c
+        .args(["--seed", &seed.to_string()])
         .env_remove("STEREOGEN_FAULT")
-        .stdin(std::process::Stdio::null())
         .output()
         .expect("run stereogen");
     assert!(
@@ -162,23 +168,9 @@ pub fn generate_tiny_preset(
 /// A dataset whose only sample failed: `generate` of one tiny scene into `dir/<name>` with the
 /// worker made to raise on it (`STEREOGEN_FAULT=raise@0`); the run must fail.
 pub fn generate_failed_dataset(dir: &std::path::Path, name: &str) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, "crestereo");
-    let out = dir.join(name);
-    let o = std::process::Command::new(stereogen_bin())
-        .args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--count",
-            "1",
-            "--recipe",
-        ])
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&out)
+    let (mut c, out) = tiny_generate(dir, "crestereo", name, 1);
+    let o = c
         .env("STEREOGEN_FAULT", "raise@0")
-        .stdin(std::process::Stdio::null())
         .output()
         .expect("run stereogen");
     assert!(

@@ -13,7 +13,7 @@ use stereo_io::*;
 
 #[path = "../crates/stereo-io/tests/support/pinned_venv.rs"]
 mod pinned_venv;
-use pinned_venv::{ensure_venv, run};
+use pinned_venv::{ensure_venv, pip_install, run};
 
 const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
 
@@ -52,16 +52,8 @@ pub fn install_module(venv: &Path) {
         .find(|p| p.extension().is_some_and(|x| x == "whl"))
         .expect("a wheel");
     run(
-        Command::new(venv.join("bin/python"))
-            .args([
-                "-m",
-                "pip",
-                "install",
-                "--quiet",
-                "--disable-pip-version-check",
-                "--no-deps",
-                "--force-reinstall",
-            ])
+        pip_install(venv)
+            .args(["--no-deps", "--force-reinstall"])
             .arg(&wheel),
         "pip install wheel",
     );

@@ -37,6 +37,19 @@ fn python_home() -> PathBuf {
         .join("python")
 }
 
+/// `pip install` (quiet) run by the Python of `venv`; the packages are the caller's arguments.
+pub fn pip_install(venv: &std::path::Path) -> Command {
+    let mut c = Command::new(venv.join("bin/python"));
+    c.args([
+        "-m",
+        "pip",
+        "install",
+        "--quiet",
+        "--disable-pip-version-check",
+    ]);
+    c
+}
+
 /// The venv `<name>-<pins>` with `pins` installed: made under a temporary name by
 /// `$STEREOGEN_BOOTSTRAP_PYTHON` (default `python3`), renamed into place once complete, under a
 /// file lock so parallel test processes wait for one install.
@@ -56,18 +69,7 @@ pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
             Command::new(&python).args(["-m", "venv"]).arg(&tmp),
             "python3 -m venv",
         );
-        run(
-            Command::new(tmp.join("bin/python"))
-                .args([
-                    "-m",
-                    "pip",
-                    "install",
-                    "--quiet",
-                    "--disable-pip-version-check",
-                ])
-                .args(pins),
-            "pip install",
-        );
+        run(pip_install(&tmp).args(pins), "pip install");
         std::fs::write(tmp.join(".complete"), pins.join("\n")).unwrap();
         // A venv's python finds its packages relative to pyvenv.cfg, so the move is harmless.
         std::fs::rename(&tmp, &venv).unwrap();
