@@ -129,38 +129,38 @@ fn matmul_into(
     }
 }
 
-/// Copies `planes` planes of `rows × cols` from `src` into `dst`, whose planes are
-/// `dst_rows × dst_cols`, at row `r0` and column `c0` of each (the rest of `dst` untouched).
-#[allow(clippy::too_many_arguments)]
-fn place(
-    src: &[f32],
-    (rows, cols): (usize, usize),
-    dst: &mut [f32],
-    (dst_rows, dst_cols): (usize, usize),
-    (r0, c0): (usize, usize),
-) {
-    dst.par_chunks_mut(dst_rows * dst_cols)
-        .zip(src.par_chunks(rows * cols))
-        .for_each(|(d, s)| {
-            for y in 0..rows {
-                d[(y + r0) * dst_cols + c0..][..cols].copy_from_slice(&s[y * cols..][..cols]);
-            }
-        });
+/// A `rows × cols` window of every plane: planes of `plane` = (rows, cols) in their buffer,
+/// the window's top-left corner at `at`.
+#[derive(Clone, Copy)]
+struct Window {
+    plane: (usize, usize),
+    at: (usize, usize),
 }
 
-/// The inverse of [`place`]: the `rows × cols` window at (`r0`, `c0`) of each `src` plane.
-fn take(
+/// The whole of a `rows × cols` plane.
+fn whole(rows: usize, cols: usize) -> Window {
+    Window {
+        plane: (rows, cols),
+        at: (0, 0),
+    }
+}
+
+/// Copies the `rows × cols` window `from` of each plane of `src` onto the window `to` of the
+/// same plane of `dst` (the rest of `dst` untouched): padding a map, or cutting it back out.
+fn copy_windows(
     src: &[f32],
-    (src_rows, src_cols): (usize, usize),
+    from: Window,
     dst: &mut [f32],
+    to: Window,
     (rows, cols): (usize, usize),
-    (r0, c0): (usize, usize),
 ) {
-    dst.par_chunks_mut(rows * cols)
-        .zip(src.par_chunks(src_rows * src_cols))
+    dst.par_chunks_mut(to.plane.0 * to.plane.1)
+        .zip(src.par_chunks(from.plane.0 * from.plane.1))
         .for_each(|(d, s)| {
             for y in 0..rows {
-                d[y * cols..][..cols].copy_from_slice(&s[(y + r0) * src_cols + c0..][..cols]);
+                let si = (y + from.at.0) * from.plane.1 + from.at.1;
+                let di = (y + to.at.0) * to.plane.1 + to.at.1;
+                d[di..][..cols].copy_from_slice(&s[si..][..cols]);
             }
         });
 }
@@ -169,13 +169,11 @@ fn take(
 fn padded_input(x: &[f32], g: &Geometry, p: &Padded, b: usize) -> Vec<f32> {
     let mut xp = vec![0f32; g.cin * p.plane()];
     let image = &x[b * g.cin * g.h * g.w..][..g.cin * g.h * g.w];
-    place(
-        image,
-        (g.h, g.w),
-        &mut xp,
-        (p.hp, p.wp),
-        (g.pad[0], g.pad[1]),
-    );
+    let inside = Window {
+        plane: (p.hp, p.wp),
+        at: (g.pad[0], g.pad[1]),
+    };
+    copy_windows(image, whole(g.h, g.w), &mut xp, inside, (g.h, g.w));
     xp
 }
 
@@ -183,7 +181,13 @@ fn padded_input(x: &[f32], g: &Geometry, p: &Padded, b: usize) -> Vec<f32> {
 /// extra columns stay zero.
 fn widen_output_grad(dy: &[f32], g: &Geometry, p: &Padded, b: usize, wide: &mut [f32]) {
     let image = &dy[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
-    place(image, (g.ho, g.wo), wide, (g.ho, p.wp), (0, 0));
+    copy_windows(
+        image,
+        whole(g.ho, g.wo),
+        wide,
+        whole(g.ho, p.wp),
+        (g.ho, g.wo),
+    );
 }
 
 fn taps(g: &Geometry) -> impl Iterator<Item = (usize, usize)> + '_ {
@@ -215,7 +219,13 @@ pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
             );
         }
         let out = &mut y[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
-        take(&wide, (g.ho, p.wp), out, (g.ho, g.wo), (0, 0));
+        copy_windows(
+            &wide,
+            whole(g.ho, p.wp),
+            out,
+            whole(g.ho, g.wo),
+            (g.ho, g.wo),
+        );
     }
     y
 }
@@ -268,7 +278,11 @@ pub(super) fn input_grad(w: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
             );
         }
         let out = &mut dx[b * g.cin * g.h * g.w..][..g.cin * g.h * g.w];
-        take(&dxp, (p.hp, p.wp), out, (g.h, g.w), (g.pad[0], g.pad[1]));
+        let inside = Window {
+            plane: (p.hp, p.wp),
+            at: (g.pad[0], g.pad[1]),
+        };
+        copy_windows(&dxp, inside, out, whole(g.h, g.w), (g.h, g.w));
     }
     dx
 }
