@@ -33,6 +33,7 @@ pub mod agcl;
 pub mod attention;
 pub mod conv2d;
 pub mod corr;
+mod dispatch;
 pub mod encoder;
 pub mod gru;
 pub mod infer;

@@ -23,7 +23,7 @@ mod shift;
 
 pub use shift::shift_corr;
 
-use std::any::{Any, TypeId};
+use std::any::TypeId;
 
 use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
@@ -31,6 +31,7 @@ use burn::tensor::TensorPrimitive;
 use burn::tensor::ops::FloatTensor;
 
 use crate::corr::SearchWindow;
+use crate::dispatch::same;
 
 /// Static parameters of an offset correlation: channel groups and the search window's
 /// half-extent (candidates ordered row-major, dy outer, dx inner).
@@ -100,13 +101,6 @@ pub trait AgclOps: Backend {
         grad: FloatTensor<Self>,
         need: [bool; 2],
     ) -> [Option<FloatTensor<Self>>; 2];
-}
-
-/// Moves a value between two type names of the same type (checked at run time).
-fn same<S: 'static, T: 'static>(value: S) -> T {
-    *(Box::new(value) as Box<dyn Any>)
-        .downcast::<T>()
-        .unwrap_or_else(|_| unreachable!("AGCL dispatch: backend types differ"))
 }
 
 /// The backends with fused AGCL kernels.

@@ -16,6 +16,7 @@
 
 use std::any::TypeId;
 
+use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
 use burn::backend::autodiff::grads::Gradients;
@@ -30,7 +31,11 @@ use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
 use burn::tensor::{DType, TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
 
+use crate::dispatch::same;
+
 mod shifted;
+mod views;
+mod winograd;
 
 /// `conv.forward(x)`; on `Autodiff<Flex>` (float32, groups 1, symmetric padding) with the GEMM
 /// backward described in the module docs.
@@ -55,20 +60,18 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
         x.into_primitive().tensor(),
         conv.weight.val().into_primitive().tensor(),
     );
+    let bias = (conv.bias.as_ref()).map(|b| b.val().into_primitive().tensor());
     let y = if autodiff {
-        same(conv2d_autodiff(same(x), same(w), options))
+        same(conv2d_autodiff(same(x), same(w), bias.map(same), options))
     } else {
         let (x, w): (FlexTensor, FlexTensor) = (same(x), same(w));
-        same(gemm_forward(&x, &w, &Geometry::new(&x, &w, &options)))
+        let y = gemm_forward(&x, &w, &Geometry::new(&x, &w, &options));
+        same(match bias {
+            Some(b) => add_bias(y, &same(b)),
+            None => y,
+        })
     };
-    let y: Tensor<B, 4> = Tensor::from_primitive(TensorPrimitive::Float(y));
-    match &conv.bias {
-        Some(bias) => {
-            let c = bias.dims()[0];
-            y + bias.val().reshape([1, c, 1, 1])
-        }
-        None => y,
-    }
+    Tensor::from_primitive(TensorPrimitive::Float(y))
 }
 
 /// Several convolutions of one input with the same geometry (kernel, stride, padding, dilation),
@@ -117,12 +120,6 @@ pub fn forward_stacked<B: Backend>(convs: &[&Conv2d<B>], x: Tensor<B, 4>) -> Ten
     forward(&stacked, x)
 }
 
-fn same<S: 'static, T: 'static>(value: S) -> T {
-    *(Box::new(value) as Box<dyn std::any::Any>)
-        .downcast::<T>()
-        .unwrap_or_else(|_| unreachable!("conv2d dispatch: backend types differ"))
-}
-
 #[derive(Debug)]
 struct Conv2dBackward;
 
@@ -132,36 +129,126 @@ impl Backward<Flex, 2> for Conv2dBackward {
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node_x, node_w] = ops.parents;
         let dy = grads.consume::<Flex>(&ops.node).to_contiguous();
-        let (x, w, options) = ops.state;
-        let geometry = Geometry::new(&x, &w, &options);
-        if let Some(node) = node_w {
-            grads.register::<Flex>(node.id, weight_grad(&x, &dy, &geometry));
-        }
-        if let Some(node) = node_x {
-            grads.register::<Flex>(node.id, input_grad(&w, &dy, &geometry));
-        }
+        register_grads(
+            grads,
+            [node_x, node_w].map(|n| n.map(|n| n.id)),
+            &dy,
+            ops.state,
+        );
     }
+}
+
+/// A convolution with its bias added in the same pass (no broadcast add after it).
+#[derive(Debug)]
+struct Conv2dBiasBackward;
+
+impl Backward<Flex, 3> for Conv2dBiasBackward {
+    type State = (FlexTensor, FlexTensor, ConvOptions<2>);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node_x, node_w, node_b] = ops.parents;
+        let dy = grads.consume::<Flex>(&ops.node).to_contiguous();
+        if let Some(node) = node_b {
+            grads.register::<Flex>(node.id, bias_grad(&dy));
+        }
+        register_grads(
+            grads,
+            [node_x, node_w].map(|n| n.map(|n| n.id)),
+            &dy,
+            ops.state,
+        );
+    }
+}
+
+/// Registers the input and weight gradients of a convolution for the parents that need them.
+fn register_grads(
+    grads: &mut Gradients,
+    [node_x, node_w]: [Option<NodeId>; 2],
+    dy: &FlexTensor,
+    (x, w, options): (FlexTensor, FlexTensor, ConvOptions<2>),
+) {
+    let geometry = Geometry::new(&x, &w, &options);
+    if let Some(id) = node_w {
+        grads.register::<Flex>(id, weight_grad(&x, dy, &geometry));
+    }
+    if let Some(id) = node_x {
+        grads.register::<Flex>(id, input_grad(&w, dy, &geometry));
+    }
+}
+
+/// `y + bias` per output channel, in place (y is the convolution's fresh output), in parallel
+/// over planes: Flex's broadcast add would walk every element through a strided iterator on
+/// one thread.
+fn add_bias(y: FlexTensor, bias: &FlexTensor) -> FlexTensor {
+    let mut y = y.to_contiguous();
+    let [_, c, h, w] = y.shape().dims();
+    let bias = bias.to_contiguous();
+    let b: &[f32] = bias.storage();
+    y.storage_mut::<f32>()
+        .par_chunks_mut(h * w)
+        .enumerate()
+        .for_each(|(i, plane)| {
+            let v = b[i % c];
+            plane.iter_mut().for_each(|x| *x += v);
+        });
+    y
+}
+
+/// `dB` (C) = the output gradient summed over images and pixels.
+fn bias_grad(dy: &FlexTensor) -> FlexTensor {
+    let [n, c, h, w] = dy.shape().dims();
+    let g: &[f32] = dy.storage();
+    let db: Vec<f32> = (0..c)
+        .into_par_iter()
+        .map(|k| {
+            (0..n)
+                .map(|b| g[(b * c + k) * h * w..][..h * w].iter().sum::<f32>())
+                .sum()
+        })
+        .collect();
+    FlexTensor::from_data(TensorData::new(db, [c]))
 }
 
 fn conv2d_autodiff(
     x: FloatTensor<Autodiff<Flex>>,
     w: FloatTensor<Autodiff<Flex>>,
+    bias: Option<FloatTensor<Autodiff<Flex>>>,
     options: ConvOptions<2>,
 ) -> FloatTensor<Autodiff<Flex>> {
-    let nodes = [x.node.clone(), w.node.clone()];
-    let (x, w) = (x.primitive, w.primitive);
-    match Conv2dBackward
+    let forward = |x: &FlexTensor, w: &FlexTensor, b: Option<&FlexTensor>| {
+        let y = gemm_forward(x, w, &Geometry::new(x, w, &options));
+        match b {
+            Some(b) => add_bias(y, b),
+            None => y,
+        }
+    };
+    let Some(bias) = bias else {
+        let nodes = [x.node.clone(), w.node.clone()];
+        let (x, w) = (x.primitive, w.primitive);
+        return match Conv2dBackward
+            .prepare::<NoCheckpointing>(nodes)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let y = forward(&x, &w, None);
+                prep.finish((x, w, options), y)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(forward(&x, &w, None)),
+        };
+    };
+    let nodes = [x.node.clone(), w.node.clone(), bias.node.clone()];
+    let (x, w, b) = (x.primitive, w.primitive, bias.primitive);
+    match Conv2dBiasBackward
         .prepare::<NoCheckpointing>(nodes)
         .compute_bound()
         .stateful()
     {
         OpsKind::Tracked(prep) => {
-            let y = gemm_forward(&x, &w, &Geometry::new(&x, &w, &options));
+            let y = forward(&x, &w, Some(&b));
             prep.finish((x, w, options), y)
         }
-        OpsKind::UnTracked(prep) => {
-            prep.finish(gemm_forward(&x, &w, &Geometry::new(&x, &w, &options)))
-        }
+        OpsKind::UnTracked(prep) => prep.finish(forward(&x, &w, Some(&b))),
     }
 }
 
@@ -292,6 +379,10 @@ fn flex(data: Vec<f32>, shape: [usize; 3]) -> FlexTensor {
 /// change (1×1 stride-1 convolutions multiply the input planes directly).
 fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry) -> FlexTensor {
     let x = x.to_contiguous();
+    if winograd::applies(g) {
+        let y = winograd::forward(x.storage(), w.to_contiguous().storage(), g);
+        return FlexTensor::from_data(TensorData::new(y, [g.n, g.cout, g.ho, g.wo]));
+    }
     if shifted::applies(g) {
         let y = shifted::forward(x.storage(), w.to_contiguous().storage(), g);
         return FlexTensor::from_data(TensorData::new(y, [g.n, g.cout, g.ho, g.wo]));
@@ -341,6 +432,10 @@ fn weight_grad(x: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
 
 /// `dX = col2im(Wᵀ · dY_b)` for every image b, (N, C_in, H, W).
 fn input_grad(w: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
+    if winograd::applies_to_input_grad(g) {
+        let dx = winograd::input_grad(w.to_contiguous().storage(), dy.to_contiguous().storage(), g);
+        return FlexTensor::from_data(TensorData::new(dx, [g.n, g.cin, g.h, g.w]));
+    }
     if shifted::applies(g) {
         let dx = shifted::input_grad(w.to_contiguous().storage(), dy.to_contiguous().storage(), g);
         return FlexTensor::from_data(TensorData::new(dx, [g.n, g.cin, g.h, g.w]));
@@ -382,7 +477,6 @@ mod tests {
     /// smaller than the kernel's reach (a tap that only ever reads padding) and strides.
     #[test]
     fn gemm_convolution_matches_burn_forward_and_gradients() {
-        let device = Default::default();
         // (cin, cout, kernel, stride, padding, dilation, h, w)
         let cases = [
             (3, 4, 3, 1, 1, 1, 5, 7),
@@ -397,46 +491,92 @@ mod tests {
             (16, 4, 5, 1, 2, 1, 2, 3),
             (20, 6, 3, 1, 0, 1, 4, 5),
         ];
-        for (cin, cout, k, s, p, d, h, w) in cases {
-            let conv = Conv2dConfig::new([cin, cout], [k, k])
-                .with_stride([s, s])
-                .with_dilation([d, d])
-                .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
-                .init::<Ad>(&device);
-            let x =
-                Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
-                    .require_grad();
-            let ours = forward(&conv, x.clone());
-            let theirs = conv.forward(x.clone());
-            let case = format!("cin {cin} cout {cout} k {k} s {s} p {p} d {d} {h}x{w}");
-            assert_eq!(ours.dims(), theirs.dims(), "{case}");
-            let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
-            assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");
-            let up = Tensor::<Ad, 4>::random(ours.dims(), Distribution::Normal(0.0, 1.0), &device);
-            let g_ours = (ours * up.clone()).sum().backward();
-            let g_theirs = (theirs * up).sum().backward();
-            let pairs = [
-                (x.grad(&g_ours).unwrap(), x.grad(&g_theirs).unwrap(), "dx"),
-                (
-                    conv.weight.val().grad(&g_ours).unwrap(),
-                    conv.weight.val().grad(&g_theirs).unwrap(),
-                    "dw",
-                ),
-            ];
-            for (a, b, name) in pairs {
-                let diff = max_diff(&values(a), &values(b));
-                assert!(diff <= 1e-4, "{case}: {name} differs by {diff}");
-            }
-            // the plain Flex forward takes the GEMM path too
-            let xf = x.inner();
-            let conv_f = conv.valid();
-            let diff = max_diff(
-                &values(forward(&conv_f, xf.clone())),
-                &values(conv_f.forward(xf)),
-            );
-            assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
+        for case in cases {
+            compare_with_burn(case);
         }
     }
+
+    /// 3×3 stride-1 convolutions with 16+ channels on both sides and 64+ tiles of 2×2 outputs:
+    /// the Winograd path (forward, and the input gradient as the forward of the flipped kernel),
+    /// paddings 0, 1 and 2, odd sizes (a half-filled last row and column of tiles).
+    #[test]
+    fn winograd_convolution_matches_burn_forward_and_gradients() {
+        let cases = [
+            (16, 16, 3, 1, 1, 1, 15, 17),
+            (16, 20, 3, 1, 0, 1, 18, 19),
+            (24, 16, 3, 1, 2, 1, 16, 17),
+            (32, 48, 3, 1, 1, 1, 16, 16),
+        ];
+        for case in cases {
+            let (cin, cout, _, _, p, _, h, w) = case;
+            let x =
+                FlexTensor::from_data(TensorData::new(vec![0f32; 2 * cin * h * w], [2, cin, h, w]));
+            let wt = FlexTensor::from_data(TensorData::new(
+                vec![0f32; cout * cin * 9],
+                [cout, cin, 3, 3],
+            ));
+            let g = Geometry::new(&x, &wt, &ConvOptions::new([1, 1], [p, p], [1, 1], 1));
+            assert!(
+                winograd::applies(&g) && winograd::applies_to_input_grad(&g),
+                "{case:?} does not exercise the Winograd path"
+            );
+            compare_with_burn(case);
+        }
+    }
+
+    /// One convolution (cin, cout, kernel, stride, padding, dilation, h, w) on a batch of two:
+    /// ours against Burn's, forward and both gradients on `Autodiff<Flex>`, and the plain Flex
+    /// forward.
+    fn compare_with_burn(
+        (cin, cout, k, s, p, d, h, w): (usize, usize, usize, usize, usize, usize, usize, usize),
+    ) {
+        let device = Default::default();
+        let conv = Conv2dConfig::new([cin, cout], [k, k])
+            .with_stride([s, s])
+            .with_dilation([d, d])
+            .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
+            .init::<Ad>(&device);
+        let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
+            .require_grad();
+        let ours = forward(&conv, x.clone());
+        let theirs = conv.forward(x.clone());
+        let case = format!("cin {cin} cout {cout} k {k} s {s} p {p} d {d} {h}x{w}");
+        assert_eq!(ours.dims(), theirs.dims(), "{case}");
+        let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
+        assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");
+        let up = Tensor::<Ad, 4>::random(ours.dims(), Distribution::Normal(0.0, 1.0), &device);
+        let g_ours = (ours * up.clone()).sum().backward();
+        let g_theirs = (theirs * up).sum().backward();
+        let pairs = [
+            (x.grad(&g_ours).unwrap(), x.grad(&g_theirs).unwrap(), "dx"),
+            (
+                conv.weight.val().grad(&g_ours).unwrap(),
+                conv.weight.val().grad(&g_theirs).unwrap(),
+                "dw",
+            ),
+        ];
+        for (a, b, name) in pairs {
+            let diff = max_diff(&values(a), &values(b));
+            assert!(diff <= 1e-4, "{case}: {name} differs by {diff}");
+        }
+        // the bias is added inside the convolution: its gradient comes from our backward
+        let bias = conv.bias.as_ref().expect("a bias").val();
+        let as4 = |t: Tensor<Flex, 1>| values(t.reshape([1, 1, 1, cout]));
+        let db = max_diff(
+            &as4(bias.grad(&g_ours).unwrap()),
+            &as4(bias.grad(&g_theirs).unwrap()),
+        );
+        assert!(db <= 1e-4, "{case}: db differs by {db}");
+        // the plain Flex forward takes the GEMM path too
+        let xf = x.inner();
+        let conv_f = conv.valid();
+        let diff = max_diff(
+            &values(forward(&conv_f, xf.clone())),
+            &values(conv_f.forward(xf)),
+        );
+        assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
+    }
+
     /// The GRU's separable kernels (1×5 and 5×1, 16+ channels: the shifted-view path) against
     /// Burn's convolution, forward and both gradients, also on maps narrower than the kernel.
     #[test]

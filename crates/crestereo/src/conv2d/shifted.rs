@@ -19,10 +19,10 @@
 //! backward); each tap is a GEMM with `K = C_in`, so it is used where `C_in` is large enough
 //! to keep the kernel efficient.
 
-use gemm::{Parallelism, gemm};
 use rayon::prelude::*;
 
 use super::Geometry;
+use super::views::{View, matmul_into};
 
 /// Below this many input channels each tap's product is too thin to beat one unfolded GEMM.
 const MIN_CIN: usize = 16;
@@ -57,75 +57,6 @@ impl Padded {
 
     fn plane(&self) -> usize {
         self.hp * self.wp
-    }
-}
-
-/// A strided matrix view into a slice: element (i, j) at `offset + i·rs + j·cs`.
-#[derive(Clone, Copy)]
-struct View {
-    offset: usize,
-    rs: usize,
-    cs: usize,
-}
-
-impl View {
-    fn new(offset: usize, rs: usize, cs: usize) -> Self {
-        View { offset, rs, cs }
-    }
-
-    fn last(&self, rows: usize, cols: usize) -> usize {
-        self.offset + (rows - 1) * self.rs + (cols - 1) * self.cs
-    }
-}
-
-/// `dst (m × n) = [dst +] lhs (m × k) · rhs (k × n)` on strided views, bounds checked.
-#[allow(clippy::too_many_arguments)]
-fn matmul_into(
-    (m, n, k): (usize, usize, usize),
-    dst: &mut [f32],
-    d: View,
-    accumulate: bool,
-    lhs: &[f32],
-    l: View,
-    rhs: &[f32],
-    r: View,
-) {
-    if m == 0 || n == 0 || k == 0 {
-        return;
-    }
-    assert!(
-        d.last(m, n) < dst.len() && l.last(m, k) < lhs.len() && r.last(k, n) < rhs.len(),
-        "shifted convolution: a view reaches past its buffer"
-    );
-    let parallelism = if m * n * k >= 1 << 18 {
-        Parallelism::Rayon(0)
-    } else {
-        Parallelism::None
-    };
-    // SAFETY: the three views lie inside their slices (checked above); `dst` is borrowed
-    // mutably and does not alias `lhs` or `rhs`.
-    unsafe {
-        gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr().add(d.offset),
-            d.cs as isize,
-            d.rs as isize,
-            accumulate,
-            lhs.as_ptr().add(l.offset),
-            l.cs as isize,
-            l.rs as isize,
-            rhs.as_ptr().add(r.offset),
-            r.cs as isize,
-            r.rs as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            parallelism,
-        );
     }
 }
 

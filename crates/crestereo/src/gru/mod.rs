@@ -1,10 +1,16 @@
 //! Separable ConvGRU: a 1×5 (horizontal) GRU step followed by a 5×1 (vertical) one.
+//!
+//! On the plain Flex backend (inference) the gates' element-wise work runs as two parallel
+//! kernels (`flex`); elsewhere it is composed from tensor ops.
 
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, tanh};
 
+use crate::dispatch::{flex_f32, from_flex};
 use crate::encoder::conv_cfg;
+
+mod flex;
 
 #[derive(Config, Debug)]
 pub struct SepConvGruConfig {
@@ -51,8 +57,14 @@ fn gru_step<B: Backend>(
 ) -> Tensor<B, 4> {
     let hx = Tensor::cat(vec![h.clone(), x.clone()], 1);
     // z and r read the same input: one stacked convolution, then split.
+    let zr = crate::conv2d::forward_stacked(&[cz, cr], hx);
+    if let Some([zr_f, h_f, x_f]) = flex_f32([&zr, &h, &x]) {
+        let q = crate::conv2d::forward(cq, from_flex(flex::reset_input(&zr_f, &h_f, &x_f)));
+        let [q_f] = flex_f32([&q]).expect("a Flex tensor");
+        return from_flex(flex::blend(&zr_f, &h_f, &q_f));
+    }
     let hidden = h.dims()[1];
-    let zr = sigmoid(crate::conv2d::forward_stacked(&[cz, cr], hx));
+    let zr = sigmoid(zr);
     let z = zr.clone().narrow(1, 0, hidden);
     let r = zr.narrow(1, hidden, hidden);
     let q = tanh(crate::conv2d::forward(
