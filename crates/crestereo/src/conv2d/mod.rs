@@ -496,51 +496,74 @@ mod tests {
         }
     }
 
-    /// 3×3 stride-1 convolutions with 16+ channels on both sides and 64+ tiles of 2×2 outputs:
-    /// the Winograd path (forward, and the input gradient as the forward of the flipped kernel),
-    /// paddings 0, 1 and 2, odd sizes (a half-filled last row and column of tiles).
+    /// Stride-1 3×3, 1×5 and 5×1 convolutions with 16+ channels on both sides and 256+
+    /// outputs: the Winograd path (forward, and the input gradient as the forward of the flipped
+    /// kernel), paddings from 0 to k − 1, odd sizes (tiles reaching past the map).
     #[test]
     fn winograd_convolution_matches_burn_forward_and_gradients() {
+        // (cin, cout, kernel, padding, h, w)
         let cases = [
-            (16, 16, 3, 1, 1, 1, 15, 17),
-            (16, 20, 3, 1, 0, 1, 18, 19),
-            (24, 16, 3, 1, 2, 1, 16, 17),
-            (32, 48, 3, 1, 1, 1, 16, 16),
+            (16, 16, [3, 3], [1, 1], 16, 17),
+            (16, 20, [3, 3], [0, 0], 18, 19),
+            (24, 16, [3, 3], [2, 2], 16, 17),
+            (32, 48, [3, 3], [1, 1], 16, 16),
+            (24, 16, [1, 5], [0, 2], 16, 19),
+            (16, 24, [5, 1], [2, 0], 21, 16),
+            (16, 16, [1, 5], [0, 4], 16, 16),
+            (20, 16, [5, 1], [1, 0], 23, 17),
         ];
-        for case in cases {
-            let (cin, cout, _, _, p, _, h, w) = case;
+        for (cin, cout, [kh, kw], [ph, pw], h, w) in cases {
+            let case = format!("cin {cin} cout {cout} {kh}x{kw} pad {ph},{pw} {h}x{w}");
             let x =
                 FlexTensor::from_data(TensorData::new(vec![0f32; 2 * cin * h * w], [2, cin, h, w]));
             let wt = FlexTensor::from_data(TensorData::new(
-                vec![0f32; cout * cin * 9],
-                [cout, cin, 3, 3],
+                vec![0f32; cout * cin * kh * kw],
+                [cout, cin, kh, kw],
             ));
-            let g = Geometry::new(&x, &wt, &ConvOptions::new([1, 1], [p, p], [1, 1], 1));
+            let g = Geometry::new(&x, &wt, &ConvOptions::new([1, 1], [ph, pw], [1, 1], 1));
             assert!(
                 winograd::applies(&g) && winograd::applies_to_input_grad(&g),
-                "{case:?} does not exercise the Winograd path"
+                "{case} does not exercise the Winograd path"
             );
-            compare_with_burn(case);
+            compare_with_burn_kernel(cin, cout, [kh, kw], [1, 1], [ph, pw], [1, 1], h, w);
         }
     }
 
-    /// One convolution (cin, cout, kernel, stride, padding, dilation, h, w) on a batch of two:
-    /// ours against Burn's, forward and both gradients on `Autodiff<Flex>`, and the plain Flex
-    /// forward.
+    /// One square-kernel convolution (cin, cout, kernel, stride, padding, dilation, h, w): see
+    /// [`compare_with_burn_kernel`].
     fn compare_with_burn(
         (cin, cout, k, s, p, d, h, w): (usize, usize, usize, usize, usize, usize, usize, usize),
     ) {
+        compare_with_burn_kernel(cin, cout, [k, k], [s, s], [p, p], [d, d], h, w);
+    }
+
+    /// One convolution on a batch of two: ours against Burn's, forward and the gradients of
+    /// input, weight and bias on `Autodiff<Flex>`, and the plain Flex forward.
+    #[allow(clippy::too_many_arguments)]
+    fn compare_with_burn_kernel(
+        cin: usize,
+        cout: usize,
+        kernel: [usize; 2],
+        stride: [usize; 2],
+        [ph, pw]: [usize; 2],
+        dilation: [usize; 2],
+        h: usize,
+        w: usize,
+    ) {
         let device = Default::default();
-        let conv = Conv2dConfig::new([cin, cout], [k, k])
-            .with_stride([s, s])
-            .with_dilation([d, d])
-            .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
+        let conv = Conv2dConfig::new([cin, cout], kernel)
+            .with_stride(stride)
+            .with_dilation(dilation)
+            .with_padding(PaddingConfig2d::Explicit(ph, pw, ph, pw))
             .init::<Ad>(&device);
         let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
             .require_grad();
         let ours = forward(&conv, x.clone());
         let theirs = conv.forward(x.clone());
-        let case = format!("cin {cin} cout {cout} k {k} s {s} p {p} d {d} {h}x{w}");
+        let case = format!(
+            "cin {cin} cout {cout} kernel {kernel:?} stride {stride:?} pad {ph},{pw} \
+             dilation {dilation:?} {h}x{w}"
+        );
         assert_eq!(ours.dims(), theirs.dims(), "{case}");
         let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
         assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");

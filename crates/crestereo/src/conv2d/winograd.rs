@@ -1,21 +1,24 @@
-//! 3×3 stride-1 convolutions by Winograd's minimal filtering F(2×2, 3×3).
+//! Stride-1 convolutions by Winograd's minimal filtering, one axis at a time.
 //!
-//! Every 2×2 block of outputs is computed from the 4×4 input tile under it: the tile and the
-//! kernel are mapped into a 4×4 "transform domain" (`V = Bᵀ d B`, `U = G g Gᵀ`), multiplied
-//! there element by element and summed over input channels, and mapped back (`Y = Aᵀ M A`).
-//! Summed over channels, each of the 16 transform positions ξ is one matrix product
+//! Along an axis with kernel extent `r`, F(m, r) computes `m` outputs of the correlation from a
+//! tile of `n = m + r − 1` inputs with `n` products instead of `m·r`: the tile and the kernel are
+//! mapped into an `n`-point "transform domain" (`Bᵀ d`, `G g`), multiplied element by element
+//! and mapped back (`Aᵀ`). A 2-D kernel takes one such transform per axis (extent 1 is the
+//! identity), so a tile has `n_y · n_x` transform positions ξ, and summed over input channels
+//! each position is one matrix product
 //!
 //! ```text
 //! M_ξ (C_out × tiles) = U_ξ (C_out × C_in) · V_ξ (C_in × tiles)
 //! ```
 //!
-//! so a 3×3 convolution costs 16 multiplications per 4 outputs instead of 36: 2.25× fewer
-//! floating-point operations in the products, for two cheap transforms that only add and halve.
-//! The matrices hold 0, ±1 and ½ (exact in binary), so the rounding error stays at the level of
-//! a direct convolution (the unit tests compare with Burn's to 1e-5).
+//! The transforms are built by Toom–Cook at small points (0, ±1, ±2, ±½ and infinity), the
+//! Lagrange denominators folded into `G` so that `Bᵀ` and `Aᵀ` hold small integers and powers
+//! of two; the kernel transform runs in float64. Used: F(2, 3) per axis for 3×3 kernels
+//! (2.25× fewer products) and F(4, 5) for the GRU's 1×5 and 5×1 (2.5× fewer); the unit tests
+//! compare every case with Burn's convolution.
 //!
-//! The input gradient of such a convolution is itself one (the kernel flipped and its channel
-//! axes swapped, padding `2 − p`), so the backward reuses the forward; the weight gradient stays
+//! The input gradient of such a convolution is itself one (kernel flipped, channel axes
+//! swapped, padding `k − 1 − p`), so the backward reuses the forward; the weight gradient stays
 //! with the shifted-view products.
 
 use rayon::prelude::*;
@@ -26,51 +29,139 @@ use super::views::{View, matmul_into};
 /// Below these sizes the products are too thin or too few for the transforms to pay.
 const MIN_CIN: usize = 16;
 const MIN_COUT: usize = 16;
-const MIN_TILES: usize = 64;
+const MIN_OUTPUTS: usize = 256;
 
-/// Transform positions per tile (4 × 4).
-const XI: usize = 16;
+/// One axis of the transform: F(m, r) with `n = m + r − 1` points, matrices row-major.
+#[derive(Debug, Clone)]
+struct Axis {
+    m: usize,
+    r: usize,
+    n: usize,
+    /// Bᵀ (n × n).
+    bt: Vec<f32>,
+    /// G (n × r), float64 until the two axes' coefficients are multiplied.
+    g: Vec<f64>,
+    /// Aᵀ (m × n).
+    at: Vec<f32>,
+}
 
-/// The grid of 2×2 output tiles of one image.
-struct Tiles {
+/// Coefficients (lowest degree first) of `Π (x − p)` over `points`.
+fn monic(points: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut c = vec![1.0];
+    for p in points {
+        let mut next = vec![0.0; c.len() + 1];
+        for (k, &ck) in c.iter().enumerate() {
+            next[k + 1] += ck;
+            next[k] -= p * ck;
+        }
+        c = next;
+    }
+    c
+}
+
+impl Axis {
+    /// F(m, r) by Toom–Cook at `points` (n − 1 finite points) and infinity.
+    ///
+    /// The correlation is the transpose of the linear convolution of an m-vector with the
+    /// kernel, whose Toom–Cook form is `y = C · ((H g) ⊙ (D a))` (D, H: evaluation at the points,
+    /// the last row taking the leading coefficient; C: interpolation, Lagrange polynomials plus
+    /// `Π (x − p)` for infinity). Transposed: `Aᵀ = Dᵀ`, `G = H`, `Bᵀ = Cᵀ`; each Lagrange
+    /// denominator moves from `Bᵀ`'s row into `G`'s.
+    fn new(m: usize, r: usize, points: &[f64]) -> Self {
+        let n = m + r - 1;
+        assert_eq!(
+            points.len(),
+            n - 1,
+            "F({m}, {r}) needs {} finite points",
+            n - 1
+        );
+        let eval = |len: usize, i: usize, j: usize| match points.get(i) {
+            Some(p) => p.powi(j as i32),
+            None => f64::from(u8::from(j == len - 1)),
+        };
+        let mut bt = vec![0f32; n * n];
+        let mut g = vec![0f64; n * r];
+        for i in 0..n {
+            let (row, den) = if i < n - 1 {
+                let others = || points.iter().enumerate().filter(|&(l, _)| l != i);
+                let den: f64 = others().map(|(_, &p)| points[i] - p).product();
+                (monic(others().map(|(_, &p)| p)), den)
+            } else {
+                (monic(points.iter().copied()), 1.0)
+            };
+            for (k, &c) in row.iter().enumerate() {
+                bt[i * n + k] = c as f32;
+            }
+            for k in 0..r {
+                g[i * r + k] = eval(r, i, k) / den;
+            }
+        }
+        let at = (0..m)
+            .flat_map(|j| (0..n).map(move |i| (j, i)))
+            .map(|(j, i)| eval(m, i, j) as f32)
+            .collect();
+        Axis { m, r, n, bt, g, at }
+    }
+
+    /// The transform for a kernel of extent `r` along this axis, if there is one.
+    fn for_extent(r: usize) -> Option<Self> {
+        match r {
+            1 => Some(Axis::new(1, 1, &[])),
+            3 => Some(Axis::new(2, 3, &[0.0, 1.0, -1.0])),
+            5 => Some(Axis::new(4, 5, &[0.0, 1.0, -1.0, 2.0, -2.0, 0.5, -0.5])),
+            _ => None,
+        }
+    }
+}
+
+/// The two axes of a convolution's transform and its grid of output tiles per image.
+struct Plan {
+    y: Axis,
+    x: Axis,
     rows: usize,
     cols: usize,
 }
 
-impl Tiles {
-    fn new(g: &Geometry) -> Self {
-        Tiles {
-            rows: g.ho.div_ceil(2),
-            cols: g.wo.div_ceil(2),
-        }
+impl Plan {
+    fn new(g: &Geometry) -> Option<Self> {
+        let (y, x) = (Axis::for_extent(g.kh)?, Axis::for_extent(g.kw)?);
+        Some(Plan {
+            rows: g.ho.div_ceil(y.m),
+            cols: g.wo.div_ceil(x.m),
+            y,
+            x,
+        })
     }
 
-    fn count(&self) -> usize {
+    fn tiles(&self) -> usize {
         self.rows * self.cols
+    }
+
+    /// Transform positions per tile.
+    fn xi(&self) -> usize {
+        self.y.n * self.x.n
     }
 }
 
-/// Whether the forward of `g` takes this path: a 3×3 kernel, stride 1, no dilation, and
-/// enough channels and tiles.
+/// Whether the forward of `g` takes this path: 3×3, 1×5 or 5×1, stride 1, no dilation, and
+/// enough channels and outputs.
 pub(super) fn applies(g: &Geometry) -> bool {
-    g.kh == 3
-        && g.kw == 3
-        && g.stride == [1, 1]
+    g.stride == [1, 1]
         && g.dil == [1, 1]
+        && g.kh * g.kw > 1
         && g.cin >= MIN_CIN
         && g.cout >= MIN_COUT
-        && g.ho > 0
-        && g.wo > 0
-        && Tiles::new(g).count() >= MIN_TILES
+        && g.ho * g.wo >= MIN_OUTPUTS
+        && Plan::new(g).is_some()
 }
 
 /// Whether the input gradient of `g` takes this path (as the forward of [`transposed`]).
 pub(super) fn applies_to_input_grad(g: &Geometry) -> bool {
-    applies(g) && g.pad[0] <= 2 && g.pad[1] <= 2 && applies(&transposed(g))
+    applies(g) && g.pad[0] < g.kh && g.pad[1] < g.kw && applies(&transposed(g))
 }
 
 /// The convolution whose forward is the input gradient of `g`: output gradient in, input
-/// gradient out, padding `2 − p` (only for `applies(g)` and p ≤ 2).
+/// gradient out, padding `k − 1 − p` (only for `applies(g)` and p < k).
 fn transposed(g: &Geometry) -> Geometry {
     Geometry {
         n: g.n,
@@ -78,42 +169,42 @@ fn transposed(g: &Geometry) -> Geometry {
         h: g.ho,
         w: g.wo,
         cout: g.cin,
-        kh: 3,
-        kw: 3,
+        kh: g.kh,
+        kw: g.kw,
         ho: g.h,
         wo: g.w,
         stride: [1, 1],
-        pad: [2 - g.pad[0], 2 - g.pad[1]],
+        pad: [g.kh - 1 - g.pad[0], g.kw - 1 - g.pad[1]],
         dil: [1, 1],
     }
 }
 
-/// `Y` (N, C_out, ho, wo) of input `x` (N, C_in, H, W) and weight `w` (C_out, C_in, 3, 3),
+/// `Y` (N, C_out, ho, wo) of input `x` (N, C_in, H, W) and weight `w` (C_out, C_in, kh, kw),
 /// both contiguous.
 pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
-    let tiles = Tiles::new(g);
-    let t = tiles.count();
-    let u = transform_weights(w, g.cout, g.cin);
-    let mut v = vec![0f32; g.cin * XI * t];
-    let mut m = vec![0f32; g.cout * XI * t];
+    let plan = Plan::new(g).expect("checked by applies");
+    let (t, xi) = (plan.tiles(), plan.xi());
+    let u = transform_weights(w, g, &plan);
+    let mut v = vec![0f32; g.cin * xi * t];
+    let mut m = vec![0f32; g.cout * xi * t];
     let mut y = vec![0f32; g.n * g.cout * g.ho * g.wo];
     for b in 0..g.n {
         let image = &x[b * g.cin * g.h * g.w..][..g.cin * g.h * g.w];
-        transform_input(image, g, &tiles, &mut v);
-        for xi in 0..XI {
+        transform_input(image, g, &plan, &mut v);
+        for e in 0..xi {
             matmul_into(
                 (g.cout, t, g.cin),
                 &mut m,
-                View::new(xi * t, XI * t, 1),
+                View::new(e * t, xi * t, 1),
                 false,
                 &u,
-                View::new(xi * g.cin, XI * g.cin, 1),
+                View::new(e * g.cin, xi * g.cin, 1),
                 &v,
-                View::new(xi * t, XI * t, 1),
+                View::new(e * t, xi * t, 1),
             );
         }
         let out = &mut y[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
-        transform_output(&m, g, &tiles, out);
+        transform_output(&m, g, &plan, out);
     }
     y
 }
@@ -121,151 +212,193 @@ pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
 /// `dX` (N, C_in, H, W) of the output gradient `dy` (N, C_out, ho, wo): the forward of the
 /// flipped, channel-swapped kernel (see [`transposed`]).
 pub(super) fn input_grad(w: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
-    let mut flipped = vec![0f32; g.cin * g.cout * 9];
+    let taps = g.kh * g.kw;
+    let mut flipped = vec![0f32; g.cin * g.cout * taps];
     flipped
-        .par_chunks_mut(g.cout * 9)
+        .par_chunks_mut(g.cout * taps)
         .enumerate()
         .for_each(|(ci, dst)| {
             for co in 0..g.cout {
-                let src = &w[(co * g.cin + ci) * 9..][..9];
-                for (i, d) in dst[co * 9..][..9].iter_mut().enumerate() {
-                    *d = src[8 - i];
+                let src = &w[(co * g.cin + ci) * taps..][..taps];
+                for (i, d) in dst[co * taps..][..taps].iter_mut().enumerate() {
+                    *d = src[taps - 1 - i];
                 }
             }
         });
     forward(dy, &flipped, &transposed(g))
 }
 
-/// `U = G g Gᵀ` of every (C_out, C_in) kernel, laid out (C_out, 16, C_in) so that `U_ξ` is a
-/// strided C_out × C_in view and each output channel is one parallel chunk.
-fn transform_weights(w: &[f32], cout: usize, cin: usize) -> Vec<f32> {
-    let mut u = vec![0f32; cout * XI * cin];
-    u.par_chunks_mut(XI * cin).enumerate().for_each(|(k, uk)| {
-        for c in 0..cin {
-            let g = &w[(k * cin + c) * 9..][..9];
-            // G g (4×3): along the kernel's rows.
-            let mut a = [[0f32; 3]; 4];
-            for s in 0..3 {
-                let (g0, g1, g2) = (g[s], g[3 + s], g[6 + s]);
-                a[0][s] = g0;
-                a[1][s] = 0.5 * (g0 + g1 + g2);
-                a[2][s] = 0.5 * (g0 - g1 + g2);
-                a[3][s] = g2;
-            }
-            // (G g) Gᵀ (4×4): along its columns.
-            for (r, &[t0, t1, t2]) in a.iter().enumerate() {
-                let row = [t0, 0.5 * (t0 + t1 + t2), 0.5 * (t0 - t1 + t2), t2];
-                for (s, value) in row.into_iter().enumerate() {
-                    uk[(4 * r + s) * cin + c] = value;
+/// `U = G_y g G_xᵀ` of every (C_out, C_in) kernel, laid out (C_out, ξ, C_in) so that `U_ξ` is
+/// a strided C_out × C_in view and each output channel is one parallel chunk. Per output
+/// channel: the kernel taps as lanes over input channels, each ξ one weighted sum of lanes.
+fn transform_weights(w: &[f32], g: &Geometry, plan: &Plan) -> Vec<f32> {
+    let (ay, ax) = (&plan.y, &plan.x);
+    let (xi, taps) = (plan.xi(), g.kh * g.kw);
+    // coef[ξ][tap] = G_y[i][a] · G_x[s][l] for ξ = (i, s), tap = (a, l), rounded once.
+    let coef: Vec<f32> = (0..ay.n)
+        .flat_map(|i| (0..ax.n).map(move |s| (i, s)))
+        .flat_map(|(i, s)| {
+            (0..ay.r).flat_map(move |a| {
+                (0..ax.r).map(move |l| (ay.g[i * ay.r + a] * ax.g[s * ax.r + l]) as f32)
+            })
+        })
+        .collect();
+    let mut u = vec![0f32; g.cout * xi * g.cin];
+    u.par_chunks_mut(xi * g.cin).enumerate().for_each_init(
+        || vec![0f32; taps * g.cin],
+        |by_tap, (k, uk)| {
+            for (c, kernel) in w[k * g.cin * taps..][..g.cin * taps]
+                .chunks_exact(taps)
+                .enumerate()
+            {
+                for (tap, &value) in kernel.iter().enumerate() {
+                    by_tap[tap * g.cin + c] = value;
                 }
             }
-        }
-    });
+            let src: Vec<&[f32]> = by_tap.chunks_exact(g.cin).collect();
+            for (e, dst) in uk.chunks_exact_mut(g.cin).enumerate() {
+                combine(dst, &coef[e * taps..][..taps], &src);
+            }
+        },
+    );
     u
 }
 
-/// `V = Bᵀ d B` of every 4×4 input tile (stride 2, zero outside the image) of one image
-/// (C_in, H, W) into `v`, laid out (C_in, 16, tiles).
+/// The most points an axis transform has (F(4, 5)).
+const MAX_N: usize = 8;
+
+/// The first `n` (≤ [`MAX_N`]) lanes `lane(0..n)`, without allocating.
+fn lanes<'a>(n: usize, lane: impl Fn(usize) -> &'a [f32]) -> [&'a [f32]; MAX_N] {
+    std::array::from_fn(|k| if k < n { lane(k) } else { &[] })
+}
+
+/// `dst = Σ_k coef[k] · src[k]`, element-wise over equal-length lanes, zero terms skipped.
+fn combine(dst: &mut [f32], coef: &[f32], src: &[&[f32]]) {
+    dst.fill(0.0);
+    for (&c, s) in coef.iter().zip(src) {
+        if c == 0.0 {
+            continue;
+        }
+        let s = &s[..dst.len()];
+        for (d, &v) in dst.iter_mut().zip(s) {
+            *d += c * v;
+        }
+    }
+}
+
+/// Tiles transformed together: long enough lanes for vectorised loops, short enough for the
+/// scratch lanes (ξ of them, twice) to stay in cache.
+const BLOCK: usize = 256;
+
+/// Offset of each tile's top-left input in the padded plane (row stride `pw`), for the block
+/// of tiles starting at `t0`.
+fn tile_origins(plan: &Plan, pw: usize, t0: usize, origins: &mut [usize]) {
+    for (q, o) in origins.iter_mut().enumerate() {
+        let (i, j) = ((t0 + q) / plan.cols, (t0 + q) % plan.cols);
+        *o = plan.y.m * i * pw + plan.x.m * j;
+    }
+}
+
+/// `V = B_yᵀ d B_x` of every input tile (stride m, zero outside the image) of one image
+/// (C_in, H, W) into `v`, laid out (C_in, ξ, tiles).
 ///
-/// One row of tiles at a time, each of the 16 tile positions as a vector over the row's tiles,
-/// so that every step is an element-wise loop over contiguous arrays (vectorised) and every
-/// write a contiguous run of `v`.
-fn transform_input(x: &[f32], g: &Geometry, tiles: &Tiles, v: &mut [f32]) {
-    let (t, cols) = (tiles.count(), tiles.cols);
-    // The padded plane every tile reads from: 2 more rows and columns than the tiles cover.
-    let (ph, pw) = (2 * tiles.rows + 2, 2 * tiles.cols + 2);
+/// Tiles go in blocks, each tile position as a lane over the block's tiles, so that every
+/// transform step is an element-wise loop over contiguous lanes (vectorised) and every write
+/// a contiguous run of `v`.
+fn transform_input(x: &[f32], g: &Geometry, plan: &Plan, v: &mut [f32]) {
+    let (ay, ax) = (&plan.y, &plan.x);
+    let (t, xi) = (plan.tiles(), plan.xi());
+    // The padded plane every tile reads from.
+    let (ph, pw) = (ay.m * plan.rows + ay.r - 1, ax.m * plan.cols + ax.r - 1);
     debug_assert!(g.h + g.pad[0] <= ph && g.w + g.pad[1] <= pw);
-    v.par_chunks_mut(XI * t).enumerate().for_each_init(
-        || (vec![0f32; ph * pw], vec![0f32; 2 * XI * cols]),
-        |(padded, scratch), (c, vc)| {
+    v.par_chunks_mut(xi * t).enumerate().for_each_init(
+        || {
+            (
+                vec![0f32; ph * pw],
+                vec![0f32; 2 * xi * BLOCK],
+                vec![0usize; BLOCK],
+            )
+        },
+        |(padded, scratch, origins), (c, vc)| {
             padded.fill(0.0);
             let plane = &x[c * g.h * g.w..][..g.h * g.w];
             for (iy, row) in plane.chunks_exact(g.w).enumerate() {
                 padded[(iy + g.pad[0]) * pw + g.pad[1]..][..g.w].copy_from_slice(row);
             }
-            let (d, e) = scratch.split_at_mut(XI * cols);
-            for i in 0..tiles.rows {
-                // d[4r + s][j] = element (r, s) of tile (i, j).
-                for r in 0..4 {
-                    let row = &padded[(2 * i + r) * pw..][..pw];
-                    for s in 0..4 {
-                        let lane = &mut d[(4 * r + s) * cols..][..cols];
-                        for (j, value) in lane.iter_mut().enumerate() {
-                            *value = row[2 * j + s];
+            let (d, e) = scratch.split_at_mut(xi * BLOCK);
+            for t0 in (0..t).step_by(BLOCK) {
+                let len = BLOCK.min(t - t0);
+                let origins = &mut origins[..len];
+                tile_origins(plan, pw, t0, origins);
+                // d[r·n_x + s][q] = element (r, s) of tile t0 + q.
+                for r in 0..ay.n {
+                    for s in 0..ax.n {
+                        let lane = &mut d[(r * ax.n + s) * BLOCK..][..len];
+                        let at = r * pw + s;
+                        for (value, &o) in lane.iter_mut().zip(origins.iter()) {
+                            *value = padded[o + at];
                         }
                     }
                 }
-                // Bᵀ d along the tile's rows: e[4s + r'] (column s of row r').
-                for s in 0..4 {
-                    let lane = |r: usize| &d[(4 * r + s) * cols..][..cols];
-                    let out = quad(&mut e[4 * s * cols..][..4 * cols], cols);
-                    input_rows([lane(0), lane(1), lane(2), lane(3)], out);
-                }
-                // (Bᵀ d) B along its columns, straight into v's rows of this tile row.
-                for r in 0..4 {
-                    let lane = |s: usize| &e[(4 * s + r) * cols..][..cols];
-                    let mut out = quad(&mut vc[4 * r * t..][..4 * t], t);
-                    for o in out.iter_mut() {
-                        *o = &mut std::mem::take(o)[i * cols..][..cols];
+                // B_yᵀ d along the tiles' rows: e[r'·n_x + s].
+                for r2 in 0..ay.n {
+                    for s in 0..ax.n {
+                        let src = lanes(ay.n, |r| &d[(r * ax.n + s) * BLOCK..][..len]);
+                        let dst = &mut e[(r2 * ax.n + s) * BLOCK..][..len];
+                        combine(dst, &ay.bt[r2 * ay.n..][..ay.n], &src[..ay.n]);
                     }
-                    input_rows([lane(0), lane(1), lane(2), lane(3)], out);
+                }
+                // (B_yᵀ d) B_x along their columns, straight into v.
+                for r2 in 0..ay.n {
+                    let src = lanes(ax.n, |s| &e[(r2 * ax.n + s) * BLOCK..][..len]);
+                    for s2 in 0..ax.n {
+                        let dst = &mut vc[(r2 * ax.n + s2) * t + t0..][..len];
+                        combine(dst, &ax.bt[s2 * ax.n..][..ax.n], &src[..ax.n]);
+                    }
                 }
             }
         },
     );
 }
 
-/// The four consecutive `len`-long slices at the start of `buf`.
-fn quad(buf: &mut [f32], len: usize) -> [&mut [f32]; 4] {
-    let (a, rest) = buf.split_at_mut(len);
-    let (b, rest) = rest.split_at_mut(len);
-    let (c, rest) = rest.split_at_mut(len);
-    [a, b, c, &mut rest[..len]]
-}
-
-/// One application of `Bᵀ` to four rows of values, element-wise:
-/// `(d0 − d2, d1 + d2, d2 − d1, d1 − d3)`.
-fn input_rows([d0, d1, d2, d3]: [&[f32]; 4], [o0, o1, o2, o3]: [&mut [f32]; 4]) {
-    let n = o0.len();
-    let (d0, d1, d2, d3) = (&d0[..n], &d1[..n], &d2[..n], &d3[..n]);
-    let (o1, o2, o3) = (&mut o1[..n], &mut o2[..n], &mut o3[..n]);
-    for j in 0..n {
-        o0[j] = d0[j] - d2[j];
-        o1[j] = d1[j] + d2[j];
-        o2[j] = d2[j] - d1[j];
-        o3[j] = d1[j] - d3[j];
-    }
-}
-
-/// `Y = Aᵀ M A` of every tile of `m` (C_out, 16, tiles) into one image's output
-/// (C_out, ho, wo), the odd last row or column of tiles cut back. Vectorised over each row of
-/// tiles like [`transform_input`].
-fn transform_output(m: &[f32], g: &Geometry, tiles: &Tiles, y: &mut [f32]) {
-    let (t, cols) = (tiles.count(), tiles.cols);
+/// `Y = A_yᵀ M A_x` of every tile of `m` (C_out, ξ, tiles) into one image's output
+/// (C_out, ho, wo), tiles reaching past the map cut back. In blocks of tiles like
+/// [`transform_input`].
+fn transform_output(m: &[f32], g: &Geometry, plan: &Plan, y: &mut [f32]) {
+    let (ay, ax) = (&plan.y, &plan.x);
+    let (t, xi) = (plan.tiles(), plan.xi());
     y.par_chunks_mut(g.ho * g.wo).enumerate().for_each_init(
-        || vec![0f32; 12 * cols],
+        || vec![0f32; (ay.m * ax.n + ax.m) * BLOCK],
         |scratch, (k, plane)| {
-            let mk = &m[k * XI * t..][..XI * t];
-            let (a, out) = scratch.split_at_mut(8 * cols);
-            for i in 0..tiles.rows {
-                let lane = |r: usize, s: usize| &mk[(4 * r + s) * t + i * cols..][..cols];
-                // Aᵀ M along the rows: a[2s + r'].
-                for s in 0..4 {
-                    let (a0, a1) = a[2 * s * cols..][..2 * cols].split_at_mut(cols);
-                    output_rows([lane(0, s), lane(1, s), lane(2, s), lane(3, s)], [a0, a1]);
-                }
-                for r in 0..2 {
-                    let oy = 2 * i + r;
-                    if oy >= g.ho {
-                        break;
+            let mk = &m[k * xi * t..][..xi * t];
+            let (a, out) = scratch.split_at_mut(ay.m * ax.n * BLOCK);
+            for t0 in (0..t).step_by(BLOCK) {
+                let len = BLOCK.min(t - t0);
+                // A_yᵀ M along the rows: a[a'·n_x + s].
+                for a2 in 0..ay.m {
+                    for s in 0..ax.n {
+                        let src = lanes(ay.n, |r| &mk[(r * ax.n + s) * t + t0..][..len]);
+                        let dst = &mut a[(a2 * ax.n + s) * BLOCK..][..len];
+                        combine(dst, &ay.at[a2 * ay.n..][..ay.n], &src[..ay.n]);
                     }
-                    // (Aᵀ M) A along the columns, then interleaved into the output row.
-                    let a_lane = |s: usize| &a[(2 * s + r) * cols..][..cols];
-                    let (y0, y1) = out[..2 * cols].split_at_mut(cols);
-                    output_rows([a_lane(0), a_lane(1), a_lane(2), a_lane(3)], [y0, y1]);
-                    let row = &mut plane[oy * g.wo..][..g.wo];
-                    for (ox, value) in row.iter_mut().enumerate() {
-                        *value = out[(ox % 2) * cols + ox / 2];
+                }
+                for a2 in 0..ay.m {
+                    // (A_yᵀ M) A_x along the columns: out[b'][q], then into the map.
+                    let src = lanes(ax.n, |s| &a[(a2 * ax.n + s) * BLOCK..][..len]);
+                    for b2 in 0..ax.m {
+                        let dst = &mut out[b2 * BLOCK..][..len];
+                        combine(dst, &ax.at[b2 * ax.n..][..ax.n], &src[..ax.n]);
+                    }
+                    for q in 0..len {
+                        let (i, j) = ((t0 + q) / plan.cols, (t0 + q) % plan.cols);
+                        let oy = ay.m * i + a2;
+                        if oy >= g.ho {
+                            continue;
+                        }
+                        let row = &mut plane[oy * g.wo..][..g.wo];
+                        for b2 in 0..ax.m.min(g.wo - ax.m * j) {
+                            row[ax.m * j + b2] = out[b2 * BLOCK + q];
+                        }
                     }
                 }
             }
@@ -273,13 +406,36 @@ fn transform_output(m: &[f32], g: &Geometry, tiles: &Tiles, y: &mut [f32]) {
     );
 }
 
-/// One application of `Aᵀ` to four rows of values, element-wise: `(m0 + m1 + m2, m1 − m2 − m3)`.
-fn output_rows([m0, m1, m2, m3]: [&[f32]; 4], [o0, o1]: [&mut [f32]; 2]) {
-    let n = o0.len();
-    let (m0, m1, m2, m3) = (&m0[..n], &m1[..n], &m2[..n], &m3[..n]);
-    let o1 = &mut o1[..n];
-    for j in 0..n {
-        o0[j] = m0[j] + m1[j] + m2[j];
-        o1[j] = m1[j] - m2[j] - m3[j];
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each axis transform computes the correlation it stands for, exactly on small integers.
+    #[test]
+    fn axis_transforms_compute_the_correlation() {
+        for r in [1, 3, 5] {
+            let axis = Axis::for_extent(r).unwrap();
+            let (m, n) = (axis.m, axis.n);
+            let d: Vec<f64> = (0..n)
+                .map(|i| (i as f64 * 7.0 + 3.0) % 11.0 - 5.0)
+                .collect();
+            let k: Vec<f64> = (0..r).map(|i| (i as f64 * 5.0 + 1.0) % 7.0 - 3.0).collect();
+            let gk: Vec<f64> = (0..n)
+                .map(|i| (0..r).map(|l| axis.g[i * r + l] * k[l]).sum())
+                .collect();
+            let bd: Vec<f64> = (0..n)
+                .map(|i| (0..n).map(|l| f64::from(axis.bt[i * n + l]) * d[l]).sum())
+                .collect();
+            for o in 0..m {
+                let ours: f64 = (0..n)
+                    .map(|i| f64::from(axis.at[o * n + i]) * gk[i] * bd[i])
+                    .sum();
+                let direct: f64 = (0..r).map(|l| k[l] * d[o + l]).sum();
+                assert!(
+                    (ours - direct).abs() < 1e-9,
+                    "F({m}, {r}) output {o}: {ours} vs {direct}"
+                );
+            }
+        }
     }
 }
