@@ -411,6 +411,10 @@ fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry) -> FlexTensor {
 /// `dW = Σ_b dY_b · cols_bᵀ`, (C_out, C_in, kh, kw).
 fn weight_grad(x: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
     let x = x.to_contiguous();
+    if winograd::applies_to_weight_grad(g) {
+        let dw = winograd::weight_grad(x.storage(), dy.to_contiguous().storage(), g);
+        return FlexTensor::from_data(TensorData::new(dw, [g.cout, g.cin, g.kh, g.kw]));
+    }
     if shifted::applies(g) {
         let dw = shifted::weight_grad(x.storage(), dy.to_contiguous().storage(), g);
         return FlexTensor::from_data(TensorData::new(dw, [g.cout, g.cin, g.kh, g.kw]));
