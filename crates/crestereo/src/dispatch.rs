@@ -6,8 +6,8 @@
 
 use std::any::{Any, TypeId};
 
-use burn::backend::Flex;
 use burn::backend::flex::FlexTensor;
+use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
 use burn::tensor::{DType, TensorPrimitive};
 
@@ -21,6 +21,11 @@ pub(crate) fn same<S: 'static, T: 'static>(value: S) -> T {
 /// Whether `B` is the plain (non-autodiff) Flex CPU backend.
 pub(crate) fn is_flex<B: Backend>() -> bool {
     TypeId::of::<B>() == TypeId::of::<Flex>()
+}
+
+/// Whether `B` is the Flex CPU backend under Burn's autodiff (training).
+pub(crate) fn is_autodiff_flex<B: Backend>() -> bool {
+    TypeId::of::<B>() == TypeId::of::<Autodiff<Flex>>()
 }
 
 /// The Flex tensors behind float32 tensors of a Flex backend, or `None` (another backend or

@@ -23,15 +23,13 @@ mod shift;
 
 pub use shift::shift_corr;
 
-use std::any::TypeId;
-
 use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
 use burn::tensor::TensorPrimitive;
 use burn::tensor::ops::FloatTensor;
 
 use crate::corr::SearchWindow;
-use crate::dispatch::same;
+use crate::dispatch::{is_autodiff_flex, is_flex, same};
 
 /// Static parameters of an offset correlation: channel groups and the search window's
 /// half-extent (candidates ordered row-major, dy outer, dx inner).
@@ -115,15 +113,16 @@ enum Kernels {
 }
 
 fn kernels_for<B: Backend>(device: &B::Device) -> Kernels {
-    let id = TypeId::of::<B>();
-    if id == TypeId::of::<Flex>() {
+    if is_flex::<B>() {
         return Kernels::Flex;
     }
-    if id == TypeId::of::<Autodiff<Flex>>() {
+    if is_autodiff_flex::<B>() {
         return Kernels::AutodiffFlex;
     }
     #[cfg(feature = "cuda")]
     {
+        use std::any::TypeId;
+        let id = TypeId::of::<B>();
         if id == TypeId::of::<burn::backend::Cuda>() {
             return Kernels::Cuda;
         }

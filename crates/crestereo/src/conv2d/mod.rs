@@ -14,8 +14,6 @@
 //! altogether: a sum of products over shifted views of the padded input (`shifted`). Every
 //! other backend, float64 tensors and grouped convolutions use `Conv2d::forward` unchanged.
 
-use std::any::TypeId;
-
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
@@ -31,7 +29,7 @@ use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
 use burn::tensor::{DType, TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
 
-use crate::dispatch::same;
+use crate::dispatch::{is_autodiff_flex, is_flex, same};
 
 mod shifted;
 mod views;
@@ -47,8 +45,8 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
         PaddingConfig2d::Valid => Some([0, 0]),
         _ => None,
     };
-    let autodiff = TypeId::of::<B>() == TypeId::of::<Autodiff<Flex>>();
-    let fast = (autodiff || TypeId::of::<B>() == TypeId::of::<Flex>())
+    let autodiff = is_autodiff_flex::<B>();
+    let fast = (autodiff || is_flex::<B>())
         && conv.groups == 1
         && x.dtype() == DType::F32
         && conv.weight.val().dtype() == DType::F32;
