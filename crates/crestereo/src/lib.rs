@@ -44,6 +44,7 @@ pub mod motion_encoder;
 pub mod observer;
 pub mod position_encoding;
 pub mod refine;
+mod simd;
 pub mod update;
 pub mod upsample;
 pub mod weights;

@@ -31,6 +31,7 @@ use rayon::prelude::*;
 
 use crate::dispatch::{is_autodiff_flex, is_flex, same};
 
+mod scratch;
 mod shifted;
 mod views;
 mod winograd;

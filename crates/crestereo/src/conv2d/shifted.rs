@@ -22,6 +22,7 @@
 use rayon::prelude::*;
 
 use super::Geometry;
+use super::scratch::Scratch;
 use super::views::{View, matmul_into};
 
 /// Below this many input channels each tap's product is too thin to beat one unfolded GEMM.
@@ -97,8 +98,9 @@ fn copy_windows(
 }
 
 /// Image `b` of `x` (N, C_in, H, W), zero-padded and flattened: (C_in, hp·wp).
-fn padded_input(x: &[f32], g: &Geometry, p: &Padded, b: usize) -> Vec<f32> {
-    let mut xp = vec![0f32; g.cin * p.plane()];
+fn padded_input(x: &[f32], g: &Geometry, p: &Padded, b: usize) -> Scratch {
+    let mut xp = Scratch::new(g.cin * p.plane());
+    xp.fill(0.0);
     let image = &x[b * g.cin * g.h * g.w..][..g.cin * g.h * g.w];
     let inside = Window {
         plane: (p.hp, p.wp),
@@ -134,7 +136,8 @@ fn weight_tap(g: &Geometry, a: usize, c: usize) -> View {
 pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
     let p = Padded::new(g);
     let mut y = vec![0f32; g.n * g.cout * g.ho * g.wo];
-    let mut wide = vec![0f32; g.cout * g.ho * p.wp];
+    let mut wide = Scratch::new(g.cout * g.ho * p.wp);
+    wide.fill(0.0);
     for b in 0..g.n {
         let xp = padded_input(x, g, &p, b);
         for (t, (a, c)) in taps(g).enumerate() {
@@ -165,7 +168,8 @@ pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
 pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
     let p = Padded::new(g);
     let mut dw = vec![0f32; g.cout * g.cin * g.kh * g.kw];
-    let mut dy_wide = vec![0f32; g.cout * g.ho * p.wp];
+    let mut dy_wide = Scratch::new(g.cout * g.ho * p.wp);
+    dy_wide.fill(0.0);
     for b in 0..g.n {
         let xp = padded_input(x, g, &p, b);
         widen_output_grad(dy, g, &p, b, &mut dy_wide);
@@ -190,8 +194,10 @@ pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
 pub(super) fn input_grad(w: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
     let p = Padded::new(g);
     let mut dx = vec![0f32; g.n * g.cin * g.h * g.w];
-    let mut dy_wide = vec![0f32; g.cout * g.ho * p.wp];
-    let mut dxp = vec![0f32; g.cin * p.plane()];
+    let mut dy_wide = Scratch::new(g.cout * g.ho * p.wp);
+    dy_wide.fill(0.0);
+    let mut dxp = Scratch::new(g.cin * p.plane());
+    dxp.fill(0.0);
     for b in 0..g.n {
         widen_output_grad(dy, g, &p, b, &mut dy_wide);
         dxp.fill(0.0);

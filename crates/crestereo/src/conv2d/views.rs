@@ -21,9 +21,55 @@ impl View {
     }
 }
 
-/// `dst (m × n) = [dst +] lhs (m × k) · rhs (k × n)` on strided views, bounds checked.
+/// `dst (m × n) = [dst +] lhs (m × k) · rhs (k × n)` on strided views, bounds checked; large
+/// products split over the thread pool.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn matmul_into(
+    (m, n, k): (usize, usize, usize),
+    dst: &mut [f32],
+    d: View,
+    accumulate: bool,
+    lhs: &[f32],
+    l: View,
+    rhs: &[f32],
+    r: View,
+) {
+    let parallelism = if m * n * k >= 1 << 18 {
+        Parallelism::Rayon(0)
+    } else {
+        Parallelism::None
+    };
+    matmul_with(parallelism, (m, n, k), dst, d, accumulate, lhs, l, rhs, r);
+}
+
+/// [`matmul_into`] on the calling thread only (for callers already parallel over blocks).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn matmul_serial(
+    (m, n, k): (usize, usize, usize),
+    dst: &mut [f32],
+    d: View,
+    accumulate: bool,
+    lhs: &[f32],
+    l: View,
+    rhs: &[f32],
+    r: View,
+) {
+    matmul_with(
+        Parallelism::None,
+        (m, n, k),
+        dst,
+        d,
+        accumulate,
+        lhs,
+        l,
+        rhs,
+        r,
+    );
+}
+
+#[allow(clippy::too_many_arguments)]
+fn matmul_with(
+    parallelism: Parallelism,
     (m, n, k): (usize, usize, usize),
     dst: &mut [f32],
     d: View,
@@ -40,11 +86,6 @@ pub(super) fn matmul_into(
         d.last(m, n) < dst.len() && l.last(m, k) < lhs.len() && r.last(k, n) < rhs.len(),
         "convolution: a matrix view reaches past its buffer"
     );
-    let parallelism = if m * n * k >= 1 << 18 {
-        Parallelism::Rayon(0)
-    } else {
-        Parallelism::None
-    };
     // SAFETY: the three views lie inside their slices (checked above); `dst` is borrowed
     // mutably and does not alias `lhs` or `rhs`.
     unsafe {

@@ -1,0 +1,430 @@
+//! Stride-1 convolutions by Winograd's minimal filtering, one axis at a time.
+//!
+//! Along an axis with kernel extent `r`, F(m, r) computes `m` outputs of the correlation from a
+//! tile of `n = m + r − 1` inputs with `n` products instead of `m·r`: the tile and the kernel are
+//! mapped into an `n`-point "transform domain" (`Bᵀ d`, `G g`), multiplied element by element
+//! and mapped back (`Aᵀ`). A 2-D kernel takes one such transform per axis (extent 1 is the
+//! identity), so a tile has `n_y · n_x` transform positions ξ, and summed over input channels
+//! each position is one matrix product
+//!
+//! ```text
+//! M_ξ (C_out × tiles) = U_ξ (C_out × C_in) · V_ξ (C_in × tiles)
+//! ```
+//!
+//! The transforms are built by Toom–Cook at small points (0, ±1, ±2, ±½ and infinity), the
+//! Lagrange denominators folded into `G` so that `Bᵀ` and `Aᵀ` hold small integers and powers
+//! of two; the kernel transform runs in float64. Used: F(2, 3) per axis for 3×3 kernels
+//! (2.25× fewer products) and F(4, 5) for the GRU's 1×5 and 5×1 (2.5× fewer); the unit tests
+//! compare every case with Burn's convolution.
+//!
+//! The input gradient of such a convolution is itself one (kernel flipped, channel axes
+//! swapped, padding `k − 1 − p`), so the backward reuses the forward; the weight gradient is
+//! computed in the transform domain too ([`weight_grad`]). Measured against Burn's direct
+//! convolution on 64 → 32 channels, 2×48×64 maps (gradients of magnitude ~300): weight-gradient
+//! error 2.5e-4 (3×3) and 8e-4 (1×5) against 2e-4 and 1.5e-4 for the shifted-view products,
+//! i.e. ≤ 3e-6 of the gradient's scale.
+
+use rayon::prelude::*;
+
+use super::Geometry;
+use super::scratch::Scratch;
+use super::views::{View, matmul_serial};
+use tiles::{
+    BLOCK, Lanebuf, Lanes, SharedImage, Terms, TileTerms, apply, split_images, split_plane,
+    transform_input, transform_output, transform_output_grad,
+};
+
+mod tiles;
+
+/// Below these sizes the products are too thin or too few for the transforms to pay.
+const MIN_CIN: usize = 16;
+const MIN_COUT: usize = 16;
+const MIN_OUTPUTS: usize = 256;
+
+/// One axis of the transform: F(m, r) with `n = m + r − 1` points, matrices row-major.
+#[derive(Debug, Clone)]
+struct Axis {
+    m: usize,
+    r: usize,
+    n: usize,
+    /// Bᵀ (n × n).
+    bt: Vec<f32>,
+    /// G (n × r), float64 until the two axes' coefficients are multiplied.
+    g: Vec<f64>,
+    /// Aᵀ (m × n).
+    at: Vec<f32>,
+}
+
+/// Coefficients (lowest degree first) of `Π (x − p)` over `points`.
+fn monic(points: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut c = vec![1.0];
+    for p in points {
+        let mut next = vec![0.0; c.len() + 1];
+        for (k, &ck) in c.iter().enumerate() {
+            next[k + 1] += ck;
+            next[k] -= p * ck;
+        }
+        c = next;
+    }
+    c
+}
+
+impl Axis {
+    /// F(m, r) by Toom–Cook at `points` (n − 1 finite points) and infinity.
+    ///
+    /// The correlation is the transpose of the linear convolution of an m-vector with the
+    /// kernel, whose Toom–Cook form is `y = C · ((H g) ⊙ (D a))` (D, H: evaluation at the points,
+    /// the last row taking the leading coefficient; C: interpolation, Lagrange polynomials plus
+    /// `Π (x − p)` for infinity). Transposed: `Aᵀ = Dᵀ`, `G = H`, `Bᵀ = Cᵀ`; each Lagrange
+    /// denominator moves from `Bᵀ`'s row into `G`'s.
+    fn new(m: usize, r: usize, points: &[f64]) -> Self {
+        let n = m + r - 1;
+        assert_eq!(
+            points.len(),
+            n - 1,
+            "F({m}, {r}) needs {} finite points",
+            n - 1
+        );
+        let eval = |len: usize, i: usize, j: usize| match points.get(i) {
+            Some(p) => p.powi(j as i32),
+            None => f64::from(u8::from(j == len - 1)),
+        };
+        let mut bt = vec![0f32; n * n];
+        let mut g = vec![0f64; n * r];
+        for i in 0..n {
+            let (row, den) = if i < n - 1 {
+                let others = || points.iter().enumerate().filter(|&(l, _)| l != i);
+                let den: f64 = others().map(|(_, &p)| points[i] - p).product();
+                (monic(others().map(|(_, &p)| p)), den)
+            } else {
+                (monic(points.iter().copied()), 1.0)
+            };
+            for (k, &c) in row.iter().enumerate() {
+                bt[i * n + k] = c as f32;
+            }
+            for k in 0..r {
+                g[i * r + k] = eval(r, i, k) / den;
+            }
+        }
+        let at = (0..m)
+            .flat_map(|j| (0..n).map(move |i| (j, i)))
+            .map(|(j, i)| eval(m, i, j) as f32)
+            .collect();
+        Axis { m, r, n, bt, g, at }
+    }
+
+    /// The transform for a kernel of extent `r` along this axis, if there is one.
+    fn for_extent(r: usize) -> Option<Self> {
+        match r {
+            1 => Some(Axis::new(1, 1, &[])),
+            3 => Some(Axis::new(2, 3, &[0.0, 1.0, -1.0])),
+            5 => Some(Axis::new(4, 5, &[0.0, 1.0, -1.0, 2.0, -2.0, 0.5, -0.5])),
+            _ => None,
+        }
+    }
+}
+
+/// The two axes of a convolution's transform and its grid of output tiles per image.
+struct Plan {
+    y: Axis,
+    x: Axis,
+    terms: TileTerms,
+    rows: usize,
+    cols: usize,
+}
+
+impl Plan {
+    fn new(g: &Geometry) -> Option<Self> {
+        let (y, x) = (Axis::for_extent(g.kh)?, Axis::for_extent(g.kw)?);
+        Some(Plan {
+            rows: g.ho.div_ceil(y.m),
+            cols: g.wo.div_ceil(x.m),
+            terms: TileTerms::new(&y, &x),
+            y,
+            x,
+        })
+    }
+
+    fn tiles(&self) -> usize {
+        self.rows * self.cols
+    }
+
+    /// Transform positions per tile.
+    fn xi(&self) -> usize {
+        self.y.n * self.x.n
+    }
+
+    /// The kernel transform as one (ξ × taps) matrix, rounded once:
+    /// `coef[ξ][tap] = G_y[i][a] · G_x[s][l]` for ξ = (i, s), tap = (a, l).
+    fn kernel_coefficients(&self) -> Vec<f32> {
+        let (ay, ax) = (&self.y, &self.x);
+        (0..ay.n)
+            .flat_map(|i| (0..ax.n).map(move |s| (i, s)))
+            .flat_map(|(i, s)| {
+                (0..ay.r).flat_map(move |a| {
+                    (0..ax.r).map(move |l| (ay.g[i * ay.r + a] * ax.g[s * ax.r + l]) as f32)
+                })
+            })
+            .collect()
+    }
+}
+
+/// Whether the forward of `g` takes this path: 3×3, 1×5 or 5×1, stride 1, no dilation, and
+/// enough channels and outputs.
+pub(super) fn applies(g: &Geometry) -> bool {
+    g.stride == [1, 1]
+        && g.dil == [1, 1]
+        && g.kh * g.kw > 1
+        && g.cin >= MIN_CIN
+        && g.cout >= MIN_COUT
+        && g.ho * g.wo >= MIN_OUTPUTS
+        && Plan::new(g).is_some()
+}
+
+/// Whether the input gradient of `g` takes this path (as the forward of [`transposed`]).
+pub(super) fn applies_to_input_grad(g: &Geometry) -> bool {
+    applies(g) && g.pad[0] < g.kh && g.pad[1] < g.kw && applies(&transposed(g))
+}
+
+/// The convolution whose forward is the input gradient of `g`: output gradient in, input
+/// gradient out, padding `k − 1 − p` (only for `applies(g)` and p < k).
+fn transposed(g: &Geometry) -> Geometry {
+    Geometry {
+        n: g.n,
+        cin: g.cout,
+        h: g.ho,
+        w: g.wo,
+        cout: g.cin,
+        kh: g.kh,
+        kw: g.kw,
+        ho: g.h,
+        wo: g.w,
+        stride: [1, 1],
+        pad: [g.kh - 1 - g.pad[0], g.kw - 1 - g.pad[1]],
+        dil: [1, 1],
+    }
+}
+
+/// The blocks of tiles of all images: (image, first tile, tiles).
+fn blocks(g: &Geometry, plan: &Plan) -> Vec<(usize, (usize, usize))> {
+    let t = plan.tiles();
+    (0..g.n)
+        .flat_map(|b| {
+            (0..t)
+                .step_by(BLOCK)
+                .map(move |t0| (b, (t0, BLOCK.min(t - t0))))
+        })
+        .collect()
+}
+
+/// `Y` (N, C_out, ho, wo) of input `x` (N, C_in, H, W) and weight `w` (C_out, C_in, kh, kw),
+/// both contiguous.
+///
+/// Block by block of tiles, in parallel: transform the block's input tiles, one product per
+/// transform position on this thread, transform back into the output; a block's transform
+/// domain stays in cache throughout (whole-map transforms, written out and read back by the
+/// products, spent as long moving memory as the products took).
+pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
+    let plan = Plan::new(g).expect("checked by applies");
+    let xi = plan.xi();
+    let u = transform_weights(w, g, &plan);
+    let split = split_images(x, g, &plan);
+    let plane = {
+        let (phases, ph, pq) = split_plane(&plan);
+        phases * ph * pq
+    };
+    let mut y = vec![0f32; g.n * g.cout * g.ho * g.wo];
+    let images: Vec<SharedImage> = y
+        .chunks_exact_mut(g.cout * g.ho * g.wo)
+        .map(SharedImage::new)
+        .collect();
+    blocks(g, &plan).into_par_iter().for_each_init(
+        || {
+            (
+                Scratch::new(xi * g.cin * BLOCK),
+                Scratch::new(xi * g.cout * BLOCK),
+                Lanebuf::new(&plan),
+            )
+        },
+        |(v, m, buf), (b, (t0, len))| {
+            let image = &split[b * g.cin * plane..][..g.cin * plane];
+            transform_input(image, g, &plan, (t0, len), v, buf);
+            for e in 0..xi {
+                matmul_serial(
+                    (g.cout, len, g.cin),
+                    m,
+                    View::new(e * g.cout * BLOCK, BLOCK, 1),
+                    false,
+                    &u,
+                    View::new(e * g.cin, xi * g.cin, 1),
+                    v,
+                    View::new(e * g.cin * BLOCK, BLOCK, 1),
+                );
+            }
+            transform_output(m, g, &plan, (t0, len), &images[b], buf);
+        },
+    );
+    drop(images);
+    y
+}
+
+/// `dX` (N, C_in, H, W) of the output gradient `dy` (N, C_out, ho, wo): the forward of the
+/// flipped, channel-swapped kernel (see [`transposed`]).
+pub(super) fn input_grad(w: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
+    let taps = g.kh * g.kw;
+    let mut flipped = vec![0f32; g.cin * g.cout * taps];
+    flipped
+        .par_chunks_mut(g.cout * taps)
+        .enumerate()
+        .for_each(|(ci, dst)| {
+            for co in 0..g.cout {
+                let src = &w[(co * g.cin + ci) * taps..][..taps];
+                for (i, d) in dst[co * taps..][..taps].iter_mut().enumerate() {
+                    *d = src[taps - 1 - i];
+                }
+            }
+        });
+    forward(dy, &flipped, &transposed(g))
+}
+
+/// `dW` (C_out, C_in, kh, kw) of input `x` and output gradient `dy`, in the transform domain:
+/// `dU_ξ = Σ_images dM_ξ · V_ξᵀ` (one product per ξ, the forward's reduced size) with
+/// `dM = A_y dY A_xᵀ` per tile, then `dW = G_yᵀ dU G_x` (the forward's transforms transposed).
+pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
+    let plan = Plan::new(g).expect("checked by applies");
+    let (xi, taps) = (plan.xi(), g.kh * g.kw);
+    let split = split_images(x, g, &plan);
+    let plane = {
+        let (phases, ph, pq) = split_plane(&plan);
+        phases * ph * pq
+    };
+    // Each worker sums its blocks' products into its own dU (laid out (C_out, ξ, C_in)); the
+    // partial sums are added at the end.
+    let du = blocks(g, &plan)
+        .into_par_iter()
+        .fold(
+            || {
+                (
+                    None::<Vec<f32>>,
+                    Scratch::new(xi * g.cin * BLOCK),
+                    Scratch::new(xi * g.cout * BLOCK),
+                    Lanebuf::new(&plan),
+                )
+            },
+            |(mut du, mut v, mut dm, mut buf), (b, (t0, len))| {
+                let image = &split[b * g.cin * plane..][..g.cin * plane];
+                transform_input(image, g, &plan, (t0, len), &mut v, &mut buf);
+                let dy_b = &dy[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
+                transform_output_grad(dy_b, g, &plan, (t0, len), &mut dm, &mut buf);
+                let accumulate = du.is_some();
+                let sum = du.get_or_insert_with(|| vec![0f32; g.cout * xi * g.cin]);
+                for e in 0..xi {
+                    matmul_serial(
+                        (g.cout, g.cin, len),
+                        sum,
+                        View::new(e * g.cin, xi * g.cin, 1),
+                        accumulate,
+                        &dm,
+                        View::new(e * g.cout * BLOCK, BLOCK, 1),
+                        &v,
+                        View::new(e * g.cin * BLOCK, 1, BLOCK),
+                    );
+                }
+                (du, v, dm, buf)
+            },
+        )
+        .map(|(du, ..)| du)
+        .reduce(
+            || None,
+            |a, b| match (a, b) {
+                (Some(mut a), Some(b)) => {
+                    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                    Some(a)
+                }
+                (a, b) => a.or(b),
+            },
+        )
+        .expect("at least one block");
+    // dW per output channel: the taps as lanes over input channels, each a weighted sum of
+    // the ξ lanes of dU (the kernel transform's coefficients, transposed).
+    let coef = plan.kernel_coefficients();
+    let coef_t: Vec<f32> = (0..taps)
+        .flat_map(|tap| coef.iter().skip(tap).step_by(taps).copied())
+        .collect();
+    let coef_t = Terms::new(&coef_t, xi);
+    let mut dw = vec![0f32; g.cout * g.cin * taps];
+    dw.par_chunks_mut(g.cin * taps)
+        .zip(du.par_chunks(xi * g.cin))
+        .for_each_init(
+            || vec![0f32; taps * g.cin],
+            |by_tap, (dwk, duk)| {
+                let (src, dst) = (Lanes::new(0, g.cin, xi), Lanes::new(0, g.cin, taps));
+                apply(&coef_t, duk, src, by_tap, dst, g.cin);
+                for (c, kernel) in dwk.chunks_exact_mut(taps).enumerate() {
+                    for (tap, value) in kernel.iter_mut().enumerate() {
+                        *value = by_tap[tap * g.cin + c];
+                    }
+                }
+            },
+        );
+    dw
+}
+
+/// `U = G_y g G_xᵀ` of every (C_out, C_in) kernel, laid out (C_out, ξ, C_in) so that `U_ξ` is
+/// a strided C_out × C_in view and each output channel is one parallel chunk. Per output
+/// channel: the kernel taps as lanes over input channels, each ξ one weighted sum of lanes.
+fn transform_weights(w: &[f32], g: &Geometry, plan: &Plan) -> Scratch {
+    let (xi, taps) = (plan.xi(), g.kh * g.kw);
+    let coef = Terms::new(&plan.kernel_coefficients(), taps);
+    let mut u = Scratch::new(g.cout * xi * g.cin);
+    u.par_chunks_mut(xi * g.cin).enumerate().for_each_init(
+        || vec![0f32; taps * g.cin],
+        |by_tap, (k, uk)| {
+            for (c, kernel) in w[k * g.cin * taps..][..g.cin * taps]
+                .chunks_exact(taps)
+                .enumerate()
+            {
+                for (tap, &value) in kernel.iter().enumerate() {
+                    by_tap[tap * g.cin + c] = value;
+                }
+            }
+            let (src, dst) = (Lanes::new(0, g.cin, taps), Lanes::new(0, g.cin, xi));
+            apply(&coef, by_tap, src, uk, dst, g.cin);
+        },
+    );
+    u
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each axis transform computes the correlation it stands for, exactly on small integers.
+    #[test]
+    fn axis_transforms_compute_the_correlation() {
+        for r in [1, 3, 5] {
+            let axis = Axis::for_extent(r).unwrap();
+            let (m, n) = (axis.m, axis.n);
+            let d: Vec<f64> = (0..n)
+                .map(|i| (i as f64 * 7.0 + 3.0) % 11.0 - 5.0)
+                .collect();
+            let k: Vec<f64> = (0..r).map(|i| (i as f64 * 5.0 + 1.0) % 7.0 - 3.0).collect();
+            let gk: Vec<f64> = (0..n)
+                .map(|i| (0..r).map(|l| axis.g[i * r + l] * k[l]).sum())
+                .collect();
+            let bd: Vec<f64> = (0..n)
+                .map(|i| (0..n).map(|l| f64::from(axis.bt[i * n + l]) * d[l]).sum())
+                .collect();
+            for o in 0..m {
+                let ours: f64 = (0..n)
+                    .map(|i| f64::from(axis.at[o * n + i]) * gk[i] * bd[i])
+                    .sum();
+                let direct: f64 = (0..r).map(|l| k[l] * d[o + l]).sum();
+                assert!(
+                    (ours - direct).abs() < 1e-9,
+                    "F({m}, {r}) output {o}: {ours} vs {direct}"
+                );
+            }
+        }
+    }
+}
