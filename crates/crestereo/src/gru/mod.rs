@@ -81,3 +81,40 @@ impl<B: Backend> SepConvGru<B> {
         gru_step(h, x, &self.convz2, &self.convr2, &self.convq2)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use burn::module::AutodiffModule;
+    use burn::tensor::Distribution;
+
+    use super::*;
+    use crate::{CpuAutodiffBackend, CpuBackend};
+
+    /// The GRU with its Flex gate kernels (plain Flex) against the composed gates (taken under
+    /// autodiff), same weights and inputs.
+    #[test]
+    fn flex_gates_match_the_composed_ops() {
+        let device = Default::default();
+        let gru = SepConvGruConfig::new()
+            .with_hidden_dim(16)
+            .with_input_dim(24)
+            .init::<CpuAutodiffBackend>(&device);
+        let h = Tensor::<CpuBackend, 4>::random(
+            [2, 16, 9, 11],
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        )
+        .tanh();
+        let x = Tensor::<CpuBackend, 4>::random(
+            [2, 24, 9, 11],
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        );
+        let composed = gru
+            .forward(Tensor::from_inner(h.clone()), Tensor::from_inner(x.clone()))
+            .inner();
+        let kernel = gru.valid().forward(h, x);
+        let diff: f32 = (kernel - composed).abs().max().into_scalar();
+        assert!(diff < 1e-5, "max difference {diff}");
+    }
+}

@@ -133,19 +133,10 @@ fn apply_body(t: &Terms, src: &[f32], s: Lanes, dst: &mut [f32], d: Lanes, len: 
     }
 }
 
-/// Row and column of each tile's first output, for the block of tiles starting at `t0`.
-fn tile_corners(plan: &Plan, t0: usize, corners: &mut [(usize, usize)]) {
-    for (q, c) in corners.iter_mut().enumerate() {
-        let (i, j) = ((t0 + q) / plan.cols, (t0 + q) % plan.cols);
-        *c = (plan.y.m * i, plan.x.m * j);
-    }
-}
-
 /// Working lanes of the block transforms, allocated once per thread and call.
 pub(super) struct Lanebuf {
     d: Vec<f32>,
     e: Vec<f32>,
-    corners: Vec<(usize, usize)>,
     runs: Vec<[usize; 4]>,
 }
 
@@ -155,7 +146,6 @@ impl Lanebuf {
         Lanebuf {
             d: vec![0f32; most * BLOCK],
             e: vec![0f32; most * BLOCK],
-            corners: vec![(0, 0); BLOCK],
             runs: Vec::new(),
         }
     }
@@ -188,9 +178,14 @@ pub(super) fn split_images(x: &[f32], g: &Geometry, plan: &Plan) -> Scratch {
                     dst[y * pq + g.pad[1]..][..g.w].copy_from_slice(row);
                     continue;
                 }
-                for (ix, &value) in row.iter().enumerate() {
-                    let big_x = ix + g.pad[1];
-                    dst[((big_x % phases) * ph + y) * pq + big_x / phases] = value;
+                // Padded column X = phases·j + k holds input column X − pad.
+                for k in 0..phases {
+                    let lo = g.pad[1].saturating_sub(k).div_ceil(phases);
+                    let hi = (g.pad[1] + g.w - k).div_ceil(phases).min(pq);
+                    let dst_row = &mut dst[(k * ph + y) * pq..][..pq];
+                    for (jj, value) in dst_row.iter_mut().enumerate().take(hi).skip(lo) {
+                        *value = row[phases * jj + k - g.pad[1]];
+                    }
                 }
             }
         });
@@ -294,8 +289,7 @@ pub(super) fn transform_output(
     buf: &mut Lanebuf,
 ) {
     let (ay, ax) = (&plan.y, &plan.x);
-    let corners = &mut buf.corners[..len];
-    tile_corners(plan, t0, corners);
+    tile_runs(plan, (t0, len), &mut buf.runs);
     let (a, out) = (&mut buf.d, &mut buf.e);
     for k in 0..g.cout {
         // A_yᵀ M along the columns: a[a'·n_x + s]; then (A_yᵀ M) A_x along the rows:
@@ -310,13 +304,21 @@ pub(super) fn transform_output(
             let dst = Lanes::new(a2 * ax.m * BLOCK, BLOCK, ax.m);
             apply(&plan.terms.at_x, a, src, out, dst, len);
         }
-        for (q, &(y0, x0)) in corners.iter().enumerate() {
-            let width = ax.m.min(g.wo - x0);
+        for &[q, i, j, run] in &buf.runs {
+            let (y0, x0) = (ay.m * i, ax.m * j);
+            let width = (ax.m * run).min(g.wo - x0);
             for a2 in 0..ay.m.min(g.ho - y0) {
-                // SAFETY: this tile's own outputs (see `SharedImage`).
-                let run = unsafe { y.run((k * g.ho + y0 + a2) * g.wo + x0, width) };
-                for (b2, value) in run.iter_mut().enumerate() {
-                    *value = out[(a2 * ax.m + b2) * BLOCK + q];
+                // SAFETY: these tiles' own outputs (see `SharedImage`).
+                let row = unsafe { y.run((k * g.ho + y0 + a2) * g.wo + x0, width) };
+                let lanes = &out[a2 * ax.m * BLOCK..][..ax.m * BLOCK];
+                if ax.m == 1 {
+                    row.copy_from_slice(&lanes[q..q + width]);
+                    continue;
+                }
+                for (jj, tile) in row.chunks_mut(ax.m).enumerate() {
+                    for (b2, value) in tile.iter_mut().enumerate() {
+                        *value = lanes[b2 * BLOCK + q + jj];
+                    }
                 }
             }
         }
@@ -367,8 +369,7 @@ pub(super) fn transform_output_grad(
     buf: &mut Lanebuf,
 ) {
     let (ay, ax) = (&plan.y, &plan.x);
-    let corners = &mut buf.corners[..len];
-    tile_corners(plan, t0, corners);
+    tile_runs(plan, (t0, len), &mut buf.runs);
     let (d, a) = (&mut buf.d, &mut buf.e);
     for k in 0..g.cout {
         let plane = &dy[k * g.ho * g.wo..][..g.ho * g.wo];
@@ -376,13 +377,17 @@ pub(super) fn transform_output_grad(
         for a2 in 0..ay.m {
             for b2 in 0..ax.m {
                 let lane = &mut d[(a2 * ax.m + b2) * BLOCK..][..len];
-                for (value, &(y0, x0)) in lane.iter_mut().zip(corners.iter()) {
-                    let (oy, ox) = (y0 + a2, x0 + b2);
-                    *value = if oy < g.ho && ox < g.wo {
-                        plane[oy * g.wo + ox]
-                    } else {
-                        0.0
-                    };
+                for &[q, i, j, run] in &buf.runs {
+                    let (oy, lane) = (ay.m * i + a2, &mut lane[q..q + run]);
+                    if oy >= g.ho {
+                        lane.fill(0.0);
+                        continue;
+                    }
+                    let row = &plane[oy * g.wo..][..g.wo];
+                    for (jj, value) in lane.iter_mut().enumerate() {
+                        let ox = ax.m * (j + jj) + b2;
+                        *value = if ox < g.wo { row[ox] } else { 0.0 };
+                    }
                 }
             }
         }
