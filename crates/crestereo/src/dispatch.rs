@@ -9,6 +9,7 @@ use std::any::{Any, TypeId};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
+use burn::tensor::ops::FloatTensor;
 use burn::tensor::{DType, TensorPrimitive};
 
 /// Moves a value between two type names of the same type (checked at run time).
@@ -41,5 +42,23 @@ pub(crate) fn flex_f32<B: Backend, const D: usize, const K: usize>(
 
 /// A Flex tensor as a tensor of `B` (which must be Flex).
 pub(crate) fn from_flex<B: Backend, const D: usize>(t: FlexTensor) -> Tensor<B, D> {
+    Tensor::from_primitive(TensorPrimitive::Float(same(t)))
+}
+
+/// The autodiff tensors behind float32 tensors of `Autodiff<Flex>`, or `None` (another backend
+/// or dtype: the caller takes its composed path).
+pub(crate) fn autodiff_flex_f32<B: Backend, const D: usize, const K: usize>(
+    tensors: [&Tensor<B, D>; K],
+) -> Option<[FloatTensor<Autodiff<Flex>>; K]> {
+    if !is_autodiff_flex::<B>() || tensors.iter().any(|t| t.dtype() != DType::F32) {
+        return None;
+    }
+    Some(tensors.map(|t| same(t.clone().into_primitive().tensor())))
+}
+
+/// An `Autodiff<Flex>` tensor as a tensor of `B` (which must be `Autodiff<Flex>`).
+pub(crate) fn from_autodiff_flex<B: Backend, const D: usize>(
+    t: FloatTensor<Autodiff<Flex>>,
+) -> Tensor<B, D> {
     Tensor::from_primitive(TensorPrimitive::Float(same(t)))
 }

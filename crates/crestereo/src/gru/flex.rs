@@ -63,3 +63,109 @@ pub(super) fn blend(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor) -> FlexTens
     });
     FlexTensor::from_data(TensorData::new(out, [n, hidden, height, width]))
 }
+
+/// A zero-filled (N, 2·hidden, H, W) gradient of the stacked logits with one half written:
+/// `fill(b, ch, dst)` writes plane `ch` (< hidden) of image `b` into the half at `offset`.
+fn half_of_stacked(
+    [n, hidden, height, width]: [usize; 4],
+    offset: usize,
+    fill: impl Fn(usize, usize, &mut [f32]) + Sync,
+) -> FlexTensor {
+    let plane = height * width;
+    let mut out = vec![0f32; n * 2 * hidden * plane];
+    out.par_chunks_mut(plane).enumerate().for_each(|(i, dst)| {
+        let (b, ch) = (i / (2 * hidden), i % (2 * hidden));
+        if (offset..offset + hidden).contains(&ch) {
+            fill(b, ch - offset, dst);
+        }
+    });
+    FlexTensor::from_data(TensorData::new(out, [n, 2 * hidden, height, width]))
+}
+
+/// Gradients of [`reset_input`] from the gradient `d` of its output: (d zr, d h, d x).
+pub(super) fn reset_input_grad(
+    zr: &FlexTensor,
+    h: &FlexTensor,
+    d: &FlexTensor,
+) -> (FlexTensor, FlexTensor, FlexTensor) {
+    let dims @ [n, hidden, height, width] = h.shape().dims();
+    let c = d.shape().dims::<4>()[1];
+    let (cx, plane) = (c - hidden, height * width);
+    let (zr, h, d) = (zr.to_contiguous(), h.to_contiguous(), d.to_contiguous());
+    let (zr, h, d): (&[f32], &[f32], &[f32]) = (zr.storage(), h.storage(), d.storage());
+    let r = |b: usize, ch: usize| &zr[(b * 2 * hidden + hidden + ch) * plane..][..plane];
+    let dr = |b: usize, ch: usize| &d[(b * c + ch) * plane..][..plane];
+    // d zr (r half) = d · h · σ'(r).
+    let dzr = half_of_stacked(dims, hidden, |b, ch, dst| {
+        let hp = &h[(b * hidden + ch) * plane..][..plane];
+        for (((o, &r), &h), &g) in dst.iter_mut().zip(r(b, ch)).zip(hp).zip(dr(b, ch)) {
+            let s = sigmoid(r);
+            *o = g * h * (s * (1.0 - s));
+        }
+    });
+    // d h = d · σ(r).
+    let mut dh = vec![0f32; n * hidden * plane];
+    dh.par_chunks_mut(plane).enumerate().for_each(|(i, dst)| {
+        let (b, ch) = (i / hidden, i % hidden);
+        for ((o, &r), &g) in dst.iter_mut().zip(r(b, ch)).zip(dr(b, ch)) {
+            *o = g * sigmoid(r);
+        }
+    });
+    // d x = the x part of d.
+    let mut dx = vec![0f32; n * cx * plane];
+    dx.par_chunks_mut(plane).enumerate().for_each(|(i, dst)| {
+        let (b, ch) = (i / cx, i % cx);
+        dst.copy_from_slice(dr(b, hidden + ch));
+    });
+    (
+        dzr,
+        FlexTensor::from_data(TensorData::new(dh, dims)),
+        FlexTensor::from_data(TensorData::new(dx, [n, cx, height, width])),
+    )
+}
+
+/// Gradients of [`blend`] from the gradient `d` of the new hidden state: (d zr, d h, d q).
+pub(super) fn blend_grad(
+    zr: &FlexTensor,
+    h: &FlexTensor,
+    q: &FlexTensor,
+    d: &FlexTensor,
+) -> (FlexTensor, FlexTensor, FlexTensor) {
+    let dims @ [n, hidden, height, width] = h.shape().dims();
+    let plane = height * width;
+    let (zr, h) = (zr.to_contiguous(), h.to_contiguous());
+    let (q, d) = (q.to_contiguous(), d.to_contiguous());
+    let (zr, h, q, d): (&[f32], &[f32], &[f32], &[f32]) =
+        (zr.storage(), h.storage(), q.storage(), d.storage());
+    let z = |b: usize, ch: usize| &zr[(b * 2 * hidden + ch) * plane..][..plane];
+    let planes = |i: usize| i * plane..(i + 1) * plane;
+    // d zr (z half) = d · (tanh q − h) · σ'(z).
+    let dzr = half_of_stacked(dims, 0, |b, ch, dst| {
+        let i = b * hidden + ch;
+        let (hp, qp, dp) = (&h[planes(i)], &q[planes(i)], &d[planes(i)]);
+        for ((((o, &z), &h), &q), &g) in dst.iter_mut().zip(z(b, ch)).zip(hp).zip(qp).zip(dp) {
+            let s = sigmoid(z);
+            *o = g * (q.tanh() - h) * (s * (1.0 - s));
+        }
+    });
+    // d h = d · (1 − σ(z)); d q = d · σ(z) · (1 − tanh² q).
+    let mut dh = vec![0f32; n * hidden * plane];
+    let mut dq = vec![0f32; n * hidden * plane];
+    dh.par_chunks_mut(plane)
+        .zip(dq.par_chunks_mut(plane))
+        .enumerate()
+        .for_each(|(i, (dh, dq))| {
+            let (b, ch) = (i / hidden, i % hidden);
+            let (qp, dp) = (&q[planes(i)], &d[planes(i)]);
+            for ((((oh, oq), &z), &q), &g) in dh.iter_mut().zip(dq).zip(z(b, ch)).zip(qp).zip(dp) {
+                let (s, t) = (sigmoid(z), q.tanh());
+                *oh = g * (1.0 - s);
+                *oq = g * s * (1.0 - t * t);
+            }
+        });
+    (
+        dzr,
+        FlexTensor::from_data(TensorData::new(dh, dims)),
+        FlexTensor::from_data(TensorData::new(dq, dims)),
+    )
+}

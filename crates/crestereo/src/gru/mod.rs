@@ -1,15 +1,17 @@
 //! Separable ConvGRU: a 1×5 (horizontal) GRU step followed by a 5×1 (vertical) one.
 //!
-//! On the plain Flex backend (inference) the gates' element-wise work runs as two parallel
-//! kernels (`flex`); elsewhere it is composed from tensor ops.
+//! On the Flex backend the gates' element-wise work runs as two parallel kernels (`flex`); under
+//! autodiff on Flex (training) as the same kernels recorded with their own backward
+//! (`autodiff`); elsewhere it is composed from tensor ops.
 
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, tanh};
 
-use crate::dispatch::{flex_f32, from_flex};
+use crate::dispatch::{autodiff_flex_f32, flex_f32, from_autodiff_flex, from_flex};
 use crate::encoder::conv_cfg;
 
+mod autodiff;
 mod flex;
 
 #[derive(Config, Debug)]
@@ -58,11 +60,39 @@ fn gru_step<B: Backend>(
     let hx = Tensor::cat(vec![h.clone(), x.clone()], 1);
     // z and r read the same input: one stacked convolution, then split.
     let zr = crate::conv2d::forward_stacked(&[cz, cr], hx);
-    if let Some([zr_f, h_f, x_f]) = flex_f32([&zr, &h, &x]) {
+    match kernel_gates(&zr, &h, &x, cq) {
+        Some(h) => h,
+        None => composed_gates(zr, h, x, cq),
+    }
+}
+
+/// The gates from the stacked logits `zr` by the Flex kernels (with their own backward under
+/// autodiff), or `None` where they do not apply (another backend or dtype).
+fn kernel_gates<B: Backend>(
+    zr: &Tensor<B, 4>,
+    h: &Tensor<B, 4>,
+    x: &Tensor<B, 4>,
+    cq: &Conv2d<B>,
+) -> Option<Tensor<B, 4>> {
+    if let Some([zr_f, h_f, x_f]) = flex_f32([zr, h, x]) {
         let q = crate::conv2d::forward(cq, from_flex(flex::reset_input(&zr_f, &h_f, &x_f)));
         let [q_f] = flex_f32([&q]).expect("a Flex tensor");
-        return from_flex(flex::blend(&zr_f, &h_f, &q_f));
+        return Some(from_flex(flex::blend(&zr_f, &h_f, &q_f)));
     }
+    let [zr_a, h_a, x_a] = autodiff_flex_f32([zr, h, x])?;
+    let r_input = from_autodiff_flex(autodiff::reset_input(zr_a, h_a, x_a));
+    let q = crate::conv2d::forward(cq, r_input);
+    let [zr_a, h_a, q_a] = autodiff_flex_f32([zr, h, &q]).expect("an Autodiff<Flex> tensor");
+    Some(from_autodiff_flex(autodiff::blend(zr_a, h_a, q_a)))
+}
+
+/// The gates from the stacked logits `zr` composed from tensor ops (any backend).
+fn composed_gates<B: Backend>(
+    zr: Tensor<B, 4>,
+    h: Tensor<B, 4>,
+    x: Tensor<B, 4>,
+    cq: &Conv2d<B>,
+) -> Tensor<B, 4> {
     let hidden = h.dims()[1];
     let zr = sigmoid(zr);
     let z = zr.clone().narrow(1, 0, hidden);
@@ -90,6 +120,14 @@ mod tests {
     use super::*;
     use crate::{CpuAutodiffBackend, CpuBackend};
 
+    fn random<B: Backend>(shape: [usize; 4], device: &B::Device) -> Tensor<B, 4> {
+        Tensor::random(shape, Distribution::Normal(0.0, 1.0), device)
+    }
+
+    fn max_abs<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> f32 {
+        (a - b).abs().max().into_scalar().elem()
+    }
+
     /// The GRU with its Flex gate kernels (plain Flex) against the composed gates (taken under
     /// autodiff), same weights and inputs.
     #[test]
@@ -99,22 +137,63 @@ mod tests {
             .with_hidden_dim(16)
             .with_input_dim(24)
             .init::<CpuAutodiffBackend>(&device);
-        let h = Tensor::<CpuBackend, 4>::random(
-            [2, 16, 9, 11],
-            Distribution::Normal(0.0, 1.0),
-            &device,
-        )
-        .tanh();
-        let x = Tensor::<CpuBackend, 4>::random(
-            [2, 24, 9, 11],
-            Distribution::Normal(0.0, 1.0),
-            &device,
-        );
-        let composed = gru
-            .forward(Tensor::from_inner(h.clone()), Tensor::from_inner(x.clone()))
-            .inner();
-        let kernel = gru.valid().forward(h, x);
-        let diff: f32 = (kernel - composed).abs().max().into_scalar();
+        let h = random::<CpuBackend>([2, 16, 9, 11], &device).tanh();
+        let x = random::<CpuBackend>([2, 24, 9, 11], &device);
+        let q = &gru.valid().convq1;
+        let zr = random::<CpuBackend>([2, 32, 9, 11], &device).mul_scalar(2.0);
+        let kernel = kernel_gates(&zr, &h, &x, q).expect("the Flex kernels");
+        let composed = composed_gates(zr, h, x, q);
+        let diff = max_abs(kernel, composed);
         assert!(diff < 1e-5, "max difference {diff}");
+    }
+
+    /// Under autodiff on Flex: the kernels' output and the gradients their backward gives (the
+    /// logits, hidden state, input, and the candidate convolution's weights) against autodiff of
+    /// the composed gates.
+    #[test]
+    fn autodiff_gates_match_the_composed_ops_and_their_gradients() {
+        type A = CpuAutodiffBackend;
+        let device = Default::default();
+        let gru = SepConvGruConfig::new()
+            .with_hidden_dim(16)
+            .with_input_dim(24)
+            .init::<A>(&device);
+        let inputs = (
+            random::<CpuBackend>([2, 32, 9, 11], &device).mul_scalar(2.0),
+            random::<CpuBackend>([2, 16, 9, 11], &device).tanh(),
+            random::<CpuBackend>([2, 24, 9, 11], &device),
+        );
+        let weights = random::<CpuBackend>([2, 16, 9, 11], &device);
+        let run = |kernel: bool| {
+            let track =
+                |t: &Tensor<CpuBackend, 4>| Tensor::<A, 4>::from_inner(t.clone()).require_grad();
+            let (zr, h, x) = (track(&inputs.0), track(&inputs.1), track(&inputs.2));
+            let out = if kernel {
+                kernel_gates(&zr, &h, &x, &gru.convq1).expect("the Autodiff<Flex> kernels")
+            } else {
+                composed_gates(zr.clone(), h.clone(), x.clone(), &gru.convq1)
+            };
+            let grads = (out.clone() * Tensor::from_inner(weights.clone()))
+                .sum()
+                .backward();
+            let wq = gru.convq1.weight.val();
+            let g = |t: &Tensor<A, 4>| t.grad(&grads).expect("a gradient");
+            (out.inner(), [g(&zr), g(&h), g(&x), g(&wq)])
+        };
+        let (out_k, grads_k) = run(true);
+        let (out_c, grads_c) = run(false);
+        let diff = max_abs(out_k, out_c);
+        assert!(diff < 1e-5, "output: max difference {diff}");
+        for (name, (k, c)) in ["zr", "h", "x", "convq weight"]
+            .iter()
+            .zip(grads_k.into_iter().zip(grads_c))
+        {
+            let scale: f32 = c.clone().abs().max().into_scalar().elem();
+            let diff = max_abs(k, c);
+            assert!(
+                diff <= 1e-5 * scale.max(1.0),
+                "d {name}: max difference {diff} (scale {scale})"
+            );
+        }
     }
 }
