@@ -2,8 +2,8 @@
 //! (`Bᵀ d B`), products back to output tiles (`Aᵀ M A`), and the output gradient into the
 //! transform domain (`A dY Aᵀ`, for the weight gradient).
 //!
-//! Each function handles one block of at most [`BLOCK`] consecutive tiles (row-major over the
-//! tile grid) of one image, on the calling thread: within the block each tile position is a
+//! Each function handles one block of consecutive tiles (row-major over the tile grid) of one
+//! image, on the calling thread, its lanes `block` long ([`Lanebuf`]): within the block each tile position is a
 //! lane over the block's tiles, so one axis's transform of all the block's tiles is a small
 //! matrix applied to a few lanes ([`apply`]): element-wise, vectorised, one pass. Blocks are
 //! small enough that a block's transform domain (C · ξ lanes) stays in cache between the
@@ -14,10 +14,6 @@ use rayon::prelude::*;
 use super::{Axis, Plan};
 use crate::conv2d::Geometry;
 use crate::conv2d::scratch::Scratch;
-
-/// Tiles per block: long enough lanes for vectorised loops and wide enough products, short
-/// enough for a block's transform domain to stay in the processor's cache.
-pub(super) const BLOCK: usize = 64;
 
 /// The most lanes [`apply`] reads or writes (a 3×3 kernel's 16 transform positions).
 pub(super) const MAX_LANES: usize = 16;
@@ -135,17 +131,20 @@ fn apply_body(t: &Terms, src: &[f32], s: Lanes, dst: &mut [f32], d: Lanes, len: 
 
 /// Working lanes of the block transforms, allocated once per thread and call.
 pub(super) struct Lanebuf {
+    block: usize,
     d: Vec<f32>,
     e: Vec<f32>,
     runs: Vec<[usize; 4]>,
 }
 
 impl Lanebuf {
-    pub(super) fn new(plan: &Plan) -> Self {
+    /// Lanes for blocks of up to `block` tiles.
+    pub(super) fn new(plan: &Plan, block: usize) -> Self {
         let most = plan.xi().max(plan.y.n * plan.x.m);
         Lanebuf {
-            d: vec![0f32; most * BLOCK],
-            e: vec![0f32; most * BLOCK],
+            block,
+            d: vec![0f32; most * block],
+            e: vec![0f32; most * block],
             runs: Vec::new(),
         }
     }
@@ -207,7 +206,7 @@ fn tile_runs(plan: &Plan, (t0, len): (usize, usize), runs: &mut Vec<[usize; 4]>)
 
 /// `V = B_yᵀ d B_x` of the input tiles `t0 .. t0 + len` of one image, split as
 /// [`split_images`] makes it (C_in planes of [`split_plane`]), into `v`, laid out
-/// (ξ, C_in, BLOCK): position ξ of channel c at `(ξ · C_in + c) · BLOCK`.
+/// (ξ, C_in, block): position ξ of channel c at `(ξ · C_in + c) · block`.
 pub(super) fn transform_input(
     split: &[f32],
     g: &Geometry,
@@ -219,6 +218,7 @@ pub(super) fn transform_input(
     let (ay, ax) = (&plan.y, &plan.x);
     let (phases, ph, pq) = split_plane(plan);
     tile_runs(plan, (t0, len), &mut buf.runs);
+    let bl = buf.block;
     let (d, e) = (&mut buf.d, &mut buf.e);
     for c in 0..g.cin {
         let plane = &split[c * phases * ph * pq..][..phases * ph * pq];
@@ -227,7 +227,7 @@ pub(super) fn transform_input(
         for r in 0..ay.n {
             for s in 0..ax.n {
                 let (phase, shift) = (s % phases, s / phases);
-                let lane = &mut d[(r * ax.n + s) * BLOCK..][..len];
+                let lane = &mut d[(r * ax.n + s) * bl..][..len];
                 for &[q, i, j, run] in &buf.runs {
                     let row = (phase * ph + ay.m * i + r) * pq;
                     lane[q..q + run].copy_from_slice(&plane[row + j + shift..][..run]);
@@ -236,12 +236,12 @@ pub(super) fn transform_input(
         }
         // B_yᵀ d along the tiles' columns, then (B_yᵀ d) B_x along their rows into v.
         for s in 0..ax.n {
-            let lanes = Lanes::new(s * BLOCK, ax.n * BLOCK, ay.n);
+            let lanes = Lanes::new(s * bl, ax.n * bl, ay.n);
             apply(&plan.terms.bt_y, d, lanes, e, lanes, len);
         }
         for r in 0..ay.n {
-            let src = Lanes::new(r * ax.n * BLOCK, BLOCK, ax.n);
-            let dst = Lanes::new((r * ax.n * g.cin + c) * BLOCK, g.cin * BLOCK, ax.n);
+            let src = Lanes::new(r * ax.n * bl, bl, ax.n);
+            let dst = Lanes::new((r * ax.n * g.cin + c) * bl, g.cin * bl, ax.n);
             apply(&plan.terms.bt_x, e, src, v, dst, len);
         }
     }
@@ -278,7 +278,7 @@ impl SharedImage {
     }
 }
 
-/// `Y = A_yᵀ M A_x` of the tiles `t0 .. t0 + len` from `m` (ξ, C_out, BLOCK) into one image's
+/// `Y = A_yᵀ M A_x` of the tiles `t0 .. t0 + len` from `m` (ξ, C_out, block) into one image's
 /// output (C_out, ho, wo), tiles reaching past the map cut back.
 pub(super) fn transform_output(
     m: &[f32],
@@ -290,18 +290,19 @@ pub(super) fn transform_output(
 ) {
     let (ay, ax) = (&plan.y, &plan.x);
     tile_runs(plan, (t0, len), &mut buf.runs);
+    let bl = buf.block;
     let (a, out) = (&mut buf.d, &mut buf.e);
     for k in 0..g.cout {
         // A_yᵀ M along the columns: a[a'·n_x + s]; then (A_yᵀ M) A_x along the rows:
         // out[a'·m_x + b'].
         for s in 0..ax.n {
-            let src = Lanes::new((s * g.cout + k) * BLOCK, ax.n * g.cout * BLOCK, ay.n);
-            let dst = Lanes::new(s * BLOCK, ax.n * BLOCK, ay.m);
+            let src = Lanes::new((s * g.cout + k) * bl, ax.n * g.cout * bl, ay.n);
+            let dst = Lanes::new(s * bl, ax.n * bl, ay.m);
             apply(&plan.terms.at_y, m, src, a, dst, len);
         }
         for a2 in 0..ay.m {
-            let src = Lanes::new(a2 * ax.n * BLOCK, BLOCK, ax.n);
-            let dst = Lanes::new(a2 * ax.m * BLOCK, BLOCK, ax.m);
+            let src = Lanes::new(a2 * ax.n * bl, bl, ax.n);
+            let dst = Lanes::new(a2 * ax.m * bl, bl, ax.m);
             apply(&plan.terms.at_x, a, src, out, dst, len);
         }
         for &[q, i, j, run] in &buf.runs {
@@ -310,14 +311,14 @@ pub(super) fn transform_output(
             for a2 in 0..ay.m.min(g.ho - y0) {
                 // SAFETY: these tiles' own outputs (see `SharedImage`).
                 let row = unsafe { y.run((k * g.ho + y0 + a2) * g.wo + x0, width) };
-                let lanes = &out[a2 * ax.m * BLOCK..][..ax.m * BLOCK];
+                let lanes = &out[a2 * ax.m * bl..][..ax.m * bl];
                 if ax.m == 1 {
                     row.copy_from_slice(&lanes[q..q + width]);
                     continue;
                 }
                 for (jj, tile) in row.chunks_mut(ax.m).enumerate() {
                     for (b2, value) in tile.iter_mut().enumerate() {
-                        *value = lanes[b2 * BLOCK + q + jj];
+                        *value = lanes[b2 * bl + q + jj];
                     }
                 }
             }
@@ -358,7 +359,7 @@ impl TileTerms {
 }
 
 /// `dM = A_y dY A_xᵀ` of the output tiles `t0 .. t0 + len` of one image's output gradient
-/// (C_out, ho, wo) into `dm`, laid out (ξ, C_out, BLOCK): the transpose of
+/// (C_out, ho, wo) into `dm`, laid out (ξ, C_out, block): the transpose of
 /// [`transform_output`] (outputs past the map count as zero).
 pub(super) fn transform_output_grad(
     dy: &[f32],
@@ -370,13 +371,14 @@ pub(super) fn transform_output_grad(
 ) {
     let (ay, ax) = (&plan.y, &plan.x);
     tile_runs(plan, (t0, len), &mut buf.runs);
+    let bl = buf.block;
     let (d, a) = (&mut buf.d, &mut buf.e);
     for k in 0..g.cout {
         let plane = &dy[k * g.ho * g.wo..][..g.ho * g.wo];
         // d[a·m_x + b][q] = output (a, b) of tile t0 + q, zero past the map.
         for a2 in 0..ay.m {
             for b2 in 0..ax.m {
-                let lane = &mut d[(a2 * ax.m + b2) * BLOCK..][..len];
+                let lane = &mut d[(a2 * ax.m + b2) * bl..][..len];
                 for &[q, i, j, run] in &buf.runs {
                     let (oy, lane) = (ay.m * i + a2, &mut lane[q..q + run]);
                     if oy >= g.ho {
@@ -393,13 +395,13 @@ pub(super) fn transform_output_grad(
         }
         // A_y dY along the columns: a[r·m_x + b]; then (A_y dY) A_xᵀ along the rows into dm.
         for b2 in 0..ax.m {
-            let src = Lanes::new(b2 * BLOCK, ax.m * BLOCK, ay.m);
-            let dst = Lanes::new(b2 * BLOCK, ax.m * BLOCK, ay.n);
+            let src = Lanes::new(b2 * bl, ax.m * bl, ay.m);
+            let dst = Lanes::new(b2 * bl, ax.m * bl, ay.n);
             apply(&plan.terms.a_y, d, src, a, dst, len);
         }
         for r in 0..ay.n {
-            let src = Lanes::new(r * ax.m * BLOCK, BLOCK, ax.m);
-            let dst = Lanes::new((r * ax.n * g.cout + k) * BLOCK, g.cout * BLOCK, ax.n);
+            let src = Lanes::new(r * ax.m * bl, bl, ax.m);
+            let dst = Lanes::new((r * ax.n * g.cout + k) * bl, g.cout * bl, ax.n);
             apply(&plan.terms.a_x, a, src, dm, dst, len);
         }
     }
