@@ -1,15 +1,17 @@
 //! Convex upsampling and align-corners bilinear resizing.
 //!
-//! On the plain Flex backend (inference) the convex upsampling runs as two parallel kernels
-//! (`flex`); elsewhere it is composed from tensor ops.
+//! On the Flex backend the convex upsampling runs as two parallel kernels (`flex`), under
+//! autodiff on Flex (training) as the same kernels recorded with their own backward
+//! (`autodiff`); elsewhere it is composed from tensor ops.
 
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
 use burn::tensor::module::interpolate;
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions, PadMode};
 
-use crate::dispatch::{flex_f32, from_flex};
+use crate::dispatch::{autodiff_flex_f32, flex_f32, from_autodiff_flex, from_flex};
 
+mod autodiff;
 mod flex;
 
 /// Interpolation matrix (out × in) of 1-D linear resizing with `align_corners = true`, with the
@@ -79,7 +81,7 @@ pub fn convex_upsample<B: Backend>(
     mask: Tensor<B, 4>,
     rate: usize,
 ) -> Tensor<B, 4> {
-    let [n, c, h, w] = flow.dims();
+    let [n, _, h, w] = flow.dims();
     assert_eq!(
         mask.dims(),
         [n, 9 * rate * rate, h, w],
@@ -88,6 +90,19 @@ pub fn convex_upsample<B: Backend>(
     if let Some([flow_f, mask_f]) = flex_f32([&flow, &mask]) {
         return from_flex(flex::convex_upsample(&flow_f, &mask_f, rate));
     }
+    if let Some([flow_a, mask_a]) = autodiff_flex_f32([&flow, &mask]) {
+        return from_autodiff_flex(autodiff::convex_upsample(flow_a, mask_a, rate));
+    }
+    composed_convex_upsample(flow, mask, rate)
+}
+
+/// [`convex_upsample`] composed from tensor ops (any backend).
+fn composed_convex_upsample<B: Backend>(
+    flow: Tensor<B, 4>,
+    mask: Tensor<B, 4>,
+    rate: usize,
+) -> Tensor<B, 4> {
+    let [n, c, h, w] = flow.dims();
     let mask = softmax(mask.reshape([n, 1, 9, rate, rate, h, w]), 2);
     let padded = flow
         .mul_scalar(rate as f64)
@@ -113,34 +128,69 @@ mod tests {
     use super::*;
     use crate::{CpuAutodiffBackend, CpuBackend};
 
-    /// The Flex kernel (plain Flex) against the composed ops (taken under autodiff), same inputs.
+    const CASES: [(usize, usize, usize, usize); 3] = [(1, 6, 9, 4), (2, 5, 4, 2), (1, 1, 3, 4)];
+
+    fn inputs((n, h, w, rate): (usize, usize, usize, usize)) -> [Tensor<CpuBackend, 4>; 3] {
+        let device = Default::default();
+        let random = |shape, std| Tensor::random(shape, Distribution::Normal(0.0, std), &device);
+        [
+            random([n, 2, h, w], 3.0),
+            random([n, 9 * rate * rate, h, w], 2.0),
+            random([n, 2, rate * h, rate * w], 1.0),
+        ]
+    }
+
+    fn max_abs<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> f32 {
+        (a - b).abs().max().into_scalar().elem()
+    }
+
+    /// The Flex kernel against the composed ops, same inputs.
     #[test]
     fn flex_convex_upsampling_matches_the_composed_ops() {
-        let device = Default::default();
-        for (n, h, w, rate) in [(1, 6, 9, 4), (2, 5, 4, 2), (1, 1, 3, 4)] {
-            let flow = Tensor::<CpuBackend, 4>::random(
-                [n, 2, h, w],
-                Distribution::Normal(0.0, 3.0),
-                &device,
-            );
-            let mask = Tensor::<CpuBackend, 4>::random(
-                [n, 9 * rate * rate, h, w],
-                Distribution::Normal(0.0, 2.0),
-                &device,
-            );
+        for case @ (n, h, w, rate) in CASES {
+            let [flow, mask, _] = inputs(case);
             let kernel = convex_upsample(flow.clone(), mask.clone(), rate);
-            let composed = convex_upsample(
-                Tensor::<CpuAutodiffBackend, 4>::from_inner(flow),
-                Tensor::<CpuAutodiffBackend, 4>::from_inner(mask),
-                rate,
-            )
-            .inner();
             assert_eq!(kernel.dims(), [n, 2, rate * h, rate * w]);
-            let diff: f32 = (kernel - composed).abs().max().into_scalar();
-            assert!(
-                diff < 1e-5,
-                "{n}x{h}x{w} rate {rate}: max difference {diff}"
-            );
+            let diff = max_abs(kernel, composed_convex_upsample(flow, mask, rate));
+            assert!(diff < 1e-5, "{case:?}: max difference {diff}");
+        }
+    }
+
+    /// Under autodiff on Flex: the kernel's output and the gradients its backward gives (flow
+    /// and mask) against autodiff of the composed ops.
+    #[test]
+    fn autodiff_convex_upsampling_matches_the_composed_ops_and_their_gradients() {
+        type A = CpuAutodiffBackend;
+        for case @ (_, _, _, rate) in CASES {
+            let [flow, mask, weights] = inputs(case);
+            let run = |kernel: bool| {
+                let flow = Tensor::<A, 4>::from_inner(flow.clone()).require_grad();
+                let mask = Tensor::<A, 4>::from_inner(mask.clone()).require_grad();
+                let out = if kernel {
+                    convex_upsample(flow.clone(), mask.clone(), rate)
+                } else {
+                    composed_convex_upsample(flow.clone(), mask.clone(), rate)
+                };
+                let grads = (out.clone() * Tensor::from_inner(weights.clone()))
+                    .sum()
+                    .backward();
+                let g = |t: &Tensor<A, 4>| t.grad(&grads).expect("a gradient");
+                (out.inner(), [g(&flow), g(&mask)])
+            };
+            let ((out_k, grads_k), (out_c, grads_c)) = (run(true), run(false));
+            let diff = max_abs(out_k, out_c);
+            assert!(diff < 1e-5, "{case:?} output: max difference {diff}");
+            for (name, (k, c)) in ["flow", "mask"]
+                .iter()
+                .zip(grads_k.into_iter().zip(grads_c))
+            {
+                let scale: f32 = c.clone().abs().max().into_scalar().elem();
+                let diff = max_abs(k, c);
+                assert!(
+                    diff <= 1e-5 * scale.max(1.0),
+                    "{case:?} d {name}: max difference {diff} (scale {scale})"
+                );
+            }
         }
     }
 }
