@@ -48,13 +48,14 @@ impl Backward<Flex, 3> for ResetInputBackward {
 struct BlendBackward;
 
 impl Backward<Flex, 3> for BlendBackward {
-    /// The stacked gate logits, the hidden state and the candidate logits.
+    /// The stacked gate logits, the hidden state and the candidate `tanh(q)` (kept instead of
+    /// the logits `q`: the backward needs only it).
     type State = (FlexTensor, FlexTensor, FlexTensor);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let d = grads.consume::<Flex>(&ops.node);
-        let (zr, h, q) = ops.state;
-        let (dzr, dh, dq) = flex::blend_grad(&zr, &h, &q, &d);
+        let (zr, h, t) = ops.state;
+        let (dzr, dh, dq) = flex::blend_grad(&zr, &h, &t, &d);
         register(grads, ops.parents.map(|n| n.map(|n| n.id)), [dzr, dh, dq]);
     }
 }
@@ -86,8 +87,9 @@ pub(super) fn blend(zr: Tracked, h: Tracked, q: Tracked) -> Tracked {
         .stateful()
     {
         OpsKind::Tracked(prep) => {
-            let out = flex::blend(&zr, &h, &q);
-            prep.finish((zr, h, q), out)
+            let t = flex::tanh(&q);
+            let out = flex::blend_tanh(&zr, &h, &t);
+            prep.finish((zr, h, t), out)
         }
         OpsKind::UnTracked(prep) => prep.finish(flex::blend(&zr, &h, &q)),
     }

@@ -46,6 +46,32 @@ pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> Fl
 /// The new hidden state `(1 − σ(z)) · h + σ(z) · tanh(q)` (N, hidden, H, W), from the stacked
 /// gate logits `zr`, the hidden state `h` and the candidate logits `q`.
 pub(super) fn blend(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor) -> FlexTensor {
+    blend_with(zr, h, q, f32::tanh)
+}
+
+/// [`blend`] from the candidate `t = tanh(q)` itself (training keeps `t` for the backward).
+pub(super) fn blend_tanh(zr: &FlexTensor, h: &FlexTensor, t: &FlexTensor) -> FlexTensor {
+    blend_with(zr, h, t, |t| t)
+}
+
+/// `tanh(q)` element-wise, in parallel.
+pub(super) fn tanh(q: &FlexTensor) -> FlexTensor {
+    let shape = q.shape();
+    let q = q.to_contiguous();
+    let q: &[f32] = q.storage();
+    let mut out = vec![0f32; q.len()];
+    out.par_chunks_mut(1 << 14)
+        .zip(q.par_chunks(1 << 14))
+        .for_each(|(o, q)| o.iter_mut().zip(q).for_each(|(o, q)| *o = q.tanh()));
+    FlexTensor::from_data(TensorData::new(out, shape))
+}
+
+fn blend_with(
+    zr: &FlexTensor,
+    h: &FlexTensor,
+    q: &FlexTensor,
+    candidate: impl Fn(f32) -> f32 + Sync,
+) -> FlexTensor {
     let [n, hidden, height, width] = h.shape().dims();
     let plane = height * width;
     let (zr, h, q) = (zr.to_contiguous(), h.to_contiguous(), q.to_contiguous());
@@ -58,7 +84,7 @@ pub(super) fn blend(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor) -> FlexTens
         let q = &q[i * plane..][..plane];
         for (((d, &z), &h), &q) in dst.iter_mut().zip(z).zip(h).zip(q) {
             let z = sigmoid(z);
-            *d = (1.0 - z) * h + z * q.tanh();
+            *d = (1.0 - z) * h + z * candidate(q);
         }
     });
     FlexTensor::from_data(TensorData::new(out, [n, hidden, height, width]))
@@ -124,31 +150,32 @@ pub(super) fn reset_input_grad(
     )
 }
 
-/// Gradients of [`blend`] from the gradient `d` of the new hidden state: (d zr, d h, d q).
+/// Gradients of [`blend`] from the gradient `d` of the new hidden state, given the candidate
+/// `t = tanh(q)`: (d zr, d h, d q).
 pub(super) fn blend_grad(
     zr: &FlexTensor,
     h: &FlexTensor,
-    q: &FlexTensor,
+    t: &FlexTensor,
     d: &FlexTensor,
 ) -> (FlexTensor, FlexTensor, FlexTensor) {
     let dims @ [n, hidden, height, width] = h.shape().dims();
     let plane = height * width;
     let (zr, h) = (zr.to_contiguous(), h.to_contiguous());
-    let (q, d) = (q.to_contiguous(), d.to_contiguous());
-    let (zr, h, q, d): (&[f32], &[f32], &[f32], &[f32]) =
-        (zr.storage(), h.storage(), q.storage(), d.storage());
+    let (t, d) = (t.to_contiguous(), d.to_contiguous());
+    let (zr, h, t, d): (&[f32], &[f32], &[f32], &[f32]) =
+        (zr.storage(), h.storage(), t.storage(), d.storage());
     let z = |b: usize, ch: usize| &zr[(b * 2 * hidden + ch) * plane..][..plane];
     let planes = |i: usize| i * plane..(i + 1) * plane;
-    // d zr (z half) = d · (tanh q − h) · σ'(z).
+    // d zr (z half) = d · (t − h) · σ'(z).
     let dzr = half_of_stacked(dims, 0, |b, ch, dst| {
         let i = b * hidden + ch;
-        let (hp, qp, dp) = (&h[planes(i)], &q[planes(i)], &d[planes(i)]);
-        for ((((o, &z), &h), &q), &g) in dst.iter_mut().zip(z(b, ch)).zip(hp).zip(qp).zip(dp) {
+        let (hp, tp, dp) = (&h[planes(i)], &t[planes(i)], &d[planes(i)]);
+        for ((((o, &z), &h), &t), &g) in dst.iter_mut().zip(z(b, ch)).zip(hp).zip(tp).zip(dp) {
             let s = sigmoid(z);
-            *o = g * (q.tanh() - h) * (s * (1.0 - s));
+            *o = g * (t - h) * (s * (1.0 - s));
         }
     });
-    // d h = d · (1 − σ(z)); d q = d · σ(z) · (1 − tanh² q).
+    // d h = d · (1 − σ(z)); d q = d · σ(z) · (1 − t²).
     let mut dh = vec![0f32; n * hidden * plane];
     let mut dq = vec![0f32; n * hidden * plane];
     dh.par_chunks_mut(plane)
@@ -156,9 +183,9 @@ pub(super) fn blend_grad(
         .enumerate()
         .for_each(|(i, (dh, dq))| {
             let (b, ch) = (i / hidden, i % hidden);
-            let (qp, dp) = (&q[planes(i)], &d[planes(i)]);
-            for ((((oh, oq), &z), &q), &g) in dh.iter_mut().zip(dq).zip(z(b, ch)).zip(qp).zip(dp) {
-                let (s, t) = (sigmoid(z), q.tanh());
+            let (tp, dp) = (&t[planes(i)], &d[planes(i)]);
+            for ((((oh, oq), &z), &t), &g) in dh.iter_mut().zip(dq).zip(z(b, ch)).zip(tp).zip(dp) {
+                let s = sigmoid(z);
                 *oh = g * (1.0 - s);
                 *oq = g * s * (1.0 - t * t);
             }
