@@ -33,9 +33,7 @@ pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> Fl
         if ch < hidden {
             let r = &zr[((b * 2 * hidden) + hidden + ch) * plane..][..plane];
             let h = &h[(b * hidden + ch) * plane..][..plane];
-            for ((d, &r), &h) in dst.iter_mut().zip(r).zip(h) {
-                *d = sigmoid(r) * h;
-            }
+            crate::simd::map3(dst, r, h, h, |r, h, _| crate::simd::sigmoid(r) * h);
         } else {
             dst.copy_from_slice(&x[(b * cx + ch - hidden) * plane..][..plane]);
         }
@@ -46,12 +44,12 @@ pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> Fl
 /// The new hidden state `(1 − σ(z)) · h + σ(z) · tanh(q)` (N, hidden, H, W), from the stacked
 /// gate logits `zr`, the hidden state `h` and the candidate logits `q`.
 pub(super) fn blend(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor) -> FlexTensor {
-    blend_with(zr, h, q, f32::tanh)
+    blend_with(zr, h, q, true)
 }
 
 /// [`blend`] from the candidate `t = tanh(q)` itself (training keeps `t` for the backward).
 pub(super) fn blend_tanh(zr: &FlexTensor, h: &FlexTensor, t: &FlexTensor) -> FlexTensor {
-    blend_with(zr, h, t, |t| t)
+    blend_with(zr, h, t, false)
 }
 
 /// `tanh(q)` element-wise, in parallel.
@@ -66,12 +64,8 @@ pub(super) fn tanh(q: &FlexTensor) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(out, shape))
 }
 
-fn blend_with(
-    zr: &FlexTensor,
-    h: &FlexTensor,
-    q: &FlexTensor,
-    candidate: impl Fn(f32) -> f32 + Sync,
-) -> FlexTensor {
+/// [`blend`] (`apply_tanh`) or [`blend_tanh`].
+fn blend_with(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor, apply_tanh: bool) -> FlexTensor {
     let [n, hidden, height, width] = h.shape().dims();
     let plane = height * width;
     let (zr, h, q) = (zr.to_contiguous(), h.to_contiguous(), q.to_contiguous());
@@ -82,9 +76,17 @@ fn blend_with(
         let z = &zr[(b * 2 * hidden + ch) * plane..][..plane];
         let h = &h[i * plane..][..plane];
         let q = &q[i * plane..][..plane];
-        for (((d, &z), &h), &q) in dst.iter_mut().zip(z).zip(h).zip(q) {
-            let z = sigmoid(z);
-            *d = (1.0 - z) * h + z * candidate(q);
+        use crate::simd::{map3, sigmoid, tanh};
+        if apply_tanh {
+            map3(dst, z, h, q, |z, h, q| {
+                let s = sigmoid(z);
+                (1.0 - s) * h + s * tanh(q)
+            });
+        } else {
+            map3(dst, z, h, q, |z, h, t| {
+                let s = sigmoid(z);
+                (1.0 - s) * h + s * t
+            });
         }
     });
     FlexTensor::from_data(TensorData::new(out, [n, hidden, height, width]))
