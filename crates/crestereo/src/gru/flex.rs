@@ -33,7 +33,9 @@ pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> Fl
         if ch < hidden {
             let r = &zr[((b * 2 * hidden) + hidden + ch) * plane..][..plane];
             let h = &h[(b * hidden + ch) * plane..][..plane];
-            crate::simd::map3(dst, r, h, h, |r, h, _| crate::simd::sigmoid(r) * h);
+            for ((d, &r), &h) in dst.iter_mut().zip(r).zip(h) {
+                *d = sigmoid(r) * h;
+            }
         } else {
             dst.copy_from_slice(&x[(b * cx + ch - hidden) * plane..][..plane]);
         }
@@ -44,12 +46,12 @@ pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> Fl
 /// The new hidden state `(1 − σ(z)) · h + σ(z) · tanh(q)` (N, hidden, H, W), from the stacked
 /// gate logits `zr`, the hidden state `h` and the candidate logits `q`.
 pub(super) fn blend(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor) -> FlexTensor {
-    blend_with(zr, h, q, true)
+    blend_with(zr, h, q, f32::tanh)
 }
 
 /// [`blend`] from the candidate `t = tanh(q)` itself (training keeps `t` for the backward).
 pub(super) fn blend_tanh(zr: &FlexTensor, h: &FlexTensor, t: &FlexTensor) -> FlexTensor {
-    blend_with(zr, h, t, false)
+    blend_with(zr, h, t, |t| t)
 }
 
 /// `tanh(q)` element-wise, in parallel.
@@ -64,8 +66,12 @@ pub(super) fn tanh(q: &FlexTensor) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(out, shape))
 }
 
-/// [`blend`] (`apply_tanh`) or [`blend_tanh`].
-fn blend_with(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor, apply_tanh: bool) -> FlexTensor {
+fn blend_with(
+    zr: &FlexTensor,
+    h: &FlexTensor,
+    q: &FlexTensor,
+    candidate: impl Fn(f32) -> f32 + Sync,
+) -> FlexTensor {
     let [n, hidden, height, width] = h.shape().dims();
     let plane = height * width;
     let (zr, h, q) = (zr.to_contiguous(), h.to_contiguous(), q.to_contiguous());
@@ -76,17 +82,9 @@ fn blend_with(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor, apply_tanh: bool)
         let z = &zr[(b * 2 * hidden + ch) * plane..][..plane];
         let h = &h[i * plane..][..plane];
         let q = &q[i * plane..][..plane];
-        use crate::simd::{map3, sigmoid, tanh};
-        if apply_tanh {
-            map3(dst, z, h, q, |z, h, q| {
-                let s = sigmoid(z);
-                (1.0 - s) * h + s * tanh(q)
-            });
-        } else {
-            map3(dst, z, h, q, |z, h, t| {
-                let s = sigmoid(z);
-                (1.0 - s) * h + s * t
-            });
+        for (((d, &z), &h), &q) in dst.iter_mut().zip(z).zip(h).zip(q) {
+            let z = sigmoid(z);
+            *d = (1.0 - z) * h + z * candidate(q);
         }
     });
     FlexTensor::from_data(TensorData::new(out, [n, hidden, height, width]))
