@@ -77,3 +77,34 @@ pub type CpuAutodiffBackend = burn::backend::Autodiff<burn::backend::Flex>;
 pub mod io {
     pub use crate::input::BgrImage;
 }
+
+/// Helpers of the unit tests that compare a kernel with the composed ops it replaces.
+#[cfg(test)]
+mod test_util {
+    use burn::prelude::*;
+
+    /// The largest absolute difference of two tensors.
+    pub(crate) fn max_abs<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> f32 {
+        (a - b).abs().max().into_scalar().elem()
+    }
+
+    /// A kernel's output and named gradients against the composed ops': output within 1e-5, each
+    /// gradient within 1e-5 of its largest magnitude (at least 1).
+    pub(crate) fn assert_output_and_grads_close<B: Backend, const K: usize>(
+        label: &str,
+        names: [&str; K],
+        (out_k, grads_k): (Tensor<B, 4>, [Tensor<B, 4>; K]),
+        (out_c, grads_c): (Tensor<B, 4>, [Tensor<B, 4>; K]),
+    ) {
+        let diff = max_abs(out_k, out_c);
+        assert!(diff < 1e-5, "{label} output: max difference {diff}");
+        for ((name, k), c) in names.iter().zip(grads_k).zip(grads_c) {
+            let scale: f32 = c.clone().abs().max().into_scalar().elem();
+            let diff = max_abs(k, c);
+            assert!(
+                diff <= 1e-5 * scale.max(1.0),
+                "{label} d {name}: max difference {diff} (scale {scale})"
+            );
+        }
+    }
+}

@@ -1,7 +1,8 @@
 //! Matrix products on strided views of plain slices (the `gemm` crate Flex itself uses), for
 //! the convolution paths that multiply views of padded or transformed maps in place.
 
-use gemm::{Parallelism, gemm};
+pub(super) use gemm::Parallelism;
+use gemm::gemm;
 
 /// A strided matrix view into a slice: element (i, j) at `offset + i·rs + j·cs`.
 #[derive(Clone, Copy)]
@@ -42,33 +43,10 @@ pub(super) fn matmul_into(
     matmul_with(parallelism, (m, n, k), dst, d, accumulate, lhs, l, rhs, r);
 }
 
-/// [`matmul_into`] on the calling thread only (for callers already parallel over blocks).
+/// [`matmul_into`] with the thread use chosen by the caller (`Parallelism::None` for callers
+/// already parallel over blocks).
 #[allow(clippy::too_many_arguments)]
-pub(super) fn matmul_serial(
-    (m, n, k): (usize, usize, usize),
-    dst: &mut [f32],
-    d: View,
-    accumulate: bool,
-    lhs: &[f32],
-    l: View,
-    rhs: &[f32],
-    r: View,
-) {
-    matmul_with(
-        Parallelism::None,
-        (m, n, k),
-        dst,
-        d,
-        accumulate,
-        lhs,
-        l,
-        rhs,
-        r,
-    );
-}
-
-#[allow(clippy::too_many_arguments)]
-fn matmul_with(
+pub(super) fn matmul_with(
     parallelism: Parallelism,
     (m, n, k): (usize, usize, usize),
     dst: &mut [f32],

@@ -118,14 +118,11 @@ mod tests {
     use burn::tensor::Distribution;
 
     use super::*;
+    use crate::test_util::{assert_output_and_grads_close, max_abs};
     use crate::{CpuAutodiffBackend, CpuBackend};
 
     fn random<B: Backend>(shape: [usize; 4], device: &B::Device) -> Tensor<B, 4> {
         Tensor::random(shape, Distribution::Normal(0.0, 1.0), device)
-    }
-
-    fn max_abs<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> f32 {
-        (a - b).abs().max().into_scalar().elem()
     }
 
     /// The GRU with its Flex gate kernels (plain Flex) against the composed gates (taken under
@@ -180,20 +177,11 @@ mod tests {
             let g = |t: &Tensor<A, 4>| t.grad(&grads).expect("a gradient");
             (out.inner(), [g(&zr), g(&h), g(&x), g(&wq)])
         };
-        let (out_k, grads_k) = run(true);
-        let (out_c, grads_c) = run(false);
-        let diff = max_abs(out_k, out_c);
-        assert!(diff < 1e-5, "output: max difference {diff}");
-        for (name, (k, c)) in ["zr", "h", "x", "convq weight"]
-            .iter()
-            .zip(grads_k.into_iter().zip(grads_c))
-        {
-            let scale: f32 = c.clone().abs().max().into_scalar().elem();
-            let diff = max_abs(k, c);
-            assert!(
-                diff <= 1e-5 * scale.max(1.0),
-                "d {name}: max difference {diff} (scale {scale})"
-            );
-        }
+        assert_output_and_grads_close(
+            "GRU gates",
+            ["zr", "h", "x", "convq weight"],
+            run(true),
+            run(false),
+        );
     }
 }

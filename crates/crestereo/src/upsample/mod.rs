@@ -126,6 +126,7 @@ mod tests {
     use burn::tensor::Distribution;
 
     use super::*;
+    use crate::test_util::{assert_output_and_grads_close, max_abs};
     use crate::{CpuAutodiffBackend, CpuBackend};
 
     const CASES: [(usize, usize, usize, usize); 3] = [(1, 6, 9, 4), (2, 5, 4, 2), (1, 1, 3, 4)];
@@ -138,10 +139,6 @@ mod tests {
             random([n, 9 * rate * rate, h, w], 2.0),
             random([n, 2, rate * h, rate * w], 1.0),
         ]
-    }
-
-    fn max_abs<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> f32 {
-        (a - b).abs().max().into_scalar().elem()
     }
 
     /// The Flex kernel against the composed ops, same inputs.
@@ -177,20 +174,8 @@ mod tests {
                 let g = |t: &Tensor<A, 4>| t.grad(&grads).expect("a gradient");
                 (out.inner(), [g(&flow), g(&mask)])
             };
-            let ((out_k, grads_k), (out_c, grads_c)) = (run(true), run(false));
-            let diff = max_abs(out_k, out_c);
-            assert!(diff < 1e-5, "{case:?} output: max difference {diff}");
-            for (name, (k, c)) in ["flow", "mask"]
-                .iter()
-                .zip(grads_k.into_iter().zip(grads_c))
-            {
-                let scale: f32 = c.clone().abs().max().into_scalar().elem();
-                let diff = max_abs(k, c);
-                assert!(
-                    diff <= 1e-5 * scale.max(1.0),
-                    "{case:?} d {name}: max difference {diff} (scale {scale})"
-                );
-            }
+            let label = format!("{case:?}");
+            assert_output_and_grads_close(&label, ["flow", "mask"], run(true), run(false));
         }
     }
 }

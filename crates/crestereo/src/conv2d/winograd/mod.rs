@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use super::Geometry;
 use super::scratch::Scratch;
-use super::views::{View, matmul_serial};
+use super::views::{Parallelism, View, matmul_with};
 use tiles::{
     Lanebuf, Lanes, SharedImage, Terms, TileTerms, apply, split_images, split_plane,
     transform_input, transform_output, transform_output_grad,
@@ -260,7 +260,8 @@ pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
             let image = &split[b * g.cin * plane..][..g.cin * plane];
             transform_input(image, g, &plan, (t0, len), v, buf);
             for e in 0..xi {
-                matmul_serial(
+                matmul_with(
+                    Parallelism::None,
                     (g.cout, len, g.cin),
                     m,
                     View::new(e * g.cout * bl, bl, 1),
@@ -330,7 +331,8 @@ pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
                 let accumulate = du.is_some();
                 let sum = du.get_or_insert_with(|| vec![0f32; g.cout * xi * g.cin]);
                 for e in 0..xi {
-                    matmul_serial(
+                    matmul_with(
+                        Parallelism::None,
                         (g.cout, g.cin, len),
                         sum,
                         View::new(e * g.cin, xi * g.cin, 1),
