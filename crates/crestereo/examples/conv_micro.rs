@@ -1,6 +1,7 @@
 //! One convolution of the shapes the network runs, forward and backward on `Autodiff<Flex>`
-//! through `crestereo::conv2d`, next to a plain matrix product with the same FLOPs (the rate the
-//! GEMM kernel reaches on this machine): how far a convolution is from its GEMM.
+//! and the inference forward on `Flex`, through `crestereo::conv2d`, next to a plain matrix
+//! product with the same FLOPs (the rate the GEMM kernel reaches on this machine): how far a
+//! convolution is from its GEMM.
 //!
 //! ```sh
 //! cargo run --release -p crestereo --example conv_micro -- 2 384 96 128 128 1x5 5
@@ -9,6 +10,7 @@
 
 use std::time::Instant;
 
+use burn::module::AutodiffModule;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2dConfig;
 use burn::prelude::*;
@@ -52,6 +54,14 @@ fn main() {
         let _ = x.grad(&g).unwrap().into_data();
         bwd.push(t.elapsed().as_secs_f64());
     }
+    // Inference: the same convolution on plain Flex (no autodiff; its own Winograd tiles).
+    let (conv_i, x_i) = (conv.valid(), x.clone().inner());
+    let mut inf = vec![];
+    for _ in 0..repeats {
+        let t = Instant::now();
+        let _ = crestereo::conv2d::forward(&conv_i, x_i.clone()).into_data();
+        inf.push(t.elapsed().as_secs_f64());
+    }
     // The same FLOPs as one matrix product (cout × cin·kh·kw) · (cin·kh·kw × n·h·w).
     let lhs =
         Tensor::<CpuBackend, 2>::random([cout, cin * kh * kw], Distribution::Default, &device);
@@ -63,9 +73,11 @@ fn main() {
         let _ = lhs.clone().matmul(rhs.clone()).into_data();
         mm.push(t.elapsed().as_secs_f64());
     }
-    let (f, b, m) = (median(fwd), median(bwd), median(mm));
+    let (f, b, m, i) = (median(fwd), median(bwd), median(mm), median(inf));
     println!(
-        "conv {n}x{cin}x{h}x{w} -> {cout}, {kh}x{kw}: forward {:.1} ms ({:.1} GFLOP/s), backward {:.1} ms ({:.1} GFLOP/s); GEMM of the same size {:.1} ms ({:.1} GFLOP/s); forward/GEMM {:.2}, backward/(2 GEMM) {:.2}",
+        "conv {n}x{cin}x{h}x{w} -> {cout}, {kh}x{kw}: inference {:.1} ms ({:.1} GFLOP/s), training forward {:.1} ms ({:.1} GFLOP/s), backward {:.1} ms ({:.1} GFLOP/s); GEMM of the same size {:.1} ms ({:.1} GFLOP/s); forward/GEMM {:.2}, backward/(2 GEMM) {:.2}",
+        i * 1e3,
+        flops / i / 1e9,
         f * 1e3,
         flops / f / 1e9,
         b * 1e3,

@@ -11,7 +11,9 @@
 //!
 //! The forward (on `Flex` too) is one matrix product per image, `Y_b = W · cols_b`, written
 //! in NCHW directly. Stride-1 convolutions with enough input channels skip the unfolding
-//! altogether: a sum of products over shifted views of the padded input (`shifted`). Every
+//! altogether: 3×3, 1×5 and 5×1 kernels by Winograd's minimal filtering (`winograd`; larger
+//! tiles on `Flex`, i.e. inference, than on `Autodiff<Flex>`), others as a sum of products over
+//! shifted views of the padded input (`shifted`). Every
 //! other backend, float64 tensors and grouped convolutions use `Conv2d::forward` unchanged.
 
 use burn::backend::autodiff::NodeId;
@@ -35,6 +37,8 @@ mod scratch;
 mod shifted;
 mod views;
 mod winograd;
+
+use winograd::Use;
 
 /// `conv.forward(x)`; on `Autodiff<Flex>` (float32, groups 1, symmetric padding) with the GEMM
 /// backward described in the module docs.
@@ -64,7 +68,7 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
         same(conv2d_autodiff(same(x), same(w), bias.map(same), options))
     } else {
         let (x, w): (FlexTensor, FlexTensor) = (same(x), same(w));
-        let y = gemm_forward(&x, &w, &Geometry::new(&x, &w, &options));
+        let y = gemm_forward(&x, &w, &Geometry::new(&x, &w, &options), Use::Inference);
         same(match bias {
             Some(b) => add_bias(y, &same(b)),
             None => y,
@@ -215,7 +219,7 @@ fn conv2d_autodiff(
     options: ConvOptions<2>,
 ) -> FloatTensor<Autodiff<Flex>> {
     let forward = |x: &FlexTensor, w: &FlexTensor, b: Option<&FlexTensor>| {
-        let y = gemm_forward(x, w, &Geometry::new(x, w, &options));
+        let y = gemm_forward(x, w, &Geometry::new(x, w, &options), Use::Training);
         match b {
             Some(b) => add_bias(y, b),
             None => y,
@@ -375,11 +379,12 @@ fn flex(data: Vec<f32>, shape: [usize; 3]) -> FlexTensor {
 }
 
 /// `Y_b = W · cols_b` for every image b, (N, C_out, H_out, W_out), NCHW without a layout
-/// change (1×1 stride-1 convolutions multiply the input planes directly).
-fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry) -> FlexTensor {
+/// change (1×1 stride-1 convolutions multiply the input planes directly). `use_` picks the
+/// Winograd tiles: larger for inference, smaller (more accurate) in training.
+fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry, use_: Use) -> FlexTensor {
     let x = x.to_contiguous();
     if winograd::applies(g) {
-        let y = winograd::forward(x.storage(), w.to_contiguous().storage(), g);
+        let y = winograd::forward(x.storage(), w.to_contiguous().storage(), g, use_);
         return FlexTensor::from_data(TensorData::new(y, [g.n, g.cout, g.ho, g.wo]));
     }
     if shifted::applies(g) {

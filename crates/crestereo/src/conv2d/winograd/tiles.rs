@@ -15,8 +15,8 @@ use super::{Axis, Plan};
 use crate::conv2d::Geometry;
 use crate::conv2d::scratch::Scratch;
 
-/// The most lanes [`apply`] reads or writes (a 3×3 kernel's 16 transform positions).
-pub(super) const MAX_LANES: usize = 16;
+/// The most lanes [`apply`] reads or writes (a 3×3 kernel's 36 transform positions).
+pub(super) const MAX_LANES: usize = 36;
 
 /// Elements of a lane handled together in [`apply`]: two AVX registers of float32.
 const CHUNK: usize = 16;
