@@ -12,7 +12,7 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::tensor::ops::FloatTensor;
 
-use super::flex;
+use super::flex::{self, GateMath};
 
 type Tracked = FloatTensor<Autodiff<Flex>>;
 
@@ -70,10 +70,10 @@ pub(super) fn reset_input(zr: Tracked, h: Tracked, x: Tracked) -> Tracked {
         .stateful()
     {
         OpsKind::Tracked(prep) => {
-            let out = flex::reset_input(&zr, &h, &x);
+            let out = flex::reset_input(&zr, &h, &x, GateMath::Std);
             prep.finish((zr, h), out)
         }
-        OpsKind::UnTracked(prep) => prep.finish(flex::reset_input(&zr, &h, &x)),
+        OpsKind::UnTracked(prep) => prep.finish(flex::reset_input(&zr, &h, &x, GateMath::Std)),
     }
 }
 
@@ -91,6 +91,6 @@ pub(super) fn blend(zr: Tracked, h: Tracked, q: Tracked) -> Tracked {
             let out = flex::blend_tanh(&zr, &h, &t);
             prep.finish((zr, h, t), out)
         }
-        OpsKind::UnTracked(prep) => prep.finish(flex::blend(&zr, &h, &q)),
+        OpsKind::UnTracked(prep) => prep.finish(flex::blend(&zr, &h, &q, GateMath::Std)),
     }
 }

@@ -9,6 +9,21 @@ use burn::backend::flex::FlexTensor;
 use burn::tensor::{TensorData, TensorMetadata};
 use rayon::prelude::*;
 
+use crate::simd;
+
+/// How the gates evaluate σ and tanh.
+///
+/// `Std`: the standard library's `exp`/`tanh`, as Flex's own ops do; training takes it, since
+/// every rounding difference in the forward reaches the gradients that the parity tests check
+/// against the float64 reference. `Vectorised`: [`crate::simd`]'s polynomial exp (a few float32
+/// ulps from std, absolute error ≤ 3e-7 on σ and tanh) in loops compiled for AVX2, several
+/// times faster; inference takes it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum GateMath {
+    Std,
+    Vectorised,
+}
+
 fn sigmoid(x: f32) -> f32 {
     if x >= 0.0 {
         1.0 / (1.0 + (-x).exp())
@@ -20,7 +35,12 @@ fn sigmoid(x: f32) -> f32 {
 
 /// The candidate convolution's input `[σ(r) · h, x]` (N, hidden + C_x, H, W), from the stacked
 /// gate logits `zr` (N, 2·hidden, H, W: z then r), the hidden state `h` and the input `x`.
-pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> FlexTensor {
+pub(super) fn reset_input(
+    zr: &FlexTensor,
+    h: &FlexTensor,
+    x: &FlexTensor,
+    math: GateMath,
+) -> FlexTensor {
     let [n, hidden, height, width] = h.shape().dims();
     let cx = x.shape().dims::<4>()[1];
     let plane = height * width;
@@ -33,8 +53,15 @@ pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> Fl
         if ch < hidden {
             let r = &zr[((b * 2 * hidden) + hidden + ch) * plane..][..plane];
             let h = &h[(b * hidden + ch) * plane..][..plane];
-            for ((d, &r), &h) in dst.iter_mut().zip(r).zip(h) {
-                *d = sigmoid(r) * h;
+            match math {
+                GateMath::Std => {
+                    for ((d, &r), &h) in dst.iter_mut().zip(r).zip(h) {
+                        *d = sigmoid(r) * h;
+                    }
+                }
+                GateMath::Vectorised => {
+                    simd::map3(dst, r, h, h, |r, h, _| simd::sigmoid(r) * h);
+                }
             }
         } else {
             dst.copy_from_slice(&x[(b * cx + ch - hidden) * plane..][..plane]);
@@ -45,13 +72,13 @@ pub(super) fn reset_input(zr: &FlexTensor, h: &FlexTensor, x: &FlexTensor) -> Fl
 
 /// The new hidden state `(1 − σ(z)) · h + σ(z) · tanh(q)` (N, hidden, H, W), from the stacked
 /// gate logits `zr`, the hidden state `h` and the candidate logits `q`.
-pub(super) fn blend(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor) -> FlexTensor {
-    blend_with(zr, h, q, f32::tanh)
+pub(super) fn blend(zr: &FlexTensor, h: &FlexTensor, q: &FlexTensor, math: GateMath) -> FlexTensor {
+    blend_with(zr, h, q, Some(math))
 }
 
 /// [`blend`] from the candidate `t = tanh(q)` itself (training keeps `t` for the backward).
 pub(super) fn blend_tanh(zr: &FlexTensor, h: &FlexTensor, t: &FlexTensor) -> FlexTensor {
-    blend_with(zr, h, t, |t| t)
+    blend_with(zr, h, t, None)
 }
 
 /// `tanh(q)` element-wise, in parallel.
@@ -66,11 +93,13 @@ pub(super) fn tanh(q: &FlexTensor) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(out, shape))
 }
 
+/// [`blend`] (`tanh` applied to `q` with this math) or [`blend_tanh`] (`tanh: None`, `q` is
+/// the candidate already).
 fn blend_with(
     zr: &FlexTensor,
     h: &FlexTensor,
     q: &FlexTensor,
-    candidate: impl Fn(f32) -> f32 + Sync,
+    tanh: Option<GateMath>,
 ) -> FlexTensor {
     let [n, hidden, height, width] = h.shape().dims();
     let plane = height * width;
@@ -82,9 +111,19 @@ fn blend_with(
         let z = &zr[(b * 2 * hidden + ch) * plane..][..plane];
         let h = &h[i * plane..][..plane];
         let q = &q[i * plane..][..plane];
-        for (((d, &z), &h), &q) in dst.iter_mut().zip(z).zip(h).zip(q) {
-            let z = sigmoid(z);
-            *d = (1.0 - z) * h + z * candidate(q);
+        let mut std = |candidate: fn(f32) -> f32| {
+            for (((d, &z), &h), &q) in dst.iter_mut().zip(z).zip(h).zip(q) {
+                let z = sigmoid(z);
+                *d = (1.0 - z) * h + z * candidate(q);
+            }
+        };
+        match tanh {
+            None => std(|t| t),
+            Some(GateMath::Std) => std(f32::tanh),
+            Some(GateMath::Vectorised) => simd::map3(dst, z, h, q, |z, h, q| {
+                let z = simd::sigmoid(z);
+                (1.0 - z) * h + z * simd::tanh(q)
+            }),
         }
     });
     FlexTensor::from_data(TensorData::new(out, [n, hidden, height, width]))

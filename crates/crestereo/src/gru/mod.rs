@@ -14,6 +14,8 @@ use crate::encoder::conv_cfg;
 mod autodiff;
 mod flex;
 
+use flex::GateMath;
+
 #[derive(Config, Debug)]
 pub struct SepConvGruConfig {
     #[config(default = 128)]
@@ -75,9 +77,11 @@ fn kernel_gates<B: Backend>(
     cq: &Conv2d<B>,
 ) -> Option<Tensor<B, 4>> {
     if let Some([zr_f, h_f, x_f]) = flex_f32([zr, h, x]) {
-        let q = crate::conv2d::forward(cq, from_flex(flex::reset_input(&zr_f, &h_f, &x_f)));
+        // Plain Flex is inference: the vectorised σ and tanh (see `GateMath`).
+        let math = GateMath::Vectorised;
+        let q = crate::conv2d::forward(cq, from_flex(flex::reset_input(&zr_f, &h_f, &x_f, math)));
         let [q_f] = flex_f32([&q]).expect("a Flex tensor");
-        return Some(from_flex(flex::blend(&zr_f, &h_f, &q_f)));
+        return Some(from_flex(flex::blend(&zr_f, &h_f, &q_f, math)));
     }
     let [zr_a, h_a, x_a] = autodiff_flex_f32([zr, h, x])?;
     let r_input = from_autodiff_flex(autodiff::reset_input(zr_a, h_a, x_a));
