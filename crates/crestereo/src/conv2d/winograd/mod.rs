@@ -236,6 +236,20 @@ const FORWARD_BLOCK: usize = 64;
 /// beside the products (at 64 tiles it was ~40 % of the weight gradient).
 const WEIGHT_GRAD_BLOCK: usize = 256;
 
+/// A block length of at most `target` tiles that splits the batch into a number of blocks
+/// divisible by the worker threads where that costs at most halving the blocks, so that no
+/// thread waits on another's last block: the weight gradient of a 48×64 map has 768 tiles of
+/// F(2, 3), three blocks of 256, and two threads would take two and one (67 % busy); four
+/// blocks of 192 keep both busy.
+fn balanced_block(g: &Geometry, plan: &Plan, target: usize) -> usize {
+    let (tiles, threads) = (plan.tiles(), rayon::current_num_threads().max(1));
+    let fewest = tiles.div_ceil(target);
+    let per_image = (fewest..=2 * fewest)
+        .find(|&k| (g.n * k).is_multiple_of(threads))
+        .unwrap_or(fewest);
+    tiles.div_ceil(per_image)
+}
+
 /// The blocks of `block` tiles of all images: (image, first tile, tiles).
 fn blocks(g: &Geometry, plan: &Plan, block: usize) -> Vec<(usize, (usize, usize))> {
     let t = plan.tiles();
@@ -333,7 +347,7 @@ pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
     };
     // Each worker sums its blocks' products into its own dU (laid out (C_out, ξ, C_in)); the
     // partial sums are added at the end.
-    let bl = WEIGHT_GRAD_BLOCK;
+    let bl = balanced_block(g, &plan, WEIGHT_GRAD_BLOCK);
     let du = blocks(g, &plan, bl)
         .into_par_iter()
         .fold(
