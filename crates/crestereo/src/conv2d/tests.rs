@@ -83,6 +83,24 @@ fn winograd_convolution_matches_burn_forward_and_gradients() {
     }
 }
 
+/// Maps large enough for several Winograd blocks per image (the cases above fit in one): the
+/// forward's 64-tile blocks and the weight gradient's sums over blocks. On one worker thread
+/// one partial dU accumulates every block; on four, a 48×64 map's 768 F(2, 3) tiles, three
+/// blocks of 256 per image, become four of 192 (`balanced_block`) summed in several parts.
+#[test]
+fn winograd_convolution_over_several_blocks_matches_burn() {
+    for threads in [1, 4] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("a thread pool");
+        pool.install(|| {
+            compare_with_burn_kernel(16, 16, [3, 3], [1, 1], [1, 1], [1, 1], 48, 64);
+            compare_with_burn_kernel(16, 24, [1, 5], [1, 1], [0, 2], [1, 1], 48, 64);
+        });
+    }
+}
+
 /// One square-kernel convolution (cin, cout, kernel, stride, padding, dilation, h, w): see
 /// [`compare_with_burn_kernel`].
 fn compare_with_burn(

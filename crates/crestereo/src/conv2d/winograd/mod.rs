@@ -448,6 +448,53 @@ fn transform_weights(w: &[f32], g: &Geometry, plan: &Plan) -> Scratch {
 mod tests {
     use super::*;
 
+    /// A stride-1 k×k convolution of `n` images `h`×`w` (padding k/2, 16 channels in and out).
+    fn geometry(n: usize, h: usize, w: usize, k: usize) -> Geometry {
+        Geometry {
+            n,
+            cin: 16,
+            h,
+            w,
+            cout: 16,
+            kh: k,
+            kw: k,
+            ho: h,
+            wo: w,
+            stride: [1, 1],
+            pad: [k / 2, k / 2],
+            dil: [1, 1],
+        }
+    }
+
+    /// The weight gradient's block length: never above the target, and a block count divisible
+    /// by the threads whenever at most twice the fewest blocks reach one.
+    #[test]
+    fn weight_gradient_blocks_split_evenly_over_the_threads() {
+        // (threads, images, h, w, expected block length); 48×64 has 768 F(2, 3) tiles, 8×12 has 24
+        let cases = [
+            (2, 1, 48, 64, 192), // 3 blocks of 256 → 4 of 192
+            (2, 2, 48, 64, 256), // 2 × 3 blocks: even already
+            (3, 1, 48, 64, 256),
+            (4, 1, 48, 64, 192),
+            (4, 2, 48, 64, 192),
+            (7, 1, 48, 64, 256), // 3..=6 blocks: none divisible by 7, keep the fewest
+            (2, 1, 8, 12, 12),   // one block → two
+        ];
+        for (threads, n, h, w, expected) in cases {
+            let g = geometry(n, h, w, 3);
+            let plan = Plan::new(&g, Use::Training).unwrap();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a thread pool");
+            let bl = pool.install(|| balanced_block(&g, &plan, WEIGHT_GRAD_BLOCK));
+            assert_eq!(bl, expected, "{threads} threads, {n} × {h}×{w}");
+            let count = blocks(&g, &plan, bl).len();
+            assert_eq!(count, n * plan.tiles().div_ceil(bl));
+            assert!(bl <= WEIGHT_GRAD_BLOCK);
+        }
+    }
+
     /// Each axis transform computes the correlation it stands for, exactly on small integers.
     #[test]
     fn axis_transforms_compute_the_correlation() {
