@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
-use crestereo::io::BgrImage;
+use crestereo::BgrImage;
 use crestereo::{CREStereo, InferenceOptions, infer_disparity};
 use serde::Serialize;
 use stereo_io::{StereoDataset, StereoSample};

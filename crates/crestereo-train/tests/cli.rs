@@ -187,3 +187,73 @@ fn infer_cli_stages_and_padding() {
     assert_eq!((w, h), (150, 100));
     assert!(three.iter().all(|v| v.is_finite()));
 }
+
+/// The number before `unit` in `line` (`"12.5 samples/s"` → 12.5).
+fn number_before(line: &str, unit: &str) -> f64 {
+    let head = line
+        .split(unit)
+        .next()
+        .filter(|h| h.len() < line.len())
+        .unwrap_or_else(|| panic!("no `{unit}` in: {line}"));
+    let word = head.split_whitespace().last().unwrap_or("");
+    word.parse()
+        .unwrap_or_else(|_| panic!("`{word}` before `{unit}` is no number in: {line}"))
+}
+
+#[test]
+fn bench_loader_prints_a_rate_per_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let synth = bin()
+        .args(["synth", "--count", "3", "--size", "96x160", "--out"])
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(synth.status.success(), "{synth:?}");
+    let out = bin()
+        .args(["bench", "--what", "loader", "--loader-threads", "2,1,2"])
+        .args(["--samples", "3", "--data"])
+        .arg(format!("{}:crestereo", data.display()))
+        .env("CRESTEREO_LOG", "warn")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    println!("{text}");
+    assert!(text.contains("crop 384x512"), "{text}");
+    let lines: Vec<&str> = text.lines().filter(|l| l.starts_with("threads ")).collect();
+    // one line per distinct thread count, ascending
+    let threads: Vec<f64> = lines.iter().map(|l| number_before(l, ":")).collect();
+    assert_eq!(threads, [1.0, 2.0], "{text}");
+    for line in &lines {
+        let rate = number_before(line, " samples/s");
+        let ms = number_before(line, " ms/sample");
+        let steps = number_before(line, "/s, prefetch");
+        assert!(rate.is_finite() && rate > 0.0, "{line}");
+        assert!(ms.is_finite() && ms > 0.0, "{line}");
+        assert!((rate * ms / 1000.0 - 1.0).abs() < 0.02, "{line}");
+        assert!((steps * 8.0 / rate - 1.0).abs() < 0.02, "{line}");
+    }
+    let collate = text
+        .lines()
+        .find(|l| l.starts_with("collate batch 8"))
+        .unwrap_or_else(|| panic!("no collate line in:\n{text}"));
+    let ms = number_before(collate, " ms (median");
+    assert!(ms.is_finite() && ms > 0.0, "{collate}");
+    // --data is required, and a thread count of 0 is refused
+    let out = bin().args(["bench", "--what", "loader"]).output().unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--data"));
+    let out = bin()
+        .args(["bench", "--what", "loader", "--loader-threads", "0"])
+        .arg("--data")
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--loader-threads"));
+}

@@ -2,19 +2,24 @@
 # CREStereo on a CUDA machine without Rust or network: parity against the fixtures, then Burn
 # (CUDA) and PyTorch (CUDA) timed on the same GPU, with peak GPU memory.
 #
-#   gpu_run.sh BIN FIXTURES_DIR TORCH_REFERENCE_PY [OUT_DIR]
+#   gpu_run.sh BIN FIXTURES_DIR TORCH_REFERENCE_PY [OUT_DIR] [DATA_DIR]
 #
 # BIN: the stripped `crestereo` binary built with `--features cuda` (x86-64).
 # FIXTURES_DIR: needs weights_seed0.pt and eval_cascade_1x128x192/{left.png,right.png,pred_full.npy}.
 # TORCH_REFERENCE_PY: crates/crestereo/bench/torch_reference.py (needs python3 with torch, numpy).
 # OUT_DIR (default $OUT): summary.txt, results.json, the logs and the predictions.
-# SIZES (env, default "small paper"): which sizes to time. REPEATS (env, default 3).
+# DATA_DIR (optional): a small training dataset (any layout `crestereo train --data` reads, e.g.
+#   `crestereo synth --out D --count 64 --size 384x512`): 200 training steps on CUDA with their loss.
+# SIZES (env, default "small paper paper8 hd"): which sizes to time (hd = 1088x1920 inference,
+#   paper8 = the paper crop at batch 8). REPEATS (env, default 3).
+# The whole script is made to fit one device call of at most 8 minutes on an H100/H200.
 set -uo pipefail
 BIN=$1
 FIX=$2
 REF=$3
 OUT=${4:-${OUT:?give OUT_DIR or set OUT}}
-SIZES=${SIZES:-small paper}
+DATA=${5:-}
+SIZES=${SIZES:-small paper paper8 hd}
 REPEATS=${REPEATS:-3}
 mkdir -p "$OUT"
 SUMMARY=$OUT/summary.txt
@@ -64,11 +69,13 @@ echo "[" >"$OUT/results.json"
 first=1
 for size in $SIZES; do
     case $size in
-        small) TS="1 192 256 4"; IS="256 320" ;;
-        paper) TS="2 384 512 10"; IS="480 640" ;;
+        small) TS="1 192 256 4"; IS="256 320"; WHATS="train infer" ;;
+        paper) TS="2 384 512 10"; IS="480 640"; WHATS="train infer" ;;
+        paper8) TS="8 384 512 10"; IS=""; WHATS="train" ;;
+        hd) TS=""; IS="1088 1920"; WHATS="infer" ;;
         *) say "unknown size $size"; continue ;;
     esac
-    for what in train infer; do
+    for what in $WHATS; do
         if [ $what = train ]; then S=$TS; else S=$IS; fi
         csv=$(echo $S | tr ' ' ',')
         poll_start "$OUT/mem_burn_${what}_$size.txt"
@@ -112,4 +119,17 @@ EOF
     done
 done
 echo "]" >>"$OUT/results.json"
+
+# --- 3. 200 training steps on the carried data (paper crop, batch 8) with their loss
+if [ -n "$DATA" ]; then
+    say "== 200 training steps on $DATA (CUDA, batch 8, 384x512, 10 iters)"
+    poll_start "$OUT/mem_train200.txt"
+    start=$(date +%s)
+    "$BIN" train --device cuda --data "$DATA" --out "$OUT/run200" --steps 200 --batch-size 8 \
+        --crop 384x512 --iters 10 --checkpoint-every 200 --no-progress \
+        >"$OUT/train200.log" 2>&1 || say "train 200 steps FAILED (see train200.log)"
+    poll_stop
+    say "   wall $(( $(date +%s) - start )) s, nvidia-smi peak $(( $(peak "$OUT/mem_train200.txt") - BASE )) MiB"
+    [ -f "$OUT/run200/train_log.csv" ] && { head -2 "$OUT/run200/train_log.csv"; tail -1 "$OUT/run200/train_log.csv"; } | tee -a "$SUMMARY"
+fi
 say "== done; results.json and logs in $OUT"

@@ -12,9 +12,9 @@ use std::time::Instant;
 
 use burn::module::AutodiffModule;
 use burn::nn::PaddingConfig2d;
-use burn::nn::conv::Conv2dConfig;
 use burn::prelude::*;
 use burn::tensor::Distribution;
+use crestereo::conv2d::Conv2dConfig;
 use crestereo::{CpuAutodiffBackend, CpuBackend};
 
 type A = CpuAutodiffBackend;
@@ -46,7 +46,7 @@ fn main() {
     let (mut fwd, mut bwd) = (vec![], vec![]);
     for _ in 0..repeats {
         let t = Instant::now();
-        let y = crestereo::conv2d::forward(&conv, x.clone());
+        let y = conv.forward(x.clone());
         let _ = y.clone().into_data();
         fwd.push(t.elapsed().as_secs_f64());
         let t = Instant::now();
@@ -59,7 +59,7 @@ fn main() {
     let mut inf = vec![];
     for _ in 0..repeats {
         let t = Instant::now();
-        let _ = crestereo::conv2d::forward(&conv_i, x_i.clone()).into_data();
+        let _ = conv_i.forward(x_i.clone()).into_data();
         inf.push(t.elapsed().as_secs_f64());
     }
     // The same FLOPs as one matrix product (cout × cin·kh·kw) · (cin·kh·kw × n·h·w).

@@ -57,10 +57,6 @@ pub struct LoFTREncoderLayerConfig {
     pub layer_norm_eps: f64,
     #[config(default = 1e-6)]
     pub attention_eps: f64,
-    /// Compute the layer in float64 (output cast back); see `BasicEncoderConfig::compute_f64`
-    /// (the MLP ReLU has the same rounding-level gradient-mask ambiguity).
-    #[config(default = false)]
-    pub compute_f64: bool,
 }
 
 /// LoFTR encoder layer: bias-free q/k/v/merge projections, linear attention, LayerNorm,
@@ -79,7 +75,6 @@ pub struct LoFTREncoderLayer<B: Backend> {
     pub attention: LinearAttention,
     pub nhead: usize,
     pub layer_norm_eps: f64,
-    pub compute_f64: bool,
 }
 
 impl LoFTREncoderLayerConfig {
@@ -106,7 +101,6 @@ impl LoFTREncoderLayerConfig {
                 .init(),
             nhead: self.nhead,
             layer_norm_eps: self.layer_norm_eps,
-            compute_f64: self.compute_f64,
         }
     }
 }
@@ -114,76 +108,17 @@ impl LoFTREncoderLayerConfig {
 impl<B: Backend> LoFTREncoderLayer<B> {
     /// `x`: (N, L, C) queries, `source`: (N, S, C) keys/values → (N, L, C).
     pub fn forward(&self, x: Tensor<B, 3>, source: Tensor<B, 3>) -> Tensor<B, 3> {
-        if self.compute_f64 {
-            let dtype = x.dtype();
-            let f = burn::tensor::FloatDType::F64;
-            return self
-                .forward_impl(x.cast(f), source.cast(f), Some(f))
-                .cast(dtype);
-        }
-        self.forward_impl(x, source, None)
-    }
-
-    fn linear(
-        &self,
-        m: &Linear<B>,
-        x: Tensor<B, 3>,
-        cast: Option<burn::tensor::FloatDType>,
-    ) -> Tensor<B, 3> {
-        match cast {
-            None => m.forward(x),
-            Some(f) => burn::tensor::module::linear(x, m.weight.val().cast(f), None),
-        }
-    }
-
-    fn layer_norm(
-        &self,
-        m: &LayerNorm<B>,
-        x: Tensor<B, 3>,
-        cast: Option<burn::tensor::FloatDType>,
-    ) -> Tensor<B, 3> {
-        match cast {
-            None => m.forward(x),
-            Some(f) => {
-                let mean = x.clone().mean_dim(2);
-                let centered = x - mean;
-                let var = centered.clone().square().mean_dim(2);
-                let gamma = m.gamma.val().cast(f).unsqueeze::<3>();
-                let beta = m
-                    .beta
-                    .as_ref()
-                    .expect("LayerNorm with bias")
-                    .val()
-                    .cast(f)
-                    .unsqueeze::<3>();
-                centered / var.add_scalar(self.layer_norm_eps).sqrt() * gamma + beta
-            }
-        }
-    }
-
-    fn forward_impl(
-        &self,
-        x: Tensor<B, 3>,
-        source: Tensor<B, 3>,
-        cast: Option<burn::tensor::FloatDType>,
-    ) -> Tensor<B, 3> {
         let [n, l, c] = x.dims();
         let s = source.dims()[1];
         let (h, d) = (self.nhead, c / self.nhead);
-        let q = self
-            .linear(&self.q_proj, x.clone(), cast)
-            .reshape([n, l, h, d]);
-        let k = self
-            .linear(&self.k_proj, source.clone(), cast)
-            .reshape([n, s, h, d]);
-        let v = self
-            .linear(&self.v_proj, source, cast)
-            .reshape([n, s, h, d]);
+        let q = self.q_proj.forward(x.clone()).reshape([n, l, h, d]);
+        let k = self.k_proj.forward(source.clone()).reshape([n, s, h, d]);
+        let v = self.v_proj.forward(source).reshape([n, s, h, d]);
         let message = self.attention.forward(q, k, v).reshape([n, l, c]);
-        let message = self.layer_norm(&self.norm1, self.linear(&self.merge, message, cast), cast);
-        let hidden = relu(self.linear(&self.mlp1, Tensor::cat(vec![x.clone(), message], 2), cast));
-        let message = self.linear(&self.mlp2, hidden, cast);
-        x + self.layer_norm(&self.norm2, message, cast)
+        let message = self.norm1.forward(self.merge.forward(message));
+        let hidden = relu(self.mlp1.forward(Tensor::cat(vec![x.clone(), message], 2)));
+        let message = self.mlp2.forward(hidden);
+        x + self.norm2.forward(message)
     }
 
     /// LoFTR "self" layer applied to both maps independently.

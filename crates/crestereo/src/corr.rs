@@ -13,7 +13,7 @@
 use burn::prelude::*;
 
 use crate::agcl::CorrSpec;
-use crate::attention::{LoFTREncoderLayer, from_tokens, to_tokens};
+use crate::attention::{LoFTREncoderLayer, to_tokens};
 
 /// The two search windows alternated over the iterations (even: row, odd: square).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -100,7 +100,8 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
         layer.forward_cross(to_tokens(self.fmap1.clone()), to_tokens(self.fmap2.clone()))
     }
 
-    /// Offset correlation (1/16 with `att = Some(cross attention)`, 1/8 with `None`).
+    /// Offset correlation of this level's own maps (1/8; at 1/16 the maps are cross-attended
+    /// first, see [`Self::cross_attend`] and [`Self::corr_offset_maps`]).
     ///
     /// `flow`: (N, 2, H, W) (x, y); `extra_offset`: (N, 18, H, W), channel `2k` = x and `2k+1` = y
     /// offset of candidate `k`. Returns (N, groups·9, H, W).
@@ -109,28 +110,14 @@ impl<B: Backend> AdaptiveGroupCorrelation<B> {
         flow: Tensor<B, 4>,
         extra_offset: Tensor<B, 4>,
         window: SearchWindow,
-        att: Option<&LoFTREncoderLayer<B>>,
     ) -> Tensor<B, 4> {
-        let [_, _, h, w] = self.fmap1.dims();
-        match att {
-            Some(layer) => {
-                let (l, r) = self.cross_attend(layer);
-                self.corr_offset_maps(
-                    from_tokens(l, h, w),
-                    from_tokens(r, h, w),
-                    flow,
-                    extra_offset,
-                    window,
-                )
-            }
-            None => self.corr_offset_maps(
-                self.fmap1.clone(),
-                self.fmap2.clone(),
-                flow,
-                extra_offset,
-                window,
-            ),
-        }
+        self.corr_offset_maps(
+            self.fmap1.clone(),
+            self.fmap2.clone(),
+            flow,
+            extra_offset,
+            window,
+        )
     }
 
     /// Offset correlation between explicit `left` / `right` maps of this level's shape.

@@ -1,9 +1,10 @@
 //! Feature encoder `fnet`: RAFT-style BasicEncoder with instance normalisation (no affine).
 
 use burn::nn::PaddingConfig2d;
-use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+
+use crate::conv2d::{Conv2d, Conv2dConfig};
 
 /// PyTorch `nn.InstanceNorm2d(affine=False, track_running_stats=False)`: per sample and channel,
 /// biased variance over H×W.
@@ -14,34 +15,6 @@ pub fn instance_norm<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
     let centered = flat - mean;
     let var = centered.clone().square().mean_dim(2);
     (centered / (var.add_scalar(eps)).sqrt()).reshape([n, c, h, w])
-}
-
-/// `conv.forward(x)`, or — when `x` is float64 — the same convolution with the parameters cast
-/// to float64 (used by the float64 feature path, see [`BasicEncoderConfig::compute_f64`]).
-pub(crate) fn conv_forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
-    let dtype = x.dtype();
-    if dtype == conv.weight.val().dtype() {
-        return crate::conv2d::forward(conv, x);
-    }
-    let f = match dtype {
-        burn::tensor::DType::F64 => burn::tensor::FloatDType::F64,
-        burn::tensor::DType::F32 => burn::tensor::FloatDType::F32,
-        other => panic!("unsupported dtype {other:?}"),
-    };
-    let padding = match conv.padding {
-        PaddingConfig2d::Explicit(top, left, bottom, right) => {
-            assert!(top == bottom && left == right, "asymmetric padding");
-            [top, left]
-        }
-        PaddingConfig2d::Valid => [0, 0],
-        PaddingConfig2d::Same => panic!("'same' padding is not used by CREStereo"),
-    };
-    burn::tensor::module::conv2d(
-        x,
-        conv.weight.val().cast(f),
-        conv.bias.as_ref().map(|b| b.val().cast(f)),
-        burn::tensor::ops::ConvOptions::new(conv.stride, padding, conv.dilation, conv.groups),
-    )
 }
 
 /// A PyTorch-style `nn.Conv2d(cin, cout, k, stride, padding)` with symmetric zero padding.
@@ -93,9 +66,9 @@ impl ResidualBlockConfig {
 impl<B: Backend> ResidualBlock<B> {
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
         let eps = self.norm_eps;
-        let y = relu(instance_norm(conv_forward(&self.conv1, x.clone()), eps));
-        let y = relu(instance_norm(conv_forward(&self.conv2, y), eps));
-        let x = instance_norm(conv_forward(&self.downsample, x), eps);
+        let y = relu(instance_norm(self.conv1.forward(x.clone()), eps));
+        let y = relu(instance_norm(self.conv2.forward(y), eps));
+        let x = instance_norm(self.downsample.forward(x), eps);
         relu(x + y)
     }
 }
@@ -106,12 +79,6 @@ pub struct BasicEncoderConfig {
     pub output_dim: usize,
     #[config(default = 1e-5)]
     pub norm_eps: f64,
-    /// Compute the encoder in float64 (output cast back). The encoder's ReLUs sit on many
-    /// pre-activations within float32 rounding of zero; in float32 their gradient mask differs
-    /// from exact arithmetic at a few elements, which moves the encoder's parameter gradients by
-    /// up to ~0.5 % (relative L2). float64 removes that; the forward changes by ~1e-6.
-    #[config(default = false)]
-    pub compute_f64: bool,
 }
 
 /// 7×7/2 conv → stages 64 (stride 1), 96 (stride 2), 128 (stride 1) → 1×1 conv to `output_dim`.
@@ -124,7 +91,6 @@ pub struct BasicEncoder<B: Backend> {
     pub layer3: Vec<ResidualBlock<B>>,
     pub conv2: Conv2d<B>,
     pub norm_eps: f64,
-    pub compute_f64: bool,
 }
 
 impl BasicEncoderConfig {
@@ -147,29 +113,17 @@ impl BasicEncoderConfig {
             layer3: stage(96, 128, 1),
             conv2: conv_cfg(128, self.output_dim, [1, 1], 1, [0, 0]).init(device),
             norm_eps: self.norm_eps,
-            compute_f64: self.compute_f64,
         }
     }
 }
 
 impl<B: Backend> BasicEncoder<B> {
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        let dtype = x.dtype();
-        let x = if self.compute_f64 {
-            x.cast(burn::tensor::FloatDType::F64)
-        } else {
-            x
-        };
-        let mut x = relu(instance_norm(conv_forward(&self.conv1, x), self.norm_eps));
+        let mut x = relu(instance_norm(self.conv1.forward(x), self.norm_eps));
         for block in self.layer1.iter().chain(&self.layer2).chain(&self.layer3) {
             x = block.forward(x);
         }
-        let out = conv_forward(&self.conv2, x);
-        if self.compute_f64 {
-            out.cast(dtype)
-        } else {
-            out
-        }
+        self.conv2.forward(x)
     }
 
     /// Both images in one batch, as the reference does; returns (fmap1, fmap2).

@@ -33,7 +33,7 @@ pub mod agcl;
 pub mod attention;
 pub mod conv2d;
 pub mod corr;
-mod dispatch;
+pub mod dispatch;
 pub mod encoder;
 pub mod gru;
 pub mod infer;
@@ -71,11 +71,12 @@ pub type CpuBackend = burn::backend::Flex;
 /// The CPU backend with autodiff (training).
 pub type CpuAutodiffBackend = burn::backend::Autodiff<burn::backend::Flex>;
 
-/// Transitional, not part of the API: the old path of [`BgrImage`] that `crestereo-train`'s
-/// `eval.rs` and `augment/mod.rs` still import; delete once they import `crestereo::BgrImage`.
-#[doc(hidden)]
-pub mod io {
-    pub use crate::input::BgrImage;
+/// `t` in float dtype `dtype` (constants made in float32 join a float64 network this way).
+pub(crate) fn float_like<B: burn::prelude::Backend, const D: usize>(
+    t: burn::prelude::Tensor<B, D>,
+    dtype: burn::tensor::DType,
+) -> burn::prelude::Tensor<B, D> {
+    if t.dtype() == dtype { t } else { t.cast(dtype) }
 }
 
 /// Helpers of the unit tests that compare a kernel with the composed ops it replaces.

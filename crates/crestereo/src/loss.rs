@@ -16,7 +16,7 @@ pub fn sequence_loss<B: Backend>(
     let gt = Tensor::cat(
         vec![
             disp.clone().reshape([n, 1, h, w]),
-            Tensor::zeros([n, 1, h, w], &disp.device()),
+            Tensor::zeros([n, 1, h, w], (&disp.device(), disp.dtype())),
         ],
         1,
     );
@@ -33,5 +33,5 @@ pub fn sequence_loss<B: Backend>(
             None => l,
         });
     }
-    total.unwrap_or_else(|| Tensor::zeros([1], &disp.device()))
+    total.unwrap_or_else(|| Tensor::zeros([1], (&disp.device(), disp.dtype())))
 }

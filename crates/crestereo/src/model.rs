@@ -2,12 +2,12 @@
 //! three-level cascade (1/16 → 1/8 → 1/4) with the reference's exact hand-over
 //! (the levels themselves are in [`crate::refine`]).
 
-use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::activation::{relu, sigmoid, tanh};
 use burn::tensor::module::avg_pool2d;
 
 use crate::attention::{LoFTREncoderLayer, LoFTREncoderLayerConfig, from_tokens, to_tokens};
+use crate::conv2d::Conv2d;
 use crate::corr::AdaptiveGroupCorrelationConfig;
 use crate::encoder::{BasicEncoder, BasicEncoderConfig, conv_cfg};
 use crate::observer::{ForwardObserver, NoObserver};
@@ -40,11 +40,6 @@ pub struct CREStereoConfig {
     /// Reproduce LoFTR's positional-encoding frequency quirk (`false` = reference behaviour).
     #[config(default = false)]
     pub pos_encoding_bug_fix: bool,
-    /// Run the feature encoder and the attention layers in float64 (outputs cast back to the
-    /// model dtype). Slower; makes parameter gradients match exact arithmetic to ~1e-5 instead
-    /// of ~5e-3 for the encoder (see `BasicEncoderConfig::compute_f64`). Forward unchanged to ~1e-6.
-    #[config(default = false)]
-    pub f64_features: bool,
 }
 
 #[derive(Module, Debug)]
@@ -67,12 +62,10 @@ impl CREStereoConfig {
         assert_eq!(self.hidden_dim + self.context_dim, self.feature_dim);
         let att = LoFTREncoderLayerConfig::new()
             .with_d_model(self.feature_dim)
-            .with_nhead(self.nhead)
-            .with_compute_f64(self.f64_features);
+            .with_nhead(self.nhead);
         CREStereo {
             fnet: BasicEncoderConfig::new()
                 .with_output_dim(self.feature_dim)
-                .with_compute_f64(self.f64_features)
                 .init(device),
             update_block: UpdateBlockConfig::new()
                 .with_hidden_dim(self.hidden_dim)
@@ -259,6 +252,7 @@ impl<B: Backend> CREStereo<B> {
     ) -> (Tensor<B, 4>, Tensor<B, 4>) {
         let [_, _, h, w] = left.dims();
         let table = self.pos_encoding.table_tensor::<B>(h, w, &left.device());
+        let table = crate::float_like(table, left.dtype());
         observer.positional_encoding(&table);
         let (left, right) = self.self_att_fn.forward_self(
             to_tokens(self.pos_encoding.add(left, &table)),

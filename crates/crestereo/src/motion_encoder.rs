@@ -1,10 +1,10 @@
 //! Motion encoder: correlation (36 ch) and flow (2 ch) branches fused into 126 channels, with
 //! the flow appended (128 channels out).
 
-use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use crate::conv2d::Conv2d;
 use crate::encoder::conv_cfg;
 
 #[derive(Config, Debug)]
@@ -37,12 +37,11 @@ impl BasicMotionEncoderConfig {
 
 impl<B: Backend> BasicMotionEncoder<B> {
     pub fn forward(&self, flow: Tensor<B, 4>, corr: Tensor<B, 4>) -> Tensor<B, 4> {
-        let conv = crate::conv2d::forward;
-        let cor = relu(conv(&self.convc1, corr));
-        let cor = relu(conv(&self.convc2, cor));
-        let flo = relu(conv(&self.convf1, flow.clone()));
-        let flo = relu(conv(&self.convf2, flo));
-        let out = relu(conv(&self.conv, Tensor::cat(vec![cor, flo], 1)));
+        let cor = relu(self.convc1.forward(corr));
+        let cor = relu(self.convc2.forward(cor));
+        let flo = relu(self.convf1.forward(flow.clone()));
+        let flo = relu(self.convf2.forward(flo));
+        let out = relu(self.conv.forward(Tensor::cat(vec![cor, flo], 1)));
         Tensor::cat(vec![out, flow], 1)
     }
 }

@@ -83,7 +83,8 @@ impl<B: Backend> LevelInputs<B> {
     /// A zero flow at this level (N, 2, h, w), where the cascade starts.
     pub(crate) fn zero_flow(&self) -> Tensor<B, 4> {
         let [h, w] = self.size();
-        Tensor::zeros([self.net.dims()[0], 2, h, w], &self.net.device())
+        let net = &self.net;
+        Tensor::zeros([net.dims()[0], 2, h, w], (&net.device(), net.dtype()))
     }
 }
 
@@ -151,7 +152,7 @@ impl<B: Backend> CREStereo<B> {
         }
         upsampled.unwrap_or_else(|| {
             let [n, _, h, w] = flow.dims();
-            Tensor::zeros([n, 2, h * rate, w * rate], &flow.device())
+            Tensor::zeros([n, 2, h * rate, w * rate], (&flow.device(), flow.dtype()))
         })
     }
 
@@ -177,9 +178,7 @@ impl<B: Backend> CREStereo<B> {
                     window,
                 )
             }
-            Lookup::Offsets { corr, offsets } => {
-                corr.corr_offset(flow, offsets.clone(), window, None)
-            }
+            Lookup::Offsets { corr, offsets } => corr.corr_offset(flow, offsets.clone(), window),
             Lookup::Warp { corr } => corr.corr_warp(flow, window),
         }
     }

@@ -1,10 +1,10 @@
 //! Recurrent update block: motion encoder → SepConvGRU → flow head (Δflow) and mask head
 //! (convex-upsampling weights, scaled by 0.25).
 
-use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use crate::conv2d::Conv2d;
 use crate::encoder::conv_cfg;
 use crate::gru::{SepConvGru, SepConvGruConfig};
 use crate::motion_encoder::{BasicMotionEncoder, BasicMotionEncoderConfig};
@@ -34,8 +34,7 @@ impl FlowHeadConfig {
 
 impl<B: Backend> FlowHead<B> {
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        let conv = crate::conv2d::forward;
-        conv(&self.conv2, relu(conv(&self.conv1, x)))
+        self.conv2.forward(relu(self.conv1.forward(x)))
     }
 }
 
@@ -92,8 +91,7 @@ impl<B: Backend> UpdateBlock<B> {
         let inp = Tensor::cat(vec![inp, motion], 1);
         let net = self.gru.forward(net, inp);
         let delta_flow = self.flow_head.forward(net.clone());
-        let conv = crate::conv2d::forward;
-        let mask = conv(&self.mask2, relu(conv(&self.mask1, net.clone()))).mul_scalar(0.25);
+        let mask = (self.mask2.forward(relu(self.mask1.forward(net.clone())))).mul_scalar(0.25);
         (net, mask, delta_flow)
     }
 }

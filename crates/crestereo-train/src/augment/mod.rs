@@ -43,7 +43,7 @@ mod swap;
 mod test_support;
 mod warp;
 
-pub use crestereo::io::BgrImage;
+pub use crestereo::BgrImage;
 use stereo_io::StereoSample;
 
 pub use config::AugmentConfig;

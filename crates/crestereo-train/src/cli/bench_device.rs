@@ -4,8 +4,8 @@
 //! bench so `bench/compare.py` and `bench/gpu_run.sh` parse both. Peak device memory is not
 //! visible through Burn's backend API: `gpu_run.sh` polls `nvidia-smi` around the process.
 
-// Only `run_cuda` calls these; without the `cuda` feature they are unused.
-#![cfg_attr(not(feature = "cuda"), allow(dead_code))]
+// Only `run_cuda` and `run_wgpu` call these; without a GPU feature they are unused.
+#![cfg_attr(not(any(feature = "cuda", feature = "wgpu")), allow(dead_code))]
 
 use std::time::Instant;
 
@@ -139,4 +139,29 @@ pub fn run_cuda(
 #[cfg(not(feature = "cuda"))]
 pub fn run_cuda(_: bool, _: bool, _: &[usize], _: &[usize], _: usize) -> Result<()> {
     anyhow::bail!("this build has no CUDA backend: rebuild with `--features cuda`")
+}
+
+/// `bench --device vulkan`: the chosen parts on the default wgpu device, in this process.
+#[cfg(feature = "wgpu")]
+pub fn run_wgpu(
+    train: bool,
+    infer: bool,
+    ts: &[usize],
+    is: &[usize],
+    repeats: usize,
+) -> Result<()> {
+    type W = burn::backend::Wgpu;
+    let device = Default::default();
+    if train {
+        bench_train::<burn::backend::Autodiff<W>>(ts[0], ts[1], ts[2], ts[3], repeats, &device)?;
+    }
+    if infer {
+        bench_infer::<W>(is[0], is[1], repeats, &device)?;
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "wgpu"))]
+pub fn run_wgpu(_: bool, _: bool, _: &[usize], _: &[usize], _: usize) -> Result<()> {
+    anyhow::bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`")
 }

@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_device;
+mod bench_loader;
 mod eval;
 mod infer;
 mod train;
@@ -82,13 +83,15 @@ enum Command {
         /// Inference size override: height,width (default 480,640).
         #[arg(long, value_delimiter = ',')]
         infer_size: Option<Vec<usize>>,
-        /// Backend: `cuda` times GPU 0 in this process (a warm-up run, then the median of
-        /// --repeats; needs a build with `--features cuda`).
+        /// Backend: `cuda` or `vulkan` times the GPU in this process (a warm-up run, then the
+        /// median of --repeats; `cuda` needs a build with `--features cuda`).
         #[arg(long, value_enum, default_value_t = DeviceKind::Cpu)]
         device: DeviceKind,
-        /// Timed runs after the warm-up (`--device cuda` only).
+        /// Timed runs after the warm-up (GPU devices only).
         #[arg(long, default_value_t = 3)]
         repeats: usize,
+        #[command(flatten)]
+        loader: bench_loader::LoaderBenchArgs,
     },
 }
 
@@ -108,6 +111,11 @@ enum DeviceKind {
     Cpu,
     /// CUDA GPU 0 (needs a build with `--features cuda`).
     Cuda,
+    /// wgpu with kernels compiled to SPIR-V for Vulkan (the default build has it). Picks wgpu's
+    /// high-performance adapter (a discrete GPU first); choose another with
+    /// CUBECL_WGPU_DEFAULT_DEVICE, e.g. `DiscreteGpu(1)`, `IntegratedGpu(0)` or `Cpu`.
+    #[value(alias = "wgpu")]
+    Vulkan,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
@@ -115,6 +123,8 @@ enum BenchWhat {
     All,
     Train,
     Infer,
+    /// Decoded-and-augmented training samples per second (needs --data).
+    Loader,
 }
 
 fn set_threads(n: usize) {
@@ -139,12 +149,21 @@ macro_rules! with_backend {
             }
             #[cfg(not(feature = "cuda"))]
             DeviceKind::Cuda => bail!("this build has no CUDA backend: rebuild with `--features cuda`"),
+            #[cfg(feature = "wgpu")]
+            DeviceKind::Vulkan => {
+                type $b = with_backend!(@wgpu $ad);
+                $body
+            }
+            #[cfg(not(feature = "wgpu"))]
+            DeviceKind::Vulkan => bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`"),
         }
     };
     (@cpu true) => { CpuAutodiffBackend };
     (@cpu false) => { CpuBackend };
     (@cuda true) => { burn::backend::Autodiff<burn::backend::Cuda> };
     (@cuda false) => { burn::backend::Cuda };
+    (@wgpu true) => { burn::backend::Autodiff<burn::backend::Wgpu> };
+    (@wgpu false) => { burn::backend::Wgpu };
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -193,7 +212,10 @@ fn run(cli: Cli) -> Result<()> {
             infer_size,
             device,
             repeats,
-        } => run_bench(what, threads, train_size, infer_size, device, repeats),
+            loader,
+        } => run_bench(
+            what, threads, train_size, infer_size, device, repeats, loader,
+        ),
     }
 }
 
@@ -205,6 +227,7 @@ fn run_bench(
     infer_size: Option<Vec<usize>>,
     device: DeviceKind,
     repeats: usize,
+    loader: bench_loader::LoaderBenchArgs,
 ) -> Result<()> {
     set_threads(threads);
     let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
@@ -212,13 +235,20 @@ fn run_bench(
     if ts.len() != 4 || is.len() != 2 {
         bail!("--train-size takes batch,height,width,iters and --infer-size height,width");
     }
-    if device == DeviceKind::Cuda {
+    if what == BenchWhat::Loader {
+        return bench_loader::run(&loader);
+    }
+    if device != DeviceKind::Cpu {
         let (t, i) = (what != BenchWhat::Infer, what != BenchWhat::Train);
-        return bench_device::run_cuda(t, i, &ts, &is, repeats);
+        return match device {
+            DeviceKind::Cuda => bench_device::run_cuda(t, i, &ts, &is, repeats),
+            _ => bench_device::run_wgpu(t, i, &ts, &is, repeats),
+        };
     }
     match what {
         BenchWhat::Train => bench::bench_train(ts[0], ts[1], ts[2], ts[3]),
         BenchWhat::Infer => bench::bench_infer(is[0], is[1]),
+        BenchWhat::Loader => unreachable!("timed above"),
         BenchWhat::All => {
             // Separate processes, so each peak RSS is its own.
             let exe = std::env::current_exe()?;

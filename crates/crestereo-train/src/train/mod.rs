@@ -16,7 +16,6 @@ use burn::module::AutodiffModule;
 use burn::optim::adaptor::OptimizerAdaptor;
 use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, Optimizer};
 use burn::prelude::*;
-use burn::tensor::ElementConversion;
 use burn::tensor::backend::AutodiffBackend;
 use crestereo::{CREStereo, CREStereoConfig, sequence_loss};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -93,19 +92,33 @@ fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Che
     Ok(if resume { latest } else { None })
 }
 
-/// Mean absolute disparity error of the last prediction over valid pixels.
-fn batch_epe<B: Backend>(pred: &Tensor<B, 4>, disp: &Tensor<B, 3>, valid: &Tensor<B, 3>) -> f64 {
+/// The step's logged figures, read back to the host together (one read per micro-batch: the
+/// backend waits for the device once): the loss, and the mean absolute disparity error of the
+/// last prediction over valid pixels (NaN where no pixel is valid).
+fn loss_and_epe<B: Backend>(
+    loss: &Tensor<B, 1>,
+    pred: &Tensor<B, 4>,
+    disp: &Tensor<B, 3>,
+    valid: &Tensor<B, 3>,
+) -> (f64, f64) {
     let [n, _, h, w] = pred.dims();
     let d = pred
         .clone()
         .slice([0..n, 0..1, 0..h, 0..w])
         .reshape([n, h, w]);
-    let err = ((d - disp.clone()).abs() * valid.clone())
-        .sum()
-        .into_scalar()
-        .elem::<f64>();
-    let count = valid.clone().sum().into_scalar().elem::<f64>();
-    if count > 0.0 { err / count } else { f64::NAN }
+    let err = ((d - disp.clone()).abs() * valid.clone()).sum();
+    let count = valid.clone().sum();
+    let figures = Tensor::cat(vec![loss.clone().reshape([1]), err, count], 0)
+        .into_data()
+        .convert::<f64>()
+        .into_vec::<f64>()
+        .expect("three float figures");
+    let epe = if figures[2] > 0.0 {
+        figures[1] / figures[2]
+    } else {
+        f64::NAN
+    };
+    (figures[0], epe)
 }
 
 /// A freshly initialised network whose weights depend only on `seed`. Burn's backends draw
@@ -431,17 +444,18 @@ impl<'a, B: AutodiffBackend> Trainer<'a, B> {
             let preds = self.model.forward(batch.left, batch.right, cfg.iters, None);
             let loss = sequence_loss(&preds, batch.disp.clone(), batch.valid.clone(), cfg.gamma)
                 .div_scalar(cfg.accumulate as f64);
-            let value = loss.clone().into_scalar().elem::<f64>();
+            let (value, epe) = loss_and_epe(
+                &loss,
+                preds.last().expect("predictions"),
+                &batch.disp,
+                &batch.valid,
+            );
             if !value.is_finite() {
                 acc.finite = false;
                 continue;
             }
             acc.loss += value;
-            acc.epe += batch_epe(
-                preds.last().expect("predictions"),
-                &batch.disp,
-                &batch.valid,
-            ) / cfg.accumulate as f64;
+            acc.epe += epe / cfg.accumulate as f64;
             let grads = GradientsParams::from_grads(loss.backward(), &self.model);
             acc.grads.accumulate(&self.model, grads);
         }

@@ -1,6 +1,7 @@
-//! [`AgclOps`] for CubeCL backends (`cuda` feature): `#[cube]` kernels for the forward and
-//! backward of both ops, and the `Fusion<B>` wrapper that records each call as one custom
-//! operation of the fusion stream (no flush, no host read).
+//! [`AgclOps`] for CubeCL backends (every CubeCL runtime: CUDA with the `cuda` feature, wgpu
+//! with `wgpu`/`vulkan`): `#[cube]` kernels for the forward and backward of both ops, and the
+//! `Fusion<B>` wrapper that records each call as one custom operation of the fusion stream (no
+//! flush, no host read).
 //!
 //! Threads: forward one per output element (x fastest, so loads and stores coalesce); the
 //! offset-correlation backward one per pixel (it owns that pixel's left-map and offset
@@ -14,6 +15,20 @@ use burn_cubecl::tensor::CubeTensor;
 use burn_cubecl::{BoolElement, CubeBackend, CubeRuntime, FloatElement, IntElement};
 
 use super::{AgclOps, CorrSpec};
+
+/// Whether a wgpu device can add floats atomically (Vulkan via SPIR-V on most drivers,
+/// lavapipe included; not WGSL). The backward kernels' scatters need it; without it the
+/// dispatch runs the composed ops.
+#[cfg(feature = "wgpu")]
+pub(crate) fn wgpu_has_float_atomics(device: &burn::backend::wgpu::WgpuDevice) -> bool {
+    use burn_cubecl::cubecl::features::AtomicUsage;
+    use burn_cubecl::cubecl::ir::{FloatKind, StorageType, Type};
+    let client = <burn::backend::wgpu::WgpuRuntime as Runtime>::client(device);
+    client
+        .properties()
+        .atomic_type_usage(Type::new(StorageType::Atomic(FloatKind::F32.into())))
+        .contains(AtomicUsage::Add)
+}
 
 /// Bilinear corner value, zero outside the image.
 #[cube]
@@ -55,43 +70,42 @@ fn offset_corr_kernel(
     rx: usize,
     ry: usize,
 ) {
-    if ABSOLUTE_POS >= units {
-        terminate!();
-    }
-    let hw = height * width;
-    let row = 2 * rx + 1;
-    let kn = row * (2 * ry + 1);
-    let p = ABSOLUTE_POS % hw;
-    let k = (ABSOLUTE_POS / hw) % kn;
-    let n = ABSOLUTE_POS / (hw * kn);
-    let x = p % width;
-    let y = p / width;
-    let fx = flow[(n * 2) * hw + p];
-    let fy = flow[(n * 2 + 1) * hw + p];
-    let ox = offset[(n * 2 * kn + 2 * k) * hw + p];
-    let oy = offset[(n * 2 * kn + 2 * k + 1) * hw + p];
-    let dx = f32::cast_from(k % row) - f32::cast_from(rx);
-    let dy = f32::cast_from(k / row) - f32::cast_from(ry);
-    let px = f32::cast_from(x) + fx + dx + ox;
-    let py = f32::cast_from(y) + fy + dy + oy;
-    let x0 = px.floor();
-    let y0 = py.floor();
-    let wx1 = px - x0;
-    let wy1 = py - y0;
-    let wx0 = 1.0 - wx1;
-    let wy0 = 1.0 - wy1;
-    let cg = channels / groups;
-    for g in 0..groups {
-        let mut acc = 0.0f32;
-        for ci in 0..cg {
-            let base = (n * channels + g * cg + ci) * hw;
-            let s = wx0 * wy0 * corner(right, base, x0, y0, width, height)
-                + wx1 * wy0 * corner(right, base, x0 + 1.0, y0, width, height)
-                + wx0 * wy1 * corner(right, base, x0, y0 + 1.0, width, height)
-                + wx1 * wy1 * corner(right, base, x0 + 1.0, y0 + 1.0, width, height);
-            acc += left[base + p] * s;
+    if ABSOLUTE_POS < units {
+        let hw = height * width;
+        let row = 2 * rx + 1;
+        let kn = row * (2 * ry + 1);
+        let p = ABSOLUTE_POS % hw;
+        let k = (ABSOLUTE_POS / hw) % kn;
+        let n = ABSOLUTE_POS / (hw * kn);
+        let x = p % width;
+        let y = p / width;
+        let fx = flow[(n * 2) * hw + p];
+        let fy = flow[(n * 2 + 1) * hw + p];
+        let ox = offset[(n * 2 * kn + 2 * k) * hw + p];
+        let oy = offset[(n * 2 * kn + 2 * k + 1) * hw + p];
+        let dx = f32::cast_from(k % row) - f32::cast_from(rx);
+        let dy = f32::cast_from(k / row) - f32::cast_from(ry);
+        let px = f32::cast_from(x) + fx + dx + ox;
+        let py = f32::cast_from(y) + fy + dy + oy;
+        let x0 = px.floor();
+        let y0 = py.floor();
+        let wx1 = px - x0;
+        let wy1 = py - y0;
+        let wx0 = 1.0 - wx1;
+        let wy0 = 1.0 - wy1;
+        let cg = channels / groups;
+        for g in 0..groups {
+            let mut acc = 0.0f32;
+            for ci in 0..cg {
+                let base = (n * channels + g * cg + ci) * hw;
+                let s = wx0 * wy0 * corner(right, base, x0, y0, width, height)
+                    + wx1 * wy0 * corner(right, base, x0 + 1.0, y0, width, height)
+                    + wx0 * wy1 * corner(right, base, x0, y0 + 1.0, width, height)
+                    + wx1 * wy1 * corner(right, base, x0 + 1.0, y0 + 1.0, width, height);
+                acc += left[base + p] * s;
+            }
+            output[((n * groups + g) * kn + k) * hw + p] = acc / f32::cast_from(cg);
         }
-        output[((n * groups + g) * kn + k) * hw + p] = acc / f32::cast_from(cg);
     }
 }
 
@@ -115,78 +129,82 @@ fn offset_corr_backward_kernel(
     rx: usize,
     ry: usize,
 ) {
-    if ABSOLUTE_POS >= units {
-        terminate!();
-    }
-    let hw = height * width;
-    let row = 2 * rx + 1;
-    let kn = row * (2 * ry + 1);
-    let p = ABSOLUTE_POS % hw;
-    let n = ABSOLUTE_POS / hw;
-    let x = p % width;
-    let y = p / width;
-    let fx = flow[(n * 2) * hw + p];
-    let fy = flow[(n * 2 + 1) * hw + p];
-    let cg = channels / groups;
-    let mut dfx = 0.0f32;
-    let mut dfy = 0.0f32;
-    for k in 0..kn {
-        let ox = offset[(n * 2 * kn + 2 * k) * hw + p];
-        let oy = offset[(n * 2 * kn + 2 * k + 1) * hw + p];
-        let dx = f32::cast_from(k % row) - f32::cast_from(rx);
-        let dy = f32::cast_from(k / row) - f32::cast_from(ry);
-        let px = f32::cast_from(x) + fx + dx + ox;
-        let py = f32::cast_from(y) + fy + dy + oy;
-        let x0 = px.floor();
-        let y0 = py.floor();
-        let wx1 = px - x0;
-        let wy1 = py - y0;
-        let wx0 = 1.0 - wx1;
-        let wy0 = 1.0 - wy1;
-        let in0 = is_inside(x0, y0, width, height);
-        let in1 = is_inside(x0 + 1.0, y0, width, height);
-        let in2 = is_inside(x0, y0 + 1.0, width, height);
-        let in3 = is_inside(x0 + 1.0, y0 + 1.0, width, height);
-        let i0 = corner_index(x0, y0, width, height);
-        let i1 = corner_index(x0 + 1.0, y0, width, height);
-        let i2 = corner_index(x0, y0 + 1.0, width, height);
-        let i3 = corner_index(x0 + 1.0, y0 + 1.0, width, height);
-        let mut dpx = 0.0f32;
-        let mut dpy = 0.0f32;
-        for g in 0..groups {
-            let ga = grad[((n * groups + g) * kn + k) * hw + p] / f32::cast_from(cg);
-            for ci in 0..cg {
-                let base = (n * channels + g * cg + ci) * hw;
-                let r0 = select(in0, right[base + i0], 0.0);
-                let r1 = select(in1, right[base + i1], 0.0);
-                let r2 = select(in2, right[base + i2], 0.0);
-                let r3 = select(in3, right[base + i3], 0.0);
-                let s = wx0 * wy0 * r0 + wx1 * wy0 * r1 + wx0 * wy1 * r2 + wx1 * wy1 * r3;
-                d_left[base + p] += ga * s;
-                let lc = ga * left[base + p];
-                dpx += lc * (wy0 * (r1 - r0) + wy1 * (r3 - r2));
-                dpy += lc * (wx0 * (r2 - r0) + wx1 * (r3 - r1));
-                if in0 {
-                    d_right[base + i0].fetch_add(wx0 * wy0 * lc);
-                }
-                if in1 {
-                    d_right[base + i1].fetch_add(wx1 * wy0 * lc);
-                }
-                if in2 {
-                    d_right[base + i2].fetch_add(wx0 * wy1 * lc);
-                }
-                if in3 {
-                    d_right[base + i3].fetch_add(wx1 * wy1 * lc);
+    // No early return and no atomic under a branch that depends on the thread: threads past
+    // `units` (the last cube's spare lanes) run the same code at the last pixel with their
+    // contributions zeroed, and the scatters add `select(inside, v, 0)` at always-valid
+    // indices. On lavapipe (Mesa 22.3) spare lanes that skipped the body around float atomics
+    // corrupted the other outputs whenever the last cube was partial (found by the Vulkan tests).
+    let valid = ABSOLUTE_POS < units;
+    let pos = select(valid, ABSOLUTE_POS, units - 1);
+    {
+        let hw = height * width;
+        let row = 2 * rx + 1;
+        let kn = row * (2 * ry + 1);
+        let p = pos % hw;
+        let n = pos / hw;
+        let x = p % width;
+        let y = p / width;
+        let fx = flow[(n * 2) * hw + p];
+        let fy = flow[(n * 2 + 1) * hw + p];
+        let cg = channels / groups;
+        let mut dfx = 0.0f32;
+        let mut dfy = 0.0f32;
+        for k in 0..kn {
+            let ox = offset[(n * 2 * kn + 2 * k) * hw + p];
+            let oy = offset[(n * 2 * kn + 2 * k + 1) * hw + p];
+            let dx = f32::cast_from(k % row) - f32::cast_from(rx);
+            let dy = f32::cast_from(k / row) - f32::cast_from(ry);
+            let px = f32::cast_from(x) + fx + dx + ox;
+            let py = f32::cast_from(y) + fy + dy + oy;
+            let x0 = px.floor();
+            let y0 = py.floor();
+            let wx1 = px - x0;
+            let wy1 = py - y0;
+            let wx0 = 1.0 - wx1;
+            let wy0 = 1.0 - wy1;
+            let in0 = is_inside(x0, y0, width, height);
+            let in1 = is_inside(x0 + 1.0, y0, width, height);
+            let in2 = is_inside(x0, y0 + 1.0, width, height);
+            let in3 = is_inside(x0 + 1.0, y0 + 1.0, width, height);
+            let i0 = corner_index(x0, y0, width, height);
+            let i1 = corner_index(x0 + 1.0, y0, width, height);
+            let i2 = corner_index(x0, y0 + 1.0, width, height);
+            let i3 = corner_index(x0 + 1.0, y0 + 1.0, width, height);
+            let mut dpx = 0.0f32;
+            let mut dpy = 0.0f32;
+            for g in 0..groups {
+                let ga = grad[((n * groups + g) * kn + k) * hw + p] / f32::cast_from(cg);
+                for ci in 0..cg {
+                    let base = (n * channels + g * cg + ci) * hw;
+                    let r0 = select(in0, right[base + i0], 0.0);
+                    let r1 = select(in1, right[base + i1], 0.0);
+                    let r2 = select(in2, right[base + i2], 0.0);
+                    let r3 = select(in3, right[base + i3], 0.0);
+                    let s = wx0 * wy0 * r0 + wx1 * wy0 * r1 + wx0 * wy1 * r2 + wx1 * wy1 * r3;
+                    if valid {
+                        d_left[base + p] += ga * s;
+                    }
+                    let lc = ga * left[base + p];
+                    dpx += lc * (wy0 * (r1 - r0) + wy1 * (r3 - r2));
+                    dpy += lc * (wx0 * (r2 - r0) + wx1 * (r3 - r1));
+                    d_right[base + i0].fetch_add(select(in0 && valid, wx0 * wy0 * lc, 0.0));
+                    d_right[base + i1].fetch_add(select(in1 && valid, wx1 * wy0 * lc, 0.0));
+                    d_right[base + i2].fetch_add(select(in2 && valid, wx0 * wy1 * lc, 0.0));
+                    d_right[base + i3].fetch_add(select(in3 && valid, wx1 * wy1 * lc, 0.0));
                 }
             }
+            if valid {
+                d_offset[(n * 2 * kn + 2 * k) * hw + p] = dpx;
+                d_offset[(n * 2 * kn + 2 * k + 1) * hw + p] = dpy;
+            }
+            dfx += dpx;
+            dfy += dpy;
         }
-        d_offset[(n * 2 * kn + 2 * k) * hw + p] = dpx;
-        d_offset[(n * 2 * kn + 2 * k + 1) * hw + p] = dpy;
-        dfx += dpx;
-        dfy += dpy;
+        if valid {
+            d_flow[(n * 2) * hw + p] = dfx;
+            d_flow[(n * 2 + 1) * hw + p] = dfy;
+        }
     }
-    d_flow[(n * 2) * hw + p] = dfx;
-    d_flow[(n * 2 + 1) * hw + p] = dfy;
 }
 
 #[cube(launch)]
@@ -199,26 +217,25 @@ fn warp_kernel(
     height: usize,
     width: usize,
 ) {
-    if ABSOLUTE_POS >= units {
-        terminate!();
+    if ABSOLUTE_POS < units {
+        let hw = height * width;
+        let p = ABSOLUTE_POS % hw;
+        let nc = ABSOLUTE_POS / hw;
+        let n = nc / channels;
+        let px = f32::cast_from(p % width) + flow[(n * 2) * hw + p];
+        let py = f32::cast_from(p / width) + flow[(n * 2 + 1) * hw + p];
+        let x0 = px.floor();
+        let y0 = py.floor();
+        let wx1 = px - x0;
+        let wy1 = py - y0;
+        let wx0 = 1.0 - wx1;
+        let wy0 = 1.0 - wy1;
+        let base = nc * hw;
+        output[ABSOLUTE_POS] = wx0 * wy0 * corner(right, base, x0, y0, width, height)
+            + wx1 * wy0 * corner(right, base, x0 + 1.0, y0, width, height)
+            + wx0 * wy1 * corner(right, base, x0, y0 + 1.0, width, height)
+            + wx1 * wy1 * corner(right, base, x0 + 1.0, y0 + 1.0, width, height);
     }
-    let hw = height * width;
-    let p = ABSOLUTE_POS % hw;
-    let nc = ABSOLUTE_POS / hw;
-    let n = nc / channels;
-    let px = f32::cast_from(p % width) + flow[(n * 2) * hw + p];
-    let py = f32::cast_from(p / width) + flow[(n * 2 + 1) * hw + p];
-    let x0 = px.floor();
-    let y0 = py.floor();
-    let wx1 = px - x0;
-    let wy1 = py - y0;
-    let wx0 = 1.0 - wx1;
-    let wy0 = 1.0 - wy1;
-    let base = nc * hw;
-    output[ABSOLUTE_POS] = wx0 * wy0 * corner(right, base, x0, y0, width, height)
-        + wx1 * wy0 * corner(right, base, x0 + 1.0, y0, width, height)
-        + wx0 * wy1 * corner(right, base, x0, y0 + 1.0, width, height)
-        + wx1 * wy1 * corner(right, base, x0 + 1.0, y0 + 1.0, width, height);
 }
 
 #[cube(launch)]
@@ -231,34 +248,49 @@ fn warp_backward_right_kernel(
     height: usize,
     width: usize,
 ) {
-    if ABSOLUTE_POS >= units {
-        terminate!();
-    }
-    let hw = height * width;
-    let p = ABSOLUTE_POS % hw;
-    let nc = ABSOLUTE_POS / hw;
-    let n = nc / channels;
-    let px = f32::cast_from(p % width) + flow[(n * 2) * hw + p];
-    let py = f32::cast_from(p / width) + flow[(n * 2 + 1) * hw + p];
-    let x0 = px.floor();
-    let y0 = py.floor();
-    let wx1 = px - x0;
-    let wy1 = py - y0;
-    let wx0 = 1.0 - wx1;
-    let wy0 = 1.0 - wy1;
-    let base = nc * hw;
-    let g = grad[ABSOLUTE_POS];
-    if is_inside(x0, y0, width, height) {
-        d_right[base + corner_index(x0, y0, width, height)].fetch_add(wx0 * wy0 * g);
-    }
-    if is_inside(x0 + 1.0, y0, width, height) {
-        d_right[base + corner_index(x0 + 1.0, y0, width, height)].fetch_add(wx1 * wy0 * g);
-    }
-    if is_inside(x0, y0 + 1.0, width, height) {
-        d_right[base + corner_index(x0, y0 + 1.0, width, height)].fetch_add(wx0 * wy1 * g);
-    }
-    if is_inside(x0 + 1.0, y0 + 1.0, width, height) {
-        d_right[base + corner_index(x0 + 1.0, y0 + 1.0, width, height)].fetch_add(wx1 * wy1 * g);
+    // As in the offset backward: spare lanes run at the last element with zero contributions,
+    // and no atomic sits under a thread-dependent branch.
+    let valid = ABSOLUTE_POS < units;
+    let pos = select(valid, ABSOLUTE_POS, units - 1);
+    {
+        let hw = height * width;
+        let p = pos % hw;
+        let nc = pos / hw;
+        let n = nc / channels;
+        let px = f32::cast_from(p % width) + flow[(n * 2) * hw + p];
+        let py = f32::cast_from(p / width) + flow[(n * 2 + 1) * hw + p];
+        let x0 = px.floor();
+        let y0 = py.floor();
+        let wx1 = px - x0;
+        let wy1 = py - y0;
+        let wx0 = 1.0 - wx1;
+        let wy0 = 1.0 - wy1;
+        let base = nc * hw;
+        let g = select(valid, grad[pos], 0.0);
+        let inside = is_inside(x0, y0, width, height);
+        d_right[base + corner_index(x0, y0, width, height)].fetch_add(select(
+            inside,
+            wx0 * wy0 * g,
+            0.0,
+        ));
+        let inside = is_inside(x0 + 1.0, y0, width, height);
+        d_right[base + corner_index(x0 + 1.0, y0, width, height)].fetch_add(select(
+            inside,
+            wx1 * wy0 * g,
+            0.0,
+        ));
+        let inside = is_inside(x0, y0 + 1.0, width, height);
+        d_right[base + corner_index(x0, y0 + 1.0, width, height)].fetch_add(select(
+            inside,
+            wx0 * wy1 * g,
+            0.0,
+        ));
+        let inside = is_inside(x0 + 1.0, y0 + 1.0, width, height);
+        d_right[base + corner_index(x0 + 1.0, y0 + 1.0, width, height)].fetch_add(select(
+            inside,
+            wx1 * wy1 * g,
+            0.0,
+        ));
     }
 }
 
@@ -273,34 +305,33 @@ fn warp_backward_flow_kernel(
     height: usize,
     width: usize,
 ) {
-    if ABSOLUTE_POS >= units {
-        terminate!();
+    if ABSOLUTE_POS < units {
+        let hw = height * width;
+        let p = ABSOLUTE_POS % hw;
+        let n = ABSOLUTE_POS / hw;
+        let px = f32::cast_from(p % width) + flow[(n * 2) * hw + p];
+        let py = f32::cast_from(p / width) + flow[(n * 2 + 1) * hw + p];
+        let x0 = px.floor();
+        let y0 = py.floor();
+        let wx1 = px - x0;
+        let wy1 = py - y0;
+        let wx0 = 1.0 - wx1;
+        let wy0 = 1.0 - wy1;
+        let mut dfx = 0.0f32;
+        let mut dfy = 0.0f32;
+        for c in 0..channels {
+            let base = (n * channels + c) * hw;
+            let r0 = corner(right, base, x0, y0, width, height);
+            let r1 = corner(right, base, x0 + 1.0, y0, width, height);
+            let r2 = corner(right, base, x0, y0 + 1.0, width, height);
+            let r3 = corner(right, base, x0 + 1.0, y0 + 1.0, width, height);
+            let g = grad[base + p];
+            dfx += g * (wy0 * (r1 - r0) + wy1 * (r3 - r2));
+            dfy += g * (wx0 * (r2 - r0) + wx1 * (r3 - r1));
+        }
+        d_flow[(n * 2) * hw + p] = dfx;
+        d_flow[(n * 2 + 1) * hw + p] = dfy;
     }
-    let hw = height * width;
-    let p = ABSOLUTE_POS % hw;
-    let n = ABSOLUTE_POS / hw;
-    let px = f32::cast_from(p % width) + flow[(n * 2) * hw + p];
-    let py = f32::cast_from(p / width) + flow[(n * 2 + 1) * hw + p];
-    let x0 = px.floor();
-    let y0 = py.floor();
-    let wx1 = px - x0;
-    let wy1 = py - y0;
-    let wx0 = 1.0 - wx1;
-    let wy0 = 1.0 - wy1;
-    let mut dfx = 0.0f32;
-    let mut dfy = 0.0f32;
-    for c in 0..channels {
-        let base = (n * channels + c) * hw;
-        let r0 = corner(right, base, x0, y0, width, height);
-        let r1 = corner(right, base, x0 + 1.0, y0, width, height);
-        let r2 = corner(right, base, x0, y0 + 1.0, width, height);
-        let r3 = corner(right, base, x0 + 1.0, y0 + 1.0, width, height);
-        let g = grad[base + p];
-        dfx += g * (wy0 * (r1 - r0) + wy1 * (r3 - r2));
-        dfy += g * (wx0 * (r2 - r0) + wx1 * (r3 - r1));
-    }
-    d_flow[(n * 2) * hw + p] = dfx;
-    d_flow[(n * 2 + 1) * hw + p] = dfy;
 }
 
 fn dims4<R: CubeRuntime>(t: &CubeTensor<R>) -> [usize; 4] {

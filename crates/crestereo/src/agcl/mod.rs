@@ -5,31 +5,34 @@
 //!   candidate of a 1×9 or 3×3 search window (the 1/16 and 1/8 levels).
 //! * [`warp`]: `right` bilinearly sampled at `x + flow` (the 1/4 level's warp).
 //! * [`shift_corr`]: the 1/4 level's group correlation with the warped map at integer window
-//!   offsets, replicate border (a Flex kernel; composed from device-side ops elsewhere).
+//!   offsets, replicate border (a Flex kernel; composed elsewhere).
 //!
-//! Both run without any host round trip. They are implemented per backend through the
-//! [`AgclOps`] extension trait: Flex (CPU kernels in `kernels`), CubeCL/CUDA (`#[cube]`
-//! kernels, `cuda` feature) and `Autodiff<B>` (custom backward calling the inner backend's
-//! gradient kernels). The model stays generic over `B: Backend`: [`offset_corr`] and [`warp`]
-//! pick the implementation from the concrete backend type at run time (one `TypeId`
-//! comparison per call) and panic with the backend's name for backends without kernels.
+//! None reads anything back to the host. The kernels are implemented per backend through the
+//! [`AgclOps`] extension trait: Flex (CPU kernels in `kernels`), CubeCL (`#[cube]` kernels
+//! for every CubeCL runtime: CUDA and wgpu, `cuda` / `wgpu` features, plus the `Fusion<B>`
+//! wrapper) and `Autodiff<B>` (custom backward calling the inner backend's gradient kernels).
+//! The model stays generic over `B: Backend`; [`crate::dispatch`] picks the kernel from the
+//! concrete backend type at run time, and every other backend or dtype runs the composed
+//! version in [`composed`] (Burn tensor ops, differentiated by autodiff).
 
 mod autodiff;
-#[cfg(feature = "cuda")]
+pub mod composed;
+#[cfg(feature = "cube")]
 mod cube;
 mod flex;
 pub mod kernels;
 mod shift;
 
+#[cfg(feature = "wgpu")]
+pub(crate) use cube::wgpu_has_float_atomics;
 pub use shift::shift_corr;
 
-use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
 use burn::tensor::TensorPrimitive;
 use burn::tensor::ops::FloatTensor;
 
 use crate::corr::SearchWindow;
-use crate::dispatch::{is_autodiff_flex, is_flex, same};
+use crate::dispatch::{kernels_f32, on_kernel_backend, same};
 
 /// Static parameters of an offset correlation: channel groups and the search window's
 /// half-extent (candidates ordered row-major, dy outer, dx inner).
@@ -101,73 +104,12 @@ pub trait AgclOps: Backend {
     ) -> [Option<FloatTensor<Self>>; 2];
 }
 
-/// The backends with fused AGCL kernels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kernels {
-    Flex,
-    AutodiffFlex,
-    #[cfg(feature = "cuda")]
-    Cuda,
-    #[cfg(feature = "cuda")]
-    AutodiffCuda,
-}
-
-fn kernels_for<B: Backend>(device: &B::Device) -> Kernels {
-    if is_flex::<B>() {
-        return Kernels::Flex;
-    }
-    if is_autodiff_flex::<B>() {
-        return Kernels::AutodiffFlex;
-    }
-    #[cfg(feature = "cuda")]
-    {
-        use std::any::TypeId;
-        let id = TypeId::of::<B>();
-        if id == TypeId::of::<burn::backend::Cuda>() {
-            return Kernels::Cuda;
-        }
-        if id == TypeId::of::<Autodiff<burn::backend::Cuda>>() {
-            return Kernels::AutodiffCuda;
-        }
-    }
-    panic!(
-        "AGCL: no fused correlation kernels for backend `{}` (supported: Flex, CUDA, and Autodiff of either)",
-        B::name(device)
-    )
-}
-
 fn prim<B: Backend, const D: usize>(t: Tensor<B, D>) -> FloatTensor<B> {
     t.into_primitive().tensor()
 }
 
 fn tensor<B: Backend, const D: usize>(p: FloatTensor<B>) -> Tensor<B, D> {
     Tensor::from_primitive(TensorPrimitive::Float(p))
-}
-
-/// Runs `$call` (a path to an [`AgclOps`] method) on the concrete backend behind `B`.
-macro_rules! on_backend {
-    ($B:ty, $device:expr, |$I:ident| $body:expr) => {
-        match kernels_for::<$B>($device) {
-            Kernels::Flex => {
-                type $I = Flex;
-                $body
-            }
-            Kernels::AutodiffFlex => {
-                type $I = Autodiff<Flex>;
-                $body
-            }
-            #[cfg(feature = "cuda")]
-            Kernels::Cuda => {
-                type $I = burn::backend::Cuda;
-                $body
-            }
-            #[cfg(feature = "cuda")]
-            Kernels::AutodiffCuda => {
-                type $I = Autodiff<burn::backend::Cuda>;
-                $body
-            }
-        }
-    };
 }
 
 /// Fused offset correlation (see [`AgclOps`] for the shapes). Differentiable w.r.t. all four
@@ -191,27 +133,27 @@ pub fn offset_corr<B: Backend>(
         spec.groups > 0 && c.is_multiple_of(spec.groups),
         "AGCL: channels not divisible by groups"
     );
-    let device = left.device();
-    let (l, r, f, o) = (prim(left), prim(right), prim(flow), prim(offset));
-    on_backend!(B, &device, |I| tensor(same(I::agcl_offset_corr(
-        same(l),
-        same(r),
-        same(f),
-        same(o),
+    let choice = kernels_f32(&[&left, &right, &flow, &offset]);
+    on_kernel_backend!(choice, |I| tensor(same(I::agcl_offset_corr(
+        same(prim(left)),
+        same(prim(right)),
+        same(prim(flow)),
+        same(prim(offset)),
         spec
-    ))))
+    ))), composed => composed::offset_corr(left, right, flow, offset, spec))
 }
 
 /// Fused bilinear warp of `right` (N, C, H, W) by `flow` (N, 2, H, W), zeros outside.
 pub fn warp<B: Backend>(right: Tensor<B, 4>, flow: Tensor<B, 4>) -> Tensor<B, 4> {
     let [n, _, h, w] = right.dims();
     assert_eq!(flow.dims(), [n, 2, h, w], "AGCL warp: flow shape");
-    let device = right.device();
-    let (r, f) = (prim(right), prim(flow));
-    on_backend!(B, &device, |I| tensor(same(I::agcl_warp(same(r), same(f)))))
+    let choice = kernels_f32(&[&right, &flow]);
+    on_kernel_backend!(choice, |I| tensor(same(I::agcl_warp(same(prim(right)), same(prim(flow))))),
+        composed => composed::warp(right, flow))
 }
 
-/// Gradients of [`offset_corr`] through the backend's kernel directly (for tests).
+/// Gradients of [`offset_corr`] through the backend's kernel directly (for tests); `None` on a
+/// backend without AGCL kernels.
 #[allow(clippy::type_complexity)]
 pub fn offset_corr_backward<B: Backend>(
     left: Tensor<B, 4>,
@@ -220,8 +162,8 @@ pub fn offset_corr_backward<B: Backend>(
     offset: Tensor<B, 4>,
     grad: Tensor<B, 4>,
     spec: CorrSpec,
-) -> [Tensor<B, 4>; 4] {
-    let device = left.device();
+) -> Option<[Tensor<B, 4>; 4]> {
+    let choice = kernels_f32(&[&left, &right, &flow, &offset, &grad]);
     let (l, r, f, o, g) = (
         prim(left),
         prim(right),
@@ -229,8 +171,8 @@ pub fn offset_corr_backward<B: Backend>(
         prim(offset),
         prim(grad),
     );
-    let grads: [Option<FloatTensor<B>>; 4] = on_backend!(B, &device, |I| same(
+    let grads: [Option<FloatTensor<B>>; 4] = on_kernel_backend!(choice, |I| same(
         I::agcl_offset_corr_backward(same(l), same(r), same(f), same(o), same(g), spec, [true; 4])
-    ));
-    grads.map(|g| tensor(g.expect("all gradients requested")))
+    ), composed => return None);
+    Some(grads.map(|g| tensor(g.expect("all gradients requested"))))
 }

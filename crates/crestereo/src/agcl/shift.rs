@@ -1,9 +1,7 @@
 //! The 1/4 level's shifted correlation: `left` against the warped right map read at the
 //! integer window offsets, replicate border. One kernel with its own backward on Flex and
-//! `Autodiff<Flex>`; other backends (CUDA) compose it from device-side tensor ops (edge pad,
-//! nine crops, products and group means), which is what it replaced on the CPU.
-
-use std::any::TypeId;
+//! `Autodiff<Flex>`; other backends run the composed version (`composed::shift_corr`: edge
+//! pad, one crop per candidate, products and group means), which is what it replaced on the CPU.
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
@@ -13,10 +11,11 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
 use burn::tensor::TensorMetadata;
-use burn::tensor::ops::{FloatTensor, PadMode};
+use burn::tensor::ops::FloatTensor;
 
 use super::kernels::{self, Dims};
-use super::{CorrSpec, prim, same, tensor};
+use super::{CorrSpec, composed, prim, same, tensor};
+use crate::dispatch::{Kernels, kernels_f32};
 
 /// Shifted group correlation (N, G·K, H, W) of `left` and `warped` (N, C, H, W).
 pub fn shift_corr<B: Backend>(
@@ -29,36 +28,18 @@ pub fn shift_corr<B: Backend>(
         warped.dims(),
         "AGCL: left/warped shapes differ"
     );
-    let id = TypeId::of::<B>();
-    if id == TypeId::of::<Flex>() {
-        let (l, r): (FlexTensor, FlexTensor) = (same(prim(left)), same(prim(warped)));
-        return tensor(same(flex_forward(&l, &r, spec)));
+    match kernels_f32(&[&left, &warped]) {
+        Kernels::Flex => {
+            let (l, r): (FlexTensor, FlexTensor) = (same(prim(left)), same(prim(warped)));
+            tensor(same(flex_forward(&l, &r, spec)))
+        }
+        Kernels::AutodiffFlex => {
+            let l: FloatTensor<Autodiff<Flex>> = same(prim(left));
+            let r: FloatTensor<Autodiff<Flex>> = same(prim(warped));
+            tensor(same(autodiff_forward(l, r, spec)))
+        }
+        _ => composed::shift_corr(left, warped, spec),
     }
-    if id == TypeId::of::<Autodiff<Flex>>() {
-        let l: FloatTensor<Autodiff<Flex>> = same(prim(left));
-        let r: FloatTensor<Autodiff<Flex>> = same(prim(warped));
-        return tensor(same(autodiff_forward(l, r, spec)));
-    }
-    composed(left, warped, spec)
-}
-
-/// The device-side composition (any backend).
-fn composed<B: Backend>(left: Tensor<B, 4>, warped: Tensor<B, 4>, spec: CorrSpec) -> Tensor<B, 4> {
-    let [n, c, h, w] = left.dims();
-    let (rx, ry, g) = (spec.rx, spec.ry, spec.groups);
-    let padded = warped.pad((rx, rx, ry, ry), PadMode::Edge);
-    let corrs: Vec<Tensor<B, 5>> = (0..spec.candidates())
-        .map(|k| {
-            let (dx, dy) = spec.window_offset(k);
-            let oy = (dy + ry as i64) as usize;
-            let ox = (dx + rx as i64) as usize;
-            let crop = padded.clone().slice([0..n, 0..c, oy..oy + h, ox..ox + w]);
-            (left.clone() * crop)
-                .reshape([n, g, c / g, h, w])
-                .mean_dim(2)
-        })
-        .collect();
-    Tensor::cat(corrs, 2).reshape([n, g * spec.candidates(), h, w])
 }
 
 fn dims(t: &FlexTensor) -> Dims {

@@ -13,8 +13,9 @@
 //! in NCHW directly. Stride-1 convolutions with enough input channels skip the unfolding
 //! altogether: 3×3, 1×5 and 5×1 kernels by Winograd's minimal filtering (`winograd`; larger
 //! tiles on `Flex`, i.e. inference, than on `Autodiff<Flex>`), others as a sum of products over
-//! shifted views of the padded input (`shifted`). Every
-//! other backend, float64 tensors and grouped convolutions use `Conv2d::forward` unchanged.
+//! shifted views of the padded input (`shifted`). Every other backend, float64 tensors and
+//! grouped convolutions run Burn's convolution ([`Conv2d::forward_composed`]); the model's
+//! convolutions are [`Conv2d`] modules, whose `forward` makes that choice.
 
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -24,47 +25,43 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::module::{Param, ParamId};
-use burn::nn::PaddingConfig2d;
-use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
-use burn::tensor::{DType, TensorData, TensorMetadata, TensorPrimitive};
+use burn::tensor::{TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
 
-use crate::dispatch::{is_autodiff_flex, is_flex, same};
+use crate::dispatch::{Kernels, kernels_f32, same};
 
+mod module;
 mod scratch;
 mod shifted;
 mod views;
 mod winograd;
 
+pub use module::{Conv2d, Conv2dConfig};
 use winograd::Use;
 
-/// `conv.forward(x)`; on `Autodiff<Flex>` (float32, groups 1, symmetric padding) with the GEMM
-/// backward described in the module docs.
-pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
-    let padding = match conv.padding {
-        PaddingConfig2d::Explicit(top, left, bottom, right) if top == bottom && left == right => {
-            Some([top, left])
-        }
-        PaddingConfig2d::Valid => Some([0, 0]),
-        _ => None,
-    };
-    let autodiff = is_autodiff_flex::<B>();
-    let fast = (autodiff || is_flex::<B>())
-        && conv.groups == 1
-        && x.dtype() == DType::F32
-        && conv.weight.val().dtype() == DType::F32;
-    let Some(padding) = padding.filter(|_| fast) else {
-        return conv.forward(x);
+/// The Flex kernels' convolution of `x` (float32, groups 1, symmetric padding, kernels not
+/// switched off): `Ok(y)`; `Err(x)` where they do not apply (the caller composes).
+pub(crate) fn kernel_forward<B: Backend>(
+    conv: &Conv2d<B>,
+    x: Tensor<B, 4>,
+) -> Result<Tensor<B, 4>, Tensor<B, 4>> {
+    let weight = conv.weight.val();
+    let choice = kernels_f32(&[&x, &weight]);
+    let (Some(padding), true) = (
+        conv.symmetric_padding(),
+        conv.groups == 1 && matches!(choice, Kernels::Flex | Kernels::AutodiffFlex),
+    ) else {
+        return Err(x);
     };
     let options = ConvOptions::new(conv.stride, padding, conv.dilation, 1);
     let (x, w) = (
         x.into_primitive().tensor(),
-        conv.weight.val().into_primitive().tensor(),
+        weight.into_primitive().tensor(),
     );
     let bias = (conv.bias.as_ref()).map(|b| b.val().into_primitive().tensor());
-    let y = if autodiff {
+    let y = if choice == Kernels::AutodiffFlex {
         same(conv2d_autodiff(same(x), same(w), bias.map(same), options))
     } else {
         let (x, w): (FlexTensor, FlexTensor) = (same(x), same(w));
@@ -74,7 +71,7 @@ pub fn forward<B: Backend>(conv: &Conv2d<B>, x: Tensor<B, 4>) -> Tensor<B, 4> {
             None => y,
         })
     };
-    Tensor::from_primitive(TensorPrimitive::Float(y))
+    Ok(Tensor::from_primitive(TensorPrimitive::Float(y)))
 }
 
 /// Several convolutions of one input with the same geometry (kernel, stride, padding, dilation),
@@ -93,7 +90,7 @@ pub fn forward_stacked<B: Backend>(convs: &[&Conv2d<B>], x: Tensor<B, 4>) -> Ten
             && c.bias.is_some() == first.bias.is_some()
     });
     if convs.len() == 1 || !same_geometry {
-        return Tensor::cat(convs.iter().map(|c| forward(c, x.clone())).collect(), 1);
+        return Tensor::cat(convs.iter().map(|c| c.forward(x.clone())).collect(), 1);
     }
     let stacked = Conv2d {
         // `Param::initialized`, not `from_tensor`: the stacked tensors stay in the autodiff graph
@@ -120,7 +117,7 @@ pub fn forward_stacked<B: Backend>(convs: &[&Conv2d<B>], x: Tensor<B, 4>) -> Ten
         groups: first.groups,
         padding: first.padding.clone(),
     };
-    forward(&stacked, x)
+    stacked.forward(x)
 }
 
 #[derive(Debug)]

@@ -1,7 +1,7 @@
 //! The convolution paths against Burn's own convolution, forward and every gradient.
 
 use burn::module::AutodiffModule;
-use burn::nn::conv::Conv2dConfig;
+use burn::nn::PaddingConfig2d;
 use burn::tensor::Distribution;
 
 use super::*;
@@ -130,8 +130,8 @@ fn compare_with_burn_kernel(
         .init::<Ad>(&device);
     let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
         .require_grad();
-    let ours = forward(&conv, x.clone());
-    let theirs = conv.forward(x.clone());
+    let ours = conv.forward(x.clone());
+    let theirs = conv.forward_composed(x.clone());
     let case = format!(
         "cin {cin} cout {cout} kernel {kernel:?} stride {stride:?} pad {ph},{pw} \
          dilation {dilation:?} {h}x{w}"
@@ -171,8 +171,8 @@ fn compare_with_burn_kernel(
     let xf = x.inner();
     let conv_f = conv.valid();
     let diff = max_diff(
-        &values(forward(&conv_f, xf.clone())),
-        &values(conv_f.forward(xf)),
+        &values(conv_f.forward(xf.clone())),
+        &values(conv_f.forward_composed(xf)),
     );
     assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
 }
@@ -195,7 +195,7 @@ fn separable_kernels_match_burn_forward_and_gradients() {
             .init::<Ad>(&device);
         let x = Tensor::<Ad, 4>::random([2, 16, h, w], Distribution::Normal(0.0, 1.0), &device)
             .require_grad();
-        let (ours, theirs) = (forward(&conv, x.clone()), conv.forward(x.clone()));
+        let (ours, theirs) = (conv.forward(x.clone()), conv.forward_composed(x.clone()));
         let case = format!("kernel {kernel:?} on {h}x{w}");
         let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
         assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");
@@ -230,7 +230,10 @@ fn stacked_convolutions_match_separate_ones() {
     let x = Tensor::<Ad, 4>::random([2, 16, 5, 7], Distribution::Normal(0.0, 1.0), &device)
         .require_grad();
     let stacked = forward_stacked(&[&a, &b], x.clone());
-    let separate = Tensor::cat(vec![a.forward(x.clone()), b.forward(x.clone())], 1);
+    let separate = Tensor::cat(
+        vec![a.forward_composed(x.clone()), b.forward_composed(x.clone())],
+        1,
+    );
     assert_eq!(stacked.dims(), [2, 8, 5, 7]);
     let fwd = max_diff(&values(stacked.clone()), &values(separate.clone()));
     assert!(fwd <= 1e-5, "forward differs by {fwd}");

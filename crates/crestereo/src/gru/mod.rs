@@ -4,10 +4,10 @@
 //! autodiff on Flex (training) as the same kernels recorded with their own backward
 //! (`autodiff`); elsewhere it is composed from tensor ops.
 
-use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, tanh};
 
+use crate::conv2d::Conv2d;
 use crate::dispatch::{autodiff_flex_f32, flex_f32, from_autodiff_flex, from_flex};
 use crate::encoder::conv_cfg;
 
@@ -79,13 +79,13 @@ fn kernel_gates<B: Backend>(
     if let Some([zr_f, h_f, x_f]) = flex_f32([zr, h, x]) {
         // Plain Flex is inference: the vectorised σ and tanh (see `GateMath`).
         let math = GateMath::Vectorised;
-        let q = crate::conv2d::forward(cq, from_flex(flex::reset_input(&zr_f, &h_f, &x_f, math)));
+        let q = cq.forward(from_flex(flex::reset_input(&zr_f, &h_f, &x_f, math)));
         let [q_f] = flex_f32([&q]).expect("a Flex tensor");
         return Some(from_flex(flex::blend(&zr_f, &h_f, &q_f, math)));
     }
     let [zr_a, h_a, x_a] = autodiff_flex_f32([zr, h, x])?;
     let r_input = from_autodiff_flex(autodiff::reset_input(zr_a, h_a, x_a));
-    let q = crate::conv2d::forward(cq, r_input);
+    let q = cq.forward(r_input);
     let [zr_a, h_a, q_a] = autodiff_flex_f32([zr, h, &q]).expect("an Autodiff<Flex> tensor");
     Some(from_autodiff_flex(autodiff::blend(zr_a, h_a, q_a)))
 }
@@ -101,10 +101,7 @@ fn composed_gates<B: Backend>(
     let zr = sigmoid(zr);
     let z = zr.clone().narrow(1, 0, hidden);
     let r = zr.narrow(1, hidden, hidden);
-    let q = tanh(crate::conv2d::forward(
-        cq,
-        Tensor::cat(vec![r * h.clone(), x], 1),
-    ));
+    let q = tanh(cq.forward(Tensor::cat(vec![r * h.clone(), x], 1)));
     // (1 - z) * h + z * q
     (z.clone().neg().add_scalar(1.0)) * h + z * q
 }

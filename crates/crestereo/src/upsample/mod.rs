@@ -6,8 +6,6 @@
 
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
-use burn::tensor::module::interpolate;
-use burn::tensor::ops::{InterpolateMode, InterpolateOptions, PadMode};
 
 use crate::dispatch::{autodiff_flex_f32, flex_f32, from_autodiff_flex, from_flex};
 
@@ -50,27 +48,23 @@ pub fn resize_bilinear_align_corners<B: Backend>(
     }
     let device = x.device();
     // width: (N·C·H, W) @ (W, Wo)
-    let rw = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(w, wo), [wo, w]), &device)
-        .transpose();
+    let dtype = x.dtype();
+    let matrix = |n_in, n_out| {
+        let m = Tensor::<B, 2>::from_data(
+            TensorData::new(linear_weights(n_in, n_out), [n_out, n_in]),
+            &device,
+        );
+        crate::float_like(m, dtype).transpose()
+    };
+    let rw = matrix(w, wo);
     let y = x.reshape([n * c * h, w]).matmul(rw).reshape([n * c, h, wo]);
     // height: (N·C·Wo, H) @ (H, Ho)
-    let rh = Tensor::<B, 2>::from_data(TensorData::new(linear_weights(h, ho), [ho, h]), &device)
-        .transpose();
+    let rh = matrix(h, ho);
     y.swap_dims(1, 2)
         .reshape([n * c * wo, h])
         .matmul(rh)
         .reshape([n, c, wo, ho])
         .swap_dims(2, 3)
-}
-
-/// Burn's own `interpolate` (bilinear, align_corners = true); coordinates in float64, so it
-/// differs from PyTorch by ~1e-5 relative.
-pub fn resize_bilinear_burn<B: Backend>(x: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
-    interpolate(
-        x,
-        size,
-        InterpolateOptions::new(InterpolateMode::Bilinear).with_align_corners(true),
-    )
 }
 
 /// Convex upsampling of `flow` (N, 2, H, W) by `rate` with `mask` (N, 9·rate², H, W):
@@ -96,17 +90,25 @@ pub fn convex_upsample<B: Backend>(
     composed_convex_upsample(flow, mask, rate)
 }
 
+/// `x` (N, C, H, W) with one row and column of zeros on every side, in `x`'s dtype (Burn's
+/// constant `pad` makes its border in the default float dtype: Flex then fails on float64).
+fn pad_zeros<B: Backend>(x: Tensor<B, 4>) -> Tensor<B, 4> {
+    let [n, c, h, w] = x.dims();
+    let zeros = |shape: [usize; 4]| Tensor::zeros(shape, (&x.device(), x.dtype()));
+    let (col, row) = (zeros([n, c, h, 1]), zeros([n, c, 1, w + 2]));
+    let x = Tensor::cat(vec![col.clone(), x, col], 3);
+    Tensor::cat(vec![row.clone(), x, row], 2)
+}
+
 /// [`convex_upsample`] composed from tensor ops (any backend).
-fn composed_convex_upsample<B: Backend>(
+pub fn composed_convex_upsample<B: Backend>(
     flow: Tensor<B, 4>,
     mask: Tensor<B, 4>,
     rate: usize,
 ) -> Tensor<B, 4> {
     let [n, c, h, w] = flow.dims();
     let mask = softmax(mask.reshape([n, 1, 9, rate, rate, h, w]), 2);
-    let padded = flow
-        .mul_scalar(rate as f64)
-        .pad((1, 1, 1, 1), PadMode::Constant(0.0));
+    let padded = pad_zeros(flow.mul_scalar(rate as f64));
     let mut neigh = Vec::with_capacity(9);
     for ky in 0..3 {
         for kx in 0..3 {

@@ -1,6 +1,8 @@
 //! Shared helpers for the parity tests.
 #![allow(dead_code)]
 
+pub mod network_checks;
+
 use std::path::PathBuf;
 
 use burn::prelude::*;

@@ -1,0 +1,122 @@
+//! The network's convolution module. Every convolution of the model is one of these, so each
+//! call goes through the kernel dispatch: a new module cannot miss the fast path by calling a
+//! Burn convolution directly. Field names and record layout are those of Burn's `Conv2d`
+//! (reference state dicts and saved records load unchanged).
+
+use burn::module::{Module, Param};
+use burn::nn::PaddingConfig2d;
+use burn::prelude::*;
+use burn::tensor::ops::ConvOptions;
+
+/// Configuration of a [`Conv2d`]: PyTorch's `nn.Conv2d` initialisation (as Burn's).
+#[derive(Config, Debug)]
+pub struct Conv2dConfig {
+    /// Input and output channels.
+    pub channels: [usize; 2],
+    pub kernel_size: [usize; 2],
+    #[config(default = "[1, 1]")]
+    pub stride: [usize; 2],
+    #[config(default = "[1, 1]")]
+    pub dilation: [usize; 2],
+    #[config(default = "1")]
+    pub groups: usize,
+    #[config(default = "PaddingConfig2d::Valid")]
+    pub padding: PaddingConfig2d,
+    #[config(default = true)]
+    pub bias: bool,
+}
+
+/// A 2-D convolution whose forward is chosen by [`crate::dispatch`]: the Flex kernels of
+/// [`super`] where they apply, Burn's convolution ([`Conv2d::forward_composed`]) elsewhere.
+#[derive(Module, Debug)]
+pub struct Conv2d<B: Backend> {
+    /// (C_out, C_in / groups, kh, kw).
+    pub weight: Param<Tensor<B, 4>>,
+    pub bias: Option<Param<Tensor<B, 1>>>,
+    pub stride: [usize; 2],
+    pub kernel_size: [usize; 2],
+    pub dilation: [usize; 2],
+    pub groups: usize,
+    pub padding: PaddingConfig2d,
+}
+
+impl Conv2dConfig {
+    pub fn init<B: Backend>(&self, device: &B::Device) -> Conv2d<B> {
+        // Burn's initialiser (PyTorch's Kaiming-uniform weights and fan-in bias), then its
+        // parameters moved into this module.
+        let burn::nn::conv::Conv2d {
+            weight,
+            bias,
+            stride,
+            kernel_size,
+            dilation,
+            groups,
+            padding,
+        } = burn::nn::conv::Conv2dConfig::new(self.channels, self.kernel_size)
+            .with_stride(self.stride)
+            .with_dilation(self.dilation)
+            .with_groups(self.groups)
+            .with_padding(self.padding.clone())
+            .with_bias(self.bias)
+            .init(device);
+        Conv2d {
+            weight,
+            bias,
+            stride,
+            kernel_size,
+            dilation,
+            groups,
+            padding,
+        }
+    }
+}
+
+impl<B: Backend> Conv2d<B> {
+    /// The convolution of `x` (N, C_in, H, W): a kernel where one applies, else composed.
+    pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        match super::kernel_forward(self, x) {
+            Ok(y) => y,
+            Err(x) => self.forward_composed(x),
+        }
+    }
+
+    /// Burn's convolution (any backend and dtype; parameters cast to the input's float dtype,
+    /// so a float64 input runs in float64).
+    pub fn forward_composed(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let dtype = x.dtype();
+        let cast = |t: Tensor<B, 4>| match dtype == t.dtype() {
+            true => t,
+            false => t.cast(dtype),
+        };
+        let weight = cast(self.weight.val());
+        let bias = self.bias.as_ref().map(|b| {
+            let b = b.val();
+            if b.dtype() == dtype { b } else { b.cast(dtype) }
+        });
+        let padding = self.symmetric_padding().unwrap_or_else(|| {
+            panic!(
+                "convolution padding {:?} is not symmetric explicit or valid",
+                self.padding
+            )
+        });
+        burn::tensor::module::conv2d(
+            x,
+            weight,
+            bias,
+            ConvOptions::new(self.stride, padding, self.dilation, self.groups),
+        )
+    }
+
+    /// (top = bottom, left = right) of an explicit symmetric or valid padding.
+    pub(crate) fn symmetric_padding(&self) -> Option<[usize; 2]> {
+        match self.padding {
+            PaddingConfig2d::Explicit(top, left, bottom, right)
+                if top == bottom && left == right =>
+            {
+                Some([top, left])
+            }
+            PaddingConfig2d::Valid => Some([0, 0]),
+            _ => None,
+        }
+    }
+}
