@@ -273,7 +273,8 @@ pub fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("CRESTEREO_LOG")
-                .unwrap_or_else(|_| "info".into()),
+                // CubeCL logs every autotuned kernel shape at info: quiet unless asked for.
+                .unwrap_or_else(|_| "info,cubecl_runtime=warn".into()),
         )
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))

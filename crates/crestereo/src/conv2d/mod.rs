@@ -32,6 +32,7 @@ use rayon::prelude::*;
 
 use crate::dispatch::{Kernels, kernels_f32, same};
 
+mod by_matmul;
 mod module;
 mod scratch;
 mod shifted;

@@ -72,12 +72,40 @@ impl Conv2dConfig {
 }
 
 impl<B: Backend> Conv2d<B> {
-    /// The convolution of `x` (N, C_in, H, W): a kernel where one applies, else composed.
+    /// The convolution of `x` (N, C_in, H, W): a kernel where one applies; on wgpu a stride-1
+    /// convolution as one matrix product over the unfolded input ([`Self::forward_by_matmul`]);
+    /// else Burn's convolution.
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        match super::kernel_forward(self, x) {
-            Ok(y) => y,
-            Err(x) => self.forward_composed(x),
+        let x = match super::kernel_forward(self, x) {
+            Ok(y) => return y,
+            Err(x) => x,
+        };
+        #[cfg(feature = "wgpu")]
+        {
+            use crate::dispatch::{Kernels, kernels_f32};
+            let on_wgpu = matches!(kernels_f32(&[&x]), Kernels::Wgpu | Kernels::AutodiffWgpu);
+            if on_wgpu && self.stride == [1, 1] && self.groups == 1 {
+                return self.forward_by_matmul(x);
+            }
         }
+        self.forward_composed(x)
+    }
+
+    /// A stride-1, groups-1 convolution as one matrix product over the input unfolded from
+    /// shifted slices (Burn tensor ops; any backend). Panics on other strides or groups.
+    pub fn forward_by_matmul(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        assert!(
+            self.stride == [1, 1] && self.groups == 1,
+            "forward_by_matmul: stride 1, groups 1 only"
+        );
+        let padding = self.symmetric_padding().expect("symmetric padding");
+        let dtype = x.dtype();
+        let weight = crate::float_like(self.weight.val(), dtype);
+        let bias = self
+            .bias
+            .as_ref()
+            .map(|b| crate::float_like(b.val(), dtype));
+        super::by_matmul::conv2d_by_matmul(x, weight, bias, padding, self.dilation)
     }
 
     /// Burn's convolution (any backend and dtype; parameters cast to the input's float dtype,

@@ -256,3 +256,51 @@ fn stacked_convolutions_match_separate_ones() {
         assert!(diff <= 1e-4, "{name} differs by {diff}");
     }
 }
+
+/// The matrix-product composition (the wgpu path) against Burn's convolution: forward and the
+/// gradients of input, weight and bias, stride 1 with paddings, dilation and separable kernels.
+#[test]
+fn matmul_composition_matches_burn_forward_and_gradients() {
+    // (cin, cout, kernel, padding, dilation, h, w)
+    let cases = [
+        (3, 4, [3, 3], [1, 1], [1, 1], 5, 7),
+        (4, 2, [1, 1], [0, 0], [1, 1], 3, 4),
+        (5, 3, [1, 5], [0, 2], [1, 1], 4, 6),
+        (5, 3, [5, 1], [2, 0], [1, 1], 6, 4),
+        (2, 3, [3, 3], [2, 2], [2, 2], 4, 5),
+        (2, 2, [7, 7], [3, 3], [1, 1], 3, 3),
+    ];
+    let device = Default::default();
+    for (cin, cout, kernel, [ph, pw], dilation, h, w) in cases {
+        let conv = Conv2dConfig::new([cin, cout], kernel)
+            .with_dilation(dilation)
+            .with_padding(PaddingConfig2d::Explicit(ph, pw, ph, pw))
+            .init::<Ad>(&device);
+        let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
+            .require_grad();
+        let case =
+            format!("cin {cin} cout {cout} kernel {kernel:?} pad {ph},{pw} dil {dilation:?}");
+        let (ours, theirs) = (
+            conv.forward_by_matmul(x.clone()),
+            conv.forward_composed(x.clone()),
+        );
+        assert_eq!(ours.dims(), theirs.dims(), "{case}");
+        let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
+        assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");
+        let up = Tensor::<Ad, 4>::random(ours.dims(), Distribution::Normal(0.0, 1.0), &device);
+        let g1 = (ours * up.clone()).sum().backward();
+        let g2 = (theirs * up).sum().backward();
+        for (name, t) in [("dx", x.clone()), ("dw", conv.weight.val())] {
+            let (a, b) = (values(t.grad(&g1).unwrap()), values(t.grad(&g2).unwrap()));
+            let diff = max_diff(&a, &b);
+            assert!(
+                diff <= grad_tolerance(&b),
+                "{case}: {name} differs by {diff}"
+            );
+        }
+        let bias = conv.bias.as_ref().unwrap().val();
+        let as4 = |t: Tensor<Flex, 1>| values(t.reshape([1, 1, 1, cout]));
+        let (a, b) = (as4(bias.grad(&g1).unwrap()), as4(bias.grad(&g2).unwrap()));
+        assert!(max_diff(&a, &b) <= grad_tolerance(&b), "{case}: db differs");
+    }
+}

@@ -106,21 +106,28 @@ pub fn composed_convex_upsample<B: Backend>(
     mask: Tensor<B, 4>,
     rate: usize,
 ) -> Tensor<B, 4> {
+    // Ranks stay at 5 or below: with the 7-D softmax and 6-D permutation this had before, the
+    // gradients came out wrong on wgpu (Burn 0.21 fusion; found by the Vulkan tests).
     let [n, c, h, w] = flow.dims();
-    let mask = softmax(mask.reshape([n, 1, 9, rate, rate, h, w]), 2);
+    let (rr, hw) = (rate * rate, h * w);
+    // mask channel k·rate² + ry·rate + rx: weight of neighbour k for sub-pixel (ry, rx)
+    let mask = softmax(mask.reshape([n, 9, rr, hw]), 1);
     let padded = pad_zeros(flow.mul_scalar(rate as f64));
-    let mut neigh = Vec::with_capacity(9);
-    for ky in 0..3 {
-        for kx in 0..3 {
-            neigh.push(padded.clone().slice([0..n, 0..c, ky..ky + h, kx..kx + w]));
-        }
-    }
-    let unfolded = Tensor::stack::<5>(neigh, 2).reshape([n, c, 9, 1, 1, h, w]);
-    let up = (mask * unfolded)
-        .sum_dim(2)
-        .reshape([n, c, rate, rate, h, w]);
-    up.permute([0, 1, 4, 2, 5, 3])
-        .reshape([n, c, rate * h, rate * w])
+    let neighbours = (0..9)
+        .map(|k| {
+            let (ky, kx) = (k / 3, k % 3);
+            padded
+                .clone()
+                .slice([0..n, 0..c, ky..ky + h, kx..kx + w])
+                .reshape([n, c, 1, hw])
+        })
+        .collect();
+    let unfolded = Tensor::cat(neighbours, 2); // (n, c, 9, h·w)
+    let up = (mask.reshape([n, 1, 9, rr, hw]) * unfolded.reshape([n, c, 9, 1, hw])).sum_dim(2);
+    // (n·c, ry, rx, y, x) → (n·c, y, ry, x, rx): sub-pixels interleaved into the full grid
+    up.reshape([n * c, rate, rate, h, w])
+        .permute([0, 3, 1, 4, 2])
+        .reshape([n, c, h * rate, w * rate])
 }
 
 #[cfg(test)]
