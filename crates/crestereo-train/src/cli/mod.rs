@@ -71,7 +71,8 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
-    /// Time one training step and one inference (random weights and inputs).
+    /// Time one training step and one inference (random weights and inputs), or the data
+    /// loader (`--what loader`).
     Bench {
         #[arg(long, value_enum, default_value_t = BenchWhat::All)]
         what: BenchWhat,
