@@ -116,7 +116,26 @@ pub fn bench_infer<B: Backend>(
     Ok(())
 }
 
-/// `bench --device cuda`: the chosen parts on CUDA device 0, each in this process.
+/// The chosen parts on backend `B`'s default device (CUDA GPU 0, or wgpu's default adapter),
+/// each in this process.
+fn run_on<B: AutodiffBackend>(
+    train: bool,
+    infer: bool,
+    ts: &[usize],
+    is: &[usize],
+    repeats: usize,
+) -> Result<()> {
+    let device = Default::default();
+    if train {
+        bench_train::<B>(ts[0], ts[1], ts[2], ts[3], repeats, &device)?;
+    }
+    if infer {
+        bench_infer::<B::InnerBackend>(is[0], is[1], repeats, &device)?;
+    }
+    Ok(())
+}
+
+/// `bench --device cuda`.
 #[cfg(feature = "cuda")]
 pub fn run_cuda(
     train: bool,
@@ -125,15 +144,7 @@ pub fn run_cuda(
     is: &[usize],
     repeats: usize,
 ) -> Result<()> {
-    type C = burn::backend::Cuda;
-    let device = Default::default();
-    if train {
-        bench_train::<burn::backend::Autodiff<C>>(ts[0], ts[1], ts[2], ts[3], repeats, &device)?;
-    }
-    if infer {
-        bench_infer::<C>(is[0], is[1], repeats, &device)?;
-    }
-    Ok(())
+    run_on::<burn::backend::Autodiff<burn::backend::Cuda>>(train, infer, ts, is, repeats)
 }
 
 #[cfg(not(feature = "cuda"))]
@@ -141,7 +152,7 @@ pub fn run_cuda(_: bool, _: bool, _: &[usize], _: &[usize], _: usize) -> Result<
     anyhow::bail!("this build has no CUDA backend: rebuild with `--features cuda`")
 }
 
-/// `bench --device vulkan`: the chosen parts on the default wgpu device, in this process.
+/// `bench --device vulkan`.
 #[cfg(feature = "wgpu")]
 pub fn run_wgpu(
     train: bool,
@@ -150,15 +161,7 @@ pub fn run_wgpu(
     is: &[usize],
     repeats: usize,
 ) -> Result<()> {
-    type W = burn::backend::Wgpu;
-    let device = Default::default();
-    if train {
-        bench_train::<burn::backend::Autodiff<W>>(ts[0], ts[1], ts[2], ts[3], repeats, &device)?;
-    }
-    if infer {
-        bench_infer::<W>(is[0], is[1], repeats, &device)?;
-    }
-    Ok(())
+    run_on::<burn::backend::Autodiff<burn::backend::Wgpu>>(train, infer, ts, is, repeats)
 }
 
 #[cfg(not(feature = "wgpu"))]

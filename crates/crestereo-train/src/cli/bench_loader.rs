@@ -20,7 +20,7 @@ use crestereo::CpuBackend;
 
 use crate::augment::TrainSample;
 use crate::config::{DatasetEntry, TrainConfig};
-use crate::data::{Loader, MixedSource, Planner, collate};
+use crate::data::{MixedSource, collate};
 
 /// Samples per optimiser step the printed step rate assumes.
 const STEP_BATCH: usize = 8;
@@ -82,18 +82,12 @@ fn time_loader(
     workers: usize,
     samples: usize,
 ) -> Result<Timed> {
-    let lens: Vec<usize> = source.datasets.iter().map(|d| d.len()).collect();
-    let planner = Planner::new(cfg.seed, &source.weights, &lens);
-    let prefetch = cfg.loader.prefetch.max(2 * workers);
-    let mut loader = Loader::start(
-        source.clone(),
-        planner,
-        0,
-        cfg.augment.clone(),
-        workers,
-        prefetch,
-        cfg.loader.max_bad_retries,
-    );
+    // The training run's own loader, on `workers` threads with a queue deep enough for them.
+    let mut cfg = cfg.clone();
+    cfg.loader.workers = workers;
+    cfg.loader.prefetch = cfg.loader.prefetch.max(2 * workers);
+    let prefetch = cfg.loader.prefetch;
+    let mut loader = crate::train::start_loader(&cfg, source.clone(), 0);
     loader.next_batch(workers)?;
     let mut kept = Vec::with_capacity(STEP_BATCH);
     let t0 = Instant::now();

@@ -30,7 +30,7 @@ use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
 use burn::tensor::{TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
 
-use crate::dispatch::{Kernels, kernels_f32, same};
+use crate::dispatch::{Kernels, same};
 
 mod by_matmul;
 mod module;
@@ -42,14 +42,13 @@ mod winograd;
 pub use module::{Conv2d, Conv2dConfig};
 use winograd::Use;
 
-/// The Flex kernels' convolution of `x` (float32, groups 1, symmetric padding, kernels not
-/// switched off): `Ok(y)`; `Err(x)` where they do not apply (the caller composes).
+/// The Flex kernels' convolution of `x` (float32, groups 1, symmetric padding, `choice` a Flex
+/// family): `Ok(y)`; `Err(x)` where they do not apply (the caller composes).
 pub(crate) fn kernel_forward<B: Backend>(
     conv: &Conv2d<B>,
     x: Tensor<B, 4>,
+    choice: Kernels,
 ) -> Result<Tensor<B, 4>, Tensor<B, 4>> {
-    let weight = conv.weight.val();
-    let choice = kernels_f32(&[&x, &weight]);
     let (Some(padding), true) = (
         conv.symmetric_padding(),
         conv.groups == 1 && matches!(choice, Kernels::Flex | Kernels::AutodiffFlex),
@@ -59,7 +58,7 @@ pub(crate) fn kernel_forward<B: Backend>(
     let options = ConvOptions::new(conv.stride, padding, conv.dilation, 1);
     let (x, w) = (
         x.into_primitive().tensor(),
-        weight.into_primitive().tensor(),
+        conv.weight.val().into_primitive().tensor(),
     );
     let bias = (conv.bias.as_ref()).map(|b| b.val().into_primitive().tensor());
     let y = if choice == Kernels::AutodiffFlex {

@@ -8,6 +8,8 @@ use burn::nn::PaddingConfig2d;
 use burn::prelude::*;
 use burn::tensor::ops::ConvOptions;
 
+use crate::dispatch::{Kernels, kernels_f32};
+
 /// Configuration of a [`Conv2d`]: PyTorch's `nn.Conv2d` initialisation (as Burn's).
 #[derive(Config, Debug)]
 pub struct Conv2dConfig {
@@ -76,17 +78,17 @@ impl<B: Backend> Conv2d<B> {
     /// convolution as one matrix product over the unfolded input ([`Self::forward_by_matmul`]);
     /// else Burn's convolution.
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        let x = match super::kernel_forward(self, x) {
+        let choice = kernels_f32(&[&x, &self.weight.val()]);
+        let x = match super::kernel_forward(self, x, choice) {
             Ok(y) => return y,
             Err(x) => x,
         };
         #[cfg(feature = "wgpu")]
+        if matches!(choice, Kernels::Wgpu | Kernels::AutodiffWgpu)
+            && self.stride == [1, 1]
+            && self.groups == 1
         {
-            use crate::dispatch::{Kernels, kernels_f32};
-            let on_wgpu = matches!(kernels_f32(&[&x]), Kernels::Wgpu | Kernels::AutodiffWgpu);
-            if on_wgpu && self.stride == [1, 1] && self.groups == 1 {
-                return self.forward_by_matmul(x);
-            }
+            return self.forward_by_matmul(x);
         }
         self.forward_composed(x)
     }

@@ -342,14 +342,21 @@ pub fn shift_corr_forward_and_gradients<B: TestDevice, A: TestDevice + AutodiffB
             let g = (out * weights.clone()).sum().backward();
             [l, r].iter().map(|t| values(t.grad(&g).unwrap())).collect()
         };
-        let reference = grads_of(Impl::Reference);
-        for which in [Impl::Dispatched, Impl::Composed] {
-            let grads = grads_of(which);
-            for (name, (ga, gb)) in ["left", "warped"].iter().zip(grads.iter().zip(&reference)) {
-                let err = max_abs_diff(ga, gb) / gb.iter().fold(1f32, |m, v| m.max(v.abs()));
-                println!("shift {window:?} {which:?} d/d{name}: scaled max diff {err:.3e}");
-                assert!(err <= 1e-5, "shift {window:?} {which:?} d/d{name}: {err}");
-            }
+        assert_gradients_match(&format!("shift {window:?}"), &["left", "warped"], grads_of);
+    }
+}
+
+/// The gradients of the dispatched op and of the composed ops against those of the reference:
+/// each input's within 1e-5 of the reference gradient's largest magnitude (at least 1).
+fn assert_gradients_match(label: &str, names: &[&str], grads_of: impl Fn(Impl) -> Vec<Vec<f32>>) {
+    let reference = grads_of(Impl::Reference);
+    for which in [Impl::Dispatched, Impl::Composed] {
+        let grads = grads_of(which);
+        assert_eq!(grads.len(), names.len());
+        for (name, (a, b)) in names.iter().zip(grads.iter().zip(&reference)) {
+            let err = max_abs_diff(a, b) / b.iter().fold(1f32, |m, v| m.max(v.abs()));
+            println!("{label} {which:?} d/d{name}: scaled max diff {err:.3e}");
+            assert!(err <= 1e-5, "{label} {which:?} d/d{name}: {err}");
         }
     }
 }
@@ -399,19 +406,8 @@ pub fn offset_corr_and_warp_gradients<A: TestDevice + AutodiffBackend>() {
                 .map(|t| values(t.grad(&g).expect("gradient")))
                 .collect()
         };
-        let reference = grads_of(Impl::Reference);
-        for which in [Impl::Dispatched, Impl::Composed] {
-            let grads = grads_of(which);
-            for (name, (a, b)) in ["left", "right", "flow", "offset"]
-                .iter()
-                .zip(grads.iter().zip(&reference))
-            {
-                let scale = b.iter().fold(1f32, |m, v| m.max(v.abs()));
-                let err = max_abs_diff(a, b) / scale;
-                println!("{window:?} {which:?} d/d{name}: scaled max diff {err:.3e}");
-                assert!(err <= 1e-5, "{window:?} {which:?} d/d{name}: {err}");
-            }
-        }
+        let names = ["left", "right", "flow", "offset"];
+        assert_gradients_match(&format!("{window:?}"), &names, grads_of);
     }
 
     // warp: gradients w.r.t. the map and the flow
@@ -438,15 +434,7 @@ pub fn offset_corr_and_warp_gradients<A: TestDevice + AutodiffBackend>() {
             .map(|t| values(t.grad(&g).unwrap()))
             .collect()
     };
-    let reference = grads_of(Impl::Reference);
-    for which in [Impl::Dispatched, Impl::Composed] {
-        let grads = grads_of(which);
-        for (name, (a, b)) in ["right", "flow"].iter().zip(grads.iter().zip(&reference)) {
-            let err = max_abs_diff(a, b) / b.iter().fold(1f32, |m, v| m.max(v.abs()));
-            println!("warp {which:?} d/d{name}: scaled max diff {err:.3e}");
-            assert!(err <= 1e-5, "warp {which:?} d/d{name}: {err}");
-        }
-    }
+    assert_gradients_match("warp", &["right", "flow"], grads_of);
 }
 
 /// Central finite differences of `L = Σ out · W` along random directions, one input at a time,
