@@ -51,8 +51,10 @@ pub fn sample_bilinear_zeros<B: Backend>(
         .expect("four corners")
 }
 
-/// Column and row coordinates of every pixel, (1, 1, H, W) each.
-fn pixel_grid<B: Backend>(h: usize, w: usize, device: &B::Device) -> (Tensor<B, 4>, Tensor<B, 4>) {
+/// Column and row coordinates of every pixel, (1, 1, H, W) each, on `like`'s device in its
+/// float dtype.
+fn pixel_grid<B: Backend>(h: usize, w: usize, like: &Tensor<B, 4>) -> (Tensor<B, 4>, Tensor<B, 4>) {
+    let (device, dtype) = (&like.device(), like.dtype());
     let xs = Tensor::<B, 1, Int>::arange(0..w as i64, device)
         .float()
         .reshape([1, 1, 1, w])
@@ -61,11 +63,13 @@ fn pixel_grid<B: Backend>(h: usize, w: usize, device: &B::Device) -> (Tensor<B, 
         .float()
         .reshape([1, 1, h, 1])
         .expand([1, 1, h, w]);
-    (xs, ys)
+    (crate::float_like(xs, dtype), crate::float_like(ys, dtype))
 }
 
-/// Window offsets (dx, dy) of the candidates as (1, K, 1, 1) tensors.
-fn window_offsets<B: Backend>(spec: CorrSpec, device: &B::Device) -> (Tensor<B, 4>, Tensor<B, 4>) {
+/// Window offsets (dx, dy) of the candidates as (1, K, 1, 1) tensors, on `like`'s device in
+/// its float dtype.
+fn window_offsets<B: Backend>(spec: CorrSpec, like: &Tensor<B, 4>) -> (Tensor<B, 4>, Tensor<B, 4>) {
+    let device = &like.device();
     let k = spec.candidates();
     let (dx, dy): (Vec<f32>, Vec<f32>) = (0..k)
         .map(|i| {
@@ -73,7 +77,10 @@ fn window_offsets<B: Backend>(spec: CorrSpec, device: &B::Device) -> (Tensor<B, 
             (dx as f32, dy as f32)
         })
         .unzip();
-    let t = |v: Vec<f32>| Tensor::<B, 1>::from_floats(v.as_slice(), device).reshape([1, k, 1, 1]);
+    let t = |v: Vec<f32>| {
+        let t = Tensor::<B, 1>::from_floats(v.as_slice(), device).reshape([1, k, 1, 1]);
+        crate::float_like(t, like.dtype())
+    };
     (t(dx), t(dy))
 }
 
@@ -87,12 +94,8 @@ pub fn offset_corr<B: Backend>(
 ) -> Tensor<B, 4> {
     let [n, c, h, w] = left.dims();
     let (k, g) = (spec.candidates(), spec.groups);
-    let device = left.device();
-    let like = |t| crate::float_like(t, left.dtype());
-    let (gx, gy) = pixel_grid::<B>(h, w, &device);
-    let (gx, gy) = (like(gx), like(gy));
-    let (dx, dy) = window_offsets::<B>(spec, &device);
-    let (dx, dy) = (like(dx), like(dy));
+    let (gx, gy) = pixel_grid(h, w, &left);
+    let (dx, dy) = window_offsets(spec, &left);
     let offset = offset.reshape([n, k, 2, h, w]);
     let ox = offset.clone().narrow(2, 0, 1).reshape([n, k, h, w]);
     let oy = offset.narrow(2, 1, 1).reshape([n, k, h, w]);
@@ -108,11 +111,7 @@ pub fn offset_corr<B: Backend>(
 /// `right` sampled at `x + flow`, zeros outside.
 pub fn warp<B: Backend>(right: Tensor<B, 4>, flow: Tensor<B, 4>) -> Tensor<B, 4> {
     let [n, c, h, w] = right.dims();
-    let (gx, gy) = pixel_grid::<B>(h, w, &right.device());
-    let (gx, gy) = (
-        crate::float_like(gx, right.dtype()),
-        crate::float_like(gy, right.dtype()),
-    );
+    let (gx, gy) = pixel_grid(h, w, &right);
     let x = (gx + flow.clone().narrow(1, 0, 1)).reshape([n, h * w]);
     let y = (gy + flow.narrow(1, 1, 1)).reshape([n, h * w]);
     sample_bilinear_zeros(right, x, y).reshape([n, c, h, w])
