@@ -170,3 +170,31 @@ fn failures_are_forgotten_once_rendered_and_broken_files_fail_stats() {
     );
     assert!(stderr(&o).contains("unreadable"), "{}", stderr(&o));
 }
+
+/// `plan` prints a scene as JSON on stdout, and only that, even when it must first install the
+/// content pack into a fresh home (pip's report once landed on stdout there).
+#[test]
+fn plan_stdout_is_only_the_scene_while_the_pack_installs() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(stereogen_bin())
+        .args(["plan", "--seed", "3", "--index", "2"])
+        .current_dir(dir.path())
+        .env("STEREOGEN_HOME", dir.path().join("fresh-home"))
+        .env_remove("STEREOGEN_FAULT")
+        .stdin(Stdio::null())
+        .output()
+        .expect("run stereogen");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("downloading the content pack"),
+        "the fresh home did not install the pack: {}",
+        stderr(&o)
+    );
+    let spec: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+        panic!(
+            "plan's stdout is not one JSON scene ({e}): {}",
+            String::from_utf8_lossy(&o.stdout)
+        )
+    });
+    assert_eq!(spec["index"], 2);
+}

@@ -271,7 +271,8 @@ pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
                 ])
                 .arg(format!("bpy=={BPY_VERSION}"))
                 .arg(format!("trimesh=={TRIMESH_VERSION}"))
-                .stdout(Stdio::inherit())
+                // pip's report goes to stderr: commands such as `plan` print their result on stdout.
+                .stdout(std::io::stderr())
                 .stderr(Stdio::inherit()),
         )?;
         run_step(

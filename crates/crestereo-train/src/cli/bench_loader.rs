@@ -18,8 +18,9 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use crestereo::CpuBackend;
 
+use super::train::parse_data;
 use crate::augment::TrainSample;
-use crate::config::{DatasetEntry, TrainConfig};
+use crate::config::TrainConfig;
 use crate::data::{MixedSource, collate};
 
 /// Samples per optimiser step the printed step rate assumes.
@@ -38,19 +39,6 @@ pub struct LoaderBenchArgs {
     /// `--what loader`: samples timed per thread count, after one warm-up sample per thread.
     #[arg(long, default_value_t = 64)]
     pub samples: usize,
-}
-
-/// `DIR` or `DIR:FORMAT` (a `:` followed by a path is part of the directory).
-fn parse_data(spec: &str) -> Result<DatasetEntry> {
-    let (path, format) = match spec.rsplit_once(':') {
-        Some((p, f)) if !f.contains('/') && !p.is_empty() => (p, Some(f.to_string())),
-        _ => (spec, None),
-    };
-    Ok(DatasetEntry {
-        path: std::path::absolute(path).with_context(|| format!("--data {spec}"))?,
-        format,
-        weight: 1.0,
-    })
 }
 
 /// The thread counts to time, ascending and without repeats.

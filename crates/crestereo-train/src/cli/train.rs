@@ -73,7 +73,9 @@ pub struct TrainArgs {
     pub no_progress: bool,
 }
 
-fn parse_data(spec: &str) -> Result<DatasetEntry> {
+/// `DIR`, `DIR:FORMAT` or either with `@WEIGHT` (a `:` followed by a path is part of the
+/// directory).
+pub(super) fn parse_data(spec: &str) -> Result<DatasetEntry> {
     let (rest, weight) = match spec.rsplit_once('@') {
         Some((r, w)) => (
             r,

@@ -76,7 +76,8 @@ fn download_wheels(python: &Path, dest: &Path) -> anyhow::Result<()> {
         ])
         .arg(dest)
         .args(requirements())
-        .stdout(Stdio::inherit())
+        // pip's report goes to stderr: commands such as `plan` print their result on stdout.
+        .stdout(std::io::stderr())
         .stderr(Stdio::inherit())
         .status()
         .with_context(|| format!("cannot run {} -m pip", python.display()))?;
