@@ -4,6 +4,8 @@ use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use crate::onnx::{Graph, Value};
+
 #[derive(Config, Debug)]
 pub struct LinearAttentionConfig {
     #[config(default = 1e-6)]
@@ -144,4 +146,113 @@ pub fn to_tokens<B: Backend>(x: Tensor<B, 4>) -> Tensor<B, 3> {
 pub fn from_tokens<B: Backend>(x: Tensor<B, 3>, h: usize, w: usize) -> Tensor<B, 4> {
     let [n, _, c] = x.dims();
     x.reshape([n, h, w, c]).permute([0, 3, 1, 2])
+}
+
+/// A bias-free or biased [`Linear`] as ONNX nodes (`x @ W (+ b)`; Burn stores W as in × out).
+fn emit_linear<B: Backend>(g: &mut Graph, linear: &Linear<B>, x: &Value) -> Value {
+    let w = g.param(&linear.weight);
+    let y = g.matmul(x, &w);
+    match &linear.bias {
+        Some(b) => {
+            let b = g.param(b);
+            g.add(&y, &b)
+        }
+        None => y,
+    }
+}
+
+/// [`elu_plus_one`] as ONNX nodes: `max(x, 0) + exp(min(x, 0))`.
+fn emit_elu_plus_one(g: &mut Graph, x: &Value) -> Value {
+    let positive = g.relu(x);
+    let zero = g.scalar(0.0);
+    let negative = g.binary("Min", x, &zero);
+    let negative = g.unary("Exp", &negative);
+    g.add(&positive, &negative)
+}
+
+impl LinearAttention {
+    /// [`Self::forward`] as ONNX nodes (matrix products only: no `Einsum`).
+    pub fn emit(&self, g: &mut Graph, q: &Value, k: &Value, v: &Value) -> Value {
+        let s = v.shape[1] as f32;
+        let q = emit_elu_plus_one(g, q);
+        let q = g.transpose(&q, &[0, 2, 1, 3]);
+        let k = emit_elu_plus_one(g, k);
+        let k = g.transpose(&k, &[0, 2, 1, 3]);
+        let v = g.div_scalar(v, s);
+        let v = g.transpose(&v, &[0, 2, 1, 3]);
+        let k_t = g.transpose(&k, &[0, 1, 3, 2]);
+        let kv = g.matmul(&k_t, &v);
+        let k_sum = g.sum_dim(&k, 2);
+        let k_sum = g.transpose(&k_sum, &[0, 1, 3, 2]);
+        let z = g.matmul(&q, &k_sum);
+        let z = g.add_scalar(&z, self.eps as f32);
+        let z = g.unary("Reciprocal", &z);
+        let out = g.matmul(&q, &kv);
+        let out = g.mul(&out, &z);
+        let out = g.mul_scalar(&out, s);
+        g.transpose(&out, &[0, 2, 1, 3])
+    }
+}
+
+impl<B: Backend> LoFTREncoderLayer<B> {
+    fn emit_layer_norm(&self, g: &mut Graph, norm: &LayerNorm<B>, x: &Value) -> Value {
+        let gamma = g.param(&norm.gamma);
+        let beta = match &norm.beta {
+            Some(b) => g.param(b),
+            None => {
+                let d = gamma.shape[0];
+                g.constant("zeros", &vec![0.0; d], &[d])
+            }
+        };
+        g.layer_norm(x, &gamma, &beta, self.layer_norm_eps)
+    }
+
+    /// [`Self::forward`] as ONNX nodes.
+    pub fn emit(&self, g: &mut Graph, x: &Value, source: &Value) -> Value {
+        let [n, l, c] = x.dims();
+        let s = source.shape[1];
+        let (h, d) = (self.nhead, c / self.nhead);
+        let q = emit_linear(g, &self.q_proj, x);
+        let q = g.reshape(&q, &[n, l, h, d]);
+        let k = emit_linear(g, &self.k_proj, source);
+        let k = g.reshape(&k, &[n, s, h, d]);
+        let v = emit_linear(g, &self.v_proj, source);
+        let v = g.reshape(&v, &[n, s, h, d]);
+        let message = self.attention.emit(g, &q, &k, &v);
+        let message = g.reshape(&message, &[n, l, c]);
+        let message = emit_linear(g, &self.merge, &message);
+        let message = self.emit_layer_norm(g, &self.norm1, &message);
+        let hidden = g.concat(&[x, &message], 2);
+        let hidden = emit_linear(g, &self.mlp1, &hidden);
+        let hidden = g.relu(&hidden);
+        let message = emit_linear(g, &self.mlp2, &hidden);
+        let message = self.emit_layer_norm(g, &self.norm2, &message);
+        g.add(x, &message)
+    }
+
+    /// [`Self::forward_self`] as ONNX nodes.
+    pub fn emit_self(&self, g: &mut Graph, a: &Value, b: &Value) -> (Value, Value) {
+        (self.emit(g, a, a), self.emit(g, b, b))
+    }
+
+    /// [`Self::forward_cross`] as ONNX nodes.
+    pub fn emit_cross(&self, g: &mut Graph, a: &Value, b: &Value) -> (Value, Value) {
+        let a = self.emit(g, a, b);
+        let b = self.emit(g, b, &a);
+        (a, b)
+    }
+}
+
+/// [`to_tokens`] as ONNX nodes.
+pub fn emit_to_tokens(g: &mut Graph, x: &Value) -> Value {
+    let [n, c, h, w] = x.dims();
+    let t = g.transpose(x, &[0, 2, 3, 1]);
+    g.reshape(&t, &[n, h * w, c])
+}
+
+/// [`from_tokens`] as ONNX nodes.
+pub fn emit_from_tokens(g: &mut Graph, x: &Value, h: usize, w: usize) -> Value {
+    let [n, _, c] = x.dims();
+    let t = g.reshape(x, &[n, h, w, c]);
+    g.transpose(&t, &[0, 3, 1, 2])
 }

@@ -5,6 +5,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use crate::conv2d::{Conv2d, Conv2dConfig};
+use crate::onnx::{Graph, Value};
 
 /// PyTorch `nn.InstanceNorm2d(affine=False, track_running_stats=False)`: per sample and channel,
 /// biased variance over H×W.
@@ -139,5 +140,43 @@ impl<B: Backend> BasicEncoder<B> {
             out.clone().slice([0..n, 0..c, 0..h, 0..w]),
             out.slice([n..2 * n, 0..c, 0..h, 0..w]),
         )
+    }
+}
+
+impl<B: Backend> ResidualBlock<B> {
+    /// [`Self::forward`] as ONNX nodes.
+    pub fn emit(&self, g: &mut Graph, x: &Value) -> Value {
+        let eps = self.norm_eps;
+        let y = self.conv1.emit(g, x);
+        let y = g.instance_norm(&y, eps);
+        let y = g.relu(&y);
+        let y = self.conv2.emit(g, &y);
+        let y = g.instance_norm(&y, eps);
+        let y = g.relu(&y);
+        let shortcut = self.downsample.emit(g, x);
+        let shortcut = g.instance_norm(&shortcut, eps);
+        let sum = g.add(&shortcut, &y);
+        g.relu(&sum)
+    }
+}
+
+impl<B: Backend> BasicEncoder<B> {
+    /// [`Self::forward`] as ONNX nodes.
+    pub fn emit(&self, g: &mut Graph, x: &Value) -> Value {
+        let x = self.conv1.emit(g, x);
+        let x = g.instance_norm(&x, self.norm_eps);
+        let mut x = g.relu(&x);
+        for block in self.layer1.iter().chain(&self.layer2).chain(&self.layer3) {
+            x = block.emit(g, &x);
+        }
+        self.conv2.emit(g, &x)
+    }
+
+    /// [`Self::forward_pair`] as ONNX nodes.
+    pub fn emit_pair(&self, g: &mut Graph, left: &Value, right: &Value) -> (Value, Value) {
+        let n = left.shape[0];
+        let both = g.concat(&[left, right], 0);
+        let out = self.emit(g, &both);
+        (g.narrow(&out, 0, 0, n), g.narrow(&out, 0, n, n))
     }
 }

@@ -7,7 +7,7 @@ use stereo_io::DisparityMap;
 
 use crate::input::BgrImage;
 use crate::model::CREStereo;
-use crate::upsample::resize_bilinear_align_corners;
+use crate::upsample::{emit_resize_bilinear_align_corners, resize_bilinear_align_corners};
 
 #[derive(Debug, Clone, Copy)]
 pub struct InferenceOptions {
@@ -56,6 +56,32 @@ pub fn cascade<B: Backend>(
         flow = preds.into_iter().last();
     }
     flow.expect("at least one prediction")
+}
+
+/// [`cascade`] as ONNX nodes: the same stages, resizes and hand-overs.
+pub fn emit_cascade<B: Backend>(
+    model: &CREStereo<B>,
+    g: &mut crate::onnx::Graph,
+    left: &crate::onnx::Value,
+    right: &crate::onnx::Value,
+    opts: InferenceOptions,
+) -> crate::onnx::Value {
+    assert!(opts.stages >= 1 && opts.iters >= 1);
+    let [_, _, h, w] = left.dims();
+    let mut flow: Option<crate::onnx::Value> = None;
+    for s in 0..opts.stages {
+        let f = 1usize << (opts.stages - 1 - s);
+        let (l, r) = if f == 1 {
+            (left.clone(), right.clone())
+        } else {
+            (
+                emit_resize_bilinear_align_corners(g, left, [h / f, w / f]),
+                emit_resize_bilinear_align_corners(g, right, [h / f, w / f]),
+            )
+        };
+        flow = Some(model.emit_forward(g, &l, &r, opts.iters, flow.as_ref()));
+    }
+    flow.expect("at least one stage")
 }
 
 /// Runs the network on an image pair of any size: pads (edge replicate, bottom/right) to a

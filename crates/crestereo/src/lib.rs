@@ -42,12 +42,14 @@ pub mod loss;
 pub mod model;
 pub mod motion_encoder;
 pub mod observer;
+pub mod onnx;
 pub mod position_encoding;
 pub mod refine;
 mod simd;
 pub mod update;
 pub mod upsample;
 pub mod weights;
+pub mod weights_pth;
 
 pub use attention::{
     LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig,

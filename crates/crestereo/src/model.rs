@@ -6,13 +6,19 @@ use burn::prelude::*;
 use burn::tensor::activation::{relu, sigmoid, tanh};
 use burn::tensor::module::avg_pool2d;
 
-use crate::attention::{LoFTREncoderLayer, LoFTREncoderLayerConfig, from_tokens, to_tokens};
+use crate::attention::{
+    LoFTREncoderLayer, LoFTREncoderLayerConfig, emit_from_tokens, emit_to_tokens, from_tokens,
+    to_tokens,
+};
 use crate::conv2d::Conv2d;
 use crate::corr::AdaptiveGroupCorrelationConfig;
 use crate::encoder::{BasicEncoder, BasicEncoderConfig, conv_cfg};
 use crate::observer::{ForwardObserver, NoObserver};
+use crate::onnx::{Graph, Value};
 use crate::position_encoding::{PositionEncodingSine, PositionEncodingSineConfig};
-use crate::refine::{Level, LevelInputs, Lookup, hand_over};
+use crate::refine::{
+    EmittedLevel, EmittedLookup, Level, LevelInputs, Lookup, emit_hand_over, hand_over,
+};
 use crate::update::{UpdateBlock, UpdateBlockConfig};
 
 #[derive(Config, Debug)]
@@ -260,6 +266,115 @@ impl<B: Backend> CREStereo<B> {
         );
         observer.self_attention(&left, &right);
         (from_tokens(left, h, w), from_tokens(right, h, w))
+    }
+}
+
+impl<B: Backend> CREStereo<B> {
+    /// [`Self::forward`] as ONNX nodes, returning only the last prediction (N, 2, H, W), the
+    /// one inference keeps. `iters` must be at least 1.
+    pub fn emit_forward(
+        &self,
+        g: &mut Graph,
+        left: &Value,
+        right: &Value,
+        iters: usize,
+        flow_init: Option<&Value>,
+    ) -> Value {
+        assert!(iters >= 1, "at least one iteration");
+        let [_, ch, h, w] = left.dims();
+        assert_eq!(
+            left.shape, right.shape,
+            "CREStereo: left and right images differ in shape"
+        );
+        assert!(
+            ch == 3 && h % 16 == 0 && w % 16 == 0,
+            "CREStereo: image size {h}x{w}"
+        );
+        let mut norm = |x: &Value| {
+            let x = g.div_scalar(x, 255.0);
+            let x = g.mul_scalar(&x, 2.0);
+            g.sub_scalar(&x, 1.0)
+        };
+        let (left, right) = (norm(left), norm(right));
+        let (fmap1, fmap2) = self.fnet.emit_pair(g, &left, &right);
+        let [quarter, eighth, sixteenth] = self.emit_levels(g, fmap1, fmap2);
+        let flow = match flow_init {
+            Some(init) => emit_hand_over(g, init, quarter.size()),
+            None => {
+                let [n, _, h16, w16] = sixteenth.net.dims();
+                let start = g.constant("zeros", &vec![0.0; n * 2 * h16 * w16], &[n, 2, h16, w16]);
+                let flow = self.emit_refine_level(g, sixteenth, start, iters / 2);
+                let flow = emit_hand_over(g, &flow, eighth.size());
+                let flow = self.emit_refine_level(g, eighth, flow, iters / 2);
+                emit_hand_over(g, &flow, quarter.size())
+            }
+        };
+        let up = self.emit_refine_level(g, quarter, flow, iters);
+        g.neg(&up)
+    }
+
+    /// [`Self::levels`] as ONNX nodes: the 1/4, 1/8 and 1/16 inputs.
+    fn emit_levels(&self, g: &mut Graph, fmap1: Value, fmap2: Value) -> [EmittedLevel; 3] {
+        let [_, c, _, _] = fmap1.dims();
+        let hd = self.hidden_dim;
+        let offsets = |g: &mut Graph, conv: &Conv2d<B>, x: &Value| {
+            let logits = conv.emit(g, x);
+            let o = g.sigmoid(&logits);
+            let o = g.sub_scalar(&o, 0.5);
+            g.mul_scalar(&o, (2.0 * self.offset_range) as f32)
+        };
+        let fmap1_dw8 = g.avg_pool(&fmap1, 2);
+        let fmap2_dw8 = g.avg_pool(&fmap2, 2);
+        let offset_dw8 = offsets(g, &self.conv_offset_8, &fmap1_dw8);
+
+        let net = g.narrow(&fmap1, 1, 0, hd);
+        let net = g.tanh(&net);
+        let inp = g.narrow(&fmap1, 1, hd, c - hd);
+        let inp = g.relu(&inp);
+        let net_dw8 = g.avg_pool(&net, 2);
+        let inp_dw8 = g.avg_pool(&inp, 2);
+
+        let fmap1_dw16 = g.avg_pool(&fmap1, 4);
+        let fmap2_dw16 = g.avg_pool(&fmap2, 4);
+        let offset_dw16 = offsets(g, &self.conv_offset_16, &fmap1_dw16);
+        let net_dw16 = g.avg_pool(&net, 4);
+        let inp_dw16 = g.avg_pool(&inp, 4);
+        let [_, _, h16, w16] = fmap1_dw16.dims();
+        let left = self.pos_encoding.emit(g, &fmap1_dw16);
+        let right = self.pos_encoding.emit(g, &fmap2_dw16);
+        let left = emit_to_tokens(g, &left);
+        let right = emit_to_tokens(g, &right);
+        let (left, right) = self.self_att_fn.emit_self(g, &left, &right);
+        let fmap1_dw16 = emit_from_tokens(g, &left, h16, w16);
+        let fmap2_dw16 = emit_from_tokens(g, &right, h16, w16);
+        [
+            EmittedLevel {
+                lookup: EmittedLookup::Warp {
+                    left: fmap1,
+                    right: fmap2,
+                },
+                net,
+                inp,
+            },
+            EmittedLevel {
+                lookup: EmittedLookup::Offsets {
+                    left: fmap1_dw8,
+                    right: fmap2_dw8,
+                    offsets: offset_dw8,
+                },
+                net: net_dw8,
+                inp: inp_dw8,
+            },
+            EmittedLevel {
+                lookup: EmittedLookup::AttendedOffsets {
+                    left: fmap1_dw16,
+                    right: fmap2_dw16,
+                    offsets: offset_dw16,
+                },
+                net: net_dw16,
+                inp: inp_dw16,
+            },
+        ]
     }
 }
 

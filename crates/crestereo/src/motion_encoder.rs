@@ -45,3 +45,26 @@ impl<B: Backend> BasicMotionEncoder<B> {
         Tensor::cat(vec![out, flow], 1)
     }
 }
+
+impl<B: Backend> BasicMotionEncoder<B> {
+    /// [`Self::forward`] as ONNX nodes.
+    pub fn emit(
+        &self,
+        g: &mut crate::onnx::Graph,
+        flow: &crate::onnx::Value,
+        corr: &crate::onnx::Value,
+    ) -> crate::onnx::Value {
+        let cor = self.convc1.emit(g, corr);
+        let cor = g.relu(&cor);
+        let cor = self.convc2.emit(g, &cor);
+        let cor = g.relu(&cor);
+        let flo = self.convf1.emit(g, flow);
+        let flo = g.relu(&flo);
+        let flo = self.convf2.emit(g, &flo);
+        let flo = g.relu(&flo);
+        let both = g.concat(&[&cor, &flo], 1);
+        let out = self.conv.emit(g, &both);
+        let out = g.relu(&out);
+        g.concat(&[&out, flow], 1)
+    }
+}

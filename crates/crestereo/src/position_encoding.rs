@@ -88,3 +88,13 @@ impl PositionEncodingSine {
         self.add(x, &table)
     }
 }
+
+impl PositionEncodingSine {
+    /// [`Self::forward`] as ONNX nodes: the table is a constant of the graph.
+    pub fn emit(&self, g: &mut crate::onnx::Graph, x: &crate::onnx::Value) -> crate::onnx::Value {
+        let [_, c, h, w] = x.dims();
+        assert_eq!(c, self.d_model, "positional encoding: shape mismatch");
+        let table = g.constant("position_encoding", &self.table(h, w), &[1, c, h, w]);
+        g.add(x, &table)
+    }
+}

@@ -3,11 +3,18 @@
 
 use burn::prelude::*;
 
+use crate::agcl::CorrSpec;
+use crate::agcl::emit::{emit_offset_corr, emit_shift_corr, emit_warp};
 use crate::attention::from_tokens;
+use crate::attention::{emit_from_tokens, emit_to_tokens};
 use crate::corr::{AdaptiveGroupCorrelation, SearchWindow};
 use crate::model::CREStereo;
 use crate::observer::{ForwardObserver, IterationOutputs};
-use crate::upsample::{convex_upsample, resize_bilinear_align_corners};
+use crate::onnx::{Graph, Value};
+use crate::upsample::{
+    convex_upsample, emit_convex_upsample, emit_resize_bilinear_align_corners,
+    resize_bilinear_align_corners,
+};
 
 /// A level of the cascade, by its resolution relative to the input images.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -181,5 +188,115 @@ impl<B: Backend> CREStereo<B> {
             Lookup::Offsets { corr, offsets } => corr.corr_offset(flow, offsets.clone(), window),
             Lookup::Warp { corr } => corr.corr_warp(flow, window),
         }
+    }
+}
+
+/// A level's lookup as graph values (see [`Lookup`]).
+pub(crate) enum EmittedLookup {
+    /// 1/16: the self-attended maps, cross-attended once (the inputs of the cross-attention are
+    /// the same at every iteration, so its result is too) and learned offsets.
+    AttendedOffsets {
+        left: Value,
+        right: Value,
+        offsets: Value,
+    },
+    Offsets {
+        left: Value,
+        right: Value,
+        offsets: Value,
+    },
+    Warp {
+        left: Value,
+        right: Value,
+    },
+}
+
+/// A level's inputs as graph values (see [`LevelInputs`]).
+pub(crate) struct EmittedLevel {
+    pub lookup: EmittedLookup,
+    pub net: Value,
+    pub inp: Value,
+}
+
+impl EmittedLevel {
+    pub(crate) fn size(&self) -> [usize; 2] {
+        let [_, _, h, w] = self.net.dims();
+        [h, w]
+    }
+}
+
+/// [`hand_over`] as ONNX nodes.
+pub(crate) fn emit_hand_over(g: &mut Graph, flow: &Value, size: [usize; 2]) -> Value {
+    let scale = size[0] as f64 / flow.shape[2] as f64;
+    let resized = emit_resize_bilinear_align_corners(g, flow, size);
+    g.mul_scalar(&resized, -scale as f32)
+}
+
+impl<B: Backend> CREStereo<B> {
+    /// [`Self::refine_level`] as ONNX nodes, for inference: returns the last flow
+    /// convex-upsampled ×rate (the predictions of the other iterations feed nothing, so they
+    /// are not emitted).
+    pub(crate) fn emit_refine_level(
+        &self,
+        g: &mut Graph,
+        level: EmittedLevel,
+        mut flow: Value,
+        iters: usize,
+    ) -> Value {
+        let rate = self.upsample_rate;
+        if iters == 0 {
+            let [n, _, h, w] = flow.dims();
+            let size = n * 2 * h * rate * w * rate;
+            return g.constant("zeros", &vec![0.0; size], &[n, 2, h * rate, w * rate]);
+        }
+        let EmittedLevel {
+            lookup,
+            mut net,
+            inp,
+        } = level;
+        let lookup = match lookup {
+            EmittedLookup::AttendedOffsets {
+                left,
+                right,
+                offsets,
+            } => {
+                let [_, _, h, w] = left.dims();
+                let left_tokens = emit_to_tokens(g, &left);
+                let right_tokens = emit_to_tokens(g, &right);
+                let (l, r) = self.cross_att_fn.emit_cross(g, &left_tokens, &right_tokens);
+                EmittedLookup::Offsets {
+                    left: emit_from_tokens(g, &l, h, w),
+                    right: emit_from_tokens(g, &r, h, w),
+                    offsets,
+                }
+            }
+            other => other,
+        };
+        let groups = self.groups;
+        let mut upsampled = None;
+        for index in 0..iters {
+            let spec = CorrSpec::new(SearchWindow::for_iteration(index), groups);
+            let corr = match &lookup {
+                EmittedLookup::Offsets {
+                    left,
+                    right,
+                    offsets,
+                } => emit_offset_corr(g, left, right, &flow, offsets, spec),
+                EmittedLookup::Warp { left, right } => {
+                    let warped = emit_warp(g, right, &flow);
+                    emit_shift_corr(g, left, &warped, spec)
+                }
+                EmittedLookup::AttendedOffsets { .. } => unreachable!("cross-attended above"),
+            };
+            let last = index + 1 == iters;
+            let (net_new, up_mask, delta_flow) =
+                self.update_block.emit(g, &net, &inp, &corr, &flow, last);
+            net = net_new;
+            flow = g.add(&flow, &delta_flow);
+            if let Some(mask) = up_mask {
+                upsampled = Some(emit_convex_upsample(g, &flow, &mask, rate));
+            }
+        }
+        upsampled.expect("the last iteration's upsampled flow")
     }
 }

@@ -8,6 +8,7 @@ use crate::conv2d::Conv2d;
 use crate::encoder::conv_cfg;
 use crate::gru::{SepConvGru, SepConvGruConfig};
 use crate::motion_encoder::{BasicMotionEncoder, BasicMotionEncoderConfig};
+use crate::onnx::{Graph, Value};
 
 #[derive(Config, Debug)]
 pub struct FlowHeadConfig {
@@ -92,6 +93,41 @@ impl<B: Backend> UpdateBlock<B> {
         let net = self.gru.forward(net, inp);
         let delta_flow = self.flow_head.forward(net.clone());
         let mask = (self.mask2.forward(relu(self.mask1.forward(net.clone())))).mul_scalar(0.25);
+        (net, mask, delta_flow)
+    }
+}
+
+impl<B: Backend> FlowHead<B> {
+    /// [`Self::forward`] as ONNX nodes.
+    pub fn emit(&self, g: &mut Graph, x: &Value) -> Value {
+        let y = self.conv1.emit(g, x);
+        let y = g.relu(&y);
+        self.conv2.emit(g, &y)
+    }
+}
+
+impl<B: Backend> UpdateBlock<B> {
+    /// [`Self::forward`] as ONNX nodes: (new hidden state, up-mask, Δflow). The mask head is
+    /// emitted only when `with_mask` (a graph needs the mask of a level's last iteration only).
+    pub fn emit(
+        &self,
+        g: &mut Graph,
+        net: &Value,
+        inp: &Value,
+        corr: &Value,
+        flow: &Value,
+        with_mask: bool,
+    ) -> (Value, Option<Value>, Value) {
+        let motion = self.encoder.emit(g, flow, corr);
+        let inp = g.concat(&[inp, &motion], 1);
+        let net = self.gru.emit(g, net, &inp);
+        let delta_flow = self.flow_head.emit(g, &net);
+        let mask = with_mask.then(|| {
+            let m = self.mask1.emit(g, &net);
+            let m = g.relu(&m);
+            let m = self.mask2.emit(g, &m);
+            g.mul_scalar(&m, 0.25)
+        });
         (net, mask, delta_flow)
     }
 }

@@ -89,7 +89,7 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
 
 /// Refuses, before the slow part, an output whose folder is missing or not writable: creates and
 /// removes a temp file where the durable write will put its own.
-fn check_writable(path: &Path) -> Result<()> {
+pub(super) fn check_writable(path: &Path) -> Result<()> {
     let folder = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),

@@ -1,9 +1,10 @@
-//! The `crestereo` command line: `infer`, `train`, `eval`, `plot` and `bench`.
+//! The `crestereo` command line: `infer`, `train`, `eval`, `export`, `plot` and `bench`.
 
 mod bench;
 mod bench_device;
 mod bench_loader;
 mod eval;
+mod export;
 mod infer;
 mod train;
 
@@ -47,6 +48,9 @@ enum Command {
         #[command(flatten)]
         backend: BackendArgs,
     },
+    /// Take a model out of the binary: an ONNX graph or a PyTorch state dict.
+    #[command(subcommand)]
+    Export(export::ExportCommand),
     /// Draw a run's loss and validation curves as a PNG.
     Plot {
         /// The training run directory (reads train_log.csv and val_log.csv).
@@ -190,6 +194,7 @@ fn run(cli: Cli) -> Result<()> {
                 &Default::default()
             ))
         }
+        Command::Export(command) => export::run(&command),
         Command::Plot { run, out, smooth } => {
             crate::plot::plot_run(&run, &out, smooth)?;
             eprintln!("wrote {}", out.display());

@@ -19,6 +19,7 @@ mod autodiff;
 pub mod composed;
 #[cfg(feature = "cube")]
 mod cube;
+pub mod emit;
 mod flex;
 pub mod kernels;
 mod shift;

@@ -150,3 +150,27 @@ impl<B: Backend> Conv2d<B> {
         }
     }
 }
+
+impl<B: Backend> Conv2d<B> {
+    /// This convolution as an ONNX `Conv` node (weights and bias as initializers, shared by
+    /// every call).
+    pub fn emit(&self, g: &mut crate::onnx::Graph, x: &crate::onnx::Value) -> crate::onnx::Value {
+        let [top, left] = self.symmetric_padding().unwrap_or_else(|| {
+            panic!(
+                "convolution padding {:?} is not symmetric explicit or valid",
+                self.padding
+            )
+        });
+        let weight = g.param(&self.weight);
+        let bias = self.bias.as_ref().map(|b| g.param(b));
+        g.conv(
+            x,
+            &weight,
+            bias.as_ref(),
+            self.stride,
+            [top, left, top, left],
+            self.dilation,
+            self.groups,
+        )
+    }
+}

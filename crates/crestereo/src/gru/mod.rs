@@ -113,6 +113,42 @@ impl<B: Backend> SepConvGru<B> {
     }
 }
 
+/// One GRU step as ONNX nodes, in the order of operations of [`composed_gates`].
+fn emit_gru_step<B: Backend>(
+    g: &mut crate::onnx::Graph,
+    h: &crate::onnx::Value,
+    x: &crate::onnx::Value,
+    [cz, cr, cq]: [&Conv2d<B>; 3],
+) -> crate::onnx::Value {
+    let hx = g.concat(&[h, x], 1);
+    let z = cz.emit(g, &hx);
+    let z = g.sigmoid(&z);
+    let r = cr.emit(g, &hx);
+    let r = g.sigmoid(&r);
+    let rh = g.mul(&r, h);
+    let q = g.concat(&[&rh, x], 1);
+    let q = cq.emit(g, &q);
+    let q = g.tanh(&q);
+    let keep = g.neg(&z);
+    let keep = g.add_scalar(&keep, 1.0);
+    let kept = g.mul(&keep, h);
+    let new = g.mul(&z, &q);
+    g.add(&kept, &new)
+}
+
+impl<B: Backend> SepConvGru<B> {
+    /// [`Self::forward`] as ONNX nodes.
+    pub fn emit(
+        &self,
+        g: &mut crate::onnx::Graph,
+        h: &crate::onnx::Value,
+        x: &crate::onnx::Value,
+    ) -> crate::onnx::Value {
+        let h = emit_gru_step(g, h, x, [&self.convz1, &self.convr1, &self.convq1]);
+        emit_gru_step(g, &h, x, [&self.convz2, &self.convr2, &self.convq2])
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use burn::module::AutodiffModule;

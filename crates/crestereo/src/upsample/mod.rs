@@ -130,6 +130,77 @@ pub fn composed_convex_upsample<B: Backend>(
         .reshape([n, c, h * rate, w * rate])
 }
 
+/// [`resize_bilinear_align_corners`] as ONNX nodes: the same two interpolation-matrix
+/// products, the matrices as constants of the graph.
+pub fn emit_resize_bilinear_align_corners(
+    g: &mut crate::onnx::Graph,
+    x: &crate::onnx::Value,
+    size: [usize; 2],
+) -> crate::onnx::Value {
+    let [n, c, h, w] = x.dims();
+    let [ho, wo] = size;
+    if [h, w] == size {
+        return x.clone();
+    }
+    // (in × out): the transpose of `linear_weights`' (out × in).
+    let mut matrix = |n_in: usize, n_out: usize| {
+        let m = linear_weights(n_in, n_out);
+        let t: Vec<f32> = (0..n_in * n_out)
+            .map(|k| m[(k % n_out) * n_in + k / n_out])
+            .collect();
+        g.constant("resize", &t, &[n_in, n_out])
+    };
+    let rw = matrix(w, wo);
+    let rh = matrix(h, ho);
+    let y = g.reshape(x, &[n * c * h, w]);
+    let y = g.matmul(&y, &rw);
+    let y = g.reshape(&y, &[n * c, h, wo]);
+    let y = g.transpose(&y, &[0, 2, 1]);
+    let y = g.reshape(&y, &[n * c * wo, h]);
+    let y = g.matmul(&y, &rh);
+    let y = g.reshape(&y, &[n, c, wo, ho]);
+    g.transpose(&y, &[0, 1, 3, 2])
+}
+
+/// [`composed_convex_upsample`] as ONNX nodes (ranks ≤ 5, a softmax over one axis, nine
+/// slices of the zero-padded flow).
+pub fn emit_convex_upsample(
+    g: &mut crate::onnx::Graph,
+    flow: &crate::onnx::Value,
+    mask: &crate::onnx::Value,
+    rate: usize,
+) -> crate::onnx::Value {
+    let [n, c, h, w] = flow.dims();
+    assert_eq!(
+        mask.dims(),
+        [n, 9 * rate * rate, h, w],
+        "convex_upsample: mask shape"
+    );
+    let (rr, hw) = (rate * rate, h * w);
+    let mask = g.reshape(mask, &[n, 9, rr, hw]);
+    let mask = g.softmax(&mask, 1);
+    let scaled = g.mul_scalar(flow, rate as f32);
+    let col = g.constant("zeros", &vec![0.0; n * c * h], &[n, c, h, 1]);
+    let row = g.constant("zeros", &vec![0.0; n * c * (w + 2)], &[n, c, 1, w + 2]);
+    let padded = g.concat(&[&col, &scaled, &col], 3);
+    let padded = g.concat(&[&row, &padded, &row], 2);
+    let neighbours: Vec<crate::onnx::Value> = (0..9)
+        .map(|k| {
+            let (ky, kx) = (k / 3, k % 3);
+            let crop = g.crop(&padded, ky..ky + h, kx..kx + w);
+            g.reshape(&crop, &[n, c, 1, hw])
+        })
+        .collect();
+    let unfolded = g.concat(&neighbours.iter().collect::<Vec<_>>(), 2);
+    let mask = g.reshape(&mask, &[n, 1, 9, rr, hw]);
+    let unfolded = g.reshape(&unfolded, &[n, c, 9, 1, hw]);
+    let up = g.mul(&mask, &unfolded);
+    let up = g.sum_dim(&up, 2);
+    let up = g.reshape(&up, &[n * c, rate, rate, h, w]);
+    let up = g.transpose(&up, &[0, 3, 1, 4, 2]);
+    g.reshape(&up, &[n, c, h * rate, w * rate])
+}
+
 #[cfg(test)]
 mod tests {
     use burn::tensor::Distribution;
