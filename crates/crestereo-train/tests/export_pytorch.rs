@@ -46,7 +46,7 @@ fn os<S: AsRef<std::ffi::OsStr> + ?Sized>(s: &S) -> &std::ffi::OsStr {
     s.as_ref()
 }
 
-/// `crestereo export pytorch --weights W -o OUT`; returns its stderr.
+/// `crestereo export pytorch --weights W -o OUT`; returns what it printed.
 fn export(weights: &Path, out: &Path) -> String {
     let text = ok(&[
         os("export"),
@@ -347,9 +347,12 @@ fn trained_checkpoint_export_round_trips_and_pytorch_agrees() {
     println!("trained checkpoint: {changed} of 94 tensors changed in 3 steps");
     assert!(changed > 0, "training changed no weight");
 
-    // The run directory stands for its newest checkpoint.
+    // The checkpoint directory, and the run directory for its newest checkpoint.
     let pth = dir.path().join("trained.pth");
-    export(&run, &pth);
+    export(checkpoint.parent().unwrap(), &pth);
+    let from_run = dir.path().join("from_run.pth");
+    export(&run, &from_run);
+    assert!(std::fs::read(&from_run).unwrap() == std::fs::read(&pth).unwrap());
     check_round_trip(&checkpoint, &pth, "trained checkpoint");
     // eval and train --init-weights read the .pth too.
     let json = dir.path().join("eval.json");

@@ -4,7 +4,14 @@
 mod onnx;
 mod pytorch;
 
-use anyhow::Result;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use crestereo::weights::load_weights;
+use crestereo::{CREStereo, CREStereoConfig, CpuBackend};
+
+use crate::checkpoint::weights_file;
+use crate::cli::infer::check_writable;
 
 #[derive(Debug, clap::Subcommand)]
 pub enum ExportCommand {
@@ -21,4 +28,53 @@ pub fn run(command: &ExportCommand) -> Result<()> {
         ExportCommand::Onnx(args) => onnx::run(args),
         ExportCommand::Pytorch(args) => pytorch::run(args),
     }
+}
+
+/// `--weights`, or one line saying it is missing.
+fn weights_arg(weights: Option<&Path>) -> Result<&Path> {
+    weights.context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")
+}
+
+/// Refuses, before anything is read, an output that is a folder, one that exists (without
+/// `force`), and one whose folder is missing or not writable.
+fn check_output(path: &Path, force: bool) -> Result<()> {
+    if path.is_dir() {
+        bail!("cannot write {}: it is a folder", path.display());
+    }
+    if !force && path.symlink_metadata().is_ok() {
+        bail!(
+            "{} already exists: pass --force to replace it",
+            path.display()
+        );
+    }
+    check_writable(path)
+}
+
+/// The model with `weights` (anything `crestereo infer` takes) on the CPU; a file that does not
+/// fit is named in one line (the loaders explain a misfit over several: the first says what is
+/// wrong).
+fn load_model(weights: &Path) -> Result<CREStereo<CpuBackend>> {
+    let file = weights_file(weights)?;
+    if !file.is_file() {
+        bail!(
+            "cannot read weights {}: the file does not exist",
+            file.display()
+        );
+    }
+    let device = Default::default();
+    let model = CREStereoConfig::new().init::<CpuBackend>(&device);
+    load_weights(model, &file, &device).map_err(|e| {
+        let text = format!("{e:#}");
+        let first = text
+            .lines()
+            .next()
+            .unwrap_or_default()
+            .trim_end_matches(':');
+        let name = file.display().to_string();
+        if first.contains(&name) {
+            anyhow::anyhow!("not CREStereo weights: {first}")
+        } else {
+            anyhow::anyhow!("{name} is not CREStereo weights: {first}")
+        }
+    })
 }

@@ -1,15 +1,13 @@
 //! `crestereo export onnx`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use crestereo::InferenceOptions;
 use crestereo::onnx::{check_size, export_onnx};
-use crestereo::weights::load_weights;
-use crestereo::{CREStereoConfig, CpuBackend, InferenceOptions};
 
-use crate::checkpoint::weights_file;
-use crate::cli::infer::check_writable;
+use super::{check_output, load_model, weights_arg};
 
 #[derive(Debug, clap::Args)]
 pub struct OnnxArgs {
@@ -44,17 +42,6 @@ fn parse_size(s: &str) -> Result<[usize; 2]> {
     }
 }
 
-/// Refuses an existing output without `--force`, and a folder that cannot take it.
-pub(super) fn check_output(path: &Path, force: bool) -> Result<()> {
-    if path.exists() && !force {
-        bail!(
-            "{} already exists; pass --force to replace it",
-            path.display()
-        );
-    }
-    check_writable(path)
-}
-
 pub fn run(a: &OnnxArgs) -> Result<()> {
     let size = parse_size(&a.size)?;
     let opts = InferenceOptions {
@@ -62,14 +49,9 @@ pub fn run(a: &OnnxArgs) -> Result<()> {
         stages: usize::from(a.stages),
     };
     check_size(size, opts)?;
+    let weights = weights_arg(a.weights.as_deref())?;
     check_output(&a.output, a.force)?;
-    let weights = a
-        .weights
-        .as_deref()
-        .context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
-    let device = Default::default();
-    let model = CREStereoConfig::new().init::<CpuBackend>(&device);
-    let model = load_weights(model, weights_file(weights)?, &device)?;
+    let model = load_model(weights)?;
     let t0 = Instant::now();
     let export = export_onnx(&model, size, opts)?;
     stereo_io::write_bytes_atomically(&a.output, &export.bytes)

@@ -1,13 +1,12 @@
 //! `crestereo export pytorch`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
-use crestereo::weights::{load_weights, named_parameters};
+use anyhow::{Result, bail};
+use crestereo::weights::named_parameters;
 use crestereo::weights_pth::write_state_dict;
-use crestereo::{CREStereoConfig, CpuBackend};
 
-use crate::checkpoint::weights_file;
+use super::{check_output, load_model, weights_arg};
 
 #[derive(Debug, clap::Args)]
 pub struct PytorchArgs {
@@ -25,39 +24,19 @@ pub struct PytorchArgs {
 
 pub fn run(args: &PytorchArgs) -> Result<()> {
     // Everything that can be refused without reading the weights is refused first.
-    let weights = args
-        .weights
-        .as_deref()
-        .context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
+    let weights = weights_arg(args.weights.as_deref())?;
     let output = &args.output;
-    check_output(output, args.force)?;
-    let file = weights_file(weights)?;
-    if !file.is_file() {
+    if !matches!(
+        output.extension().and_then(|e| e.to_str()),
+        Some("pth" | "pt")
+    ) {
         bail!(
-            "cannot read weights {}: the file does not exist",
-            file.display()
+            "cannot write {}: the output must end in .pth or .pt (weights are read by their extension)",
+            output.display()
         );
     }
-
-    let device = Default::default();
-    let model = CREStereoConfig::new().init::<CpuBackend>(&device);
-    let model = load_weights(model, &file, &device).map_err(|e| {
-        // The loaders explain a misfit over several lines (each missing parameter, each shape):
-        // the first says what is wrong.
-        let text = format!("{e:#}");
-        let first = text
-            .lines()
-            .next()
-            .unwrap_or_default()
-            .trim_end_matches(':');
-        let name = file.display().to_string();
-        if first.contains(&name) {
-            anyhow::anyhow!("not CREStereo weights: {first}")
-        } else {
-            anyhow::anyhow!("{name} is not CREStereo weights: {first}")
-        }
-    })?;
-
+    check_output(output, args.force)?;
+    let model = load_model(weights)?;
     let tensors = named_parameters(&model);
     // The output may have appeared while the weights were read.
     if !args.force && output.exists() {
@@ -73,49 +52,6 @@ pub fn run(args: &PytorchArgs) -> Result<()> {
         tensors.len(),
         bytes as f64 / 1e6
     );
-    Ok(())
-}
-
-/// Refuses an output that would not be read back as PyTorch weights, one that exists (without
-/// `force`), and one whose folder is missing or not writable: creates and removes a temporary
-/// file where the durable write will put its own.
-fn check_output(path: &Path, force: bool) -> Result<()> {
-    if !matches!(
-        path.extension().and_then(|e| e.to_str()),
-        Some("pth" | "pt")
-    ) {
-        bail!(
-            "cannot write {}: the output must end in .pth or .pt (weights are read by their extension)",
-            path.display()
-        );
-    }
-    if path.is_dir() {
-        bail!("cannot write {}: it is a folder", path.display());
-    }
-    if !force && path.symlink_metadata().is_ok() {
-        bail!(
-            "{} already exists: pass --force to replace it",
-            path.display()
-        );
-    }
-    let folder = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    if !folder.is_dir() {
-        bail!(
-            "cannot write {}: the folder {} does not exist",
-            path.display(),
-            folder.display()
-        );
-    }
-    let probe = stereo_io::temp_sibling(path);
-    std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
-    let _ = std::fs::remove_file(&probe);
     Ok(())
 }
 
