@@ -201,7 +201,7 @@ impl<B: Backend> LoFTREncoderLayer<B> {
             Some(b) => g.param(b),
             None => {
                 let d = gamma.shape[0];
-                g.constant("zeros", &vec![0.0; d], &[d])
+                g.zeros(&[d])
             }
         };
         g.layer_norm(x, &gamma, &beta, self.layer_norm_eps)

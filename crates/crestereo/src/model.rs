@@ -302,7 +302,7 @@ impl<B: Backend> CREStereo<B> {
             Some(init) => emit_hand_over(g, init, quarter.size()),
             None => {
                 let [n, _, h16, w16] = sixteenth.net.dims();
-                let start = g.constant("zeros", &vec![0.0; n * 2 * h16 * w16], &[n, 2, h16, w16]);
+                let start = g.zeros(&[n, 2, h16, w16]);
                 let flow = self.emit_refine_level(g, sixteenth, start, iters / 2);
                 let flow = emit_hand_over(g, &flow, eighth.size());
                 let flow = self.emit_refine_level(g, eighth, flow, iters / 2);

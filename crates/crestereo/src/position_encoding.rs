@@ -94,7 +94,7 @@ impl PositionEncodingSine {
     pub fn emit(&self, g: &mut crate::onnx::Graph, x: &crate::onnx::Value) -> crate::onnx::Value {
         let [_, c, h, w] = x.dims();
         assert_eq!(c, self.d_model, "positional encoding: shape mismatch");
-        let table = g.constant("position_encoding", &self.table(h, w), &[1, c, h, w]);
+        let table = g.shared_constant("position_encoding", &[1, c, h, w], || self.table(h, w));
         g.add(x, &table)
     }
 }

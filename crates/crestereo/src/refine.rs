@@ -246,8 +246,7 @@ impl<B: Backend> CREStereo<B> {
         let rate = self.upsample_rate;
         if iters == 0 {
             let [n, _, h, w] = flow.dims();
-            let size = n * 2 * h * rate * w * rate;
-            return g.constant("zeros", &vec![0.0; size], &[n, 2, h * rate, w * rate]);
+            return g.zeros(&[n, 2, h * rate, w * rate]);
         }
         let EmittedLevel {
             lookup,

@@ -8,11 +8,14 @@ use crate::onnx::{Graph, Value};
 
 /// Column and row coordinates of every pixel as constants (1, 1, H, W).
 fn pixel_grid(g: &mut Graph, h: usize, w: usize) -> (Value, Value) {
-    let xs: Vec<f32> = (0..h * w).map(|i| (i % w) as f32).collect();
-    let ys: Vec<f32> = (0..h * w).map(|i| (i / w) as f32).collect();
+    let shape = [1, 1, h, w];
     (
-        g.constant("grid_x", &xs, &[1, 1, h, w]),
-        g.constant("grid_y", &ys, &[1, 1, h, w]),
+        g.shared_constant("grid_x", &shape, || {
+            (0..h * w).map(|i| (i % w) as f32).collect()
+        }),
+        g.shared_constant("grid_y", &shape, || {
+            (0..h * w).map(|i| (i / w) as f32).collect()
+        }),
     )
 }
 
@@ -52,8 +55,9 @@ pub fn emit_offset_corr(
             (dx as f32, dy as f32)
         })
         .unzip();
-    let dx = g.constant("window_dx", &dx, &[1, k, 1, 1]);
-    let dy = g.constant("window_dy", &dy, &[1, k, 1, 1]);
+    let key = format!("window_{}x{}", 2 * spec.ry + 1, 2 * spec.rx + 1);
+    let dx = g.shared_constant(&format!("{key}_dx"), &[1, k, 1, 1], || dx);
+    let dy = g.shared_constant(&format!("{key}_dy"), &[1, k, 1, 1], || dy);
     let offset = g.reshape(offset, &[n, k, 2, h, w]);
     let ox = g.narrow(&offset, 2, 0, 1);
     let ox = g.reshape(&ox, &[n, k, h, w]);

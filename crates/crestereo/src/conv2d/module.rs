@@ -8,7 +8,9 @@ use burn::nn::PaddingConfig2d;
 use burn::prelude::*;
 use burn::tensor::ops::ConvOptions;
 
-use crate::dispatch::{Kernels, kernels_f32};
+#[cfg(feature = "wgpu")]
+use crate::dispatch::Kernels;
+use crate::dispatch::kernels_f32;
 
 /// Configuration of a [`Conv2d`]: PyTorch's `nn.Conv2d` initialisation (as Burn's).
 #[derive(Config, Debug)]

@@ -8,6 +8,7 @@
 //! is two matrix products, as in the model: nothing TensorRT 10 rejects.
 
 mod graph;
+mod ops;
 
 use std::collections::BTreeSet;
 

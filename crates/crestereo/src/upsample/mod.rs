@@ -144,11 +144,12 @@ pub fn emit_resize_bilinear_align_corners(
     }
     // (in × out): the transpose of `linear_weights`' (out × in).
     let mut matrix = |n_in: usize, n_out: usize| {
-        let m = linear_weights(n_in, n_out);
-        let t: Vec<f32> = (0..n_in * n_out)
-            .map(|k| m[(k % n_out) * n_in + k / n_out])
-            .collect();
-        g.constant("resize", &t, &[n_in, n_out])
+        g.shared_constant("resize", &[n_in, n_out], || {
+            let m = linear_weights(n_in, n_out);
+            (0..n_in * n_out)
+                .map(|k| m[(k % n_out) * n_in + k / n_out])
+                .collect()
+        })
     };
     let rw = matrix(w, wo);
     let rh = matrix(h, ho);
@@ -180,8 +181,8 @@ pub fn emit_convex_upsample(
     let mask = g.reshape(mask, &[n, 9, rr, hw]);
     let mask = g.softmax(&mask, 1);
     let scaled = g.mul_scalar(flow, rate as f32);
-    let col = g.constant("zeros", &vec![0.0; n * c * h], &[n, c, h, 1]);
-    let row = g.constant("zeros", &vec![0.0; n * c * (w + 2)], &[n, c, 1, w + 2]);
+    let col = g.zeros(&[n, c, h, 1]);
+    let row = g.zeros(&[n, c, 1, w + 2]);
     let padded = g.concat(&[&col, &scaled, &col], 3);
     let padded = g.concat(&[&row, &padded, &row], 2);
     let neighbours: Vec<crate::onnx::Value> = (0..9)
