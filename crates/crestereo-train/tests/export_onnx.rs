@@ -350,6 +350,13 @@ fn onnxruntime_matches_crestereo_infer_with_reference_and_trained_weights() {
     );
 }
 
+/// `export onnx --weights W -o OUT` followed by `rest`.
+fn export_args<'a>(weights: &'a str, out: &'a str, rest: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec!["export", "onnx", "--weights", weights, "-o", out];
+    args.extend(rest);
+    args
+}
+
 #[test]
 fn bad_input_gets_one_line_and_no_file() {
     let dir = tempfile::tempdir().unwrap();
@@ -357,93 +364,54 @@ fn bad_input_gets_one_line_and_no_file() {
     let w = s(&weights);
     let out = dir.path().join("m.onnx");
     let o = s(&out);
-    let base = |size: &'static str| ["export", "onnx", "--weights", w, "--size", size, "-o", o];
+    let missing = dir.path().join("missing.pt");
+    let garbage = dir.path().join("garbage.pt");
+    std::fs::write(&garbage, b"not a state dict").unwrap();
+    let nowhere = dir.path().join("nowhere/m.onnx");
     for (args, expect) in [
-        (base("100x192").to_vec(), "not a multiple of 32"),
-        (base("32x64").to_vec(), "too small"),
-        (base("128").to_vec(), "expected HEIGHTxWIDTH"),
         (
-            ["export", "onnx", "--size", "64x64", "-o", o].to_vec(),
+            export_args(w, o, &["--size", "100x192"]),
+            "not a multiple of 32",
+        ),
+        (export_args(w, o, &["--size", "32x64"]), "too small"),
+        (
+            export_args(w, o, &["--size", "128"]),
+            "expected HEIGHTxWIDTH",
+        ),
+        (
+            vec!["export", "onnx", "--size", "64x64", "-o", o],
             "no weights given",
+        ),
+        (
+            export_args(s(&missing), o, &["--size", "64x64"]),
+            "missing.pt",
+        ),
+        (
+            export_args(s(&garbage), o, &["--size", "64x64"]),
+            "garbage.pt",
+        ),
+        (
+            export_args(w, s(&nowhere), &["--size", "64x64"]),
+            "does not exist",
         ),
     ] {
         let err = fails(&args);
         assert!(err.contains(expect), "{args:?}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
-        assert!(!out.exists(), "{args:?} left a file");
+        assert!(!out.exists() && !nowhere.exists(), "{args:?} left a file");
     }
-    let missing = dir.path().join("missing.pt");
-    let err = fails(&[
-        "export",
-        "onnx",
-        "--weights",
-        s(&missing),
-        "--size",
-        "64x64",
-        "-o",
-        o,
-    ]);
-    assert!(err.contains("missing.pt"), "{err}");
-    assert!(!out.exists());
-    let garbage = dir.path().join("garbage.pt");
-    std::fs::write(&garbage, b"not a state dict").unwrap();
-    let err = fails(&[
-        "export",
-        "onnx",
-        "--weights",
-        s(&garbage),
-        "--size",
-        "64x64",
-        "-o",
-        o,
-    ]);
-    assert!(
-        err.contains("garbage.pt") && err.trim().lines().count() == 1,
-        "{err}"
-    );
-    assert!(!out.exists());
     std::fs::remove_file(&garbage).unwrap();
-    let err = fails(&[
-        "export",
-        "onnx",
-        "--weights",
-        w,
-        "--size",
-        "64x64",
-        "-o",
-        s(&dir.path().join("nowhere/m.onnx")),
-    ]);
-    assert!(err.contains("does not exist"), "{err}");
 
     // An existing output is kept, byte for byte, unless --force.
     std::fs::write(&out, b"keep me").unwrap();
-    let err = fails(&[
-        "export",
-        "onnx",
-        "--weights",
-        w,
-        "--size",
-        "64x64",
-        "--iters",
-        "1",
-        "-o",
-        o,
-    ]);
+    let err = fails(&export_args(w, o, &["--size", "64x64", "--iters", "1"]));
     assert!(err.contains("--force"), "{err}");
     assert_eq!(std::fs::read(&out).unwrap(), b"keep me");
-    ok(&[
-        "export",
-        "onnx",
-        "--weights",
+    ok(&export_args(
         w,
-        "--size",
-        "64x64",
-        "--iters",
-        "2",
-        "-o",
         o,
-        "--force",
-    ]);
+        &["--size", "64x64", "--iters", "2", "--force"],
+    ));
     // Two iterations use every module: all 5.4 M parameters (21.7 MB) are initializers.
     assert!(
         std::fs::metadata(&out).unwrap().len() > 21_700_000,

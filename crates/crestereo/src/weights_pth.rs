@@ -24,22 +24,13 @@ use std::io::Write;
 use std::path::Path;
 
 use anyhow::{Context, Result, ensure};
-use burn::prelude::*;
 
-use crate::model::CREStereo;
-use crate::weights::{NamedArray, named_parameters};
+use crate::weights::NamedArray;
 
 /// The folder inside the archive (PyTorch's name when it saves to a buffer).
 const ARCHIVE: &str = "archive";
 /// PyTorch's alignment of every record's data.
 const ALIGNMENT: u16 = 64;
-
-/// Writes every parameter of `model` to `path` as a PyTorch state dict under the reference key
-/// names (Linear weights as `(out, in)`), through the project's durable-write path: the file
-/// appears whole or not at all, and an existing file is replaced.
-pub fn save_pytorch<B: Backend>(model: &CREStereo<B>, path: &Path) -> Result<()> {
-    write_state_dict(&named_parameters(model), path).map(|_| ())
-}
 
 /// Writes `tensors` (reference keys and layout) to `path` as a PyTorch state dict, durably;
 /// returns the file's size in bytes.

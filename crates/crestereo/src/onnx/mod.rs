@@ -28,8 +28,6 @@ pub struct OnnxExport {
     /// The op types the graph uses, sorted.
     pub op_types: BTreeSet<String>,
     pub nodes: usize,
-    /// Bytes of the initializers' data (the weights and constant tables).
-    pub initializer_bytes: usize,
 }
 
 /// (multiple, minimum) of the image height and width a graph of `stages` stacked cascades
@@ -92,17 +90,10 @@ pub fn export_onnx<B: Backend>(
         opts.stages, opts.iters
     );
     let model = g.into_model("crestereo", &doc);
-    let initializer_bytes = model
-        .graph
-        .initializer
-        .iter()
-        .map(|t| t.raw_data.len())
-        .sum();
     let bytes = model.write_to_bytes()?;
     Ok(OnnxExport {
         bytes,
         op_types,
         nodes,
-        initializer_bytes,
     })
 }
