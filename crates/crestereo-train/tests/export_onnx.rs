@@ -7,6 +7,8 @@
 mod common;
 #[path = "../../stereo-io/tests/support/pinned_venv.rs"]
 mod pinned_venv;
+#[path = "support/short_run.rs"]
+mod short_run;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -303,41 +305,7 @@ fn onnxruntime_matches_crestereo_infer_with_reference_and_trained_weights() {
     assert!(diff <= BOUND_PX, "README snippet: {diff} px");
 
     // A model after a few training steps from the reference weights.
-    let data = dir.path().join("data");
-    let run = dir.path().join("run");
-    ok(&[
-        "synth",
-        "--out",
-        s(&data),
-        "--count",
-        "2",
-        "--size",
-        "64x128",
-        "--seed",
-        "3",
-    ]);
-    ok(&[
-        "train",
-        "--data",
-        s(&data),
-        "--out",
-        s(&run),
-        "--steps",
-        "2",
-        "--init-weights",
-        s(&reference),
-        "--crop",
-        "32x64",
-        "--iters",
-        "2",
-        "--batch-size",
-        "1",
-        "--accumulate",
-        "1",
-        "--no-progress",
-        "--threads",
-        "2",
-    ]);
+    let run = short_run::fine_tune(dir.path(), &reference);
     let small = random_pair(dir.path(), 64, 128, 11);
     check_against_burn(
         &venv,

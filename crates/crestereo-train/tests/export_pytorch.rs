@@ -8,6 +8,8 @@
 mod common;
 #[path = "../../stereo-io/tests/support/pinned_venv.rs"]
 mod pinned_venv;
+#[path = "support/short_run.rs"]
+mod short_run;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -291,52 +293,9 @@ fn reference_weights_export_round_trips_and_pytorch_agrees() {
 #[test]
 fn trained_checkpoint_export_round_trips_and_pytorch_agrees() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let run = dir.path().join("run");
-    ok(&[
-        os("synth"),
-        os("--out"),
-        os(&data),
-        os("--count"),
-        os("2"),
-        os("--size"),
-        os("64x128"),
-        os("--seed"),
-        os("3"),
-    ]);
-    let small = [
-        "--crop",
-        "32x64",
-        "--iters",
-        "2",
-        "--batch-size",
-        "1",
-        "--accumulate",
-        "1",
-        "--no-progress",
-        "--threads",
-        "2",
-    ];
-    // Fine-tuned from the reference weights at a small learning rate (the prediction on the
-    // fixture pair still moves by several pixels): a random init, or the default rate, gives
-    // disparities of hundreds of pixels there, where float32 spaces values 3e-5 px apart and a
-    // 1e-4 px bound would measure rounding, not the export.
     let reference = fixtures().join("weights_seed0.pt");
-    let mut args = vec![
-        os("train"),
-        os("--data"),
-        os(&data),
-        os("--out"),
-        os(&run),
-        os("--steps"),
-        os("3"),
-        os("--init-weights"),
-        os(&reference),
-        os("--lr"),
-        os("1e-5"),
-    ];
-    args.extend(small.iter().map(os));
-    ok(&args);
+    let run = short_run::fine_tune(dir.path(), &reference);
+    let data = dir.path().join("data"); // the pairs fine_tune trained on
     let checkpoint = run.join("checkpoints/step-00000003/model.mpk");
     assert!(checkpoint.is_file());
     let changed = named_parameters(&load(&reference))
@@ -384,7 +343,23 @@ fn trained_checkpoint_export_round_trips_and_pytorch_agrees() {
         os("--init-weights"),
         os(&pth),
     ];
-    args.extend(small.iter().map(os));
+    args.extend(
+        [
+            "--crop",
+            "32x64",
+            "--iters",
+            "2",
+            "--batch-size",
+            "1",
+            "--accumulate",
+            "1",
+            "--no-progress",
+            "--threads",
+            "2",
+        ]
+        .iter()
+        .map(os),
+    );
     let text = ok(&args);
     assert!(text.contains("applied 94 tensors"), "{text}");
 
