@@ -249,6 +249,41 @@ def check(fixtures):
 
 
 DEVICE = os.environ.get("CRESTEREO_TORCH_DEVICE", "cpu")
+# A checkout of the public PyTorch port (github.com/ibaiGorordo/CREStereo-Pytorch, not committed
+# here): when set, `bench` times that port's network instead of the one in this file.
+PORT = os.environ.get("CRESTEREO_TORCH_PORT")
+
+
+class PortAdapter(nn.Module):
+    """The port's `CREStereo` behind this file's call signature `(left, right, iters, flow_init)`."""
+
+    def __init__(self, port_dir):
+        super().__init__()
+        sys.path.insert(0, port_dir)
+        from nets.crestereo import CREStereo as Port  # the port's own package
+
+        self.net = Port(max_disp=256, mixed_precision=False, test_mode=False)
+
+    def forward(self, left, right, iters, flow_init=None):
+        return self.net(left, right, flow_init=flow_init, iters=iters)
+
+
+def make_model():
+    return (PortAdapter(PORT) if PORT else CREStereo()).to(DEVICE)
+
+
+def capability():
+    """The instruction set PyTorch's own kernels dispatch to, and the CPU's model name."""
+    cap = torch.backends.cpu.get_cpu_capability()
+    model = "unknown CPU"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"torch {torch.__version__}, kernels {cap}, {model}"
 # on CUDA: one warm-up run, then the median of this many (CPU: one run, like `crestereo bench`)
 REPEATS = int(os.environ.get("CRESTEREO_TORCH_REPEATS", "3")) if DEVICE != "cpu" else 1
 
@@ -270,7 +305,7 @@ def memory_note():
 
 
 def bench_train(threads, n, h, w, iters):
-    m = CREStereo().to(DEVICE)
+    m = make_model()
     opt = torch.optim.Adam(m.parameters(), lr=4e-4, betas=(0.9, 0.999), eps=1e-8)
     l, r = torch.rand(n, 3, h, w, device=DEVICE) * 255, torch.rand(n, 3, h, w, device=DEVICE) * 255
     disp, valid = torch.rand(n, h, w, device=DEVICE) * 64, torch.ones(n, h, w, device=DEVICE)
@@ -296,7 +331,7 @@ def bench_train(threads, n, h, w, iters):
 def bench_infer(threads, h, w, iters=20):
     """The reference two-pass procedure; pads (replicate, bottom/right) to a multiple of 32 like
     `crestereo infer`."""
-    m = CREStereo().to(DEVICE)
+    m = make_model()
     l0, r0 = torch.rand(1, 3, h, w, device=DEVICE) * 255, torch.rand(1, 3, h, w, device=DEVICE) * 255
     ph, pw = -(-h // 32) * 32, -(-w // 32) * 32
     runs = []
@@ -324,6 +359,7 @@ def bench(argv):
     sizes = [int(v) for v in argv[2:]]
     torch.set_num_threads(threads)
     torch.manual_seed(0)
+    print(f"{'port ' + PORT if PORT else 'reference'}: {capability()}", flush=True)
     if what == "train":
         bench_train(threads, *(sizes or [2, 384, 512, 10]))
     else:

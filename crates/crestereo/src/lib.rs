@@ -31,6 +31,7 @@
 
 pub mod agcl;
 pub mod attention;
+mod channels;
 pub mod conv2d;
 pub mod corr;
 pub mod dispatch;
@@ -45,7 +46,7 @@ pub mod observer;
 pub mod onnx;
 pub mod position_encoding;
 pub mod refine;
-mod simd;
+pub mod simd;
 pub mod update;
 pub mod upsample;
 pub mod weights;

@@ -1,13 +1,106 @@
 //! Run-time processor features for the hand-written kernels.
 //!
 //! The crate is built for the x86-64 baseline (SSE2) so that one binary runs everywhere; the
-//! hot element-wise kernels are compiled a second time with AVX2 and FMA enabled
-//! (`#[target_feature]`) and take that copy when the processor has them.
+//! hot element-wise kernels are compiled again for AVX2+FMA and for AVX-512
+//! (`#[target_feature]`), and each call takes the widest copy the processor runs ([`isa`]).
+//! The copies compute the same sums in the same order (Rust never contracts `a * b + c` into
+//! an FMA by itself), so they agree bit for bit; the tests check each against the portable one.
 
-/// Whether this processor has AVX2 and FMA (checked once, then cached by std).
-#[cfg(target_arch = "x86_64")]
-pub(crate) fn has_avx2() -> bool {
-    std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+use std::sync::OnceLock;
+
+/// The instruction sets the hand-written kernels are compiled for, narrowest first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Isa {
+    /// The build's baseline (SSE2 on x86-64; whatever the target has elsewhere).
+    Portable,
+    /// AVX2 with FMA: 8 float32 lanes.
+    Avx2,
+    /// AVX-512 (F and VL): 16 float32 lanes.
+    Avx512,
+}
+
+impl Isa {
+    pub const ALL: [Isa; 3] = [Isa::Portable, Isa::Avx2, Isa::Avx512];
+
+    /// The name `CRESTEREO_ISA` takes and `crestereo bench` prints.
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Portable => "portable",
+            Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
+        }
+    }
+
+    /// Whether this processor runs the copy compiled for `self`.
+    pub fn supported(self) -> bool {
+        match self {
+            Isa::Portable => true,
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => {
+                std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+            }
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => {
+                Isa::Avx2.supported()
+                    && std::is_x86_feature_detected!("avx512f")
+                    && std::is_x86_feature_detected!("avx512vl")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+
+    /// The widest set this processor runs.
+    pub fn best() -> Isa {
+        Isa::ALL
+            .into_iter()
+            .rev()
+            .find(|i| i.supported())
+            .unwrap_or(Isa::Portable)
+    }
+}
+
+/// The set the kernels take in this process: the widest the processor runs, or the one
+/// `CRESTEREO_ISA` names (`portable`, `avx2`, `avx512`; to compare the copies on one machine).
+/// Read once; an unknown or unsupported name is an error ([`isa_from_env`]).
+pub fn isa() -> Isa {
+    static CHOICE: OnceLock<Isa> = OnceLock::new();
+    *CHOICE.get_or_init(|| isa_from_env().unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// The set `CRESTEREO_ISA` asks for (the widest supported when unset), or why it cannot be had;
+/// binaries call this first, so that a bad value is a clear error rather than a panic later.
+pub fn isa_from_env() -> Result<Isa, String> {
+    let Ok(value) = std::env::var("CRESTEREO_ISA") else {
+        return Ok(Isa::best());
+    };
+    let names = Isa::ALL.map(Isa::name).join(", ");
+    let Some(isa) = Isa::ALL.into_iter().find(|i| i.name() == value.trim()) else {
+        return Err(format!("CRESTEREO_ISA={value:?}: expected one of {names}"));
+    };
+    if !isa.supported() {
+        return Err(format!(
+            "CRESTEREO_ISA={value}: this processor does not have it (it has {})",
+            Isa::best().name()
+        ));
+    }
+    Ok(isa)
+}
+
+/// What the `gemm` crate (the matrix products, Flex's and ours) runs on this processor: it
+/// chooses for itself, AVX-512 where the processor has it (the `x86-v4` feature this crate
+/// turns on), whatever `CRESTEREO_ISA` says.
+pub fn gemm_isa() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::is_x86_feature_detected!("avx512f") {
+            return "avx512";
+        }
+        if Isa::Avx2.supported() {
+            return "avx2";
+        }
+    }
+    "portable"
 }
 
 /// `e^x` for float32 without a library call, so that loops over it vectorise: `2^n · e^r` with
@@ -48,8 +141,9 @@ pub(crate) fn tanh(x: f32) -> f32 {
     1.0 - 2.0 / (exp(2.0 * x) + 1.0)
 }
 
-/// `dst[i] = f(a[i], b[i], c[i])` over equal-length slices, compiled for AVX2 + FMA when the
-/// processor has them (so that `f` built from the functions above vectorises).
+/// `dst[i] = f(a[i], b[i], c[i])` over equal-length slices, compiled for the widest
+/// instruction set the processor has ([`isa`]), so that `f` built from the functions above
+/// vectorises.
 pub(crate) fn map3(
     dst: &mut [f32],
     a: &[f32],
@@ -57,20 +151,39 @@ pub(crate) fn map3(
     c: &[f32],
     f: impl Fn(f32, f32, f32) -> f32,
 ) {
+    map3_with(isa(), dst, a, b, c, f)
+}
+
+/// [`map3`] compiled for `set` (which the processor must support).
+pub(crate) fn map3_with<F: Fn(f32, f32, f32) -> f32>(
+    set: Isa,
+    dst: &mut [f32],
+    a: &[f32],
+    b: &[f32],
+    c: &[f32],
+    f: F,
+) {
+    assert!(set.supported(), "{} on a processor without it", set.name());
     let n = dst.len();
     let (a, b, c) = (&a[..n], &b[..n], &c[..n]);
     #[cfg(target_arch = "x86_64")]
-    if has_avx2() {
-        // SAFETY: the processor supports AVX2 and FMA (checked just above).
-        return unsafe { map3_avx2(dst, a, b, c, f) };
+    #[target_feature(enable = "avx2,fma")]
+    fn avx2<F: Fn(f32, f32, f32) -> f32>(d: &mut [f32], a: &[f32], b: &[f32], c: &[f32], f: F) {
+        map3_body(d, a, b, c, f)
     }
-    map3_body(dst, a, b, c, f)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn map3_avx2(dst: &mut [f32], a: &[f32], b: &[f32], c: &[f32], f: impl Fn(f32, f32, f32) -> f32) {
-    map3_body(dst, a, b, c, f)
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
+    fn avx512<F: Fn(f32, f32, f32) -> f32>(d: &mut [f32], a: &[f32], b: &[f32], c: &[f32], f: F) {
+        map3_body(d, a, b, c, f)
+    }
+    match set {
+        // SAFETY: the processor supports the set (asserted above).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { avx512(dst, a, b, c, f) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { avx2(dst, a, b, c, f) },
+        _ => map3_body(dst, a, b, c, f),
+    }
 }
 
 #[inline(always)]
@@ -109,5 +222,47 @@ mod tests {
         assert!(worst[2] < 3e-7, "tanh: worst absolute error {}", worst[2]);
         assert!(super::sigmoid(-1e4) < 1e-37 && super::sigmoid(1e4) == 1.0);
         assert_eq!((super::tanh(-1e4), super::tanh(1e4)), (-1.0, 1.0));
+    }
+
+    /// Every copy of `map3` this processor runs gives the portable copy's bits (the GRU
+    /// gates' formulas, over lengths that leave every kind of remainder).
+    #[test]
+    fn map3_copies_agree_with_the_portable_one() {
+        let gate = |z: f32, h: f32, q: f32| {
+            let z = super::sigmoid(z);
+            (1.0 - z) * h + z * super::tanh(q)
+        };
+        let mut tested = Vec::new();
+        for set in super::Isa::ALL.into_iter().filter(|s| s.supported()) {
+            for n in [0, 1, 7, 8, 15, 16, 17, 33, 1000, 4099] {
+                let v = |k: usize| -> Vec<f32> {
+                    (0..n)
+                        .map(|i| ((i * 37 + k * 11) % 101) as f32 * 0.17 - 8.5)
+                        .collect()
+                };
+                let (a, b, c) = (v(1), v(2), v(3));
+                let (mut want, mut got) = (vec![0f32; n], vec![0f32; n]);
+                super::map3_with(super::Isa::Portable, &mut want, &a, &b, &c, gate);
+                super::map3_with(set, &mut got, &a, &b, &c, gate);
+                let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got), bits(&want), "{} copy, length {n}", set.name());
+            }
+            tested.push(set.name());
+        }
+        eprintln!("map3 copies checked: {tested:?}");
+    }
+
+    /// `CRESTEREO_ISA` names a set, refuses a name it does not know, and never takes a set
+    /// the processor lacks.
+    #[test]
+    fn isa_names_round_trip_and_the_best_is_supported() {
+        for set in super::Isa::ALL {
+            assert_eq!(
+                super::Isa::ALL.into_iter().find(|s| s.name() == set.name()),
+                Some(set)
+            );
+        }
+        assert!(super::Isa::best().supported());
+        assert!(super::isa().supported());
     }
 }

@@ -21,6 +21,26 @@ pub fn peak_rss_mib() -> f64 {
         .unwrap_or(f64::NAN)
 }
 
+/// The processor and the instruction sets the kernels run on (`bench/compare.py` prints it beside
+/// PyTorch's own choice).
+pub fn cpu_line() -> String {
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, v)| v.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    format!(
+        "cpu: {model}; kernels {} (best here {}), gemm {}",
+        crestereo::simd::isa().name(),
+        crestereo::simd::Isa::best().name(),
+        crestereo::simd::gemm_isa()
+    )
+}
+
 fn random_images<B: Backend>(
     n: usize,
     h: usize,

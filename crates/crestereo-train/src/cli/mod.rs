@@ -251,6 +251,9 @@ fn run_bench(
             _ => bench_device::run_wgpu(t, i, &ts, &is, repeats),
         };
     }
+    if what != BenchWhat::All {
+        println!("{}", bench::cpu_line());
+    }
     match what {
         BenchWhat::Train => bench::bench_train(ts[0], ts[1], ts[2], ts[3]),
         BenchWhat::Infer => bench::bench_infer(is[0], is[1]),
@@ -286,7 +289,13 @@ pub fn main() -> ExitCode {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .without_time()
         .init();
-    match run(Cli::parse()) {
+    let cli = Cli::parse();
+    // A bad CRESTEREO_ISA is a clear error here rather than a panic inside the first kernel.
+    if let Err(e) = crestereo::simd::isa_from_env() {
+        eprintln!("error: {e}");
+        return ExitCode::FAILURE;
+    }
+    match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");

@@ -5,6 +5,7 @@ use burn::backend::flex::FlexTensor;
 use burn::tensor::{DType, TensorData, TensorMetadata};
 
 use super::kernels::{self, Dims};
+use super::layout::{channel_last, from_channel_last};
 use super::{AgclOps, CorrSpec};
 
 /// Contiguous float32 copy (or the tensor itself when it already is).
@@ -18,9 +19,8 @@ fn dense(t: &FlexTensor) -> FlexTensor {
     t.to_contiguous()
 }
 
-/// (N, C, H, W) → contiguous (N, H, W, C).
-fn channel_last(t: &FlexTensor) -> FlexTensor {
-    dense(&t.permute(&[0, 2, 3, 1]))
+fn nchw(data: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(data, shape))
 }
 
 fn dims(t: &FlexTensor) -> Dims {
@@ -31,15 +31,6 @@ fn dims(t: &FlexTensor) -> Dims {
         h: s[2],
         w: s[3],
     }
-}
-
-fn nchw(data: Vec<f32>, shape: [usize; 4]) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(data, shape))
-}
-
-/// A channel-last (N, H, W, C) buffer as an (N, C, H, W) tensor (a strided view, no copy).
-fn from_channel_last(data: Vec<f32>, d: Dims, c: usize) -> FlexTensor {
-    nchw(data, [d.n, d.h, d.w, c]).permute(&[0, 3, 1, 2])
 }
 
 impl AgclOps for Flex {

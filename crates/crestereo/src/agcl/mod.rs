@@ -22,6 +22,7 @@ mod cube;
 pub mod emit;
 mod flex;
 pub mod kernels;
+mod layout;
 mod shift;
 
 #[cfg(feature = "wgpu")]

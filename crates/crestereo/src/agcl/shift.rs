@@ -14,6 +14,7 @@ use burn::tensor::TensorMetadata;
 use burn::tensor::ops::FloatTensor;
 
 use super::kernels::{self, Dims};
+use super::layout::{channel_last, from_channel_last};
 use super::{CorrSpec, composed, prim, same, tensor};
 use crate::dispatch::{Kernels, kernels_f32};
 
@@ -45,14 +46,6 @@ pub fn shift_corr<B: Backend>(
 fn dims(t: &FlexTensor) -> Dims {
     let [n, c, h, w] = t.shape().dims();
     Dims { n, c, h, w }
-}
-
-fn channel_last(t: &FlexTensor) -> FlexTensor {
-    t.permute(&[0, 2, 3, 1]).to_contiguous()
-}
-
-fn from_channel_last(data: Vec<f32>, d: Dims, c: usize) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(data, [d.n, d.h, d.w, c])).permute(&[0, 3, 1, 2])
 }
 
 fn flex_forward(left: &FlexTensor, warped: &FlexTensor, spec: CorrSpec) -> FlexTensor {

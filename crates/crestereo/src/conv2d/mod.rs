@@ -180,7 +180,13 @@ fn register_grads(
 /// over planes: Flex's broadcast add would walk every element through a strided iterator on
 /// one thread.
 fn add_bias(y: FlexTensor, bias: &FlexTensor) -> FlexTensor {
-    let mut y = y.to_contiguous();
+    // `to_contiguous` of a contiguous map shares its buffer; with `y` still held, `storage_mut`
+    // would copy the whole map (on the calling thread alone) before writing into it.
+    let mut y = {
+        let contiguous = y.to_contiguous();
+        drop(y);
+        contiguous
+    };
     let [_, c, h, w] = y.shape().dims();
     let bias = bias.to_contiguous();
     let b: &[f32] = bias.storage();

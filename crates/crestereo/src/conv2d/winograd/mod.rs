@@ -526,4 +526,53 @@ mod tests {
             }
         }
     }
+
+    /// Every compiled copy of the lane transform this processor runs gives the portable copy's
+    /// bits, for every transform matrix the plans use and lengths that leave every remainder.
+    #[test]
+    fn lane_transform_copies_agree_with_the_portable_one() {
+        use tiles::{Lanes, Terms, apply_with};
+        let mut tested = Vec::new();
+        for set in crate::simd::Isa::ALL.into_iter().filter(|s| s.supported()) {
+            for r in [1, 3, 5] {
+                for use_ in [Use::Inference, Use::Training] {
+                    let axis = Axis::for_extent(r, use_).unwrap();
+                    let n = axis.n;
+                    let mut bt: Vec<f32> = axis.bt.to_vec();
+                    // a dense row too, so no path is only ever fed sparse rows
+                    bt[..n]
+                        .iter_mut()
+                        .enumerate()
+                        .for_each(|(i, v)| *v += 0.25 * i as f32);
+                    let terms = Terms::new(&bt, n);
+                    for len in [1, 15, 16, 17, 40, 129] {
+                        let src: Vec<f32> = (0..n * len)
+                            .map(|i| ((i * 29) % 97) as f32 * 0.013 - 0.6)
+                            .collect();
+                        let (mut want, mut got) = (vec![0f32; n * len], vec![0f32; n * len]);
+                        let (ls, ld) = (Lanes::new(0, len, n), Lanes::new(0, len, n));
+                        apply_with(
+                            crate::simd::Isa::Portable,
+                            &terms,
+                            &src,
+                            ls,
+                            &mut want,
+                            ld,
+                            len,
+                        );
+                        apply_with(set, &terms, &src, ls, &mut got, ld, len);
+                        let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                        assert_eq!(
+                            bits(&got),
+                            bits(&want),
+                            "{} copy, F(m, {r}), length {len}",
+                            set.name()
+                        );
+                    }
+                }
+            }
+            tested.push(set.name());
+        }
+        eprintln!("lane transform copies checked: {tested:?}");
+    }
 }

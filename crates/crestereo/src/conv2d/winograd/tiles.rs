@@ -14,6 +14,7 @@ use rayon::prelude::*;
 use super::{Axis, Plan};
 use crate::conv2d::Geometry;
 use crate::conv2d::scratch::Scratch;
+use crate::simd::Isa;
 
 /// The most lanes [`apply`] reads or writes (a 3×3 kernel's 36 transform positions).
 pub(super) const MAX_LANES: usize = 36;
@@ -76,27 +77,47 @@ impl Terms {
 /// [`CHUNK`] elements, each output chunk summed in registers; zero coefficients are skipped,
 /// so each output is the same sum, in the same order, as term-by-term accumulation.
 ///
-/// Compiled twice: for AVX2 (taken when the processor has it) and for the baseline the crate
-/// is built for (SSE2 on x86-64), which would run these loops at half the width.
+/// Compiled for AVX-512, for AVX2+FMA and for the baseline the crate is built for (SSE2 on
+/// x86-64); the widest the processor runs is taken ([`crate::simd::isa`]).
 pub(super) fn apply(t: &Terms, src: &[f32], s: Lanes, dst: &mut [f32], d: Lanes, len: usize) {
+    apply_with(crate::simd::isa(), t, src, s, dst, d, len)
+}
+
+/// [`apply`] compiled for `set` (which the processor must support).
+pub(super) fn apply_with(
+    set: Isa,
+    t: &Terms,
+    src: &[f32],
+    s: Lanes,
+    dst: &mut [f32],
+    d: Lanes,
+    len: usize,
+) {
     assert!(
         s.count == t.n && d.count == t.rows(),
         "lanes of a {}x{} matrix",
         t.rows(),
         t.n
     );
+    assert!(set.supported(), "{} on a processor without it", set.name());
     #[cfg(target_arch = "x86_64")]
-    if crate::simd::has_avx2() {
-        // SAFETY: the processor supports AVX2 and FMA (checked just above).
-        return unsafe { apply_avx2(t, src, s, dst, d, len) };
+    #[target_feature(enable = "avx2,fma")]
+    fn avx2(t: &Terms, src: &[f32], s: Lanes, dst: &mut [f32], d: Lanes, len: usize) {
+        apply_body(t, src, s, dst, d, len)
     }
-    apply_body(t, src, s, dst, d, len)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn apply_avx2(t: &Terms, src: &[f32], s: Lanes, dst: &mut [f32], d: Lanes, len: usize) {
-    apply_body(t, src, s, dst, d, len)
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
+    fn avx512(t: &Terms, src: &[f32], s: Lanes, dst: &mut [f32], d: Lanes, len: usize) {
+        apply_body(t, src, s, dst, d, len)
+    }
+    match set {
+        // SAFETY: the processor supports the set (asserted above).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { avx512(t, src, s, dst, d, len) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { avx2(t, src, s, dst, d, len) },
+        _ => apply_body(t, src, s, dst, d, len),
+    }
 }
 
 #[inline(always)]
