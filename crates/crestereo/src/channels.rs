@@ -1,27 +1,94 @@
-//! Concatenation along channels, the plain-Flex case copied in parallel.
+//! Concatenation of two maps along channels on Flex, copied in parallel, with its own backward.
 //!
-//! Flex concatenates on the calling thread; in inference the GRU input `[h, x]` and the update
-//! block's `[context, motion]` are concatenated every iteration, and the other threads wait.
+//! Flex concatenates on the calling thread, and Burn's backward of a concatenation hands each
+//! part a strided view of the gradient, which the next gradient sum then walks element by
+//! element on one thread. The GRU input `[h, x]` and the update block's `[context, motion]`
+//! are concatenated every iteration; the other threads waited through both.
 
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
+use burn::backend::{Autodiff, Flex};
 use burn::prelude::*;
 use burn::tensor::{TensorData, TensorMetadata};
 use rayon::prelude::*;
 
-use crate::dispatch::{Kernels, from_flex, kernels_f32};
+use crate::dispatch::{Kernels, from_autodiff_flex, from_flex, kernels_f32, same};
 
-/// `Tensor::cat(parts, 1)` for (N, C_i, H, W) maps: the same values, copied plane by plane in
-/// parallel when the backend is plain Flex with float32 maps.
-pub(crate) fn cat_channels<B: Backend>(parts: Vec<Tensor<B, 4>>) -> Tensor<B, 4> {
-    let refs: Vec<&Tensor<B, 4>> = parts.iter().collect();
-    if parts.len() < 2 || kernels_f32(&refs) != Kernels::Flex {
-        return Tensor::cat(parts, 1);
+/// `Tensor::cat([a, b], 1)` for (N, C, H, W) maps: the same values (and gradients), copied in
+/// parallel on Flex with float32 maps, Burn's concatenation elsewhere.
+pub(crate) fn cat_channels<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> Tensor<B, 4> {
+    match kernels_f32(&[&a, &b]) {
+        Kernels::Flex => {
+            let (a, b): (FlexTensor, FlexTensor) = (
+                same(a.into_primitive().tensor()),
+                same(b.into_primitive().tensor()),
+            );
+            from_flex(cat_flex(&[a, b]))
+        }
+        Kernels::AutodiffFlex => from_autodiff_flex(tracked_cat(
+            same(a.into_primitive().tensor()),
+            same(b.into_primitive().tensor()),
+        )),
+        _ => Tensor::cat(vec![a, b], 1),
     }
-    let flex: Vec<FlexTensor> = parts
-        .into_iter()
-        .map(|t| crate::dispatch::same(t.into_primitive().tensor()))
-        .collect();
-    from_flex(cat_flex(&flex))
+}
+
+type Tracked = burn::tensor::ops::FloatTensor<Autodiff<Flex>>;
+
+#[derive(Debug)]
+struct CatBackward;
+
+impl Backward<Flex, 2> for CatBackward {
+    /// The channels of the first part.
+    type State = usize;
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let d = grads.consume::<Flex>(&ops.node).to_contiguous();
+        let [n, c, h, w] = d.shape().dims();
+        let first = ops.state;
+        let ranges = [(0, first), (first, c - first)];
+        for (parent, (start, channels)) in ops.parents.into_iter().zip(ranges) {
+            if let Some(node) = parent {
+                let part = channel_range(d.storage(), [n, c, h, w], start, channels);
+                grads.register::<Flex>(node.id, part);
+            }
+        }
+    }
+}
+
+fn tracked_cat(a: Tracked, b: Tracked) -> Tracked {
+    let nodes = [a.node.clone(), b.node.clone()];
+    let first = a.primitive.shape().dims::<4>()[1];
+    let parts = [a.primitive, b.primitive];
+    match CatBackward
+        .prepare::<NoCheckpointing>(nodes)
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => prep.finish(first, cat_flex(&parts)),
+        OpsKind::UnTracked(prep) => prep.finish(cat_flex(&parts)),
+    }
+}
+
+/// Channels `start..start + channels` of a contiguous (N, C, H, W) map, as a contiguous map.
+fn channel_range(
+    src: &[f32],
+    [n, c, h, w]: [usize; 4],
+    start: usize,
+    channels: usize,
+) -> FlexTensor {
+    let plane = h * w;
+    let mut out = vec![0f32; n * channels * plane];
+    out.par_chunks_mut(plane.max(1))
+        .enumerate()
+        .for_each(|(j, dst)| {
+            let (b, k) = (j / channels, j % channels);
+            dst.copy_from_slice(&src[(b * c + start + k) * plane..][..plane]);
+        });
+    FlexTensor::from_data(TensorData::new(out, [n, channels, h, w]))
 }
 
 fn cat_flex(parts: &[FlexTensor]) -> FlexTensor {
@@ -52,23 +119,47 @@ mod tests {
 
     use crate::CpuBackend;
 
-    /// The parallel copy gives exactly Burn's concatenation, views as inputs included.
+    fn map<B: Backend>(c: usize, s: f32, device: &B::Device) -> Tensor<B, 4> {
+        let v: Vec<f32> = (0..2 * c * 3 * 4).map(|i| (i as f32 * s).sin()).collect();
+        Tensor::<B, 1>::from_floats(v.as_slice(), device).reshape([2, c, 3, 4])
+    }
+
+    /// The parallel copy gives exactly Burn's concatenation, a strided view as input included.
     #[test]
     fn cat_channels_matches_burn_cat() {
         let device = Default::default();
-        let make = |c: usize, s: f32| {
-            let v: Vec<f32> = (0..2 * c * 3 * 4).map(|i| i as f32 * s).collect();
-            Tensor::<CpuBackend, 1>::from_floats(v.as_slice(), &device).reshape([2, c, 3, 4])
-        };
-        let (a, b) = (make(3, 1.0), make(5, -0.5));
-        // a strided view as the third part
-        let c = make(4, 0.25)
+        let a = map::<CpuBackend>(3, 1.0, &device);
+        let b = map::<CpuBackend>(6, -0.5, &device)
             .swap_dims(2, 3)
             .swap_dims(2, 3)
-            .narrow(1, 1, 2);
-        let want = Tensor::cat(vec![a.clone(), b.clone(), c.clone()], 1);
-        let got = super::cat_channels(vec![a, b, c]);
+            .narrow(1, 1, 4);
+        let want = Tensor::cat(vec![a.clone(), b.clone()], 1);
+        let got = super::cat_channels(a, b);
         assert_eq!(got.dims(), want.dims());
         assert_eq!(got.into_data(), want.into_data());
+    }
+
+    /// Under autodiff the values and both parts' gradients are exactly Burn's.
+    #[test]
+    fn cat_channels_gradients_match_burn_cat() {
+        type A = crate::CpuAutodiffBackend;
+        let device = Default::default();
+        let weights = map::<A>(7, 0.37, &device);
+        let run = |ours: bool| {
+            let a = map::<A>(3, 1.0, &device).require_grad();
+            let b = map::<A>(4, -0.5, &device).require_grad();
+            let y = if ours {
+                super::cat_channels(a.clone(), b.clone())
+            } else {
+                Tensor::cat(vec![a.clone(), b.clone()], 1)
+            };
+            // b also reaches the loss directly, so its two gradients are summed
+            let loss = (y.clone() * weights.clone()).sum() + (b.clone() * b.clone()).sum();
+            let grads = loss.backward();
+            let ga = a.grad(&grads).expect("a gradient").into_data();
+            let gb = b.grad(&grads).expect("a gradient").into_data();
+            (y.inner().into_data(), ga, gb)
+        };
+        assert_eq!(run(true), run(false));
     }
 }

@@ -89,7 +89,7 @@ impl<B: Backend> UpdateBlock<B> {
         flow: Tensor<B, 4>,
     ) -> (Tensor<B, 4>, Tensor<B, 4>, Tensor<B, 4>) {
         let motion = self.encoder.forward(flow, corr);
-        let inp = crate::channels::cat_channels(vec![inp, motion]);
+        let inp = crate::channels::cat_channels(inp, motion);
         let net = self.gru.forward(net, inp);
         let delta_flow = self.flow_head.forward(net.clone());
         let mask = (self.mask2.forward(relu(self.mask1.forward(net.clone())))).mul_scalar(0.25);

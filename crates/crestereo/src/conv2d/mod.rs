@@ -26,11 +26,12 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use burn::module::{Param, ParamId};
 use burn::prelude::*;
-use burn::tensor::ops::{ConvOptions, FloatTensor, FloatTensorOps};
+use burn::tensor::ops::{ConvOptions, FloatTensor};
 use burn::tensor::{TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
 
 use crate::dispatch::{Kernels, same};
+use views::{View, matmul_into};
 
 mod by_matmul;
 mod module;
@@ -377,10 +378,6 @@ fn col2im(cols: &[f32], dx: &mut [f32], g: &Geometry, b: usize) {
         });
 }
 
-fn flex(data: Vec<f32>, shape: [usize; 3]) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(data, shape))
-}
-
 /// `Y_b = W · cols_b` for every image b, (N, C_out, H_out, W_out), NCHW without a layout
 /// change (1×1 stride-1 convolutions multiply the input planes directly). `use_` picks the
 /// Winograd tiles: larger for inference, smaller (more accurate) in training.
@@ -394,25 +391,25 @@ fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry, use_: Use) -> Flex
         let y = shifted::forward(x.storage(), w.to_contiguous().storage(), g);
         return FlexTensor::from_data(TensorData::new(y, [g.n, g.cout, g.ho, g.wo]));
     }
+    // The general path (strided, 1×1, few channels): one product per image on slices, split
+    // over the threads from a much smaller size than Flex's own matmul would split it.
     let (p, k) = (g.p(), g.k());
-    let wm = w.to_contiguous().reshape([1, g.cout, k].into());
+    let w = w.to_contiguous();
+    let (x, w): (&[f32], &[f32]) = (x.storage(), w.storage());
     let pointwise = g.kh == 1 && g.kw == 1 && g.stride == [1, 1] && g.pad == [0, 0];
-    let outs: Vec<FlexTensor> = (0..g.n)
-        .map(|b| {
-            let cols = if pointwise {
-                x.narrow(0, b, 1).reshape([1, k, p].into())
-            } else {
-                flex(im2col(x.storage(), g, b), [1, k, p])
-            };
-            Flex::float_matmul(wm.clone(), cols)
-        })
-        .collect();
-    let y = if outs.len() == 1 {
-        outs.into_iter().next().expect("one image")
-    } else {
-        Flex::float_cat(outs, 0)
-    };
-    y.reshape([g.n, g.cout, g.ho, g.wo].into())
+    let mut y = vec![0f32; g.n * g.cout * p];
+    for (b, y_b) in y.chunks_exact_mut(g.cout * p).enumerate() {
+        let unfolded;
+        let cols: &[f32] = if pointwise {
+            &x[b * k * p..][..k * p]
+        } else {
+            unfolded = im2col(x, g, b);
+            &unfolded
+        };
+        let (d, l, r) = (View::new(0, p, 1), View::new(0, k, 1), View::new(0, p, 1));
+        matmul_into((g.cout, p, k), y_b, d, false, w, l, cols, r);
+    }
+    FlexTensor::from_data(TensorData::new(y, [g.n, g.cout, g.ho, g.wo]))
 }
 
 /// `dW = Σ_b dY_b · cols_bᵀ`, (C_out, C_in, kh, kw).
@@ -427,18 +424,20 @@ fn weight_grad(x: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
         return FlexTensor::from_data(TensorData::new(dw, [g.cout, g.cin, g.kh, g.kw]));
     }
     let (p, k) = (g.p(), g.k());
-    let mut acc: Option<FlexTensor> = None;
+    let dy = dy.to_contiguous();
+    let (xs, dys): (&[f32], &[f32]) = (x.storage(), dy.storage());
+    let mut dw = vec![0f32; g.cout * k];
     for b in 0..g.n {
-        let cols = flex(im2col(x.storage(), g, b), [1, k, p]);
-        let dy_b = dy.narrow(0, b, 1).reshape([1, g.cout, p].into());
-        let prod = Flex::float_matmul(dy_b, Flex::float_swap_dims(cols, 1, 2)); // 1, cout, k
-        acc = Some(match acc {
-            Some(a) => Flex::float_add(a, prod),
-            None => prod,
-        });
+        let cols = im2col(xs, g, b);
+        // dW (cout × k) += dY_b (cout × p) · cols_bᵀ (p × k)
+        let (d, l, r) = (
+            View::new(0, k, 1),
+            View::new(b * g.cout * p, p, 1),
+            View::new(0, 1, p),
+        );
+        matmul_into((g.cout, k, p), &mut dw, d, b > 0, dys, l, &cols, r);
     }
-    acc.expect("batch of at least one")
-        .reshape([g.cout, g.cin, g.kh, g.kw].into())
+    FlexTensor::from_data(TensorData::new(dw, [g.cout, g.cin, g.kh, g.kw]))
 }
 
 /// `dX = col2im(Wᵀ · dY_b)` for every image b, (N, C_in, H, W).
@@ -452,12 +451,19 @@ fn input_grad(w: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
         return FlexTensor::from_data(TensorData::new(dx, [g.n, g.cin, g.h, g.w]));
     }
     let (p, k) = (g.p(), g.k());
-    let wt = Flex::float_swap_dims(w.to_contiguous().reshape([1, g.cout, k].into()), 1, 2); // 1, k, cout
+    let (w, dy) = (w.to_contiguous(), dy.to_contiguous());
+    let (ws, dys): (&[f32], &[f32]) = (w.storage(), dy.storage());
     let mut dx = vec![0f32; g.n * g.cin * g.h * g.w];
+    let mut cols = vec![0f32; k * p];
     for b in 0..g.n {
-        let dy_b = dy.narrow(0, b, 1).reshape([1, g.cout, p].into());
-        let cols = Flex::float_matmul(wt.clone(), dy_b).to_contiguous(); // 1, k, p
-        col2im(cols.storage(), &mut dx, g, b);
+        // cols (k × p) = Wᵀ (k × cout) · dY_b (cout × p)
+        let (d, l, r) = (
+            View::new(0, p, 1),
+            View::new(0, 1, k),
+            View::new(b * g.cout * p, p, 1),
+        );
+        matmul_into((k, p, g.cout), &mut cols, d, false, ws, l, dys, r);
+        col2im(&cols, &mut dx, g, b);
     }
     FlexTensor::from_data(TensorData::new(dx, [g.n, g.cin, g.h, g.w]))
 }

@@ -59,7 +59,7 @@ fn gru_step<B: Backend>(
     cr: &Conv2d<B>,
     cq: &Conv2d<B>,
 ) -> Tensor<B, 4> {
-    let hx = crate::channels::cat_channels(vec![h.clone(), x.clone()]);
+    let hx = crate::channels::cat_channels(h.clone(), x.clone());
     // z and r read the same input: one stacked convolution, then split.
     let zr = crate::conv2d::forward_stacked(&[cz, cr], hx);
     match kernel_gates(&zr, &h, &x, cq) {
