@@ -5,17 +5,13 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use crate::conv2d::{Conv2d, Conv2dConfig};
+use crate::norm::instance_norm_act;
 use crate::onnx::{Graph, Value};
 
 /// PyTorch `nn.InstanceNorm2d(affine=False, track_running_stats=False)`: per sample and channel,
 /// biased variance over H×W.
 pub fn instance_norm<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
-    let [n, c, h, w] = x.dims();
-    let flat = x.reshape([n, c, h * w]);
-    let mean = flat.clone().mean_dim(2);
-    let centered = flat - mean;
-    let var = centered.clone().square().mean_dim(2);
-    (centered / (var.add_scalar(eps)).sqrt()).reshape([n, c, h, w])
+    crate::norm::instance_norm_act(x, eps, false)
 }
 
 /// A PyTorch-style `nn.Conv2d(cin, cout, k, stride, padding)` with symmetric zero padding.
@@ -67,8 +63,8 @@ impl ResidualBlockConfig {
 impl<B: Backend> ResidualBlock<B> {
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
         let eps = self.norm_eps;
-        let y = relu(instance_norm(self.conv1.forward(x.clone()), eps));
-        let y = relu(instance_norm(self.conv2.forward(y), eps));
+        let y = instance_norm_act(self.conv1.forward(x.clone()), eps, true);
+        let y = instance_norm_act(self.conv2.forward(y), eps, true);
         let x = instance_norm(self.downsample.forward(x), eps);
         relu(x + y)
     }
@@ -120,7 +116,7 @@ impl BasicEncoderConfig {
 
 impl<B: Backend> BasicEncoder<B> {
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        let mut x = relu(instance_norm(self.conv1.forward(x), self.norm_eps));
+        let mut x = instance_norm_act(self.conv1.forward(x), self.norm_eps, true);
         for block in self.layer1.iter().chain(&self.layer2).chain(&self.layer3) {
             x = block.forward(x);
         }

@@ -42,6 +42,7 @@ pub mod input;
 pub mod loss;
 pub mod model;
 pub mod motion_encoder;
+mod norm;
 pub mod observer;
 pub mod onnx;
 pub mod position_encoding;
