@@ -257,3 +257,46 @@ fn bench_loader_prints_a_rate_per_thread_count() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--loader-threads"));
 }
+
+/// `CRESTEREO_ISA` picks the copy of the vector kernels `bench` reports (and runs), and a name
+/// it does not know is refused before any work, with the names it takes.
+#[test]
+fn kernel_instruction_set_is_named_and_checked() {
+    let out = bin()
+        .args([
+            "bench",
+            "--what",
+            "infer",
+            "--infer-size",
+            "64,64",
+            "--threads",
+            "1",
+        ])
+        .env("CRESTEREO_ISA", "portable")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("cpu: "))
+        .expect("a cpu line");
+    assert!(
+        line.contains("kernels portable (best here ") && line.contains("gemm "),
+        "{line}"
+    );
+    assert!(stdout.contains("inference (1x64x64"), "{stdout}");
+
+    let out = bin()
+        .args(["bench", "--what", "infer", "--infer-size", "64,64"])
+        .env("CRESTEREO_ISA", "avx1024")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(out.stdout.is_empty(), "nothing runs: {:?}", out.stdout);
+    assert!(
+        stderr.contains("CRESTEREO_ISA=\"avx1024\": expected one of portable, avx2, avx512"),
+        "{stderr}"
+    );
+}

@@ -95,24 +95,18 @@ fn backward(normed: &FlexTensor, inv: &[f32], dy: &FlexTensor, relu_after: bool)
         .enumerate()
         .for_each(|(i, dx)| {
             let (xh, dy) = (&xh[i * plane..][..plane], &dy[i * plane..][..plane]);
-            let g = |k: usize| {
-                if relu_after && xh[k] <= 0.0 {
-                    0.0
-                } else {
-                    dy[k]
-                }
-            };
+            let g = |x: f32, d: f32| if relu_after && x <= 0.0 { 0.0 } else { d };
             let (mut sum_g, mut sum_gx) = (0f64, 0f64);
-            for k in 0..plane {
-                sum_g += f64::from(g(k));
-                sum_gx += f64::from(g(k)) * f64::from(xh[k]);
+            for (&x, &d) in xh.iter().zip(dy) {
+                sum_g += f64::from(g(x, d));
+                sum_gx += f64::from(g(x, d)) * f64::from(x);
             }
             let (mean_g, mean_gx) = (
                 (sum_g / plane as f64) as f32,
                 (sum_gx / plane as f64) as f32,
             );
-            for (k, d) in dx.iter_mut().enumerate() {
-                *d = inv[i] * (g(k) - mean_g - xh[k] * mean_gx);
+            for ((out, &x), &d) in dx.iter_mut().zip(xh).zip(dy) {
+                *out = inv[i] * (g(x, d) - mean_g - x * mean_gx);
             }
         });
     FlexTensor::from_data(TensorData::new(dx, [n, c, h, w]))
