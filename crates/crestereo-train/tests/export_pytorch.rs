@@ -343,23 +343,7 @@ fn trained_checkpoint_export_round_trips_and_pytorch_agrees() {
         os("--init-weights"),
         os(&pth),
     ];
-    args.extend(
-        [
-            "--crop",
-            "32x64",
-            "--iters",
-            "2",
-            "--batch-size",
-            "1",
-            "--accumulate",
-            "1",
-            "--no-progress",
-            "--threads",
-            "2",
-        ]
-        .iter()
-        .map(os),
-    );
+    args.extend(short_run::TINY_TRAINING.iter().map(os));
     let text = ok(&args);
     assert!(text.contains("applied 94 tensors"), "{text}");
 

@@ -91,24 +91,24 @@ fn channel_range(
     FlexTensor::from_data(TensorData::new(out, [n, channels, h, w]))
 }
 
-fn cat_flex(parts: &[FlexTensor]) -> FlexTensor {
-    let [n, _, h, w] = parts[0].shape().dims();
-    let plane = h * w;
-    let channels: Vec<usize> = parts.iter().map(|p| p.shape().dims::<4>()[1]).collect();
-    let c: usize = channels.iter().sum();
-    let dense: Vec<FlexTensor> = parts.iter().map(FlexTensor::to_contiguous).collect();
-    let src: Vec<&[f32]> = dense.iter().map(|t| t.storage()).collect();
-    // Output channel k of image b is channel k − (channels before part i) of part i.
-    let mut owner = Vec::with_capacity(c);
-    for (i, &ci) in channels.iter().enumerate() {
-        owner.extend((0..ci).map(|k| (i, k)));
-    }
+/// `[a, b]` along channels: output channel k of image i is channel k of `a`, or k − C_a of `b`.
+fn cat_flex([a, b]: &[FlexTensor; 2]) -> FlexTensor {
+    let [n, ca, h, w] = a.shape().dims();
+    let cb = b.shape().dims::<4>()[1];
+    let (c, plane) = (ca + cb, h * w);
+    let (a, b) = (a.to_contiguous(), b.to_contiguous());
+    let (a, b): (&[f32], &[f32]) = (a.storage(), b.storage());
     let mut out = vec![0f32; n * c * plane];
     out.par_chunks_mut(plane.max(1))
         .enumerate()
         .for_each(|(j, dst)| {
-            let (b, (i, k)) = (j / c, owner[j % c]);
-            dst.copy_from_slice(&src[i][(b * channels[i] + k) * plane..][..plane]);
+            let (i, k) = (j / c, j % c);
+            let src = if k < ca {
+                &a[(i * ca + k) * plane..]
+            } else {
+                &b[(i * cb + k - ca) * plane..]
+            };
+            dst.copy_from_slice(&src[..plane]);
         });
     FlexTensor::from_data(TensorData::new(out, [n, c, h, w]))
 }

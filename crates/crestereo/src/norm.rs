@@ -25,7 +25,7 @@ pub fn instance_norm_act<B: Backend>(x: Tensor<B, 4>, eps: f64, relu_after: bool
     match kernels_f32(&[&x]) {
         Kernels::Flex => {
             let x: FlexTensor = same(x.into_primitive().tensor());
-            from_flex(forward(&x, eps, relu_after).0)
+            from_flex(forward(&x, eps, relu_after, false).0)
         }
         Kernels::AutodiffFlex => {
             from_autodiff_flex(tracked(same(x.into_primitive().tensor()), eps, relu_after))
@@ -47,21 +47,28 @@ pub fn composed<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
     (centered / (var.add_scalar(eps)).sqrt()).reshape([n, c, h, w])
 }
 
-/// The output, the normalised map before ReLU (what the backward needs) and `1 / sqrt(var + eps)`
-/// per plane. Sums in float64, so the statistics do not depend on the plane's size.
-fn forward(x: &FlexTensor, eps: f64, relu_after: bool) -> (FlexTensor, FlexTensor, Vec<f32>) {
+/// The output, the normalised map before ReLU when `keep` (the backward needs it; without
+/// ReLU it is the output itself, shared) and `1 / sqrt(var + eps)` per plane. Sums in float64,
+/// so the statistics do not depend on the plane's size.
+fn forward(
+    x: &FlexTensor,
+    eps: f64,
+    relu_after: bool,
+    keep: bool,
+) -> (FlexTensor, Option<FlexTensor>, Vec<f32>) {
     let [n, c, h, w] = x.shape().dims();
     let plane = h * w;
     let x = x.to_contiguous();
     let src: &[f32] = x.storage();
-    let mut out = vec![0f32; src.len()];
     let mut normed = vec![0f32; src.len()];
     let mut inv = vec![0f32; n * c];
-    out.par_chunks_mut(plane.max(1))
-        .zip(normed.par_chunks_mut(plane.max(1)))
+    // ReLU in the same pass unless the map before it is kept.
+    let relu_in_place = relu_after && !keep;
+    normed
+        .par_chunks_mut(plane.max(1))
         .zip(inv.par_iter_mut())
         .zip(src.par_chunks(plane.max(1)))
-        .for_each(|(((out, normed), inv), x)| {
+        .for_each(|((out, inv), x)| {
             let mean = (x.iter().map(|&v| f64::from(v)).sum::<f64>() / plane as f64) as f32;
             let var = x
                 .iter()
@@ -70,15 +77,24 @@ fn forward(x: &FlexTensor, eps: f64, relu_after: bool) -> (FlexTensor, FlexTenso
                 / plane as f64;
             let scale = ((var + eps) as f32).sqrt();
             *inv = 1.0 / scale;
-            for ((o, m), &v) in out.iter_mut().zip(normed.iter_mut()).zip(x) {
-                *m = (v - mean) / scale;
-                *o = if relu_after { m.max(0.0) } else { *m };
+            for (o, &v) in out.iter_mut().zip(x) {
+                let m = (v - mean) / scale;
+                *o = if relu_in_place { m.max(0.0) } else { m };
             }
         });
     let shape = [n, c, h, w];
+    let normed = FlexTensor::from_data(TensorData::new(normed, shape));
+    if !relu_after || !keep {
+        let kept = keep.then(|| normed.clone());
+        return (normed, kept, inv);
+    }
+    let mut out = vec![0f32; src.len()];
+    out.par_chunks_mut(plane.max(1))
+        .zip(normed.storage::<f32>().par_chunks(plane.max(1)))
+        .for_each(|(o, m)| o.iter_mut().zip(m).for_each(|(o, &m)| *o = m.max(0.0)));
     (
         FlexTensor::from_data(TensorData::new(out, shape)),
-        FlexTensor::from_data(TensorData::new(normed, shape)),
+        Some(normed),
         inv,
     )
 }
@@ -137,10 +153,11 @@ fn tracked(x: Tracked, eps: f64, relu_after: bool) -> Tracked {
         .stateful()
     {
         OpsKind::Tracked(prep) => {
-            let (out, normed, inv) = forward(&x.primitive, eps, relu_after);
+            let (out, normed, inv) = forward(&x.primitive, eps, relu_after, true);
+            let normed = normed.expect("kept for the backward");
             prep.finish((normed, inv, relu_after), out)
         }
-        OpsKind::UnTracked(prep) => prep.finish(forward(&x.primitive, eps, relu_after).0),
+        OpsKind::UnTracked(prep) => prep.finish(forward(&x.primitive, eps, relu_after, false).0),
     }
 }
 

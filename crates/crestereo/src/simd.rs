@@ -31,32 +31,50 @@ impl Isa {
         }
     }
 
-    /// Whether this processor runs the copy compiled for `self`.
+    /// Whether this processor runs the copy compiled for `self` (each set includes the ones
+    /// before it, so the supported sets are those up to [`Isa::best`]; a comparison, cheap
+    /// enough for the kernels to check on every call).
     pub fn supported(self) -> bool {
-        match self {
-            Isa::Portable => true,
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => {
-                std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
-            }
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => {
-                Isa::Avx2.supported()
-                    && std::is_x86_feature_detected!("avx512f")
-                    && std::is_x86_feature_detected!("avx512vl")
-            }
-            #[cfg(not(target_arch = "x86_64"))]
-            _ => false,
-        }
+        self <= Isa::best()
     }
 
-    /// The widest set this processor runs.
+    /// The widest set this processor runs (detected once).
     pub fn best() -> Isa {
-        Isa::ALL
-            .into_iter()
-            .rev()
-            .find(|i| i.supported())
-            .unwrap_or(Isa::Portable)
+        static BEST: OnceLock<Isa> = OnceLock::new();
+        *BEST.get_or_init(|| {
+            #[cfg(target_arch = "x86_64")]
+            {
+                let avx2 =
+                    std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+                let avx512 = std::is_x86_feature_detected!("avx512f")
+                    && std::is_x86_feature_detected!("avx512vl");
+                match (avx2, avx512) {
+                    (true, true) => return Isa::Avx512,
+                    (true, false) => return Isa::Avx2,
+                    _ => {}
+                }
+            }
+            Isa::Portable
+        })
+    }
+
+    /// The set a `CRESTEREO_ISA` value asks for (the widest supported when there is none), or
+    /// why it cannot be had.
+    pub fn parse(value: Option<&str>) -> Result<Isa, String> {
+        let Some(value) = value else {
+            return Ok(Isa::best());
+        };
+        let names = Isa::ALL.map(Isa::name).join(", ");
+        let Some(isa) = Isa::ALL.into_iter().find(|i| i.name() == value.trim()) else {
+            return Err(format!("CRESTEREO_ISA={value:?}: expected one of {names}"));
+        };
+        if !isa.supported() {
+            return Err(format!(
+                "CRESTEREO_ISA={value}: this processor does not have it (it has {})",
+                Isa::best().name()
+            ));
+        }
+        Ok(isa)
     }
 }
 
@@ -68,23 +86,10 @@ pub fn isa() -> Isa {
     *CHOICE.get_or_init(|| isa_from_env().unwrap_or_else(|e| panic!("{e}")))
 }
 
-/// The set `CRESTEREO_ISA` asks for (the widest supported when unset), or why it cannot be had;
-/// binaries call this first, so that a bad value is a clear error rather than a panic later.
+/// [`Isa::parse`] of `CRESTEREO_ISA`; binaries call this first, so that a bad value is a clear
+/// error rather than a panic inside the first kernel.
 pub fn isa_from_env() -> Result<Isa, String> {
-    let Ok(value) = std::env::var("CRESTEREO_ISA") else {
-        return Ok(Isa::best());
-    };
-    let names = Isa::ALL.map(Isa::name).join(", ");
-    let Some(isa) = Isa::ALL.into_iter().find(|i| i.name() == value.trim()) else {
-        return Err(format!("CRESTEREO_ISA={value:?}: expected one of {names}"));
-    };
-    if !isa.supported() {
-        return Err(format!(
-            "CRESTEREO_ISA={value}: this processor does not have it (it has {})",
-            Isa::best().name()
-        ));
-    }
-    Ok(isa)
+    Isa::parse(std::env::var("CRESTEREO_ISA").ok().as_deref())
 }
 
 /// What the `gemm` crate (the matrix products, Flex's and ours) runs on this processor: it
@@ -96,7 +101,7 @@ pub fn gemm_isa() -> &'static str {
         if std::is_x86_feature_detected!("avx512f") {
             return "avx512";
         }
-        if Isa::Avx2.supported() {
+        if Isa::best() >= Isa::Avx2 {
             return "avx2";
         }
     }
@@ -252,17 +257,30 @@ mod tests {
         eprintln!("map3 copies checked: {tested:?}");
     }
 
-    /// `CRESTEREO_ISA` names a set, refuses a name it does not know, and never takes a set
-    /// the processor lacks.
+    /// `CRESTEREO_ISA` names a set, refuses a name it does not know (listing the ones it
+    /// takes), and never takes a set the processor lacks.
     #[test]
-    fn isa_names_round_trip_and_the_best_is_supported() {
-        for set in super::Isa::ALL {
-            assert_eq!(
-                super::Isa::ALL.into_iter().find(|s| s.name() == set.name()),
-                Some(set)
-            );
+    fn isa_values_are_parsed_and_checked() {
+        use super::Isa;
+        assert_eq!(Isa::parse(None), Ok(Isa::best()));
+        for set in Isa::ALL {
+            let got = Isa::parse(Some(set.name()));
+            if set <= Isa::best() {
+                assert_eq!(got, Ok(set));
+            } else {
+                let e = got.expect_err("a set this processor lacks");
+                assert!(e.contains("does not have it"), "{e}");
+            }
         }
-        assert!(super::Isa::best().supported());
-        assert!(super::isa().supported());
+        assert_eq!(
+            Isa::parse(Some(" avx2 ")).ok(),
+            Isa::parse(Some("avx2")).ok()
+        );
+        let e = Isa::parse(Some("AVX-512")).expect_err("not a name");
+        assert_eq!(
+            e,
+            "CRESTEREO_ISA=\"AVX-512\": expected one of portable, avx2, avx512"
+        );
+        assert!(Isa::Portable.supported() && Isa::best().supported());
     }
 }

@@ -4,6 +4,22 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// The flags of a training run small enough for a test: 32×64 crops, 2 iterations, batch 1,
+/// no accumulation, no progress bar, 2 threads.
+pub const TINY_TRAINING: [&str; 11] = [
+    "--crop",
+    "32x64",
+    "--iters",
+    "2",
+    "--batch-size",
+    "1",
+    "--accumulate",
+    "1",
+    "--no-progress",
+    "--threads",
+    "2",
+];
+
 /// Steps of [`fine_tune`]; its checkpoint is `RUN/checkpoints/step-00000003`.
 pub const STEPS: &str = "3";
 
@@ -38,7 +54,7 @@ pub fn fine_tune(dir: &Path, reference: &Path) -> PathBuf {
         os("--seed"),
         os("3"),
     ]);
-    crestereo(&[
+    let mut train = vec![
         os("train"),
         os("--data"),
         data.as_os_str(),
@@ -50,17 +66,8 @@ pub fn fine_tune(dir: &Path, reference: &Path) -> PathBuf {
         reference.as_os_str(),
         os("--lr"),
         os("1e-5"),
-        os("--crop"),
-        os("32x64"),
-        os("--iters"),
-        os("2"),
-        os("--batch-size"),
-        os("1"),
-        os("--accumulate"),
-        os("1"),
-        os("--no-progress"),
-        os("--threads"),
-        os("2"),
-    ]);
+    ];
+    train.extend(TINY_TRAINING.map(os));
+    crestereo(&train);
     run
 }
