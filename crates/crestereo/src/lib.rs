@@ -48,6 +48,7 @@ pub mod onnx;
 pub mod position_encoding;
 pub mod refine;
 pub mod simd;
+pub mod threads;
 pub mod update;
 pub mod upsample;
 pub mod weights;

@@ -132,9 +132,23 @@ enum BenchWhat {
     Loader,
 }
 
+impl Command {
+    /// The `--threads` this command was given (0 or none: one per core).
+    fn threads(&self) -> usize {
+        match self {
+            Command::Infer { backend, .. }
+            | Command::Train { backend, .. }
+            | Command::Eval { backend, .. } => backend.threads,
+            Command::Bench { threads, .. } => *threads,
+            _ => 0,
+        }
+    }
+}
+
 fn set_threads(n: usize) {
     if n > 0 {
-        // SAFETY: called at start-up before any other thread exists.
+        // SAFETY: called at start-up before any other thread exists. Set as well as the pool
+        // size so that child processes (`bench --what all`) and the bench's report see it.
         unsafe { std::env::set_var("RAYON_NUM_THREADS", n.to_string()) };
     }
 }
@@ -174,21 +188,18 @@ macro_rules! with_backend {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Infer { args, backend } => {
-            set_threads(backend.threads);
             with_backend!(backend.device, false, |B| infer::infer::<B>(
                 &args,
                 &Default::default()
             ))
         }
         Command::Train { args, backend } => {
-            set_threads(backend.threads);
             with_backend!(backend.device, true, |B| train::run::<B>(
                 &args,
                 &Default::default()
             ))
         }
         Command::Eval { args, backend } => {
-            set_threads(backend.threads);
             with_backend!(backend.device, false, |B| eval::run::<B>(
                 &args,
                 &Default::default()
@@ -235,7 +246,6 @@ fn run_bench(
     repeats: usize,
     loader: bench_loader::LoaderBenchArgs,
 ) -> Result<()> {
-    set_threads(threads);
     let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
     let is = infer_size.unwrap_or_else(|| vec![480, 640]);
     if ts.len() != 4 || is.len() != 2 {
@@ -295,7 +305,9 @@ pub fn main() -> ExitCode {
         eprintln!("error: {e}");
         return ExitCode::FAILURE;
     }
-    match run(cli) {
+    set_threads(cli.command.threads());
+    // The whole command on a pool thread: each kernel then starts without a cold hand-over.
+    match crestereo::threads::on_pool(|| run(cli)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
