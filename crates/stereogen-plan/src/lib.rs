@@ -4,6 +4,7 @@
 //! index, seed, index). The asset index is plain data (`stereogen-assets` fills it from folders).
 
 pub mod assets;
+pub mod checker;
 pub mod dist;
 pub mod photo_sizing;
 pub mod recipe;
@@ -15,6 +16,8 @@ pub mod spec;
 pub mod tree;
 
 pub use assets::{AssetIndex, MeshAsset, SkippedAsset, TextureAsset};
+pub use checker::Violation;
+pub use checker::scene_spec::check_scene_spec;
 pub use dist::Dist;
 pub use recipe::{Recipe, RecipeError};
 pub use rig::{StereoCameras, StereoRig};

@@ -19,7 +19,7 @@ use flate2::Compression;
 use flate2::read::GzDecoder;
 use flate2::write::GzEncoder;
 
-use crate::plan::SceneSpec;
+use crate::plan::{SceneSpec, check_scene_spec};
 
 /// The first two bytes of every gzip stream.
 const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
@@ -68,51 +68,11 @@ pub fn decode_scene_spec(bytes: &[u8]) -> anyhow::Result<SceneSpec> {
     Ok(SceneSpec::from_json(&text)?)
 }
 
-/// [`read_scene_spec`], then [`check_scene_spec`]: a spec that is about to be rendered.
+/// [`read_scene_spec`], then the plan's [`check_scene_spec`]: a spec that is about to be rendered.
 pub fn read_renderable_spec(path: &Path) -> anyhow::Result<SceneSpec> {
     let spec = read_scene_spec(path)?;
     check_scene_spec(&spec).with_context(|| format!("{}: cannot be rendered", path.display()))?;
     Ok(spec)
-}
-
-/// Checks what Blender would otherwise be asked to render: an image size it can make, and a rig
-/// and clipping range whose numbers stay finite through every derived quantity. The message names
-/// the key and the value. (Specs the planner writes always pass: the recipe's own bounds are
-/// narrower.)
-pub fn check_scene_spec(spec: &SceneSpec) -> anyhow::Result<()> {
-    let rig = &spec.rig;
-    let render = &spec.render;
-    let positive = |key: &str, v: f64, max: f64| -> anyhow::Result<()> {
-        if !(v.is_finite() && v > 0.0 && v <= max) {
-            anyhow::bail!("`{key}` = {v} is invalid: need 0 < {key} <= {max}");
-        }
-        Ok(())
-    };
-    for (key, v) in [("rig.width", rig.width), ("rig.height", rig.height)] {
-        if !(1..=16384).contains(&v) {
-            anyhow::bail!("`{key}` = {v} is invalid: need 1..=16384 pixels");
-        }
-    }
-    positive("rig.focal_mm", rig.focal_mm, 1e4)?;
-    positive("rig.sensor_width_mm", rig.sensor_width_mm, 1e3)?;
-    positive("rig.baseline_m", rig.baseline_m, 1e3)?;
-    positive("render.clip_start", render.clip_start, 1e6)?;
-    positive("render.clip_end", render.clip_end, 1e9)?;
-    if render.clip_end <= render.clip_start {
-        anyhow::bail!(
-            "`render.clip_end` = {} is invalid: it must lie beyond render.clip_start = {}",
-            render.clip_end,
-            render.clip_start
-        );
-    }
-    if !(1..=65536).contains(&render.samples) {
-        anyhow::bail!(
-            "`render.samples` = {} is invalid: need 1..=65536",
-            render.samples
-        );
-    }
-    positive("render.filter_width_px", render.filter_width_px, 10.0)?;
-    Ok(())
 }
 
 #[cfg(test)]

@@ -631,47 +631,72 @@ mod tests {
         );
     }
 
-    /// A preset with the keys of `added_keys!` removed: what recipes written before them look like.
-    fn without_added_keys(text: &str) -> String {
-        let added = [
-            "clip_start_factor",
-            "clip_end_factor",
-            "background_oversize",
-            "mesh_candidates",
-            "near_factor",
-            "far_factor",
-            "image_position",
-            "color_channel",
-            "radius_factor",
-            "area_size_factor",
-            "spot_size_rad",
-            "spot_blend",
-            "tilt_rad",
-            "world_grey",
-            "world_green_ratio",
-            "world_blue_ratio",
-            "leaf_rgb",
-            "leaf_roughness",
-            "lean_rad",
-            "background_texture_scale",
-            "procedural_detail",
-            "glossy_textured_probability",
-            "glossy_roughness",
-            "metallic_roughness",
-            "metallic_tint",
-            "glass_roughness",
-            "glass_tint",
-            "exclude_licences",
-            "pack_mesh_share",
-        ];
+    /// The keys the presets set to a value other than their default: leaving them out changes
+    /// the recipe.
+    const SET_OTHERWISE_BY_THE_PRESETS: [&str; 3] = [
+        "sources.builtin_pack",
+        "materials.procedural_share",
+        "materials.photo_texel_px",
+    ];
+
+    /// The key as written in a TOML table: `lights.near_factor` → `near_factor`,
+    /// `trees.leaf_rgb (red)` → `leaf_rgb`.
+    fn toml_name(key: &str) -> &str {
+        let leaf = key.rsplit('.').next().unwrap_or(key);
+        leaf.split(' ').next().unwrap_or(leaf)
+    }
+
+    fn without_keys(text: &str, names: &[&str]) -> String {
         text.lines()
             .filter(|l| {
-                !added
+                !names
                     .iter()
                     .any(|k| l.trim_start().starts_with(&format!("{k} =")))
             })
             .collect::<Vec<_>>()
             .join("\n")
+    }
+
+    /// A preset with the keys of `added_keys!` removed: what recipes written before them look like.
+    /// The keys come from the recipe's check rows (`with_default`), the one list of keys.
+    fn without_added_keys(text: &str) -> String {
+        let preset = Recipe::builtin_default();
+        let checks = validate::recipe_checks(&preset);
+        let added: Vec<&str> = checks
+            .iter()
+            .filter(|c| c.has_default && !SET_OTHERWISE_BY_THE_PRESETS.contains(&&*c.key))
+            .map(|c| toml_name(&c.key))
+            .collect();
+        without_keys(text, &added)
+    }
+
+    #[test]
+    fn the_rows_with_a_default_are_exactly_the_keys_a_recipe_may_leave_out() {
+        let text = default_text();
+        let preset = Recipe::builtin_default();
+        for check in validate::recipe_checks(&preset) {
+            let Some((section, _)) = check.key.split_once('.') else {
+                continue;
+            };
+            if section.starts_with("categories") {
+                continue;
+            }
+            let name = toml_name(&check.key);
+            let left_out = without_keys(text, &[name]);
+            assert_ne!(left_out, text, "{}: the preset states it", check.key);
+            let parsed = Recipe::from_toml_str(&left_out, "x.toml");
+            if check.has_default {
+                let parsed = parsed.unwrap_or_else(|e| panic!("{}: {e}", check.key));
+                let expected = !SET_OTHERWISE_BY_THE_PRESETS.contains(&&*check.key);
+                assert_eq!(parsed == preset, expected, "{}", check.key);
+            } else {
+                let e = match parsed {
+                    Ok(_) => panic!("{}: left out, yet the recipe parses", check.key),
+                    Err(e) => e.to_string(),
+                };
+                assert!(e.contains(&format!("missing field `{name}`")), "{e}");
+            }
+        }
     }
 
     #[test]

@@ -1,10 +1,10 @@
 //! Plan-level proof of the placement law, without Blender: thousands of scenes in seconds.
 
-use stereogen::assets::AssetIndex;
-use stereogen::plan::dist::{Shaped, ks_critical, ks_distance};
-use stereogen::plan::recipe::PRESETS;
-use stereogen::plan::rig::View;
-use stereogen::plan::{Dist, ObjectRole, Recipe, Shape, plan_scene};
+use stereogen_plan::AssetIndex;
+use stereogen_plan::dist::{Shaped, ks_critical, ks_distance};
+use stereogen_plan::recipe::PRESETS;
+use stereogen_plan::rig::View;
+use stereogen_plan::{Dist, ObjectRole, Recipe, Shape, plan_scene};
 
 fn object_disparities(recipe: &Recipe, scenes: u64) -> Vec<f64> {
     let assets = AssetIndex::default();

@@ -1,0 +1,56 @@
+//! The check of a scene spec before it is rendered: specs the planner writes pass, and each
+//! impossible value is refused with its key and value named.
+
+use stereogen_plan::{AssetIndex, Recipe, SceneSpec, check_scene_spec, plan_scene};
+
+/// A key, how to spoil its value, and what the message must say.
+type Case = (&'static str, fn(&mut SceneSpec), &'static str);
+
+#[test]
+fn planned_specs_pass_and_impossible_values_are_named() {
+    for (name, _) in stereogen_plan::recipe::PRESETS {
+        let spec = plan_scene(&Recipe::preset(name).unwrap(), &AssetIndex::default(), 5, 2);
+        check_scene_spec(&spec).unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+    let good = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 0);
+    let cases: [Case; 6] = [
+        ("rig.width", |s| s.rig.width = 0, "need 16..=16384, got 0"),
+        // The recipe's image-size limit, the same for specs.
+        (
+            "rig.height",
+            |s| s.rig.height = 15,
+            "need 16..=16384, got 15",
+        ),
+        (
+            "rig.baseline_m",
+            |s| s.rig.baseline_m = 1e308,
+            "need 0 < value <= 1000, got 1000000",
+        ),
+        (
+            "render.clip_start",
+            |s| s.render.clip_start = f64::NAN,
+            "got NaN",
+        ),
+        (
+            "render.clip_end",
+            |s| s.render.clip_end = s.render.clip_start / 2.0,
+            "must lie beyond render.clip_start",
+        ),
+        (
+            "render.samples",
+            |s| s.render.samples = 0,
+            "need 1..=65536, got 0",
+        ),
+    ];
+    for (key, spoil, allowed) in cases {
+        let mut spec = good.clone();
+        spoil(&mut spec);
+        let e = check_scene_spec(&spec).expect_err(key);
+        assert_eq!(e.key, key, "{e}");
+        let message = e.to_string();
+        assert!(
+            message.contains(&format!("key `{key}` is invalid")) && message.contains(allowed),
+            "{message}"
+        );
+    }
+}
