@@ -2,11 +2,11 @@
 //!
 //! - [`stats`]: reads the recipe, manifest and SceneSpecs (object-level sample of the disparity
 //!   law) and streams every disparity EXR in parallel (pixel level); [`compute`] gives a
-//!   [`StatsReport`], written as `stats.json`.
-//! - [`report`]: the report's structure and the per-category OK/FAIL decision: a category fails
-//!   when the Kolmogorov–Smirnov distance between its object targets and the law exceeds the
-//!   critical value at `--ks-alpha`, or when an equal-mass bin of the law inside its support gets
-//!   no valid pixel (a gap); see [`hist::gap_bins_for`] for how many bins the sample size allows.
+//!   [`StatsReport`] (`stats/stats_report.rs`), written as `stats.json`. A category fails when
+//!   the Kolmogorov–Smirnov distance between its object targets and the law exceeds the critical
+//!   value at its level (the KS tests are one family at `--ks-alpha`, `stats/ks_family.rs`), or
+//!   when an equal-mass bin of the law inside its support gets no valid pixel (a gap); see
+//!   [`hist::gap_bins_for`] for how many bins the sample size allows.
 //! - [`hist`], [`accumulate`]: histograms, percentiles and the streaming accumulators.
 //! - [`plots`]: PNG plots (`--plot`).
 //! - [`audit`]: `stereogen audit`: the ground truth re-derived from the scene geometry by ray casting.
@@ -18,8 +18,7 @@ pub mod contact_sheet;
 pub mod hist;
 pub mod html_report;
 pub mod plots;
-pub mod report;
 pub mod stats;
 
-pub use report::{CategoryStats, StatsReport, Status};
+pub use stats::stats_report::{CategoryStats, StatsReport, Status};
 pub use stats::{StatsOptions, compute, summary_lines, write_json};

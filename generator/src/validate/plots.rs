@@ -19,7 +19,7 @@ use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
 use super::hist::{UniformHist, law_density};
-use super::report::{Band, CategoryStats, StatsReport, Status};
+use super::stats::stats_report::{Band, CategoryStats, StatsReport, Status};
 use crate::plan::Dist;
 
 const FONT: &[u8] = include_bytes!("fonts/DejaVuSans.ttf");

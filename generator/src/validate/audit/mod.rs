@@ -9,11 +9,11 @@
 //!
 //! Blender exports the next sample while Rust casts rays through the current one.
 
+pub mod audit_report;
 pub mod bvh;
 pub mod compare;
 pub mod geometry;
 pub mod raycast;
-pub mod report;
 pub mod select;
 pub mod tally;
 
@@ -26,7 +26,7 @@ use anyhow::{Context, bail};
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 
-pub use report::{AuditReport, Bars, GroupAudit, SampleAudit, summary_lines};
+pub use audit_report::{AuditReport, Bars, GroupAudit, SampleAudit, summary_lines};
 pub use select::{PixelSelection, SampleSelection};
 
 use self::compare::{Camera, SampleCheck};

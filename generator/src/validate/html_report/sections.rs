@@ -5,7 +5,7 @@ use super::chart::{BarChart, short};
 use crate::plan::Dist;
 use crate::validate::audit::AuditReport;
 use crate::validate::hist::{UniformHist, law_density};
-use crate::validate::report::{Band, CategoryStats, StatsReport, Status};
+use crate::validate::stats::stats_report::{Band, CategoryStats, StatsReport, Status};
 
 /// One category of `stats` as a table row.
 pub struct StatsRow {

@@ -3,10 +3,11 @@
 
 use serde::Serialize;
 
-use super::accumulate::{Coverage, PixelAcc, ViewAcc};
-use super::hist::{EdgeHist, Percentiles, UniformHist, quantile_sorted, rice_bins};
+use super::ks_family::MIN_OBJECTS_TO_JUDGE;
 use crate::plan::Dist;
-use crate::plan::dist::{ks_critical, ks_distance};
+use crate::plan::dist::ks_distance;
+use crate::validate::accumulate::{Coverage, PixelAcc, ViewAcc};
+use crate::validate::hist::{EdgeHist, Percentiles, UniformHist, quantile_sorted, rice_bins};
 
 #[derive(Debug, Clone, Serialize)]
 pub struct StatsReport {
@@ -16,7 +17,11 @@ pub struct StatsReport {
     pub law: Dist,
     pub law_support: [f64; 2],
     pub samples: usize,
+    /// The family-wise false-alarm rate of the object-level KS tests (Holm over the judged
+    /// groups), and the significance of each gap check's bin-count rule.
     pub ks_alpha: f64,
+    /// Groups (categories, all) with fewer content objects are not judged: too few to tell.
+    pub min_objects_to_judge: usize,
     /// Range of the pixel-level histograms (px).
     pub pixel_range: [f64; 2],
     /// Rule that chose the gap-check bin counts.
@@ -56,7 +61,10 @@ pub struct ObjectStats {
     pub mean: Option<f64>,
     pub percentiles: Option<Percentiles>,
     pub ks_distance: Option<f64>,
+    /// The critical value at [`ObjectStats::ks_level`]; unset when the group is not judged.
     pub ks_critical: Option<f64>,
+    /// This group's significance level in the Holm step-down over the judged groups.
+    pub ks_level: Option<f64>,
     /// Rice-rule bins over the law's support.
     pub histogram: Option<UniformHist>,
 }
@@ -126,8 +134,9 @@ fn fraction(a: u64, b: u64) -> f64 {
 }
 
 impl ObjectStats {
-    /// Non-finite targets (a broken SceneSpec) are left out.
-    pub fn new(sample: &mut Vec<f64>, law: &Dist, alpha: f64) -> Self {
+    /// Non-finite targets (a broken SceneSpec) are left out. The KS level and critical value
+    /// are set later, for the whole family ([`super::ks_family::holm_levels`]).
+    pub fn new(sample: &mut Vec<f64>, law: &Dist) -> Self {
         sample.retain(|v| v.is_finite());
         sample.sort_by(f64::total_cmp);
         let n = sample.len();
@@ -144,7 +153,8 @@ impl ObjectStats {
             mean: (n > 0).then(|| sample.iter().sum::<f64>() / n as f64),
             percentiles: Percentiles::from_fn(|q| quantile_sorted(sample, q)),
             ks_distance: (n > 0).then(|| ks_distance(sample, law)),
-            ks_critical: (n > 0).then(|| ks_critical(n, alpha)),
+            ks_critical: None,
+            ks_level: None,
             histogram,
         }
     }
@@ -221,61 +231,38 @@ impl PixelStats {
 }
 
 impl CategoryStats {
-    /// Derives the numbers and decides OK/FAIL/SKIP.
+    /// Derives the numbers and decides OK/FAIL/SKIP. Broken maps fail whatever the size; the
+    /// statistical tests (KS, gap) judge only groups of at least [`MIN_OBJECTS_TO_JUDGE`] objects.
     pub fn new(name: &str, samples: u64, objects: ObjectStats, pixels: Option<PixelStats>) -> Self {
-        let mut problems = Vec::new();
-        let mut status = Status::Ok;
-        if samples == 0 {
-            status = Status::Skip;
-            problems.push("no samples".to_string());
+        let (status, problems) = if samples == 0 {
+            (Status::Skip, vec!["no samples".to_string()])
         } else if objects.count == 0 {
-            status = Status::Skip;
-            problems.push("no content objects with a target disparity".to_string());
+            (
+                Status::Skip,
+                vec!["no content objects with a target disparity".to_string()],
+            )
         } else {
-            if let (Some(d), Some(c)) = (objects.ks_distance, objects.ks_critical)
-                && d > c
-            {
-                problems.push(format!("object-level KS {d:.4} > critical {c:.4}"));
+            let broken = broken_maps(pixels.as_ref());
+            if !broken.is_empty() {
+                (Status::Fail, broken)
+            } else if objects.count < MIN_OBJECTS_TO_JUDGE {
+                (
+                    Status::Skip,
+                    vec![format!(
+                        "too few samples to judge ({} objects, at least {MIN_OBJECTS_TO_JUDGE} needed)",
+                        objects.count
+                    )],
+                )
+            } else {
+                let missed = missed_law(&objects, pixels.as_ref());
+                let status = if missed.is_empty() {
+                    Status::Ok
+                } else {
+                    Status::Fail
+                };
+                (status, missed)
             }
-            match &pixels {
-                None => problems.push("no disparity maps could be read".to_string()),
-                Some(p) => {
-                    if p.valid == 0 {
-                        problems.push("no valid pixels".to_string());
-                    }
-                    if p.nonfinite_valid > 0 {
-                        problems.push(format!(
-                            "{} valid pixels are NaN or infinite",
-                            p.nonfinite_valid
-                        ));
-                    }
-                    if let Some(g) = &p.gap_check
-                        && !g.empty.is_empty()
-                    {
-                        let list: Vec<String> = g
-                            .empty
-                            .iter()
-                            .take(6)
-                            .map(|[a, b]| format!("[{a:.2}, {b:.2})"))
-                            .collect();
-                        let more = if g.empty.len() > 6 {
-                            format!(" and {} more", g.empty.len() - 6)
-                        } else {
-                            String::new()
-                        };
-                        problems.push(format!(
-                            "gap: {}/{} pixel bins empty inside the law's support: {}{more}",
-                            g.empty.len(),
-                            g.bins,
-                            list.join(" ")
-                        ));
-                    }
-                }
-            }
-            if !problems.is_empty() {
-                status = Status::Fail;
-            }
-        }
+        };
         Self {
             name: name.to_string(),
             samples,
@@ -297,8 +284,12 @@ impl CategoryStats {
             "{tag} {:<name_width$} {:>6} scenes {:>7} objects",
             self.name, self.samples, self.objects.count
         );
-        if let (Some(d), Some(c)) = (self.objects.ks_distance, self.objects.ks_critical) {
-            s += &format!("  KS {d:.4} {} {c:.4}", if d > c { ">" } else { "<=" });
+        match (self.objects.ks_distance, self.objects.ks_critical) {
+            (Some(d), Some(c)) => {
+                s += &format!("  KS {d:.4} {} {c:.4}", if d > c { ">" } else { "<=" })
+            }
+            (Some(d), None) => s += &format!("  KS {d:.4}"),
+            _ => {}
         }
         if let Some(p) = &self.pixels {
             if let Some(g) = &p.gap_check {
@@ -314,4 +305,54 @@ impl CategoryStats {
         }
         s
     }
+}
+
+/// Maps that are broken whatever the sample size: none read, no valid pixel, non-finite values.
+fn broken_maps(pixels: Option<&PixelStats>) -> Vec<String> {
+    let Some(p) = pixels else {
+        return vec!["no disparity maps could be read".to_string()];
+    };
+    let mut problems = Vec::new();
+    if p.valid == 0 {
+        problems.push("no valid pixels".to_string());
+    }
+    if p.nonfinite_valid > 0 {
+        problems.push(format!(
+            "{} valid pixels are NaN or infinite",
+            p.nonfinite_valid
+        ));
+    }
+    problems
+}
+
+/// The statistical tests: the object-level KS test at the group's Holm level, and the gap check.
+fn missed_law(objects: &ObjectStats, pixels: Option<&PixelStats>) -> Vec<String> {
+    let mut problems = Vec::new();
+    if let (Some(d), Some(c)) = (objects.ks_distance, objects.ks_critical)
+        && d > c
+    {
+        problems.push(format!("object-level KS {d:.4} > critical {c:.4}"));
+    }
+    if let Some(g) = pixels.and_then(|p| p.gap_check.as_ref())
+        && !g.empty.is_empty()
+    {
+        let list: Vec<String> = g
+            .empty
+            .iter()
+            .take(6)
+            .map(|[a, b]| format!("[{a:.2}, {b:.2})"))
+            .collect();
+        let more = if g.empty.len() > 6 {
+            format!(" and {} more", g.empty.len() - 6)
+        } else {
+            String::new()
+        };
+        problems.push(format!(
+            "gap: {}/{} pixel bins empty inside the law's support: {}{more}",
+            g.empty.len(),
+            g.bins,
+            list.join(" ")
+        ));
+    }
+    problems
 }

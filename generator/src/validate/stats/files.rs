@@ -1,0 +1,109 @@
+//! Reading one file of a sample for the stats pass, with `--verify`'s checks; a problem is a
+//! typed [`FileError`] that names its file once.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use crate::dataset::ManifestEntry;
+
+/// A file of a sample that could not be read or failed verification.
+#[derive(Debug)]
+pub enum FileError {
+    /// Reading or decoding failed (stereo-io's error names the file).
+    Io(stereo_io::Error),
+    /// `--verify`: the manifest has no checksum for the file.
+    NoChecksum(PathBuf),
+    /// `--verify`: the file is not the one the manifest recorded.
+    ChecksumDiffers {
+        path: PathBuf,
+        actual: String,
+        recorded: String,
+    },
+    /// `--verify`: an image that does not decode.
+    Undecodable { path: PathBuf, message: String },
+    /// A scene file that holds no SceneSpec.
+    NotASceneSpec { path: PathBuf, message: String },
+}
+
+impl fmt::Display for FileError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            FileError::Io(e) => write!(f, "{e}"),
+            FileError::NoChecksum(path) => write!(
+                f,
+                "{}: the manifest records no checksum for it",
+                path.display()
+            ),
+            FileError::ChecksumDiffers {
+                path,
+                actual,
+                recorded,
+            } => write!(
+                f,
+                "{}: SHA-256 {actual} differs from the manifest's {recorded}",
+                path.display()
+            ),
+            FileError::Undecodable { path, message } => {
+                write!(f, "{}: cannot decode: {message}", path.display())
+            }
+            FileError::NotASceneSpec { path, message } => {
+                write!(f, "{}: not a SceneSpec: {message}", path.display())
+            }
+        }
+    }
+}
+
+/// The SHA-256 of `bytes`, as the manifest writes it.
+fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Reads one file of a sample: with `verify`, its checksum is compared with the manifest's and
+/// an image is decoded in full. Returns the bytes read.
+pub fn read_sample_file(
+    root: &Path,
+    e: &ManifestEntry,
+    key: &str,
+    rel: &Path,
+    verify: bool,
+) -> Result<Vec<u8>, FileError> {
+    let path = root.join(rel);
+    let bytes =
+        std::fs::read(&path).map_err(|err| FileError::Io(stereo_io::Error::io(&path, err)))?;
+    if verify {
+        let Some(recorded) = e.sha256.get(key) else {
+            return Err(FileError::NoChecksum(path));
+        };
+        let actual = sha256_hex(&bytes);
+        if &actual != recorded {
+            return Err(FileError::ChecksumDiffers {
+                path,
+                actual,
+                recorded: recorded.clone(),
+            });
+        }
+        if matches!(key, "left" | "right") {
+            image::load_from_memory(&bytes).map_err(|err| FileError::Undecodable {
+                path: path.clone(),
+                message: err.to_string(),
+            })?;
+        }
+    }
+    Ok(bytes)
+}
+
+/// Verifies the files the pixel pass does not read (images and the scene file).
+pub fn verify_other_files(root: &Path, e: &ManifestEntry) -> Vec<FileError> {
+    [
+        ("left", &e.files.left),
+        ("right", &e.files.right),
+        ("scene", &e.files.scene),
+    ]
+    .into_iter()
+    .filter_map(|(key, rel)| read_sample_file(root, e, key, rel, true).err())
+    .collect()
+}
