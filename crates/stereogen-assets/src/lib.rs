@@ -6,6 +6,7 @@
 //! The index itself ([`AssetIndex`]) is pure data and lives with the planner in `stereogen-plan`;
 //! this crate only fills it, so the planner needs no file system.
 
+pub mod blender_env;
 pub mod cache;
 pub mod meshes;
 pub mod objaverse;

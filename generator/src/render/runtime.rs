@@ -10,10 +10,9 @@ use fs4::fs_std::FileExt;
 
 pub use stereogen_assets::stereogen_home;
 
-/// The `bpy` wheel the managed environment pins (Blender 4.5 LTS).
-pub const BPY_VERSION: &str = "4.5.15";
-/// trimesh loads the mesh formats Blender has no importer for (OFF and others).
-pub const TRIMESH_VERSION: &str = "4.12.2";
+pub use stereogen_assets::blender_env::{
+    BPY_VERSION, TRIMESH_VERSION, managed_env_dir, managed_envs_root, managed_python,
+};
 /// The Blender series every runtime must report.
 pub const BLENDER_SERIES: &str = "4.5";
 /// The Python minor version the `bpy` 4.5 wheels are built for.
@@ -96,18 +95,12 @@ impl BlenderRuntime {
     }
 }
 
-/// The directory name changes with the pinned versions, so an upgrade installs afresh.
-fn managed_env_name() -> String {
-    format!("bpy-{BPY_VERSION}-trimesh-{TRIMESH_VERSION}")
-}
-
-fn managed_env_dir(home: &Path) -> PathBuf {
-    home.join("blender").join(managed_env_name())
-}
-
-/// The interpreter of the managed environment (it may not exist yet).
-pub fn managed_python(home: &Path) -> PathBuf {
-    managed_env_dir(home).join("bin").join("python")
+/// The current environment's folder name (an install in progress is named after it).
+fn managed_env_name(home: &Path) -> String {
+    let dir = managed_env_dir(home);
+    dir.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 /// Picks the runtime by the documented order, without installing anything.
@@ -197,7 +190,7 @@ fn check_bootstrap_python(program: &str) -> Result<(), RuntimeError> {
 /// callers (parallel tests, several generators on one host) wait for one install.
 pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
     let io = |what: &str, e: std::io::Error| RuntimeError::Io(format!("{what}: {e}"));
-    let parent = home.join("blender");
+    let parent = managed_envs_root(home);
     std::fs::create_dir_all(&parent)
         .map_err(|e| io(&format!("cannot create {}", parent.display()), e))?;
     let lock_path = parent.join(".setup.lock");
@@ -216,7 +209,7 @@ pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
         for e in entries.flatten() {
             if e.file_name()
                 .to_string_lossy()
-                .starts_with(&format!(".{}.tmp-", managed_env_name()))
+                .starts_with(&format!(".{}.tmp-", managed_env_name(home)))
             {
                 let _ = std::fs::remove_dir_all(e.path());
             }
@@ -244,7 +237,7 @@ pub fn install_managed(home: &Path) -> Result<PathBuf, RuntimeError> {
 
     let tmp = parent.join(format!(
         ".{}.tmp-{}",
-        managed_env_name(),
+        managed_env_name(home),
         std::process::id()
     ));
     eprintln!(

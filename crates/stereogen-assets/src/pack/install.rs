@@ -151,14 +151,7 @@ pub fn default_pip_python(home: &Path) -> PathBuf {
     if let Some(p) = std::env::var_os("STEREOGEN_PYTHON").filter(|p| !p.is_empty()) {
         return PathBuf::from(p);
     }
-    let managed = std::fs::read_dir(home.join("blender"))
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|e| e.path().join("bin").join("python"))
-        .filter(|p| p.is_file())
-        .max();
-    managed.unwrap_or_else(|| PathBuf::from("python3"))
+    crate::blender_env::installed_managed_python(home).unwrap_or_else(|| PathBuf::from("python3"))
 }
 
 /// The installed pack's folder, installing it first (as the first `generate` installs Blender)
