@@ -12,6 +12,11 @@ pub struct DisparityMap {
     pub valid: Vec<bool>,
 }
 
+/// How far (px) a right-view disparity may differ from the left-view one at the matching pixel
+/// for [`DisparityMap::left_right_consistent`] to call the pixel seen by both views: `eval`'s
+/// non-occluded metrics and the KITTI export's `disp_noc` use the same value.
+pub const LEFT_RIGHT_TOLERANCE_PX: f32 = 1.0;
+
 /// Camera facts stored in the EXR header, so a file alone says what its numbers mean.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct DisparityMeta {
@@ -79,6 +84,34 @@ impl DisparityMap {
         self.valid[y * self.width + x]
     }
 
+    /// The left-view pixels the right view sees too (non-occluded): a valid left pixel `x`
+    /// with disparity `d` whose match `round(x − d)` lies inside the right image and holds a
+    /// valid right-view disparity within `tolerance` of `d`. Where the match shows another
+    /// surface, the two disparities differ by that surface's depth step. `self` is the
+    /// left-view map and `right` the right-view one, of the same size.
+    pub fn left_right_consistent(&self, right: &DisparityMap, tolerance: f32) -> Vec<bool> {
+        assert_eq!(
+            (self.width, self.height),
+            (right.width, right.height),
+            "left and right disparity maps differ in size"
+        );
+        let w = self.width;
+        let mut seen = vec![false; self.data.len()];
+        for (i, keep) in seen.iter_mut().enumerate() {
+            if !self.valid[i] {
+                continue;
+            }
+            let d = self.data[i];
+            let xr = ((i % w) as f32 - d).round();
+            if xr < 0.0 || xr >= w as f32 {
+                continue;
+            }
+            let j = i - i % w + xr as usize;
+            *keep = right.valid[j] && (right.data[j] - d).abs() <= tolerance;
+        }
+        seen
+    }
+
     /// Statistics of the valid pixels, `None` when there are none.
     pub fn stats(&self) -> Option<DisparityStats> {
         let mut n = 0usize;
@@ -113,5 +146,34 @@ mod tests {
         let s = map.stats().unwrap();
         assert_eq!((s.valid_pixels, s.min, s.max), (2, 2.5, 5.0));
         assert!((s.mean - 3.75).abs() < 1e-12);
+    }
+
+    fn row(data: &[f32]) -> DisparityMap {
+        DisparityMap {
+            width: data.len(),
+            height: 1,
+            data: data.to_vec(),
+            valid: data.iter().map(|&d| d > 0.0).collect(),
+        }
+    }
+
+    #[test]
+    fn left_right_check_keeps_pixels_both_views_see() {
+        // A far wall (d = 1) and, in front of it, a near box (d = 4) over left x = 5..=7, which
+        // the right view sees at x = 1..=3. The wall's left pixels x = 2..=4 land there: the right
+        // view sees the box instead (occluded). Left x = 0 lands outside the right image; left
+        // x = 9 has no ground truth. Right x = 4..=6 show wall the left view cannot see.
+        let left = row(&[1.0, 1.0, 1.0, 1.0, 1.0, 4.0, 4.0, 4.0, 1.0, 0.0]);
+        let right = row(&[1.0, 4.0, 4.0, 4.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]);
+        let (f, t) = (false, true);
+        assert_eq!(
+            left.left_right_consistent(&right, LEFT_RIGHT_TOLERANCE_PX),
+            [f, t, f, f, f, t, t, t, t, f]
+        );
+        // A tolerance as large as the depth step cannot tell the surfaces apart.
+        assert_eq!(
+            left.left_right_consistent(&right, 3.0),
+            [f, t, t, t, t, t, t, t, t, f]
+        );
     }
 }

@@ -39,7 +39,7 @@ pub use datasets::{
     DatasetFormat, ReadOptions, SampleMeta, StereoDataset, StereoSample, detect_format,
     open_dataset, open_dataset_with,
 };
-pub use disparity::{DisparityMap, DisparityMeta, DisparityStats};
+pub use disparity::{DisparityMap, DisparityMeta, DisparityStats, LEFT_RIGHT_TOLERANCE_PX};
 pub use error::{Error, Result};
 pub use exr_io::{
     decode_disparity_exr, read_depth_channel, read_disparity_exr, write_disparity_exr,

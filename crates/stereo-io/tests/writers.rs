@@ -177,6 +177,135 @@ fn kitti_writes_disp_noc_where_the_source_has_a_stricter_mask() {
 }
 
 #[test]
+fn kitti_computes_disp_noc_from_both_views_and_repeats_still_frames() {
+    let t = tempfile::tempdir().unwrap();
+    // Ours (a still scene, both views' ground truth), a SceneFlow pair (things move between
+    // frames) and one with no right-view map. Disparity 1 everywhere, except that the right
+    // view sees a nearer surface (3) at its pixel 1, hiding what the left view's pixel 2 sees.
+    let ours = |seed| {
+        let mut s = sample(seed, true);
+        s.meta.format = Some(DatasetFormat::Stereogen);
+        let left = &mut s.disp_left;
+        left.data = left.valid.iter().map(|&v| f32::from(u8::from(v))).collect();
+        let right = s.disp_right.as_mut().unwrap();
+        right.valid.fill(true);
+        right.data.fill(1.0);
+        right.data[1] = 3.0;
+        s
+    };
+    let mut moving = ours(3);
+    moving.meta.format = Some(DatasetFormat::SceneFlow);
+    let mut no_right = sample(4, false);
+    no_right.meta.format = Some(DatasetFormat::Stereogen);
+    let samples = [("a", ours(2)), ("b", moving), ("c", no_right)];
+    let seen = |s: &StereoSample| {
+        s.disp_left
+            .left_right_consistent(s.disp_right.as_ref().unwrap(), LEFT_RIGHT_TOLERANCE_PX)
+    };
+    for (format, noc, next) in [
+        (WritableFormat::Kitti2012, "disp_noc", &[][..]),
+        (
+            WritableFormat::Kitti2015,
+            "disp_noc_0",
+            &[("disp_occ_0", "disp_occ_1"), ("disp_noc_0", "disp_noc_1")][..],
+        ),
+    ] {
+        let root = t.path().join(format.to_string());
+        write_all(format, &root, &samples);
+        let training = root.join("training");
+        let ds = open_dataset(&root, None).unwrap();
+        for (n, (_, s)) in samples.iter().enumerate() {
+            let got = ds.sample(n).unwrap();
+            let frame = format!("{n:06}_10.png");
+            match &s.disp_right {
+                Some(_) => {
+                    let keep = seen(s);
+                    assert!(
+                        keep.contains(&false) && keep.contains(&true),
+                        "a mixed mask"
+                    );
+                    assert_eq!(got.valid_left.as_ref(), Some(&keep), "{format} {frame}");
+                }
+                None => assert!(!training.join(noc).join(&frame).exists(), "{format}"),
+            }
+            // The next frame of a still scene is this frame: the same files, byte for byte.
+            let still = s.meta.format == Some(DatasetFormat::Stereogen);
+            for (this, next) in next {
+                let (this, next) = (
+                    training.join(this).join(&frame),
+                    training.join(next).join(&frame),
+                );
+                if still && this.exists() {
+                    let same = std::fs::read(&next).unwrap() == std::fs::read(&this).unwrap();
+                    assert!(
+                        same,
+                        "{format}: {} differs from {}",
+                        next.display(),
+                        this.display()
+                    );
+                } else {
+                    assert!(
+                        !next.exists(),
+                        "{format}: {} of a pair that is not still",
+                        next.display()
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn crestereo_export_names_what_torchvisions_loader_would_refuse() {
+    let t = tempfile::tempdir().unwrap();
+    let every_category: Vec<(String, StereoSample)> = ["tree", "shapenet", "reflective", "hole"]
+        .iter()
+        .map(|c| (format!("{c}/0000000"), sample(2, true)))
+        .collect();
+    let named: Vec<(&str, StereoSample)> = every_category
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.clone()))
+        .collect();
+    let whole = write_all(WritableFormat::Crestereo, &t.path().join("a"), &named);
+    assert_eq!(
+        whole.loader_notes(WritableFormat::Crestereo, t.path()),
+        Vec::<String>::new()
+    );
+
+    let partial = write_all(
+        WritableFormat::Crestereo,
+        &t.path().join("b"),
+        &[
+            ("tree/0000000", sample(2, true)),
+            ("hole/0000001", sample(3, false)),
+        ],
+    );
+    let notes = partial.loader_notes(WritableFormat::Crestereo, t.path());
+    assert_eq!(notes.len(), 2, "{notes:#?}");
+    assert!(
+        notes[0].starts_with("no sample in shapenet/, reflective/ of "),
+        "{}",
+        notes[0]
+    );
+    assert!(
+        notes[0].contains("torchvision's CREStereo loader"),
+        "{}",
+        notes[0]
+    );
+    assert!(
+        notes[1].starts_with("1 sample(s) have no right-view disparity"),
+        "{}",
+        notes[1]
+    );
+    // Other layouts have no such loader rule.
+    assert!(
+        partial
+            .loader_notes(WritableFormat::Kitti2015, t.path())
+            .is_empty()
+    );
+}
+
+#[test]
 fn sixteen_bit_layouts_drop_what_they_cannot_hold_and_count_it() {
     for (format, max) in [
         (WritableFormat::Kitti2015, 256.0),

@@ -95,7 +95,10 @@ impl CrestereoWriter {
         Ok(Self {
             root: root.to_path_buf(),
             images,
-            summary: WriteSummary::default(),
+            summary: WriteSummary {
+                empty_categories: CATEGORIES.to_vec(),
+                ..Default::default()
+            },
         })
     }
 
@@ -152,6 +155,9 @@ impl DatasetWriter for CrestereoWriter {
             write_png16(&paths.disp_right, d, CRESTEREO_SCALE, sum)
         })?;
         self.summary.outside_categories += usize::from(!in_category_folder(name));
+        if let Some((category, _)) = name.split_once('/') {
+            self.summary.empty_categories.retain(|c| *c != category);
+        }
         self.summary.samples += 1;
         Ok(())
     }

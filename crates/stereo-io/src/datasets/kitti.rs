@@ -11,7 +11,12 @@
 //! KITTI has no right-view disparity. KITTI 2015's `disp_occ_1`/`disp_noc_1` belong to its scene
 //! flow benchmark: the disparity of the *second* frame (t+1, `_11`) of each point, stored at that
 //! point's pixel in the *first* frame's left image. Reading it as the right view's disparity
-//! would be silently wrong, so neither folder is read nor written.
+//! would be silently wrong, so they are never read. They are written for sources whose pairs
+//! are single captures of a still scene (ours, CREStereo's, Middlebury, ETH3D, InStereo2K): with
+//! nothing moving, frame t+1 is frame t and its disparity at the reference pixels is the
+//! reference disparity itself. Loaders expect the folders (torchvision's `Kitti2015Stereo`
+//! refuses a tree without `disp_occ_1`). Sources with motion between frames (KITTI, SceneFlow,
+//! Sintel, Falling Things) leave them out.
 
 use std::path::{Path, PathBuf};
 
@@ -19,8 +24,8 @@ use super::scan::{file_name, rel_id, require, walk};
 use super::write::{
     DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, write_png16,
 };
-use super::{DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
-use crate::disparity::DisparityMap;
+use super::{DatasetFormat, DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
+use crate::disparity::{DisparityMap, LEFT_RIGHT_TOLERANCE_PX};
 use crate::error::{Error, Result};
 use crate::png_disp::KITTI_SCALE;
 
@@ -38,6 +43,9 @@ pub struct KittiFolders {
     pub disp_occ: &'static str,
     /// Left-view disparity of the non-occluded pixels only: read as a mask.
     pub disp_noc: &'static str,
+    /// KITTI 2015's frame-t+1 disparities at the reference pixels (all, non-occluded): written
+    /// for still sources only, never read (see the module notes).
+    pub next_frame: Option<(&'static str, &'static str)>,
 }
 
 pub const KITTI_2015: KittiFolders = KittiFolders {
@@ -45,12 +53,14 @@ pub const KITTI_2015: KittiFolders = KittiFolders {
     right: "image_3",
     disp_occ: "disp_occ_0",
     disp_noc: "disp_noc_0",
+    next_frame: Some(("disp_occ_1", "disp_noc_1")),
 };
 pub const KITTI_2012: KittiFolders = KittiFolders {
     left: "colored_0",
     right: "colored_1",
     disp_occ: "disp_occ",
     disp_noc: "disp_noc",
+    next_frame: None,
 };
 
 /// The file name of the `n`-th reference frame.
@@ -102,11 +112,14 @@ pub(crate) fn scan(root: &Path, f: &KittiFolders) -> Result<Vec<SampleFiles>> {
 }
 
 /// Writes the `n`-th sample as `training/<left>/NNNNNN_10.png` with the right image and the
-/// left-view disparity beside it in the release's folders (see the module's table). Where the
-/// sample carries a stricter validity mask than its disparity's (a KITTI `disp_noc`, an ETH3D or
-/// Middlebury `mask0nocc`), the disparity restricted to it is written as `disp_noc*`; otherwise
-/// no `disp_noc*` (nothing more is known). No `_11` frame and no right-view disparity: KITTI
-/// has neither. Disparities of 256 px or more do not fit: those pixels become invalid, counted.
+/// left-view disparity beside it in the release's folders (see the module's table). `disp_noc*`
+/// is the disparity restricted to the non-occluded pixels: the sample's own stricter mask where
+/// it has one (a KITTI `disp_noc`, an ETH3D or Middlebury `mask0nocc`), else the left–right
+/// check of its two ground-truth maps ([`DisparityMap::left_right_consistent`], the check `eval`
+/// uses); a sample with neither gets no `disp_noc*` (nothing more is known). KITTI 2015's
+/// `disp_occ_1`/`disp_noc_1` repeat `disp_occ_0`/`disp_noc_0` for still sources (module notes).
+/// No `_11` frame and no right-view disparity: KITTI has neither. Disparities of 256 px or more
+/// do not fit: those pixels become invalid, counted.
 pub struct KittiWriter {
     root: PathBuf,
     folders: KittiFolders,
@@ -121,6 +134,21 @@ impl KittiWriter {
             summary: WriteSummary::default(),
         }
     }
+}
+
+/// Whether a pair of `format` is a single capture of a scene in which nothing moves, so that
+/// the next frame's disparity at the reference pixels equals the reference disparity.
+fn is_still_capture(format: Option<DatasetFormat>) -> bool {
+    matches!(
+        format,
+        Some(
+            DatasetFormat::Stereogen
+                | DatasetFormat::Crestereo
+                | DatasetFormat::Middlebury
+                | DatasetFormat::Eth3d
+                | DatasetFormat::InStereo2k
+        )
+    )
 }
 
 /// `disp` with only the pixels `keep` says are valid.
@@ -168,16 +196,33 @@ impl DatasetWriter for KittiWriter {
             KITTI_SCALE,
             &mut self.summary,
         )?;
-        if let Some(keep) = &s.valid_left {
-            // Pixels dropped from disp_occ are already counted; the same ones here are not.
-            let mut noc_summary = WriteSummary::default();
+        let non_occluded = s.valid_left.clone().or_else(|| {
+            let right = s.disp_right.as_ref()?;
+            Some(
+                s.disp_left
+                    .left_right_consistent(right, LEFT_RIGHT_TOLERANCE_PX),
+            )
+        });
+        let noc = non_occluded.map(|keep| restricted(&s.disp_left, &keep));
+        let mut more = vec![];
+        if let Some(noc) = &noc {
+            more.push((f.disp_noc, noc));
+        }
+        if let Some((occ_next, noc_next)) = f.next_frame
+            && is_still_capture(s.meta.format)
+        {
+            more.push((occ_next, &s.disp_left));
+            more.extend(noc.as_ref().map(|noc| (noc_next, noc)));
+        }
+        for (folder, map) in more {
+            // Out-of-range pixels were counted once, with disp_occ; the same ones here are not.
             write_png16(
-                &dir(f.disp_noc)?,
-                &restricted(&s.disp_left, keep),
+                &dir(folder)?,
+                map,
                 KITTI_SCALE,
-                &mut noc_summary,
+                &mut WriteSummary::default(),
             )?;
-            self.summary.written += noc_summary.written;
+            self.summary.written += 1;
         }
         self.summary.without_right_disparity += 1;
         self.summary.samples += 1;

@@ -72,6 +72,40 @@ pub struct WriteSummary {
     pub without_right_disparity: usize,
     /// CREStereo: samples outside the release's category folders (no category in the source).
     pub outside_categories: usize,
+    /// CREStereo: the release's category folders that hold no sample.
+    pub empty_categories: Vec<&'static str>,
+}
+
+impl WriteSummary {
+    /// One line per way the layout written falls short of what common loaders of it expect
+    /// (for `export` to print): none when every loader we know reads it whole.
+    pub fn loader_notes(&self, format: WritableFormat, out: &Path) -> Vec<String> {
+        let mut notes = vec![];
+        if format != WritableFormat::Crestereo {
+            return notes;
+        }
+        if self.outside_categories > 0 {
+            notes.push(format!(
+                "{} sample(s) have no CREStereo category and sit at the top of {}: the release's loader (a recursive glob) reads them, loaders that list tree/, shapenet/, reflective/ and hole/ do not",
+                self.outside_categories,
+                out.display()
+            ));
+        }
+        if !self.empty_categories.is_empty() && self.samples > 0 {
+            notes.push(format!(
+                "no sample in {} of {}: torchvision's CREStereo loader needs at least one in each of tree/, shapenet/, reflective/ and hole/ and refuses this export",
+                self.empty_categories.join("/, ") + "/",
+                out.display()
+            ));
+        }
+        if self.without_right_disparity > 0 {
+            notes.push(format!(
+                "{} sample(s) have no right-view disparity: torchvision's CREStereo loader pairs *_left.disp.png with *_right.disp.png and refuses this export",
+                self.without_right_disparity
+            ));
+        }
+        notes
+    }
 }
 
 /// A layout being written, one sample at a time.

@@ -7,7 +7,7 @@
 
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// Runs `cmd`; panics with its output unless it succeeds. Returns its stdout.
@@ -54,6 +54,40 @@ pub fn pip_install(venv: &std::path::Path) -> Command {
 /// `$STEREOGEN_BOOTSTRAP_PYTHON` (default `python3`), renamed into place once complete, under a
 /// file lock so parallel test processes wait for one install.
 pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
+    ensure_venv_made(name, pins, |venv| {
+        run(pip_install(venv).args(pins), "pip install");
+    })
+}
+
+/// The venv `<name>-<pins>` that sees the packages of the venv `base` (a `.pth` file naming its
+/// site-packages) and adds `pins` installed without their dependencies. For a package whose
+/// newest release names an older version of something `base` already holds (torchvision 0.29
+/// asks for torch 2.14, the trainer's parity venv has torch 2.15) without a second copy of
+/// several gigabytes. Made like [`ensure_venv`].
+pub fn ensure_venv_on(base: &Path, name: &str, pins: &[&str]) -> PathBuf {
+    ensure_venv_made(name, pins, |venv| {
+        run(
+            pip_install(venv).arg("--no-deps").args(pins),
+            "pip install --no-deps",
+        );
+        let site = |python: PathBuf| {
+            let code = "import sysconfig; print(sysconfig.get_paths()['purelib'])";
+            let out = run(
+                Command::new(python).args(["-c", code]),
+                "python -c sysconfig",
+            );
+            PathBuf::from(out.trim())
+        };
+        let base_site = site(base.join("bin/python"));
+        std::fs::write(
+            site(venv.join("bin/python")).join("base-venv.pth"),
+            format!("{}\n", base_site.display()),
+        )
+        .unwrap();
+    })
+}
+
+fn ensure_venv_made(name: &str, pins: &[&str], install: impl FnOnce(&Path)) -> PathBuf {
     let base = python_home();
     std::fs::create_dir_all(&base).unwrap();
     let lock = std::fs::File::create(base.join(".lock")).unwrap();
@@ -69,7 +103,7 @@ pub fn ensure_venv(name: &str, pins: &[&str]) -> PathBuf {
             Command::new(&python).args(["-m", "venv"]).arg(&tmp),
             "python3 -m venv",
         );
-        run(pip_install(&tmp).args(pins), "pip install");
+        install(&tmp);
         std::fs::write(tmp.join(".complete"), pins.join("\n")).unwrap();
         // A venv's python finds its packages relative to pyvenv.cfg, so the move is harmless.
         std::fs::rename(&tmp, &venv).unwrap();
