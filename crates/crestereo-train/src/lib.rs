@@ -1,4 +1,5 @@
-//! Training and evaluation of CREStereo, and the `crestereo` command.
+//! Training and evaluation of CREStereo; the `crestereo` command line is the binary's own
+//! (`src/main.rs`, `src/cli/`), as the generator's is.
 //!
 //! - [`config`]: the training config (TOML), defaulting to the paper's recipe.
 //! - [`data`]: datasets mixed by weight, decoded and augmented ahead of the step, deterministic.
@@ -7,11 +8,9 @@
 //!   the [`schedule`], [`checkpoint`]s with exact resume, CSV and [`tensorboard`] logs.
 //! - [`eval`] and [`metrics`]: EPE, RMS, Bad-τ, D1, A50–A99, mxIoU over any dataset.
 //! - [`synthetic`]: analytic stereo pairs for tests and quick checks.
-//! - [`cli`]: `crestereo infer | train | eval | plot | bench`.
 
 pub mod augment;
 pub mod checkpoint;
-pub mod cli;
 pub mod config;
 pub mod data;
 pub mod eval;

@@ -1,5 +1,8 @@
-//! `crestereo`: see `crestereo --help`; the work is in the `crestereo_train` library.
+//! `crestereo`: see `crestereo --help`. The command line (`cli/`: `infer | train | eval | plot |
+//! bench | export`) is this binary's own; the work is in the `crestereo_train` library.
+
+mod cli;
 
 fn main() -> std::process::ExitCode {
-    crestereo_train::cli::main()
+    cli::main()
 }

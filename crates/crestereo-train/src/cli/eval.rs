@@ -7,8 +7,8 @@ use burn::prelude::*;
 use crestereo::{CREStereo, CREStereoConfig};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::checkpoint::weights_file;
-use crate::eval::{EvalOptions, evaluate};
+use crestereo_train::checkpoint::weights_file;
+use crestereo_train::eval::{EvalOptions, evaluate};
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
@@ -66,7 +66,7 @@ fn load_model<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<Evaluated<
             }
         }
         (None, Some(seed)) => Evaluated {
-            model: crate::train::seeded_model::<B>(seed, device),
+            model: crestereo_train::train::seeded_model::<B>(seed, device),
             weights: format!("untrained (seed {seed})"),
         },
         (None, None) => bail!(
@@ -92,7 +92,7 @@ fn options(a: &EvalArgs) -> Result<EvalOptions> {
 }
 
 pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
-    let dataset = crate::data::open_data(&a.data, a.format.as_deref(), "--data")?;
+    let dataset = crestereo_train::data::open_data(&a.data, a.format.as_deref(), "--data")?;
     let evaluated = load_model::<B>(a, device)?;
     let opts = options(a)?;
     let bar = ProgressBar::new(0);

@@ -10,7 +10,7 @@ use crestereo::{BgrImage, CREStereoConfig, InferenceOptions, infer_disparity};
 use stereo_io::colormap::{DisparityRange, colourise_with_bar};
 use stereo_io::{DisparityFormat, DisparityMap, DisparityMeta};
 
-use crate::checkpoint::weights_file;
+use crestereo_train::checkpoint::weights_file;
 
 #[derive(Debug, clap::Args)]
 pub struct InferArgs {

@@ -207,7 +207,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Export(command) => export::run(&command),
         Command::Plot { run, out, smooth } => {
-            crate::plot::plot_run(&run, &out, smooth)?;
+            crestereo_train::plot::plot_run(&run, &out, smooth)?;
             eprintln!("wrote {}", out.display());
             Ok(())
         }
@@ -218,7 +218,7 @@ fn run(cli: Cli) -> Result<()> {
             seed,
         } => {
             let [h, w] = train::parse_crop(&size)?;
-            crate::synthetic::write_crestereo_dataset(&out, count, w, h, seed)?;
+            crestereo_train::synthetic::write_crestereo_dataset(&out, count, w, h, seed)?;
             eprintln!("wrote {count} pairs of {w}x{h} to {}", out.display());
             Ok(())
         }

@@ -1,12 +1,12 @@
-//! `crestereo train`: a config file and/or flags → [`crate::train::train`].
+//! `crestereo train`: a config file and/or flags → [`crestereo_train::train::train`].
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use burn::tensor::backend::AutodiffBackend;
 
-use crate::config::{DatasetEntry, TrainConfig, ValidationSettings};
-use crate::train::{TrainOptions, train};
+use crestereo_train::config::{DatasetEntry, TrainConfig, ValidationSettings};
+use crestereo_train::train::{TrainOptions, train};
 
 #[derive(Debug, clap::Args)]
 pub struct TrainArgs {

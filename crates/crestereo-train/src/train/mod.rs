@@ -145,7 +145,7 @@ fn open_training_data(cfg: &TrainConfig) -> Result<Arc<MixedSource>> {
 }
 
 /// The data stream of the run from sample `position` on.
-pub(crate) fn start_loader(cfg: &TrainConfig, source: Arc<MixedSource>, position: u64) -> Loader {
+pub fn start_loader(cfg: &TrainConfig, source: Arc<MixedSource>, position: u64) -> Loader {
     let lens: Vec<usize> = source.datasets.iter().map(|d| d.len()).collect();
     let planner = Planner::new(cfg.seed, &source.weights, &lens);
     let l = &cfg.loader;

@@ -10,8 +10,8 @@ use anyhow::{Context, Result, bail};
 use crestereo::weights::load_weights;
 use crestereo::{CREStereo, CREStereoConfig, CpuBackend};
 
-use crate::checkpoint::weights_file;
 use crate::cli::infer::check_writable;
+use crestereo_train::checkpoint::weights_file;
 
 #[derive(Debug, clap::Subcommand)]
 pub enum ExportCommand {
