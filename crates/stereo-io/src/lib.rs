@@ -32,6 +32,9 @@ pub use datasets::stereogen::{
     DatasetInfo, DatasetLayout, DisparitySummary, Manifest, ManifestContents, ManifestEntry,
     SamplePaths, read_manifest,
 };
+pub use datasets::webdataset::{
+    WebDataset, WebDatasetOptions, WebDatasetSummary, export_webdataset, parse_splits,
+};
 pub use datasets::write::{
     DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, create_writer,
 };

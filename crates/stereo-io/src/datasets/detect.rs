@@ -20,6 +20,9 @@ pub fn detect_format(root: &Path) -> Result<DatasetFormat> {
     if let Some(e) = stereogen::DatasetLayout::new(root).unmerged_error(root) {
         return Err(e);
     }
+    if super::webdataset::WebDataset::is_webdataset(root) {
+        return Ok(DatasetFormat::WebDataset);
+    }
     if sintel::sintel_base(root).is_some() {
         return Ok(DatasetFormat::Sintel);
     }
@@ -55,6 +58,6 @@ pub fn detect_format(root: &Path) -> Result<DatasetFormat> {
         }
     }
     found.ok_or_else(|| {
-        Error::format(root, "cannot recognise the dataset layout (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012, kitti2015, sintel, fallingthings, instereo2k); pass the format explicitly")
+        Error::format(root, "cannot recognise the dataset layout (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012, kitti2015, sintel, fallingthings, instereo2k, webdataset); pass the format explicitly")
     })
 }

@@ -25,7 +25,7 @@ pub struct ExportOptions {
 /// The name a sample gets in the output: ours keep `<category>/<id>`; others are named by their
 /// id (a path below the source root) made flat, without the image extension, so the output
 /// holds none of the folder names by which the source's layout is recognised.
-fn export_name(format: DatasetFormat, meta: &SampleMeta) -> String {
+pub(crate) fn export_name(format: DatasetFormat, meta: &SampleMeta) -> String {
     match (format, meta.extra.get("category")) {
         (DatasetFormat::Stereogen, Some(category)) => format!("{category}/{}", meta.id),
         _ => {

@@ -17,6 +17,7 @@ mod scan;
 pub mod sceneflow;
 pub mod sintel;
 pub mod stereogen;
+pub mod webdataset;
 pub mod write;
 
 use std::collections::BTreeMap;
@@ -54,10 +55,13 @@ pub enum DatasetFormat {
     FallingThings,
     /// InStereo2K: `<pair>/left.png, right.png, left_disp.png, right_disp.png` (÷100).
     InStereo2k,
+    /// WebDataset tar shards with a `<split>.index.json` each (what `export --format
+    /// webdataset` writes, see [`webdataset`]).
+    WebDataset,
 }
 
 impl DatasetFormat {
-    pub const ALL: [DatasetFormat; 10] = [
+    pub const ALL: [DatasetFormat; 11] = [
         Self::Stereogen,
         Self::Crestereo,
         Self::SceneFlow,
@@ -68,6 +72,7 @@ impl DatasetFormat {
         Self::Sintel,
         Self::FallingThings,
         Self::InStereo2k,
+        Self::WebDataset,
     ];
 
     pub fn name(self) -> &'static str {
@@ -82,6 +87,7 @@ impl DatasetFormat {
             Self::Sintel => "sintel",
             Self::FallingThings => "fallingthings",
             Self::InStereo2k => "instereo2k",
+            Self::WebDataset => "webdataset",
         }
     }
 }
@@ -135,6 +141,8 @@ pub struct SampleMeta {
     pub left_path: PathBuf,
     pub right_path: PathBuf,
     pub disp_left_path: PathBuf,
+    /// The right-view disparity file, where the sample has one.
+    pub disp_right_path: Option<PathBuf>,
     /// Focal length in pixels, where the dataset gives it.
     pub f_px: Option<f64>,
     /// Baseline in metres, where the dataset gives it.
@@ -439,6 +447,13 @@ pub fn open_dataset_with(
         Some(f) => f,
         None => detect_format(root)?,
     };
+    if format == DatasetFormat::WebDataset {
+        let shards = webdataset::WebDataset::open(root)?;
+        if shards.is_empty() {
+            return Err(Error::format(root, "no samples in its WebDataset shards"));
+        }
+        return Ok(Box::new(shards));
+    }
     let samples = scan::scan(format, root, opts)?;
     if samples.is_empty() {
         return Err(Error::format(root, format!("no {format} samples found")));

@@ -25,6 +25,12 @@ pub(crate) fn scan(
         DatasetFormat::Sintel => super::sintel::scan(root)?,
         DatasetFormat::FallingThings => super::falling_things::scan(root)?,
         DatasetFormat::InStereo2k => super::instereo2k::scan(root)?,
+        DatasetFormat::WebDataset => {
+            return Err(Error::format(
+                root,
+                "WebDataset shards are not a list of files",
+            ));
+        }
     };
     // Ours keep manifest order; the others are sorted so indices are stable.
     if format != DatasetFormat::Stereogen {
@@ -36,6 +42,7 @@ pub(crate) fn scan(
         s.meta.left_path = s.left.clone();
         s.meta.right_path = s.right.clone();
         s.meta.disp_left_path = s.disp_left.0.clone();
+        s.meta.disp_right_path = s.disp_right.as_ref().map(|(p, _)| p.clone());
     }
     Ok(samples)
 }

@@ -1,0 +1,266 @@
+//! Reading a WebDataset folder: every split's shards, checked against their index, with each
+//! sample's members located once (tar headers only) so any sample can be read by seeking.
+
+use std::fs::{self, File};
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+use super::{INDEX_FORMAT, INDEX_SUFFIX, INDEX_VERSION, ShardIndex, member};
+use crate::datasets::{DatasetFormat, SampleMeta, StereoDataset, StereoSample};
+use crate::error::{Error, Result};
+use crate::exr_io::decode_disparity_exr;
+use crate::image_io::{decode_bytes, to_rgb};
+
+/// A member of a sample: its name after `<key>.` and where its data lies in the shard.
+#[derive(Debug, Clone)]
+struct Member {
+    suffix: String,
+    offset: u64,
+    size: u64,
+}
+
+#[derive(Debug, Clone)]
+struct SampleEntry {
+    key: String,
+    shard: usize,
+    members: Vec<Member>,
+}
+
+/// A WebDataset folder opened for reading ([`StereoDataset`]); samples in index order: the
+/// splits by name, each split's shards in order, each shard's samples as stored.
+pub struct WebDataset {
+    root: PathBuf,
+    shards: Vec<PathBuf>,
+    samples: Vec<SampleEntry>,
+}
+
+impl WebDataset {
+    /// Whether `root` holds a WebDataset index.
+    pub fn is_webdataset(root: &Path) -> bool {
+        !index_files(root).is_empty()
+    }
+
+    /// Opens every split in `root`. A shard missing, of another size than its index says, or
+    /// holding other than its index's number of samples is an error naming it.
+    pub fn open(root: &Path) -> Result<Self> {
+        let indices = index_files(root);
+        if indices.is_empty() {
+            return Err(Error::format(
+                root,
+                format!(
+                    "no <split>{INDEX_SUFFIX}: not a WebDataset export, or one that did not finish"
+                ),
+            ));
+        }
+        let mut out = Self {
+            root: root.to_path_buf(),
+            shards: vec![],
+            samples: vec![],
+        };
+        for index_path in indices {
+            let text = fs::read_to_string(&index_path).map_err(|e| Error::io(&index_path, e))?;
+            let index: ShardIndex = serde_json::from_str(&text)
+                .map_err(|e| Error::format(&index_path, format!("unreadable index: {e}")))?;
+            if index.format != INDEX_FORMAT || index.version != INDEX_VERSION {
+                return Err(Error::format(
+                    &index_path,
+                    format!(
+                        "index of format {:?} version {}; this build reads {INDEX_FORMAT:?} version {INDEX_VERSION}",
+                        index.format, index.version
+                    ),
+                ));
+            }
+            for shard in &index.shards {
+                let path = root.join(&shard.name);
+                let size = fs::metadata(&path).map_err(|e| Error::io(&path, e))?.len();
+                if size != shard.bytes {
+                    return Err(Error::format(
+                        &path,
+                        format!(
+                            "shard is {size} bytes, its index says {}: cut short or replaced (an interrupted copy or export?)",
+                            shard.bytes
+                        ),
+                    ));
+                }
+                let before = out.samples.len();
+                out.scan_shard(&path)?;
+                let found = out.samples.len() - before;
+                if found != shard.samples {
+                    return Err(Error::format(
+                        &path,
+                        format!(
+                            "shard holds {found} samples, its index says {}",
+                            shard.samples
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Lists the members of the shard at `path`, reading tar headers only.
+    fn scan_shard(&mut self, path: &Path) -> Result<()> {
+        let shard = self.shards.len();
+        self.shards.push(path.to_path_buf());
+        let file = File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut archive = tar::Archive::new(file);
+        let entries = archive
+            .entries_with_seek()
+            .map_err(|e| Error::io(path, e))?;
+        for entry in entries {
+            let entry = entry.map_err(|e| Error::io(path, e))?;
+            let name = entry
+                .path()
+                .map_err(|e| Error::io(path, e))?
+                .to_string_lossy()
+                .into_owned();
+            // WebDataset's rule: the key ends at the first dot after the last `/`.
+            let dir_end = name.rfind('/').map_or(0, |i| i + 1);
+            let Some(dot) = name[dir_end..].find('.').map(|i| dir_end + i) else {
+                return Err(Error::format(
+                    path,
+                    format!("member {name:?} has no extension"),
+                ));
+            };
+            let (key, suffix) = (&name[..dot], &name[dot + 1..]);
+            let m = Member {
+                suffix: suffix.to_string(),
+                offset: entry.raw_file_position(),
+                size: entry.size(),
+            };
+            match self.samples.last_mut() {
+                Some(s) if s.shard == shard && s.key == key => s.members.push(m),
+                _ => self.samples.push(SampleEntry {
+                    key: key.to_string(),
+                    shard,
+                    members: vec![m],
+                }),
+            }
+        }
+        Ok(())
+    }
+
+    fn read_member(&self, s: &SampleEntry, suffix: &str) -> Result<Option<Vec<u8>>> {
+        let Some(m) = s.members.iter().find(|m| m.suffix == suffix) else {
+            return Ok(None);
+        };
+        let path = &self.shards[s.shard];
+        let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut bytes = vec![0; m.size as usize];
+        file.seek(SeekFrom::Start(m.offset))
+            .and_then(|_| file.read_exact(&mut bytes))
+            .map_err(|e| Error::io(path, e))?;
+        Ok(Some(bytes))
+    }
+
+    /// Where a member is named in errors: `<shard>/<key>.<suffix>`.
+    fn member_path(&self, s: &SampleEntry, suffix: &str) -> PathBuf {
+        self.shards[s.shard].join(format!("{}.{suffix}", s.key))
+    }
+}
+
+/// `<root>/*.index.json`, sorted by split name.
+fn index_files(root: &Path) -> Vec<PathBuf> {
+    let mut found: Vec<PathBuf> = fs::read_dir(root)
+        .into_iter()
+        .flatten()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.to_string_lossy().ends_with(INDEX_SUFFIX))
+        .collect();
+    found.sort();
+    found
+}
+
+impl StereoDataset for WebDataset {
+    fn format(&self) -> DatasetFormat {
+        DatasetFormat::WebDataset
+    }
+
+    fn root(&self) -> &Path {
+        &self.root
+    }
+
+    fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    fn id(&self, index: usize) -> Option<&str> {
+        self.samples.get(index).map(|s| s.key.as_str())
+    }
+
+    fn sample(&self, index: usize) -> Result<StereoSample> {
+        let s = self.samples.get(index).ok_or_else(|| {
+            Error::format(
+                &self.root,
+                format!("no sample {index} (it has {})", self.len()),
+            )
+        })?;
+        let need = |suffix: &str| -> Result<(Vec<u8>, PathBuf)> {
+            let path = self.member_path(s, suffix);
+            let bytes = self
+                .read_member(s, suffix)?
+                .ok_or_else(|| Error::format(&path, "missing from its sample"))?;
+            Ok((bytes, path))
+        };
+        let image = |view: &str| -> Result<crate::image_io::RgbImage> {
+            let suffix = ["png", "jpg"]
+                .iter()
+                .map(|ext| format!("{view}.{ext}"))
+                .find(|sfx| s.members.iter().any(|m| &m.suffix == sfx))
+                .unwrap_or_else(|| format!("{view}.png"));
+            let (bytes, path) = need(&suffix)?;
+            Ok(to_rgb(decode_bytes(&bytes, &path)?))
+        };
+        let (left, right) = (image(member::LEFT)?, image(member::RIGHT)?);
+        let (bytes, path) = need(member::DISP_LEFT)?;
+        let disp_left = decode_disparity_exr(&bytes, &path)?.0;
+        let disp_right = match self.read_member(s, member::DISP_RIGHT)? {
+            Some(b) => Some(decode_disparity_exr(&b, &self.member_path(s, member::DISP_RIGHT))?.0),
+            None => None,
+        };
+        let valid_left = match self.read_member(s, member::VALID_LEFT)? {
+            Some(b) => {
+                let path = self.member_path(s, member::VALID_LEFT);
+                Some(
+                    decode_bytes(&b, &path)?
+                        .to_luma8()
+                        .into_raw()
+                        .iter()
+                        .map(|&v| v != 0)
+                        .collect(),
+                )
+            }
+            None => None,
+        };
+        let (bytes, path) = need(member::JSON)?;
+        let facts: serde_json::Value = serde_json::from_slice(&bytes)
+            .map_err(|e| Error::format(&path, format!("unreadable sample facts: {e}")))?;
+        let mut meta = SampleMeta {
+            format: facts["source_format"].as_str().and_then(|f| f.parse().ok()),
+            id: facts["id"].as_str().unwrap_or(&s.key).to_string(),
+            f_px: facts["f_px"].as_f64(),
+            baseline_m: facts["baseline_m"].as_f64(),
+            cx: facts["cx"].as_f64(),
+            cy: facts["cy"].as_f64(),
+            ndisp: facts["ndisp"].as_u64().and_then(|n| u32::try_from(n).ok()),
+            ..Default::default()
+        };
+        if let Some(extra) = facts["extra"].as_object() {
+            for (k, v) in extra {
+                meta.extra.insert(
+                    k.clone(),
+                    v.as_str().map_or_else(|| v.to_string(), str::to_string),
+                );
+            }
+        }
+        Ok(StereoSample {
+            left,
+            right,
+            disp_left,
+            disp_right,
+            valid_left,
+            meta,
+        })
+    }
+}

@@ -1,0 +1,270 @@
+//! WebDataset export and reading: shards GNU tar lists and extracts byte for byte, samples read
+//! back equal to the source's, a seeded shuffle, splits, a shard cut short named as such, an
+//! interrupted export resumed to the same bytes, an existing export refused without `force`.
+
+use std::fs;
+use std::path::Path;
+use std::process::Command;
+
+use stereo_io::*;
+
+mod fixtures;
+
+use fixtures::*;
+
+const IDS: usize = 9;
+
+/// Our layout with `IDS` samples over two categories: manifest, PNGs and EXRs with camera facts.
+fn our_dataset(root: &Path) {
+    let mut lines = String::new();
+    for k in 0..IDS {
+        let (category, id) = (["tree", "hole"][k % 2], format!("{k:07}"));
+        let dir = mkdir(&root.join(category));
+        write_png_rgb(&dir.join(format!("{id}_left.png")), &rgb(k as u8)).unwrap();
+        write_png_rgb(&dir.join(format!("{id}_right.png")), &rgb(k as u8 + 50)).unwrap();
+        let meta = DisparityMeta {
+            f_px: Some(64.0),
+            baseline_m: Some(0.1),
+            view: Some("left".into()),
+        };
+        write_disparity_exr(
+            &dir.join(format!("{id}_left.disp.exr")),
+            &disp(k as f32),
+            &meta,
+        )
+        .unwrap();
+        write_disparity_exr(
+            &dir.join(format!("{id}_right.disp.exr")),
+            &disp(k as f32 + 0.5),
+            &meta,
+        )
+        .unwrap();
+        fs::write(dir.join(format!("{id}.scene.json")), "{}").unwrap();
+        lines += &format!(
+            r#"{{"id":"{id}","category":"{category}","seed":5,"index":{k},"files":{{"left":"{category}/{id}_left.png","right":"{category}/{id}_right.png","disp_left":"{category}/{id}_left.disp.exr","disp_right":"{category}/{id}_right.disp.exr","scene":"{category}/{id}.scene.json"}},"width":{W},"height":{H},"f_px":64.0,"baseline_m":0.1,"cx":2.0,"cy":1.5}}"#
+        );
+        lines.push('\n');
+    }
+    fs::write(root.join("manifest.jsonl"), lines).unwrap();
+}
+
+fn opts(force: bool) -> WebDatasetOptions {
+    WebDatasetOptions {
+        // About two samples per shard.
+        shard_bytes: 6000,
+        shuffle_seed: 3,
+        splits: parse_splits("train=0.7,val=0.3").unwrap(),
+        force,
+    }
+}
+
+fn export(source: &Path, out: &Path, o: &WebDatasetOptions) -> Result<WebDatasetSummary> {
+    export_webdataset(source, out, None, &ReadOptions::default(), o)
+}
+
+/// Every file of an export folder with its size and a hash of its bytes, sorted by name.
+fn files(dir: &Path) -> Vec<(String, usize, u64)> {
+    use std::hash::{Hash, Hasher};
+    let mut out: Vec<_> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| {
+            let bytes = fs::read(&p).unwrap();
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            bytes.hash(&mut h);
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                bytes.len(),
+                h.finish(),
+            )
+        })
+        .collect();
+    out.sort();
+    out
+}
+
+fn gnu_tar(args: &[&str], shard: &Path) -> Vec<u8> {
+    let out = Command::new("tar")
+        .args(args)
+        .arg(shard)
+        .output()
+        .expect("GNU tar");
+    assert!(
+        out.status.success(),
+        "tar {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
+#[test]
+fn shards_hold_every_sample_as_the_source_has_it() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    let summary = export(&source, &out, &opts(false)).unwrap();
+    assert_eq!((summary.samples, summary.resumed_shards), (IDS, 0));
+    assert!(summary.shards >= 4, "{summary:?}");
+
+    // GNU tar lists each shard: a sample's five members together, in order, under one key.
+    let mut keys = vec![];
+    for split in ["train", "val"] {
+        let index: serde_json::Value =
+            serde_json::from_slice(&fs::read(out.join(format!("{split}.index.json"))).unwrap())
+                .unwrap();
+        let mut total = 0;
+        for shard in index["shards"].as_array().unwrap() {
+            let path = out.join(shard["name"].as_str().unwrap());
+            assert_eq!(
+                fs::metadata(&path).unwrap().len(),
+                shard["bytes"].as_u64().unwrap()
+            );
+            let listing = String::from_utf8(gnu_tar(&["-tf"], &path)).unwrap();
+            let names: Vec<&str> = listing.lines().collect();
+            assert_eq!(names.len() % 5, 0, "{listing}");
+            for group in names.chunks(5) {
+                let key = group[0].strip_suffix(".left.png").expect(group[0]);
+                let want: Vec<String> = [
+                    "left.png",
+                    "right.png",
+                    "disp_left.exr",
+                    "disp_right.exr",
+                    "json",
+                ]
+                .iter()
+                .map(|m| format!("{key}.{m}"))
+                .collect();
+                assert_eq!(group, want.as_slice());
+                keys.push(key.to_string());
+            }
+            total += shard["samples"].as_u64().unwrap();
+            // GNU tar extracts the source's EXR byte for byte.
+            let first = names[2];
+            let (category, id) = first
+                .trim_end_matches(".disp_left.exr")
+                .split_once('/')
+                .unwrap();
+            let member = Command::new("tar")
+                .args(["-xOf"])
+                .arg(&path)
+                .arg(first)
+                .output()
+                .unwrap();
+            assert_eq!(
+                member.stdout,
+                fs::read(source.join(category).join(format!("{id}_left.disp.exr"))).unwrap(),
+                "{first}"
+            );
+        }
+        assert_eq!(total, index["samples"].as_u64().unwrap());
+    }
+    assert_eq!(keys.len(), IDS);
+    let in_order: Vec<String> = (0..IDS)
+        .map(|k| format!("{}/{k:07}", ["tree", "hole"][k % 2]))
+        .collect();
+    assert_ne!(keys, in_order, "the seed shuffles samples across shards");
+    let mut sorted = keys.clone();
+    sorted.sort();
+    let mut want = in_order.clone();
+    want.sort();
+    assert_eq!(sorted, want, "every sample once");
+
+    // Read back through open_dataset: the source's pixels, disparities and camera.
+    let ours = open_dataset(&source, None).unwrap();
+    let shards = open_dataset(&out, None).unwrap();
+    assert_eq!(
+        (shards.format(), shards.len()),
+        (DatasetFormat::WebDataset, IDS)
+    );
+    for i in 0..IDS {
+        let got = shards.sample(i).unwrap();
+        let key = shards.id(i).unwrap();
+        let k = (0..IDS).find(|&k| in_order[k] == key).unwrap();
+        let want = ours.sample(k).unwrap();
+        assert_eq!((&got.left, &got.right), (&want.left, &want.right), "{key}");
+        assert_disp_eq(&got.disp_left, &want.disp_left);
+        assert_disp_eq(
+            got.disp_right.as_ref().unwrap(),
+            want.disp_right.as_ref().unwrap(),
+        );
+        assert_eq!((got.meta.f_px, got.meta.cx), (want.meta.f_px, want.meta.cx));
+        assert_eq!(
+            got.meta.extra.get("category"),
+            want.meta.extra.get("category")
+        );
+        assert_eq!(got.meta.format, Some(DatasetFormat::Stereogen));
+    }
+
+    // The same options give the same bytes; an existing export is refused without force.
+    let again = t.path().join("again");
+    export(&source, &again, &opts(false)).unwrap();
+    assert_eq!(files(&out), files(&again));
+    let e = export(&source, &out, &opts(false)).unwrap_err().to_string();
+    assert!(e.contains("not empty") && e.contains("--force"), "{e}");
+    export(&source, &out, &opts(true)).unwrap();
+    assert_eq!(files(&out), files(&again));
+}
+
+#[test]
+fn a_shard_cut_short_is_named_not_read_as_fewer_samples() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    export(&source, &out, &opts(false)).unwrap();
+    let shard = out.join("train-000001.tar");
+    let bytes = fs::read(&shard).unwrap();
+    // Cut at a block boundary (what a killed copy leaves): tar itself would read fewer members.
+    fs::write(&shard, &bytes[..bytes.len() / 1024 * 512]).unwrap();
+    let e = open_dataset(&out, None).err().unwrap().to_string();
+    assert!(
+        e.contains("train-000001.tar") && e.contains("cut short"),
+        "{e}"
+    );
+    // An export that never wrote its index is not a dataset at all.
+    fs::remove_file(out.join("train.index.json")).unwrap();
+    fs::remove_file(out.join("val.index.json")).unwrap();
+    let e = open_dataset(&out, Some(DatasetFormat::WebDataset))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("did not finish"), "{e}");
+}
+
+#[test]
+fn an_interrupted_export_resumes_from_its_last_whole_shard() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out, clean) = (
+        t.path().join("ours"),
+        t.path().join("wds"),
+        t.path().join("clean"),
+    );
+    our_dataset(&mkdir(&source));
+    export(&source, &clean, &opts(false)).unwrap();
+    // A sample late in the shuffled order cannot be read: the export stops there, after some
+    // whole shards.
+    let late = {
+        let shards = open_dataset(&clean, None).unwrap();
+        shards.id(IDS - 3).unwrap().to_string()
+    };
+    let (category, id) = late.split_once('/').unwrap();
+    let victim = source.join(category).join(format!("{id}_right.png"));
+    let good = fs::read(&victim).unwrap();
+    fs::write(&victim, b"not a png").unwrap();
+    let e = export(&source, &out, &opts(false)).unwrap_err().to_string();
+    assert!(e.contains(&format!("{id}_right.png")), "{e}");
+    assert!(!out.join("train.index.json").exists() || !out.join("val.index.json").exists());
+    // Fixed and re-run: the whole shards are kept, the rest written, the result the clean one.
+    fs::write(&victim, good).unwrap();
+    let summary = export(&source, &out, &opts(false)).unwrap();
+    assert!(summary.resumed_shards > 0, "{summary:?}");
+    assert_eq!(files(&out), files(&clean));
+    // Other options than the unfinished run's are refused rather than mixed into it.
+    fs::write(&victim, b"not a png").unwrap();
+    let _ = export(&source, &t.path().join("wds2"), &opts(false));
+    let mut other = opts(false);
+    other.shuffle_seed = 4;
+    let e = export(&source, &t.path().join("wds2"), &other)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("same ones") && e.contains("--force"), "{e}");
+}
