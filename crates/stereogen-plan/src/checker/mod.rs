@@ -160,45 +160,31 @@ pub fn first_violation<'a>(checks: impl IntoIterator<Item = Check<'a>>) -> Resul
 }
 
 /// Shorthands for the rows' rules.
+pub type Key<'a> = Cow<'a, str>;
+
+pub fn dist<'a>(key: &'a str, dist: &'a Dist, lo: f64, hi: f64) -> Check<'a> {
+    Check::new(key, Rule::Dist { dist, lo, hi })
+}
+
 pub fn int(key: &str, value: impl Into<u64>, lo: u64, hi: u64) -> Check<'_> {
-    Check::new(
-        key,
-        Rule::Int {
-            value: value.into(),
-            lo,
-            hi,
-        },
-    )
+    let value = value.into();
+    Check::new(key, Rule::Int { value, lo, hi })
+}
+
+pub fn count<'a>(key: impl Into<Key<'a>>, range: &'a CountRange, lo: u32, hi: u32) -> Check<'a> {
+    Check::new(key, Rule::Count { range, lo, hi })
 }
 
 pub fn number(key: &str, value: f64, lo: f64, hi: f64) -> Check<'_> {
     Check::new(key, Rule::Number { value, lo, hi })
 }
 
+pub fn range<'a>(key: impl Into<Key<'a>>, range: &'a UniformRange, lo: f64, hi: f64) -> Check<'a> {
+    Check::new(key, Rule::Range { range, lo, hi })
+}
+
 pub fn probability(key: &str, value: f64) -> Check<'_> {
     Check::new(key, Rule::Probability(value))
-}
-
-pub fn dist<'a>(key: &'a str, dist: &'a Dist, lo: f64, hi: f64) -> Check<'a> {
-    Check::new(key, Rule::Dist { dist, lo, hi })
-}
-
-pub fn count<'a>(
-    key: impl Into<Cow<'a, str>>,
-    range: &'a CountRange,
-    lo: u32,
-    hi: u32,
-) -> Check<'a> {
-    Check::new(key, Rule::Count { range, lo, hi })
-}
-
-pub fn range<'a>(
-    key: impl Into<Cow<'a, str>>,
-    range: &'a UniformRange,
-    lo: f64,
-    hi: f64,
-) -> Check<'a> {
-    Check::new(key, Rule::Range { range, lo, hi })
 }
 
 #[cfg(test)]
