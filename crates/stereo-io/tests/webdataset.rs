@@ -9,8 +9,18 @@ use std::process::Command;
 use stereo_io::*;
 
 mod fixtures;
+#[path = "support/pinned_venv.rs"]
+mod pinned_venv;
 
 use fixtures::*;
+
+/// The readers nobody here wrote: the `webdataset` package, Pillow, OpenEXR.
+const PYTHON_PINS: &[&str] = &[
+    "webdataset==1.0.2",
+    "pillow==13.0.0",
+    "OpenEXR==3.5.3",
+    "numpy==2.4.6",
+];
 
 const IDS: usize = 9;
 
@@ -267,4 +277,60 @@ fn an_interrupted_export_resumes_from_its_last_whole_shard() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("same ones") && e.contains("--force"), "{e}");
+}
+
+#[test]
+fn the_webdataset_package_reads_our_shards_as_we_read_the_source() {
+    let venv = pinned_venv::ensure_venv("venv-webdataset", PYTHON_PINS);
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    export(&source, &out, &opts(false)).unwrap();
+    let read = t.path().join("read");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/webdataset_reader.py");
+    let keys = pinned_venv::run(
+        Command::new(venv.join("bin/python"))
+            .arg(&script)
+            .arg(&out)
+            .arg(&read),
+        "webdataset_reader.py",
+    );
+    let keys: serde_json::Value = serde_json::from_str(keys.trim()).unwrap();
+    let keys = keys.as_array().unwrap();
+    assert_eq!(keys.len(), IDS, "every sample, once");
+    let ours = open_dataset(&source, None).unwrap();
+    let npy = |name: String| read_npy(&read.join(name)).unwrap().data;
+    let disparity = |d: &DisparityMap| -> Vec<f32> {
+        d.data
+            .iter()
+            .zip(&d.valid)
+            .map(|(&v, &ok)| if ok { v } else { f32::NAN })
+            .collect()
+    };
+    let same = |a: &[f32], b: &[f32]| {
+        a.len() == b.len()
+            && a.iter()
+                .zip(b)
+                .all(|(x, y)| x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()))
+    };
+    for (n, k) in keys.iter().enumerate() {
+        let (key, id) = (k["key"].as_str().unwrap(), k["id"].as_str().unwrap());
+        assert!(key.ends_with(id), "{key} names sample {id}");
+        let i = (0..IDS)
+            .find(|&i| ours.id(i).is_some_and(|x| x.ends_with(id)))
+            .unwrap();
+        let s = ours.sample(i).unwrap();
+        let pixels = |img: &RgbImage| img.data.iter().map(|&v| f32::from(v)).collect::<Vec<_>>();
+        assert_eq!(npy(format!("{n}_left.npy")), pixels(&s.left), "{key}");
+        assert_eq!(npy(format!("{n}_right.npy")), pixels(&s.right), "{key}");
+        assert!(
+            same(&npy(format!("{n}_disp_left.npy")), &disparity(&s.disp_left)),
+            "{key}"
+        );
+        let right = s.disp_right.as_ref().unwrap();
+        assert!(
+            same(&npy(format!("{n}_disp_right.npy")), &disparity(right)),
+            "{key}"
+        );
+    }
 }
