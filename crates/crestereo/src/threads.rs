@@ -18,7 +18,11 @@ pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
 mod tests {
     #[test]
     fn work_runs_on_a_pool_thread_and_returns_its_result() {
-        assert_eq!(rayon::current_thread_index(), None, "tests start outside the pool");
+        assert_eq!(
+            rayon::current_thread_index(),
+            None,
+            "tests start outside the pool"
+        );
         let (index, value) = super::on_pool(|| (rayon::current_thread_index(), 41 + 1));
         assert!(index.is_some(), "on_pool ran its work outside rayon's pool");
         assert_eq!(value, 42);
