@@ -1,13 +1,10 @@
 //! `manifest.jsonl`: one JSON line per finished sample, appended by `stereogen generate` only
 //! after all of the sample's files are in place.
 //!
-//! **The rule for an unfinished last line.** Every line that ends in a newline is a finished
-//! entry (blank lines are ignored); a finished line that is not an entry is an error naming the
-//! file and the line. A last line *without* its newline is an append still in progress (readers
-//! may run while `generate` writes) or one torn by a kill: it is never an entry, whatever it
-//! holds. [`read_manifest`] leaves it out and reports it in
-//! [`ManifestContents::unfinished_bytes`]; only [`Manifest::open`], the writer's open, cuts it
-//! off the file.
+//! An unfinished last line (no newline yet: an append in progress or one torn by a kill) is
+//! never an entry, whatever it holds (the rule of [`super::json_lines`]). [`read_manifest`]
+//! leaves it out and reports it in [`ManifestContents::unfinished_bytes`]; only
+//! [`Manifest::open`], the writer's open, cuts it off the file.
 
 use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
@@ -17,6 +14,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::SamplePaths;
+use super::json_lines::read_finished_lines;
 use crate::error::{Error, Result};
 
 /// Statistics of the valid pixels of one view's disparity.
@@ -105,32 +103,19 @@ fn unmerged_farm_error(path: &Path) -> Option<Error> {
     super::DatasetLayout::new(path.parent()?).unmerged_error(path)
 }
 
-fn read_from(mut reader: impl BufRead, path: &Path) -> Result<ManifestContents> {
-    let mut contents = ManifestContents::default();
-    let mut line = Vec::new();
-    for number in 1.. {
-        line.clear();
-        let n = reader
-            .read_until(b'\n', &mut line)
-            .map_err(|e| Error::io(path, e))?;
-        if n == 0 {
-            break;
-        }
-        if line.last() != Some(&b'\n') {
-            contents.unfinished_bytes = n as u64;
-            break;
-        }
-        let text = std::str::from_utf8(&line)
-            .map_err(|_| Error::format(path, format!("line {number} is not UTF-8 text")))?;
-        if text.trim().is_empty() {
-            continue;
-        }
+fn read_from(reader: impl BufRead, path: &Path) -> Result<ManifestContents> {
+    let mut entries = Vec::new();
+    let unfinished_bytes = read_finished_lines(reader, path, |number, text| {
         let entry = serde_json::from_str(text).map_err(|e| {
             Error::format(path, format!("line {number} is not a manifest entry: {e}"))
         })?;
-        contents.entries.push(entry);
-    }
-    Ok(contents)
+        entries.push(entry);
+        Ok(())
+    })?;
+    Ok(ManifestContents {
+        entries,
+        unfinished_bytes,
+    })
 }
 
 /// The manifest opened by its one writer, for appending.

@@ -3,8 +3,8 @@
 //! ```text
 //! <root>/dataset.json                   recipe, seed and version the dataset was made with
 //! <root>/manifest.jsonl                 one line per finished sample (written last)
-//! <root>/failures.jsonl                 samples that failed, with the reason
-//! <root>/skipped_assets.jsonl           mesh/texture files that could not be used, with the reason
+//! <root>/failures.jsonl                 samples that failed, with the reason ([`FailureRecord`])
+//! <root>/skipped_assets.jsonl           asset files that could not be used ([`SkippedAssetRecord`])
 //! <root>/.stereogen.lock                held by the one process writing the directory
 //! <root>/<category>/<id>_left.png       and _right.png (8-bit sRGB)
 //! <root>/<category>/<id>_left.disp.exr  and _right.disp.exr (float32 disparity + validity)
@@ -19,7 +19,9 @@
 //! atomically, then appends the [`ManifestEntry`] through [`Manifest`].
 
 pub mod farm;
+mod json_lines;
 mod manifest;
+mod sidecar;
 
 use std::path::{Path, PathBuf};
 
@@ -30,6 +32,10 @@ pub use farm::{
     ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
 };
 pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
+pub use sidecar::{
+    FailureRecord, SIDECAR_RECORD_VERSION, SidecarContents, SidecarRecord, SkippedAssetRecord,
+    append_sidecar, read_failures, read_sidecar, read_skipped_assets, retain_sidecar,
+};
 
 use super::{DispKind, SampleFiles, SampleMeta};
 use crate::error::{Error, Result};
