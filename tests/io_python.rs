@@ -275,7 +275,30 @@ fn fixtures(dir: &Path) -> serde_json::Value {
     let e = open_dataset(&broken, None).unwrap().sample(0).unwrap_err();
     errors.push(json!({"call": "open_dataset", "path": broken, "type": "ValueError", "message": e.to_string()}));
 
-    json!({"datasets": datasets, "exr": exr, "exr_f_px": em.f_px, "errors": errors})
+    // The sidecar logs, written by the generator's appender; pytest reads them back.
+    use stereo_io::datasets::stereogen::{FailureRecord, SkippedAssetRecord, append_sidecar};
+    let failures = vec![
+        FailureRecord::new(3, "worker crashed", None),
+        FailureRecord::new(
+            5,
+            "scene raised",
+            Some("Traceback (most recent call last)".into()),
+        ),
+    ];
+    append_sidecar(&ours.join("failures.jsonl"), &failures).unwrap();
+    let skipped = vec![SkippedAssetRecord::new(
+        dir.join("meshes/nan.obj"),
+        "a vertex is not finite",
+        Some(1),
+    )];
+    append_sidecar(&ours.join("skipped_assets.jsonl"), &skipped).unwrap();
+    let newer = bad.join("failures.jsonl");
+    std::fs::write(&newer, "{\"version\":9,\"index\":0,\"error\":\"x\"}\n").unwrap();
+    let e = stereo_io::datasets::stereogen::read_failures(&newer).unwrap_err();
+    errors.push(json!({"call": "read_failures", "path": newer, "type": "ValueError", "message": e.to_string()}));
+    let sidecars = json!({"failures": failures, "skipped_assets": skipped});
+
+    json!({"datasets": datasets, "exr": exr, "exr_f_px": em.f_px, "errors": errors, "sidecars": sidecars})
 }
 
 #[test]

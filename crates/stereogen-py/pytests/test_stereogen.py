@@ -100,6 +100,8 @@ def test_errors_carry_the_rust_message():
                 stereogen.read_disparity(case["path"])
             elif case["call"] == "open_dataset":
                 stereogen.open_dataset(case["path"])[0]
+            elif case["call"] == "read_failures":
+                stereogen.read_failures(case["path"])
         assert str(e.value) == case["message"]
     with pytest.raises(ValueError, match="unknown dataset format"):
         stereogen.open_dataset(str(FIX / "ours"), format="nope")
@@ -113,3 +115,11 @@ def test_plan_scene_equals_the_cli():
     assert stereogen.plan_scene("crestereo", 3, 2) != cli
     with pytest.raises(ValueError):
         stereogen.plan_scene(str(FIX / "missing.toml"), 0, 0)
+
+
+def test_sidecar_logs_read_as_the_rust_records():
+    want = EXPECT["sidecars"]
+    assert stereogen.read_failures(str(FIX / "ours" / "failures.jsonl")) == want["failures"]
+    assert stereogen.read_skipped_assets(str(FIX / "ours" / "skipped_assets.jsonl")) == want["skipped_assets"]
+    assert want["failures"][1]["traceback"].startswith("Traceback")
+    assert stereogen.read_failures(str(FIX / "ours" / "no-such.jsonl")) == []

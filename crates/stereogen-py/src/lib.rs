@@ -1,4 +1,5 @@
-//! The `stereogen` Python module: stereo datasets as NumPy arrays, disparity files, and scene
+//! The `stereogen` Python module: stereo datasets as NumPy arrays, disparity files, a dataset's
+//! sidecar logs (`failures.jsonl`, `skipped_assets.jsonl`), and scene
 //! planning — the same Rust code the generator and trainer use.
 //!
 //! Decoding runs with the GIL released; pixel buffers are handed to NumPy without copying.
@@ -264,6 +265,40 @@ fn write_disparity(
         .map_err(to_py)
 }
 
+/// Records of a sidecar log as a list of dicts (the fields of the Rust record type, through JSON).
+fn sidecar_records<'py, R: stereo_io::datasets::stereogen::SidecarRecord + Send>(
+    py: Python<'py>,
+    path: PathBuf,
+) -> PyResult<Bound<'py, PyAny>> {
+    let json = py
+        .detach(|| {
+            let records = stereo_io::datasets::stereogen::read_sidecar::<R>(&path)?.records;
+            serde_json::to_string(&records)
+                .map_err(|e| stereo_io::Error::format(&path, e.to_string()))
+        })
+        .map_err(to_py)?;
+    py.import("json")?.call_method1("loads", (json,))
+}
+
+/// read_failures(path) -> list[dict]
+///
+/// The finished records of a dataset's `failures.jsonl` (version, index, error, traceback when
+/// the worker sent one), read by the Rust reader `generate` and `merge` use; a missing file has
+/// none. A malformed or newer-version line raises ValueError naming the file and line.
+#[pyfunction]
+fn read_failures<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyAny>> {
+    sidecar_records::<stereo_io::datasets::stereogen::FailureRecord>(py, path)
+}
+
+/// read_skipped_assets(path) -> list[dict]
+///
+/// The finished records of a dataset's `skipped_assets.jsonl` (version, path, reason, sample:
+/// the index whose worker refused it, or None), like [`read_failures`].
+#[pyfunction]
+fn read_skipped_assets<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyAny>> {
+    sidecar_records::<stereo_io::datasets::stereogen::SkippedAssetRecord>(py, path)
+}
+
 /// plan_scene(recipe, seed, index) -> dict
 ///
 /// The SceneSpec of sample `index` of (`recipe`, `seed`), planned by the generator's own Rust
@@ -300,6 +335,8 @@ fn stereogen_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_disparity, m)?)?;
     m.add_function(wrap_pyfunction!(write_disparity, m)?)?;
     m.add_function(wrap_pyfunction!(plan_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(read_failures, m)?)?;
+    m.add_function(wrap_pyfunction!(read_skipped_assets, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

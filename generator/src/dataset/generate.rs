@@ -5,7 +5,7 @@
 //! caller's business.
 
 use std::collections::{BTreeSet, VecDeque};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -17,7 +17,10 @@ use stereo_io::datasets::stereogen::ShardInfo;
 use super::interrupt::StopFlag;
 use super::layout::{CreateDataset, DatasetLayout};
 use super::lock::DatasetLock;
-use super::manifest::{Manifest, read_manifest};
+use super::manifest::{
+    FailureRecord, Manifest, SkippedAssetRecord, append_sidecar, read_manifest,
+    read_skipped_assets, retain_sidecar,
+};
 use super::sample::{VERIFY_TIMING, finalize_sample};
 use super::shard::ShardId;
 use crate::assets::{AssetIndex, SkippedAsset, index_sources};
@@ -162,49 +165,19 @@ impl FaultPlan {
     }
 }
 
-/// Rewrites a small JSON-lines log durably with `keep` lines of it and `add` after them: a kill
-/// can never leave half a line. The logs are written by one process (the dataset's lock holder),
-/// one thread at a time (`guard`).
-fn rewrite_log(guard: &Mutex<()>, path: &Path, keep: impl Fn(&str) -> bool, add: &[String]) {
-    let _guard = guard.lock().unwrap();
-    let old = std::fs::read_to_string(path).unwrap_or_default();
-    let mut text: String = old
-        .lines()
-        .filter(|l| !l.trim().is_empty() && keep(l))
-        .map(|l| format!("{l}\n"))
-        .collect();
-    for line in add {
-        text.push_str(line);
-        text.push('\n');
-    }
-    if text == old {
-        return;
-    }
-    let written = if text.is_empty() {
-        stereo_io::atomic::remove_file_durably(path)
-    } else {
-        stereo_io::write_bytes_atomically(path, text.as_bytes())
-    };
+/// Logs a sidecar log that cannot be updated: the run goes on (the samples are what matters).
+fn log_unwritable(written: stereo_io::Result<impl Sized>) {
     if let Err(e) = written {
         tracing::error!("cannot update {e}");
     }
 }
 
 /// One line of `failures.jsonl`: the sample, the error, and the worker's traceback if it sent one.
+/// The logs are written by one process (the dataset's lock holder), one thread at a time (`guard`).
 fn append_failure(guard: &Mutex<()>, layout: &DatasetLayout, index: u64, error: &WorkerError) {
-    let mut line = serde_json::json!({ "index": index, "error": error.to_string() });
-    if let Some(traceback) = error.traceback() {
-        line["traceback"] = traceback.into();
-    }
-    rewrite_log(guard, &layout.failures(), |_| true, &[line.to_string()]);
-}
-
-/// The index a line of `failures.jsonl` is about.
-fn failure_index(line: &str) -> Option<u64> {
-    serde_json::from_str::<serde_json::Value>(line)
-        .ok()?
-        .get("index")?
-        .as_u64()
+    let record = FailureRecord::new(index, error.to_string(), error.traceback().map(Into::into));
+    let _guard = guard.lock().unwrap();
+    log_unwritable(append_sidecar(&layout.failures(), &[record]));
 }
 
 /// Drops from `failures.jsonl` the samples that are now in the manifest (a later run rendered
@@ -217,12 +190,10 @@ fn forget_finished_failures(guard: &Mutex<()>, layout: &DatasetLayout) {
         return;
     };
     let done: BTreeSet<u64> = done.entries.iter().map(|e| e.index).collect();
-    rewrite_log(
-        guard,
-        &layout.failures(),
-        |l| failure_index(l).is_none_or(|i| !done.contains(&i)),
-        &[],
-    );
+    let _guard = guard.lock().unwrap();
+    log_unwritable(retain_sidecar(&layout.failures(), |r: &FailureRecord| {
+        !done.contains(&r.index)
+    }));
 }
 
 /// Assets the index or a worker refused go to `skipped_assets.jsonl`, once per dataset and file.
@@ -234,33 +205,24 @@ fn record_skipped(
     index: Option<u64>,
 ) {
     let mut seen = seen.lock().unwrap();
-    let mut lines = Vec::new();
+    let mut records = Vec::new();
     for s in skipped {
         if seen.insert(s.path.clone()) {
             tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);
-            lines.push(
-                serde_json::json!({ "path": s.path, "reason": s.reason, "sample": index })
-                    .to_string(),
-            );
+            records.push(SkippedAssetRecord::new(&s.path, &s.reason, index));
         }
     }
-    if !lines.is_empty() {
-        rewrite_log(guard, &layout.skipped_assets(), |_| true, &lines);
-    }
+    let _guard = guard.lock().unwrap();
+    log_unwritable(append_sidecar(&layout.skipped_assets(), &records));
 }
 
 /// Assets `skipped_assets.jsonl` already lists (warned about by an earlier run).
-fn already_skipped(layout: &DatasetLayout) -> BTreeSet<PathBuf> {
-    let text = std::fs::read_to_string(layout.skipped_assets()).unwrap_or_default();
-    text.lines()
-        .filter_map(|l| {
-            serde_json::from_str::<serde_json::Value>(l)
-                .ok()?
-                .get("path")?
-                .as_str()
-                .map(PathBuf::from)
-        })
-        .collect()
+fn already_skipped(layout: &DatasetLayout) -> anyhow::Result<BTreeSet<PathBuf>> {
+    Ok(read_skipped_assets(&layout.skipped_assets())?
+        .records
+        .into_iter()
+        .map(|r| r.path)
+        .collect())
 }
 
 fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
@@ -542,7 +504,7 @@ pub fn generate(
 
     let assets = index_sources(&opts.recipe.sources, &stereogen_home())?;
     dataset.layout.check_assets(assets.fingerprint.as_deref())?;
-    let seen_skipped = Mutex::new(already_skipped(&dataset.layout));
+    let seen_skipped = Mutex::new(already_skipped(&dataset.layout)?);
     record_skipped(&logs, &dataset.layout, &seen_skipped, &assets.skipped, None);
     let mut cfg = opts.worker_options.resolve(opts.workers)?;
     cfg.scratch = scratch::choose_base(

@@ -16,7 +16,7 @@ use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardDirs, ShardI
 
 use super::layout::DatasetLayout;
 use super::lock::{LockState, inspect, unix_now};
-use super::manifest::{ManifestEntry, read_manifest};
+use super::manifest::{ManifestEntry, read_failures, read_manifest};
 
 /// At most this many files are named one by one; the rest are counted.
 const MAX_FILE_PROBLEMS: usize = 20;
@@ -307,7 +307,13 @@ fn check_coverage(shards: &[Shard], start: u64, count: u64, report: &mut MergeRe
         ));
     }
     for s in shards {
-        let failed = failed_indices(&s.layout);
+        let failed = match failed_indices(&s.layout) {
+            Ok(failed) => failed,
+            Err(e) => {
+                report.problems.push(format!("{}: {e}", s.name));
+                continue;
+            }
+        };
         let still: Vec<u64> = failed
             .into_iter()
             .filter(|i| !seen.contains_key(i))
@@ -324,23 +330,16 @@ fn check_coverage(shards: &[Shard], start: u64, count: u64, report: &mut MergeRe
     }
 }
 
-/// Indices listed in a shard's `failures.jsonl` (the lines are `{"index": ..., ...}`).
-fn failed_indices(layout: &DatasetLayout) -> Vec<u64> {
-    let Ok(text) = std::fs::read_to_string(layout.failures()) else {
-        return Vec::new();
-    };
-    let mut v: Vec<u64> = text
-        .lines()
-        .filter_map(|l| {
-            serde_json::from_str::<serde_json::Value>(l)
-                .ok()?
-                .get("index")?
-                .as_u64()
-        })
+/// Indices listed in a shard's `failures.jsonl`, sorted, each once.
+fn failed_indices(layout: &DatasetLayout) -> stereo_io::Result<Vec<u64>> {
+    let mut v: Vec<u64> = read_failures(&layout.failures())?
+        .records
+        .iter()
+        .map(|r| r.index)
         .collect();
     v.sort_unstable();
     v.dedup();
-    v
+    Ok(v)
 }
 
 /// `0-3, 7, 9-12` (the first 40 runs, then how many more).

@@ -15,7 +15,7 @@ use stereo_io::datasets::stereogen::{MergeInfo, ShardId, ShardInfo};
 
 use super::layout::DatasetLayout;
 use super::lock::{LockState, inspect};
-use super::manifest::{ManifestEntry, read_manifest};
+use super::manifest::{ManifestEntry, read_failures, read_manifest};
 
 /// How many of a shard's latest samples its rate is measured over.
 pub const RATE_WINDOW: usize = 64;
@@ -139,7 +139,7 @@ fn shard_status(
         Vec::new()
     };
     let done: std::collections::BTreeSet<u64> = entries.iter().map(|e| e.index).collect();
-    let failed = failed_not_done(layout, &done);
+    let failed = failed_not_done(layout, &done)?;
     let (state, run_started) = match inspect(&layout.lock()) {
         LockState::Held {
             holder,
@@ -183,21 +183,18 @@ fn shard_status(
     })
 }
 
-fn failed_not_done(layout: &DatasetLayout, done: &std::collections::BTreeSet<u64>) -> u64 {
-    let Ok(text) = std::fs::read_to_string(layout.failures()) else {
-        return 0;
-    };
-    let failed: std::collections::BTreeSet<u64> = text
-        .lines()
-        .filter_map(|l| {
-            serde_json::from_str::<serde_json::Value>(l)
-                .ok()?
-                .get("index")?
-                .as_u64()
-        })
+/// Samples `failures.jsonl` lists that are not finished since.
+fn failed_not_done(
+    layout: &DatasetLayout,
+    done: &std::collections::BTreeSet<u64>,
+) -> stereo_io::Result<u64> {
+    let failed: std::collections::BTreeSet<u64> = read_failures(&layout.failures())?
+        .records
+        .iter()
+        .map(|r| r.index)
         .filter(|i| !done.contains(i))
         .collect();
-    failed.len() as u64
+    Ok(failed.len() as u64)
 }
 
 /// Samples per hour over the latest finished samples (of the current run, while one runs).

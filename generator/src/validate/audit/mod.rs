@@ -259,9 +259,9 @@ fn finished_samples(layout: &DatasetLayout) -> anyhow::Result<(Vec<ManifestEntry
             .with_context(|| format!("{} is not a stereogen dataset", layout.root.display()))?
     };
     if contents.entries.is_empty() {
-        let failures = std::fs::read_to_string(layout.failures())
-            .map(|t| t.lines().filter(|l| !l.trim().is_empty()).count())
-            .unwrap_or(0);
+        let failures = crate::dataset::manifest::read_failures(&layout.failures())?
+            .records
+            .len();
         let why = if failures > 0 {
             format!(
                 "; {failures} sample(s) failed, see {}",

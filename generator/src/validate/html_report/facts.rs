@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use crate::dataset::manifest::{read_failures, read_skipped_assets};
 use crate::dataset::{DatasetInfo, DatasetLayout, ManifestEntry, read_manifest};
 
 /// Lines of failures.jsonl and skipped_assets.jsonl shown on the page, at most.
@@ -35,39 +36,28 @@ fn truncate(s: &str, n: usize) -> String {
 }
 
 /// Reads a JSONL side file; `label`/`text` pick what to show of each line.
-fn listed(path: &Path, label: &str, text: &str, problems: &mut Vec<String>) -> Listed {
-    let Ok(content) = std::fs::read_to_string(path) else {
-        return Listed {
-            lines: Vec::new(),
-            total: 0,
-        };
-    };
-    let mut out = Listed {
-        lines: Vec::new(),
-        total: 0,
-    };
-    for (n, line) in content
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-    {
-        out.total += 1;
-        if out.lines.len() >= MAX_LISTED {
-            continue;
-        }
-        match serde_json::from_str::<serde_json::Value>(line) {
-            Ok(v) => {
-                let show = |k: &str| match &v[k] {
-                    serde_json::Value::String(s) => s.clone(),
-                    serde_json::Value::Null => "-".into(),
-                    other => other.to_string(),
-                };
-                out.lines.push((show(label), truncate(&show(text), 400)));
-            }
-            Err(e) => problems.push(format!("{} line {}: not JSON ({e})", path.display(), n + 1)),
-        }
+/// The first [`MAX_LISTED`] records of a sidecar log as (label, text); a log that cannot be read
+/// is a problem and lists nothing.
+fn listed<R>(
+    records: stereo_io::Result<Vec<R>>,
+    line: impl Fn(&R) -> (String, String),
+    problems: &mut Vec<String>,
+) -> Listed {
+    let records = records.unwrap_or_else(|e| {
+        problems.push(e.to_string());
+        Vec::new()
+    });
+    Listed {
+        lines: records
+            .iter()
+            .take(MAX_LISTED)
+            .map(|r| {
+                let (label, text) = line(r);
+                (label, truncate(&text, 400))
+            })
+            .collect(),
+        total: records.len(),
     }
-    out
 }
 
 /// Everything but the pixels. Fails only when `root` is not a directory.
@@ -112,8 +102,16 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
         };
         problems.push(format!("{} {none}", layout.manifest().display()));
     }
-    let failures = listed(&layout.failures(), "index", "error", &mut problems);
-    let skipped = listed(&layout.skipped_assets(), "path", "reason", &mut problems);
+    let failures = listed(
+        read_failures(&layout.failures()).map(|c| c.records),
+        |r| (r.index.to_string(), r.error.clone()),
+        &mut problems,
+    );
+    let skipped = listed(
+        read_skipped_assets(&layout.skipped_assets()).map(|c| c.records),
+        |r| (r.path.display().to_string(), r.reason.clone()),
+        &mut problems,
+    );
     Ok(Facts {
         info,
         entries,
