@@ -20,6 +20,9 @@ pub fn detect_format(root: &Path) -> Result<DatasetFormat> {
     if let Some(e) = stereogen::DatasetLayout::new(root).unmerged_error(root) {
         return Err(e);
     }
+    if let Some(e) = super::webdataset::WebDataset::unfinished_error(root) {
+        return Err(e);
+    }
     if super::webdataset::WebDataset::is_webdataset(root) {
         return Ok(DatasetFormat::WebDataset);
     }

@@ -40,10 +40,24 @@ impl WebDataset {
         !index_files(root).is_empty()
     }
 
+    /// The error for a folder an export is still writing or was killed writing (its progress
+    /// file is there, its index not yet), if `root` is one.
+    pub fn unfinished_error(root: &Path) -> Option<Error> {
+        root.join(super::write::PROGRESS_FILE).is_file().then(|| {
+            Error::format(
+                root,
+                "an unfinished WebDataset export (no index yet): re-run the export command to finish it",
+            )
+        })
+    }
+
     /// Opens every split in `root`. A shard missing, of another size than its index says, or
     /// holding other than its index's number of samples is an error naming it.
     pub fn open(root: &Path) -> Result<Self> {
         let indices = index_files(root);
+        if let Some(e) = Self::unfinished_error(root) {
+            return Err(e);
+        }
         if indices.is_empty() {
             return Err(Error::format(
                 root,

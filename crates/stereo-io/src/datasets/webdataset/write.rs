@@ -23,7 +23,7 @@ use crate::image_io::{Image, Samples, encode_png};
 
 /// The progress of an unfinished export, rewritten after each shard: what a re-run of the same
 /// command resumes from.
-const PROGRESS_FILE: &str = ".webdataset-progress.json";
+pub(crate) const PROGRESS_FILE: &str = ".webdataset-progress.json";
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct WebDatasetOptions {
