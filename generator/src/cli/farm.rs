@@ -3,11 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use clap::builder::{PossibleValuesParser, TypedValueParser};
+use stereogen::dataset::TaskArgs;
 use stereogen::farm::{FarmOptions, Scheduler, write_job_files};
-use stereogen::render::Device;
-
-use super::RecipeArgs;
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum SchedulerArg {
@@ -24,14 +21,10 @@ pub struct FarmArgs {
     /// The scheduler to write for.
     #[arg(value_enum)]
     scheduler: SchedulerArg,
+    // What every task renders, passed on to its `generate` as it is (--count is the whole
+    // dataset's; --threads defaults to the task's cores divided by --workers).
     #[command(flatten)]
-    recipe: RecipeArgs,
-    /// Number of samples of the whole dataset.
-    #[arg(long, value_name = "N")]
-    count: u64,
-    /// First sample index.
-    #[arg(long, value_name = "INDEX", default_value_t = 0)]
-    start: u64,
+    task: TaskArgs,
     /// Render tasks (one shard each).
     #[arg(long, value_name = "T")]
     tasks: u64,
@@ -39,18 +32,6 @@ pub struct FarmArgs {
     /// volume is mounted).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
-    /// Dataset seed.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Blender workers per task.
-    #[arg(long, value_name = "K", default_value_t = 1)]
-    workers: usize,
-    /// Cycles threads per worker [default: the task's cores divided by --workers].
-    #[arg(long, value_name = "N")]
-    threads: Option<u32>,
-    /// Render on the CPU or on a CUDA/OptiX GPU.
-    #[arg(long, default_value_t = Device::Cpu, value_parser = PossibleValuesParser::new(Device::NAMES).map(|s| s.parse::<Device>().expect("listed")))]
-    device: Device,
     /// GPUs each task asks for (Slurm --gpus-per-task, Kubernetes nvidia.com/gpu).
     #[arg(long, value_name = "G")]
     gpus_per_task: Option<u32>,
@@ -116,16 +97,11 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
             .context("cannot find this stereogen executable; pass --stereogen PATH")?,
     };
     let opts = FarmOptions {
-        recipe: a.recipe.load()?,
-        start: a.start,
-        count: a.count,
+        recipe: a.task.recipe.load()?,
+        task: a.task,
         tasks: a.tasks,
         job_dir: a.job_dir.unwrap_or_else(|| a.out.join("jobs")),
         out: a.out,
-        seed: a.seed,
-        workers: a.workers,
-        threads: a.threads,
-        device: a.device,
         gpus_per_task: a.gpus_per_task,
         cpus_per_task: a.cpus_per_task,
         memory: a.memory,

@@ -13,15 +13,10 @@ mod status;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
 
-use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand};
 use stereogen::assets::{index_sources, stereogen_home};
-use stereogen::dataset::shard::{ShardArg, resolve_shard};
-use stereogen::plan::recipe::DEFAULT_PRESET;
-use stereogen::plan::{Recipe, plan_scene};
-use stereogen::render::{Device, WorkerOptions};
+use stereogen::plan::plan_scene;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -35,72 +30,9 @@ pub struct Cli {
     pub command: Command,
 }
 
-#[derive(Debug, clap::Args)]
-pub struct RuntimeArgs {
-    /// A Blender 4.5 executable to render with (run as `blender -b`). Without it: $STEREOGEN_PYTHON
-    /// (a Python that can `import bpy`), then the managed bpy environment under $STEREOGEN_HOME
-    /// (default ~/.cache/stereogen), which is installed on first use.
-    #[arg(long, value_name = "PATH")]
-    pub blender: Option<PathBuf>,
-    /// Render on the CPU or on a CUDA/OptiX GPU.
-    #[arg(long, default_value_t = Device::Cpu, value_parser = PossibleValuesParser::new(Device::NAMES).map(|s| s.parse::<Device>().expect("listed")))]
-    pub device: Device,
-    /// Cycles threads per worker [default: the machine's cores divided by --workers].
-    #[arg(long, value_name = "N")]
-    pub threads: Option<u32>,
-    /// Seconds one sample may take before its worker is considered hung, killed and restarted.
-    #[arg(long, value_name = "SECS", default_value_t = WorkerOptions::DEFAULT_RENDER_TIMEOUT_S, value_parser = clap::value_parser!(u64).range(1..))]
-    pub timeout: u64,
-    /// How many times a sample is retried after its worker crashed or hung.
-    #[arg(long, value_name = "N", default_value_t = WorkerOptions::DEFAULT_RETRIES)]
-    pub retries: u32,
-}
-
-impl RuntimeArgs {
-    pub fn worker_options(&self) -> WorkerOptions {
-        WorkerOptions {
-            blender: self.blender.clone(),
-            device: self.device,
-            threads: self.threads,
-            render_timeout: Duration::from_secs(self.timeout),
-            retries: self.retries,
-            ..WorkerOptions::default()
-        }
-    }
-}
-
-/// Which recipe, and the asset folders that override its `[sources]`.
-#[derive(Debug, clap::Args)]
-pub struct RecipeArgs {
-    /// A built-in preset (crestereo, shapenet, tree, hole, reflective) or a recipe TOML file.
-    #[arg(long, value_name = "PRESET|FILE", default_value = DEFAULT_PRESET)]
-    pub recipe: String,
-    /// ShapeNetCore root (v1 or v2 layout); overrides the recipe's `sources.shapenet`.
-    #[arg(long, value_name = "DIR")]
-    pub shapenet: Option<PathBuf>,
-    /// A folder of meshes (OBJ, GLB/GLTF, PLY, STL, OFF); overrides `sources.meshes`.
-    #[arg(long, value_name = "DIR")]
-    pub meshes: Option<PathBuf>,
-    /// A folder of photos used as textures; overrides `sources.textures`.
-    #[arg(long, value_name = "DIR")]
-    pub textures: Option<PathBuf>,
-}
-
-impl RecipeArgs {
-    pub fn load(&self) -> anyhow::Result<Recipe> {
-        let mut recipe = Recipe::load_or_preset(&self.recipe)?;
-        if let Some(d) = &self.shapenet {
-            recipe.sources.shapenet = Some(d.clone());
-        }
-        if let Some(d) = &self.meshes {
-            recipe.sources.meshes = Some(d.clone());
-        }
-        if let Some(d) = &self.textures {
-            recipe.sources.textures = Some(d.clone());
-        }
-        Ok(recipe)
-    }
-}
+/// Shared with `generate` (and the farm, which writes `generate` command lines): defined once in
+/// the library's [`stereogen::dataset::generate_command`].
+pub use stereogen::dataset::{RecipeArgs, RuntimeArgs};
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
@@ -120,42 +52,7 @@ pub enum Command {
     },
     /// Render a dataset: samples START..START+COUNT of RECIPE with SEED. Re-running the same
     /// command resumes: finished samples are skipped, interrupted ones are redone.
-    Generate {
-        #[command(flatten)]
-        recipe: RecipeArgs,
-        /// Output dataset directory (created if missing).
-        #[arg(long, value_name = "DIR")]
-        out: PathBuf,
-        /// Number of samples.
-        #[arg(long, value_name = "N")]
-        count: u64,
-        /// Dataset seed: sample i is a pure function of (recipe, seed, i).
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// First sample index.
-        #[arg(long, value_name = "INDEX", default_value_t = 0)]
-        start: u64,
-        /// Render only indices i with i % N == K, into OUT/shards/KKKK-of-NNNN/ (one farm task per
-        /// shard). `auto`: K and N from the scheduler (STEREOGEN_SHARD=K/N, Slurm array, Kubernetes
-        /// Indexed Job, AWS Batch array).
-        #[arg(long, value_name = "K/N|auto", value_parser = clap::value_parser!(ShardArg))]
-        shard: Option<ShardArg>,
-        /// With --shard auto: the number of shards where the scheduler does not say it
-        /// (Kubernetes; also STEREOGEN_SHARD_COUNT).
-        #[arg(long, value_name = "N", requires = "shard")]
-        shards: Option<u64>,
-        /// Take the output directory's lock even if another process seems to hold it.
-        #[arg(long)]
-        break_lock: bool,
-        /// Blender worker processes rendering in parallel.
-        #[arg(long, value_name = "K", default_value_t = 1)]
-        workers: usize,
-        /// Hide the progress bar.
-        #[arg(long)]
-        no_progress: bool,
-        #[command(flatten)]
-        runtime: RuntimeArgs,
-    },
+    Generate(stereogen::dataset::GenerateCommand),
     /// Print the SceneSpec of one sample as JSON (pure planning, no Blender).
     Plan {
         #[command(flatten)]
@@ -271,38 +168,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Setup { runtime, no_pack } => setup::run(&runtime, !no_pack)?,
         Command::Assets { command } => assets::run(command)?,
-        Command::Generate {
-            recipe,
-            out,
-            count,
-            seed,
-            start,
-            shard,
-            shards,
-            break_lock,
-            workers,
-            no_progress,
-            runtime,
-        } => {
-            let mut opts =
-                stereogen::dataset::GenerateOptions::new(&out, recipe.load()?, seed, count);
-            opts.start = start;
-            // Where an automatic shard came from goes to the log (a task's first line).
-            let auto = shard == Some(ShardArg::Auto);
-            opts.shard = shard
-                .map(|s| resolve_shard(s, shards))
-                .transpose()?
-                .map(|d| {
-                    if auto {
-                        tracing::info!("shard {} ({})", d.shard, d.source);
-                    }
-                    d.shard
-                });
-            opts.break_lock = break_lock;
-            opts.workers = workers;
-            opts.worker_options = runtime.worker_options();
-            generate::run(&opts, !no_progress)?;
-        }
+        Command::Generate(command) => generate::run(&command)?,
         Command::Farm(args) => farm::run(args)?,
         Command::Merge(args) => merge::run(args)?,
         Command::Status(args) => status::run(args)?,

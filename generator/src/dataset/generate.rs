@@ -14,6 +14,7 @@ use anyhow::{Context, bail};
 use serde::Serialize;
 use stereo_io::datasets::stereogen::ShardInfo;
 
+use super::generate_command::FaultPlan;
 use super::interrupt::StopFlag;
 use super::layout::{CreateDataset, DatasetLayout};
 use super::lock::DatasetLock;
@@ -25,7 +26,6 @@ use super::sample::{VERIFY_TIMING, finalize_sample};
 use super::shard::ShardId;
 use crate::assets::{AssetIndex, SkippedAsset, index_sources};
 use crate::plan::{Recipe, SceneSpec, plan_scene};
-use crate::render::protocol::Fault;
 use crate::render::runtime::stereogen_home;
 use crate::render::scratch;
 use crate::render::worker::{RenderService, Rendered, WorkerConfig, WorkerError, WorkerOptions};
@@ -48,6 +48,8 @@ pub struct GenerateOptions {
     pub worker_options: WorkerOptions,
     /// Set (by a signal, see [`super::interrupt::install`]): stop cleanly.
     pub stop: StopFlag,
+    /// Faults the workers inject (a test hook, parsed by the binary from STEREOGEN_FAULT).
+    pub faults: FaultPlan,
 }
 
 impl GenerateOptions {
@@ -63,6 +65,7 @@ impl GenerateOptions {
             workers: 1,
             worker_options: WorkerOptions::default(),
             stop: StopFlag::new(),
+            faults: FaultPlan::default(),
         }
     }
 
@@ -121,48 +124,6 @@ pub struct GenerateSummary {
     pub interrupted: bool,
     /// Scratch folders of dead processes removed at the start.
     pub orphaned_scratch_removed: usize,
-}
-
-/// Test hook: `STEREOGEN_FAULT=crash@3,hang@5,crash-always@7,raise@9` makes the worker crash,
-/// hang or raise a Python exception on those samples (`crash`/`hang`: first attempt only;
-/// `-always`: every attempt; `raise` fails the scene, which is not retried).
-#[derive(Debug, Clone, Default)]
-struct FaultPlan(Vec<(u64, Fault, bool)>);
-
-impl FaultPlan {
-    fn from_env() -> anyhow::Result<Self> {
-        let Ok(text) = std::env::var("STEREOGEN_FAULT") else {
-            return Ok(Self::default());
-        };
-        let mut plan = Vec::new();
-        for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-            let (kind, index) = item
-                .split_once('@')
-                .with_context(|| format!("STEREOGEN_FAULT item {item:?} is not kind@index"))?;
-            let index: u64 = index
-                .parse()
-                .with_context(|| format!("STEREOGEN_FAULT item {item:?}: bad index"))?;
-            let (fault, always) = match kind {
-                "crash" => (Fault::Crash, false),
-                "hang" => (Fault::Hang, false),
-                "crash-always" => (Fault::Crash, true),
-                "hang-always" => (Fault::Hang, true),
-                "raise" => (Fault::Raise, false),
-                other => bail!(
-                    "STEREOGEN_FAULT: unknown fault {other:?} (crash, hang, crash-always, hang-always, raise)"
-                ),
-            };
-            plan.push((index, fault, always));
-        }
-        Ok(Self(plan))
-    }
-
-    fn fault(&self, index: u64, attempt: u32) -> Option<Fault> {
-        self.0
-            .iter()
-            .find(|(i, _, always)| *i == index && (*always || attempt == 0))
-            .map(|(_, f, _)| *f)
-    }
 }
 
 /// Logs a sidecar log that cannot be updated: the run goes on (the samples are what matters).
@@ -352,7 +313,6 @@ struct Run<'a> {
     opts: &'a GenerateOptions,
     layout: &'a DatasetLayout,
     assets: AssetIndex,
-    faults: FaultPlan,
     progress: &'a (dyn Fn(Progress<'_>) + Sync),
     queue: Mutex<VecDeque<u64>>,
     /// `None` once an append failed: a torn line must not get another one appended to it.
@@ -376,7 +336,7 @@ impl Run<'_> {
             };
             let spec = plan_scene(&self.opts.recipe, &self.assets, self.opts.seed, index);
             let t0 = Instant::now();
-            match service.render(&spec, |attempt| self.faults.fault(index, attempt)) {
+            match service.render(&spec, |attempt| self.opts.faults.fault(index, attempt)) {
                 Ok(rendered) => self.finish_sample(&spec, &rendered, t0),
                 // Abandoned: its scratch is gone with `service.render`, it stays pending.
                 Err(WorkerError::Interrupted) => break,
@@ -473,7 +433,6 @@ pub fn generate(
 ) -> anyhow::Result<GenerateSummary> {
     let started = Instant::now();
     check_options(opts)?;
-    let faults = FaultPlan::from_env()?;
     let dataset = open_dataset(opts)?;
     let orphaned_scratch_removed =
         scratch::remove_orphans(&scratch::candidate_bases(Some(&dataset.layout.root)));
@@ -518,7 +477,6 @@ pub fn generate(
         opts,
         layout: &dataset.layout,
         assets,
-        faults,
         progress,
         queue: Mutex::new(pending),
         manifest: Mutex::new(Some(dataset.manifest)),

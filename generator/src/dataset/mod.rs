@@ -2,6 +2,7 @@
 
 pub mod export;
 pub mod generate;
+pub mod generate_command;
 pub mod interrupt;
 pub mod layout;
 pub mod lock;
@@ -13,6 +14,7 @@ pub mod shard;
 pub mod status;
 
 pub use generate::{GenerateOptions, GenerateSummary, generate};
+pub use generate_command::{GenerateCommand, RecipeArgs, RuntimeArgs, TaskArgs};
 pub use layout::{CreateDataset, DatasetInfo, DatasetLayout, SamplePaths};
 pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
 pub use sample::finalize_sample;

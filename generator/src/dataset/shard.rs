@@ -32,6 +32,16 @@ pub enum ShardArg {
     Auto,
 }
 
+impl ShardArg {
+    /// The text `--shard` takes for it (`K/N` or `auto`).
+    pub fn to_arg(self) -> String {
+        match self {
+            Self::Fixed(id) => id.to_string(),
+            Self::Auto => "auto".into(),
+        }
+    }
+}
+
 impl FromStr for ShardArg {
     type Err = String;
 

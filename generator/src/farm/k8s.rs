@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use super::{FarmOptions, INTERRUPTED_EXIT_CODE, JobFile, path};
-use crate::dataset::shard::SHARD_COUNT_ENV;
+use crate::dataset::shard::{SHARD_COUNT_ENV, ShardArg};
 
 #[derive(Debug, Clone, Serialize)]
 #[serde(rename_all = "camelCase")]
@@ -223,8 +223,7 @@ fn pod(
 /// The Indexed Job that renders.
 pub fn render_job(opts: &FarmOptions) -> Job {
     let mut command = vec![path(&opts.stereogen)];
-    command.extend(opts.generate_args());
-    command.extend(["--shard".into(), "auto".into()]);
+    command.extend(opts.generate_command(Some(ShardArg::Auto)).to_args());
     let c = container(opts, "render", command, opts.cpus(), opts.gpus_per_task);
     Job {
         api_version: "batch/v1".into(),

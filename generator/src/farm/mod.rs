@@ -2,7 +2,7 @@
 //!
 //! Each scheduler's file is built from typed structures ([`slurm`], [`k8s`], [`openjd`]) and
 //! serialised; what every task runs is the same `stereogen generate` a user would type
-//! ([`FarmOptions::generate_args`]), with the shard taken from the scheduler (`--shard auto`) or
+//! ([`FarmOptions::generate_command`], serialised by [`GenerateCommand::to_args`]), with the shard taken from the scheduler (`--shard auto`) or
 //! the task parameter, so re-submitting the same file resumes. After the render tasks, a merge
 //! step runs `stereogen merge` and `stereogen stats --check` on the shared output.
 //!
@@ -17,8 +17,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 
+use crate::dataset::generate_command::{GenerateCommand, RecipeArgs, TaskArgs};
+use crate::dataset::shard::ShardArg;
 use crate::plan::Recipe;
-use crate::render::Device;
 
 /// The exit code of a `generate` that stopped on SIGTERM/SIGINT before finishing its range
 /// (EX_TEMPFAIL: nothing is wrong, run the same command again to resume). The job files treat
@@ -32,19 +33,14 @@ pub const INTERRUPTED_EXIT_CODE: i32 = crate::dataset::interrupt::EXIT_INTERRUPT
 pub struct FarmOptions {
     /// The recipe, loaded (with `--shapenet/--meshes/--textures` applied).
     pub recipe: Recipe,
-    /// Samples `start .. start + count`.
-    pub start: u64,
-    pub count: u64,
+    /// What every task renders (samples `start .. start + count` of the whole dataset, the
+    /// workers and their runtime), passed on to its `generate` as it is; the recipe argument is
+    /// replaced by [`FarmOptions::recipe_path`].
+    pub task: TaskArgs,
     /// Render tasks (= shards).
     pub tasks: u64,
     /// The shared output directory, as the tasks see it.
     pub out: PathBuf,
-    pub seed: u64,
-    /// Blender workers per task.
-    pub workers: usize,
-    /// Cycles threads per worker.
-    pub threads: Option<u32>,
-    pub device: Device,
     pub gpus_per_task: Option<u32>,
     /// CPU cores a task asks for [default: workers × threads, at least 1].
     pub cpus_per_task: Option<u32>,
@@ -78,14 +74,14 @@ impl FarmOptions {
         if self.tasks == 0 {
             bail!("--tasks must be at least 1");
         }
-        if self.count == 0 {
+        if self.task.count == 0 {
             bail!("--count must be at least 1");
         }
-        if self.tasks > self.count {
+        if self.tasks > self.task.count {
             bail!(
                 "--tasks {} is more than --count {}: some tasks would have nothing to render",
                 self.tasks,
-                self.count
+                self.task.count
             );
         }
         if self.max_parallel == Some(0) {
@@ -115,36 +111,30 @@ impl FarmOptions {
 
     /// Cores a task asks for.
     pub fn cpus(&self) -> u32 {
-        self.cpus_per_task
-            .unwrap_or_else(|| (self.workers as u32 * self.threads.unwrap_or(1)).max(1))
+        self.cpus_per_task.unwrap_or_else(|| {
+            (self.task.workers as u32 * self.task.runtime.threads.unwrap_or(1)).max(1)
+        })
     }
 
-    /// `generate` and its arguments, without the shard (each scheduler adds its own).
-    pub fn generate_args(&self) -> Vec<String> {
-        let mut a: Vec<String> = vec![
-            "generate".into(),
-            "--recipe".into(),
-            path(&self.recipe_path()),
-            "--out".into(),
-            path(&self.out),
-        ];
-        a.extend([
-            "--start".into(),
-            self.start.to_string(),
-            "--count".into(),
-            self.count.to_string(),
-            "--seed".into(),
-            self.seed.to_string(),
-        ]);
-        a.extend(["--workers".into(), self.workers.to_string()]);
-        if let Some(t) = self.threads {
-            a.extend(["--threads".into(), t.to_string()]);
+    /// The `generate` every render task runs, with `shard` (each scheduler says its own) and
+    /// the recipe file in the job directory.
+    pub fn generate_command(&self, shard: Option<ShardArg>) -> GenerateCommand {
+        let mut task = self.task.clone();
+        task.recipe = RecipeArgs {
+            recipe: path(&self.recipe_path()),
+            shapenet: None,
+            meshes: None,
+            textures: None,
+        };
+        GenerateCommand {
+            out: self.out.clone(),
+            task,
+            shard,
+            shards: None,
+            break_lock: false,
+            no_progress: true,
+            fault: None,
         }
-        if self.device != Device::Cpu {
-            a.extend(["--device".into(), self.device.as_str().into()]);
-        }
-        a.push("--no-progress".into());
-        a
     }
 
     /// `merge OUT [--verify]`.

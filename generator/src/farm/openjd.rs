@@ -123,7 +123,9 @@ fn step(
 }
 
 pub fn template(opts: &FarmOptions) -> JobTemplate {
-    let mut render = opts.generate_args();
+    // The shard is a template expression OpenJD fills in per task, not a value `--shard` parses
+    // here: it is added after the typed command.
+    let mut render = opts.generate_command(None).to_args();
     render.extend([
         "--shard".into(),
         format!("{{{{Task.Param.{SHARD_PARAM}}}}}/{}", opts.tasks),
@@ -141,8 +143,8 @@ pub fn template(opts: &FarmOptions) -> JobTemplate {
         description: format!(
             "Written by `stereogen farm openjd` (stereogen {}): samples {}..{} in {} shards into {}, then merge and check.",
             env!("CARGO_PKG_VERSION"),
-            opts.start,
-            opts.start + opts.count,
+            opts.task.start,
+            opts.task.start + opts.task.count,
             opts.tasks,
             opts.out.display()
         ),

@@ -10,6 +10,7 @@
 use serde::Serialize;
 
 use super::{FarmOptions, INTERRUPTED_EXIT_CODE, JobFile, path};
+use crate::dataset::shard::ShardArg;
 
 /// `#SBATCH` options. Field names are sbatch's long options (`cpus_per_task` → `--cpus-per-task`);
 /// `None` leaves an option out, `true` writes a bare flag.
@@ -129,13 +130,12 @@ pub fn render_script(opts: &FarmOptions) -> BatchScript {
         "--ntasks=1".into(),
         path(&opts.stereogen),
     ];
-    generate.extend(opts.generate_args());
-    generate.extend(["--shard".into(), "auto".into()]);
+    generate.extend(opts.generate_command(Some(ShardArg::Auto)).to_args());
     let code = INTERRUPTED_EXIT_CODE;
     BatchScript {
         comment: vec![
             format!("Written by `stereogen farm slurm` (stereogen {}).", env!("CARGO_PKG_VERSION")),
-            format!("Renders samples {}..{} in {} shards; shard = SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.", opts.start, opts.start + opts.count, opts.tasks),
+            format!("Renders samples {}..{} in {} shards; shard = SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.", opts.task.start, opts.task.start + opts.task.count, opts.tasks),
             format!("Exit {code} = generate stopped on SIGTERM/SIGINT: the task requeues itself and resumes."),
         ],
         options: o,
