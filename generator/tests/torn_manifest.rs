@@ -133,8 +133,9 @@ fn every_reader_leaves_an_unfinished_last_line_out_and_only_the_appender_cuts_it
         jpeg_quality: None,
         jpeg_chroma: Default::default(),
         middlebury_variant: Default::default(),
+        shards: Default::default(),
     };
-    assert_eq!(export(&opts).unwrap().samples as u64, FINISHED, "export");
+    assert_eq!(export(&opts).unwrap().samples() as u64, FINISHED, "export");
     assert_eq!(
         stereo_io::open_dataset(&out, None).unwrap().len() as u64,
         FINISHED

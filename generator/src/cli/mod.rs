@@ -75,16 +75,18 @@ pub enum Command {
     },
     /// Write DATASET in another layout: crestereo (the official trainer's `<category>/*_left.jpg`,
     /// real JPEG, + `*.disp.png` x32), kitti2012 (`training/colored_0`, `disp_occ` x256), kitti
-    /// or kitti2015 (`training/image_2`, `disp_occ_0` x256) or middlebury
-    /// (`Middlebury2014/train/<scene>-perfect/im0.png`, `disp0.pfm`, `calib.txt`). DATASET is
-    /// ours or any layout the readers know. Images are hard links where the source file is what
-    /// the layout stores.
+    /// or kitti2015 (`training/image_2`, `disp_occ_0` x256), middlebury
+    /// (`Middlebury2014/train/<scene>-perfect/im0.png`, `disp0.pfm`, `calib.txt`), or webdataset
+    /// (`<split>-NNNNNN.tar` shards, the files of a sample consecutive under one key, and an index
+    /// per split). DATASET is ours or any layout the readers know. Images are hard links where the
+    /// source file is what the layout stores; shards hold the source's files byte for byte.
     Export {
         /// The dataset directory (ours holds manifest.jsonl).
         dataset: PathBuf,
-        /// The layout to write: crestereo, kitti2012, kitti2015 (or kitti) or middlebury.
+        /// The layout to write: crestereo, kitti2012, kitti2015 (or kitti), middlebury or
+        /// webdataset.
         #[arg(long, value_name = "LAYOUT")]
-        format: stereo_io::WritableFormat,
+        format: stereogen::dataset::export::ExportFormat,
         /// The layout of DATASET (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012,
         /// kitti2015, sintel, fallingthings, instereo2k) [default: recognised from its files].
         #[arg(long, value_name = "LAYOUT")]
@@ -103,6 +105,19 @@ pub enum Command {
         /// MiddEval3 uses; a scene with only the other is read in that one) or both.
         #[arg(long, value_name = "VARIANT", default_value_t = stereo_io::MiddleburyVariant::Imperfect)]
         middlebury_variant: stereo_io::MiddleburyVariant,
+        /// webdataset only: close a shard once it holds this much (e.g. 1GiB, 500MB).
+        #[arg(long, value_name = "SIZE", default_value = "1GiB", value_parser = stereogen::dataset::export::parse_bytes)]
+        shard_size: u64,
+        /// webdataset only: seeds the order of the samples across shards.
+        #[arg(long, value_name = "S", default_value_t = 0)]
+        shuffle_seed: u64,
+        /// webdataset only: split names and fractions, e.g. train=0.98,val=0.02.
+        #[arg(long, value_name = "NAME=FRACTION,...", default_value = "train=1")]
+        splits: stereogen::dataset::export::SplitFractions,
+        /// webdataset only: replace the export already in --out (an unfinished one of the same
+        /// options resumes without it).
+        #[arg(long)]
+        force: bool,
     },
     /// Disparity statistics of a dataset: pixel-level histograms of both views, the object-level
     /// target disparities, percentiles, invalid pixels, KS distance to the recipe's law, per
@@ -209,7 +224,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             jpeg_quality,
             jpeg_chroma,
             middlebury_variant,
+            shard_size,
+            shuffle_seed,
+            splits,
+            force,
         } => {
+            use stereogen::dataset::export::ExportSummary;
             let opts = stereogen::dataset::export::ExportOptions {
                 dataset,
                 from: from_format,
@@ -218,24 +238,37 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 jpeg_quality,
                 jpeg_chroma,
                 middlebury_variant,
+                shards: stereo_io::WebDatasetOptions {
+                    shard_bytes: shard_size,
+                    shuffle_seed,
+                    splits: splits.0,
+                    force,
+                },
             };
-            let s = stereogen::dataset::export::export(&opts)?;
-            if format == stereo_io::WritableFormat::Crestereo && s.outside_categories > 0 {
-                eprintln!(
-                    "stereogen: note: {} sample(s) have no CREStereo category and sit at the top of {}: the release's loader (a recursive glob) reads them, loaders that list tree/, shapenet/, reflective/ and hole/ do not",
-                    s.outside_categories,
+            match stereogen::dataset::export::export(&opts)? {
+                ExportSummary::Layout { format, written: s } => {
+                    for note in s.loader_notes(format, &out) {
+                        eprintln!("stereogen: note: {note}");
+                    }
+                    eprintln!(
+                        "stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid, {} without a right-view disparity) -> {}",
+                        s.samples,
+                        s.linked,
+                        s.written,
+                        s.dropped_pixels,
+                        s.without_right_disparity,
+                        out.display()
+                    );
+                }
+                ExportSummary::Shards(s) => eprintln!(
+                    "stereogen: exported {} sample(s) as {} WebDataset shard(s), {} bytes ({} kept from an interrupted run) -> {}",
+                    s.samples,
+                    s.shards,
+                    s.bytes,
+                    s.resumed_shards,
                     out.display()
-                );
+                ),
             }
-            eprintln!(
-                "stereogen: exported {} sample(s) ({} linked, {} written, {} unrepresentable pixel(s) made invalid, {} without a right-view disparity) -> {}",
-                s.samples,
-                s.linked,
-                s.written,
-                s.dropped_pixels,
-                s.without_right_disparity,
-                out.display()
-            );
         }
         Command::Audit(args) => audit::run(args)?,
         Command::Report(args) => report::run(args)?,

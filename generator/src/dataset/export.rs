@@ -1,20 +1,116 @@
-//! `stereogen export`: a dataset in another trainer's layout. The source is ours or any layout
-//! stereo-io reads; the writing is stereo-io's ([`stereo_io::datasets::write`] describes the
-//! layouts, what is linked and what is dropped).
+//! `stereogen export`: a dataset in another trainer's layout, or as WebDataset tar shards. The
+//! source is ours or any layout stereo-io reads; the writing is stereo-io's
+//! ([`stereo_io::datasets::write`] describes the layouts, what is linked and what is dropped;
+//! [`stereo_io::datasets::webdataset`] the shards).
 
+use std::fmt;
 use std::path::PathBuf;
+use std::str::FromStr;
 
 use stereo_io::{
     ChromaSampling, DatasetFormat, ImageEncoding, JpegOptions, MiddleburyVariant, ReadOptions,
-    WritableFormat, WriteSummary,
+    WebDatasetOptions, WebDatasetSummary, WritableFormat, WriteSummary,
 };
+
+/// What `export --format` names: a folder layout, or WebDataset shards.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExportFormat {
+    Layout(WritableFormat),
+    WebDataset,
+}
+
+impl FromStr for ExportFormat {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s.eq_ignore_ascii_case("webdataset") || s.eq_ignore_ascii_case("wds") {
+            return Ok(Self::WebDataset);
+        }
+        s.parse::<WritableFormat>()
+            .map(Self::Layout)
+            .map_err(|e| format!("{e}, or webdataset"))
+    }
+}
+
+impl fmt::Display for ExportFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Layout(layout) => layout.fmt(f),
+            Self::WebDataset => f.write_str("webdataset"),
+        }
+    }
+}
+
+/// `--splits train=0.98,val=0.02`: split names and fractions (see [`stereo_io::parse_splits`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplitFractions(pub Vec<(String, f64)>);
+
+impl FromStr for SplitFractions {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        stereo_io::parse_splits(s).map(Self)
+    }
+}
+
+/// What an export wrote.
+#[derive(Debug, Clone)]
+pub enum ExportSummary {
+    Layout {
+        format: WritableFormat,
+        written: WriteSummary,
+    },
+    Shards(WebDatasetSummary),
+}
+
+impl ExportSummary {
+    /// Samples written.
+    pub fn samples(&self) -> usize {
+        match self {
+            Self::Layout { written, .. } => written.samples,
+            Self::Shards(s) => s.samples,
+        }
+    }
+}
+
+/// A size such as `1GiB`, `500MB`, `65536`: bytes, with an optional decimal (kB, MB, GB, TB) or
+/// binary (KiB, MiB, GiB, TiB) unit.
+pub fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let unit_bytes: u64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1,
+        "kb" => 1_000,
+        "mb" => 1_000_000,
+        "gb" => 1_000_000_000,
+        "tb" => 1_000_000_000_000,
+        "kib" => 1 << 10,
+        "mib" => 1 << 20,
+        "gib" => 1 << 30,
+        "tib" => 1 << 40,
+        other => {
+            return Err(format!(
+                "{s:?}: unknown unit {other:?} (B, kB, MB, GB, KiB, MiB, GiB, ...)"
+            ));
+        }
+    };
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("{s:?} is not a size such as 1GiB or 500MB"))?;
+    let bytes = value * unit_bytes as f64;
+    if !(1.0..=u64::MAX as f64).contains(&bytes) {
+        return Err(format!("{s:?}: a size of at least 1 byte"));
+    }
+    Ok(bytes as u64)
+}
 
 #[derive(Debug, Clone)]
 pub struct ExportOptions {
     pub dataset: PathBuf,
     /// The source's layout; recognised from its folder when `None`.
     pub from: Option<DatasetFormat>,
-    pub format: WritableFormat,
+    pub format: ExportFormat,
     pub out: PathBuf,
     /// CREStereo only: re-encode every image as a JPEG of this quality (else source JPEGs are
     /// linked and other images encoded at quality 95).
@@ -23,11 +119,14 @@ pub struct ExportOptions {
     pub jpeg_chroma: ChromaSampling,
     /// Which rectification of a Middlebury 2014 source is read.
     pub middlebury_variant: MiddleburyVariant,
+    /// WebDataset only: shard size, shuffle seed, splits, replacing an existing export.
+    pub shards: WebDatasetOptions,
 }
 
-/// Writes every sample of `opts.dataset` into `opts.out` in `opts.format`, with
-/// `stereogen_samples.tsv` mapping the exported samples back to the source's.
-pub fn export(opts: &ExportOptions) -> anyhow::Result<WriteSummary> {
+/// Writes every sample of `opts.dataset` into `opts.out` in `opts.format`: a layout with
+/// `stereogen_samples.tsv` mapping the exported samples back to the source's, or shards with an
+/// index per split.
+pub fn export(opts: &ExportOptions) -> anyhow::Result<ExportSummary> {
     let images = match (opts.jpeg_quality, opts.jpeg_chroma) {
         (None, ChromaSampling::Full) => ImageEncoding::Lossless,
         (quality, chroma) => ImageEncoding::JpegWith(JpegOptions {
@@ -38,11 +137,51 @@ pub fn export(opts: &ExportOptions) -> anyhow::Result<WriteSummary> {
     let read = ReadOptions {
         middlebury_variant: opts.middlebury_variant,
     };
-    let to = stereo_io::ExportOptions {
+    let to = match opts.format {
+        ExportFormat::Layout(to) => to,
+        ExportFormat::WebDataset => {
+            let s = stereo_io::export_webdataset(
+                &opts.dataset,
+                &opts.out,
+                opts.from,
+                &read,
+                &opts.shards,
+            )?;
+            return Ok(ExportSummary::Shards(s));
+        }
+    };
+    let options = stereo_io::ExportOptions {
         from: opts.from,
-        to: opts.format,
+        to,
         images,
         read,
     };
-    Ok(stereo_io::export_dataset(&opts.dataset, &opts.out, &to)?)
+    let written = stereo_io::export_dataset(&opts.dataset, &opts.out, &options)?;
+    Ok(ExportSummary::Layout {
+        format: to,
+        written,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_and_formats_parse() {
+        assert_eq!(parse_bytes("1GiB"), Ok(1 << 30));
+        assert_eq!(parse_bytes("500MB"), Ok(500_000_000));
+        assert_eq!(parse_bytes("1.5 KiB"), Ok(1536));
+        assert_eq!(parse_bytes("4096"), Ok(4096));
+        for bad in ["", "GiB", "1 parsec", "0", "-1MB"] {
+            assert!(parse_bytes(bad).is_err(), "{bad}");
+        }
+        assert_eq!("webdataset".parse(), Ok(ExportFormat::WebDataset));
+        assert_eq!(
+            "kitti".parse(),
+            Ok(ExportFormat::Layout(WritableFormat::Kitti2015))
+        );
+        let e = "tfrecord".parse::<ExportFormat>().unwrap_err();
+        assert!(e.contains("webdataset"), "{e}");
+    }
 }
