@@ -88,6 +88,46 @@ pub fn stereogen_bin() -> PathBuf {
     bin
 }
 
+/// `stereogen ARGS` as every test runs it: the binary built next to the test, no stdin, and none
+/// of the environment that steers a run from outside (`STEREOGEN_FAULT`, `STEREOGEN_SHARD`); a
+/// test that wants them sets them on the command.
+pub fn stereogen_cmd<I, S>(args: I) -> std::process::Command
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    let mut c = std::process::Command::new(stereogen_bin());
+    c.args(args)
+        .stdin(std::process::Stdio::null())
+        .env_remove("STEREOGEN_FAULT")
+        .env_remove("STEREOGEN_SHARD");
+    c
+}
+
+/// `stereogen generate` of `count` samples of `recipe` (a preset name or a recipe file) into
+/// `out`, with one Cycles thread and no progress bar; add `--seed`, `--shard`, ... to it.
+pub fn generate_cmd(
+    recipe: impl AsRef<std::ffi::OsStr>,
+    out: &std::path::Path,
+    count: u64,
+) -> std::process::Command {
+    let mut c = stereogen_cmd(["generate", "--no-progress", "--threads", "1"]);
+    c.arg("--count")
+        .arg(count.to_string())
+        .arg("--recipe")
+        .arg(recipe)
+        .arg("--out")
+        .arg(out);
+    c
+}
+
+/// `stereogen audit DATASET` with one thread; add `--check`, `--all`, ... to it.
+pub fn audit_cmd(dataset: &std::path::Path) -> std::process::Command {
+    let mut c = stereogen_cmd(["audit"]);
+    c.arg(dataset).args(["--threads", "1"]);
+    c
+}
+
 /// A preset shrunk so a sample renders in about a second: 64×48, 2 samples, few objects.
 pub fn tiny_recipe(preset: &str) -> Recipe {
     let mut r = Recipe::preset(preset).expect("preset");
@@ -132,15 +172,7 @@ fn tiny_generate(
 ) -> (std::process::Command, PathBuf) {
     let recipe = write_tiny_recipe(dir, preset);
     let out = dir.join(name);
-    let mut c = std::process::Command::new(stereogen_bin());
-    c.args(["generate", "--no-progress", "--threads", "1", "--count"])
-        .arg(count.to_string())
-        .arg("--recipe")
-        .arg(&recipe)
-        .arg("--out")
-        .arg(&out)
-        .stdin(std::process::Stdio::null());
-    (c, out)
+    (generate_cmd(&recipe, &out, count), out)
 }
 
 /// Renders `count` scenes of the tiny version of `preset` with the real CLI into `dir/<name>`.
@@ -154,7 +186,6 @@ pub fn generate_tiny_preset(
     let (mut c, out) = tiny_generate(dir, preset, name, count);
     let o = c
         .args(["--seed", &seed.to_string()])
-        .env_remove("STEREOGEN_FAULT")
         .output()
         .expect("run stereogen");
     assert!(

@@ -166,6 +166,39 @@ fn check_fetched(path: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// An OBJ must be text with at least one vertex, every vertex three finite numbers: a file of
+/// other bytes imports as nothing and a NaN vertex poisons the object's bounds, so both are
+/// refused here (listed in `skipped_assets.jsonl`) rather than left to be drawn.
+fn check_obj(path: &Path) -> Result<(), String> {
+    if !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj"))
+    {
+        return Ok(());
+    }
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read it: {e}"))?;
+    let text = std::str::from_utf8(&bytes).map_err(|_| "not an OBJ: not text".to_string())?;
+    let mut vertices = 0;
+    for (number, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        if words.next() != Some("v") {
+            continue;
+        }
+        vertices += 1;
+        let xyz: Vec<f64> = words.take(3).filter_map(|w| w.parse().ok()).collect();
+        if xyz.len() < 3 || !xyz.iter().all(|c| c.is_finite()) {
+            return Err(format!(
+                "not a usable OBJ: the vertex on line {} is not three finite numbers",
+                number + 1
+            ));
+        }
+    }
+    if vertices == 0 {
+        return Err("not a usable OBJ: no vertices".into());
+    }
+    Ok(())
+}
+
 /// Indexes every mesh file under `root`.
 pub fn index_mesh_folder(
     root: &Path,
@@ -178,7 +211,8 @@ pub fn index_mesh_folder(
         .display()
         .to_string();
     let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) =
-        cached(home, "meshes", &key, &tree_stamp(root), || {
+        // "meshes-obj-checked": indexes cached before OBJ files were checked are not reused.
+        cached(home, "meshes-obj-checked", &key, &tree_stamp(root), || {
             let mut found = Vec::new();
             let mut skipped = Vec::new();
             for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
@@ -193,7 +227,7 @@ pub fn index_mesh_folder(
                     });
                     continue;
                 }
-                if let Err(reason) = check_fetched(entry.path()) {
+                if let Err(reason) = check_fetched(entry.path()).and_then(|()| check_obj(entry.path())) {
                     skipped.push(SkippedAsset {
                         path: entry.path().to_path_buf(),
                         reason,
@@ -260,6 +294,51 @@ mod tests {
                 .0
                 .len(),
             3
+        );
+    }
+
+    #[test]
+    fn broken_objs_in_a_mesh_folder_are_skipped_with_the_reason() {
+        let root = tempfile::tempdir().unwrap();
+        let home = tempfile::tempdir().unwrap();
+        let tetra = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n";
+        std::fs::write(root.path().join("good.obj"), tetra).unwrap();
+        std::fs::write(
+            root.path().join("nan.obj"),
+            tetra.replace("v 1 0 0", "v nan 0 0"),
+        )
+        .unwrap();
+        std::fs::write(
+            root.path().join("noise.obj"),
+            [0xff_u8, 0xfe, 0x00, 0x81, 0x13, 0x37],
+        )
+        .unwrap();
+        std::fs::write(root.path().join("faces_only.obj"), "f 1 2 3\n").unwrap();
+        let (found, skipped) = index_mesh_folder(root.path(), home.path()).unwrap();
+        assert_eq!(
+            found
+                .iter()
+                .map(|m| m.path.file_name().unwrap())
+                .collect::<Vec<_>>(),
+            ["good.obj"]
+        );
+        let reasons: BTreeMap<String, String> = skipped
+            .iter()
+            .map(|s| {
+                (
+                    s.path.file_name().unwrap().to_string_lossy().into_owned(),
+                    s.reason.clone(),
+                )
+            })
+            .collect();
+        assert!(
+            reasons["nan.obj"].contains("line 2 is not three finite numbers"),
+            "{reasons:?}"
+        );
+        assert!(reasons["noise.obj"].contains("not text"), "{reasons:?}");
+        assert!(
+            reasons["faces_only.obj"].contains("no vertices"),
+            "{reasons:?}"
         );
     }
 

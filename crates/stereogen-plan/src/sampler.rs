@@ -399,6 +399,26 @@ impl DrawnFrom<'_> {
     }
 }
 
+/// The folder a draw of a mesh source takes its files from. `meshes` reads the mesh folder.
+/// `shapenet` (what the presets' object categories draw) reads the ShapeNet folder, or the mesh
+/// folder when only that is given; with both, each draw takes one of the two with equal chance,
+/// so a small folder of one's own is not drowned by ShapeNet's tens of thousands of models.
+/// The coin is tossed only when both folders have files, so other plans do not move.
+fn mesh_folder<'a, R: Rng>(
+    assets: &'a AssetIndex,
+    source: ShapeSource,
+    rng: &mut R,
+) -> (ShapeSource, &'a [MeshAsset]) {
+    let shapenet = (ShapeSource::Shapenet, assets.shapenet.as_slice());
+    let meshes = (ShapeSource::Meshes, assets.meshes.as_slice());
+    match source {
+        ShapeSource::Shapenet if assets.shapenet.is_empty() => meshes,
+        ShapeSource::Shapenet if !assets.meshes.is_empty() && rng.random_bool(0.5) => meshes,
+        ShapeSource::Shapenet => shapenet,
+        _ => meshes,
+    }
+}
+
 /// A mesh source without files falls back to the pack's meshes (a `pack_mesh_share` of the
 /// time, when the index has them) and to the built-in procedural primitives otherwise.
 fn shape_pool<'a, R: Rng>(
@@ -407,13 +427,12 @@ fn shape_pool<'a, R: Rng>(
     source: ShapeSource,
     rng: &mut R,
 ) -> DrawnFrom<'a> {
-    let files = match source {
-        ShapeSource::Shapenet => &assets.shapenet,
-        ShapeSource::Meshes => &assets.meshes,
-        other => return DrawnFrom::Procedural(other),
-    };
+    if !matches!(source, ShapeSource::Shapenet | ShapeSource::Meshes) {
+        return DrawnFrom::Procedural(source);
+    }
+    let (folder, files) = mesh_folder(assets, source, rng);
     if !files.is_empty() {
-        return DrawnFrom::Files(source, files);
+        return DrawnFrom::Files(folder, files);
     }
     // The draw is taken only when the pack is there, so plans without it do not move.
     if !assets.pack_meshes.is_empty() && rng.random_bool(recipe.sources.pack_mesh_share) {

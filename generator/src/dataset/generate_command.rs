@@ -30,7 +30,10 @@ pub struct RecipeArgs {
     /// ShapeNetCore root (v1 or v2 layout); overrides the recipe's `sources.shapenet`.
     #[arg(long, value_name = "DIR")]
     pub shapenet: Option<PathBuf>,
-    /// A folder of meshes (OBJ, GLB/GLTF, PLY, STL, OFF); overrides `sources.meshes`.
+    /// A folder of meshes (OBJ, GLB/GLTF, PLY, STL, OFF); overrides `sources.meshes`. The presets'
+    /// object categories (which draw `shapenet`) take their meshes from it when no --shapenet is
+    /// given; with both, each object draws from one of the two folders with equal chance. Broken
+    /// files are skipped and listed in skipped_assets.jsonl.
     #[arg(long, value_name = "DIR")]
     pub meshes: Option<PathBuf>,
     /// A folder of photos used as textures; overrides `sources.textures`.
