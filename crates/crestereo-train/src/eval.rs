@@ -40,7 +40,7 @@ impl Default for EvalOptions {
             limit: 0,
             fg_masks: None,
             boundary_px: 4,
-            lr_tolerance_px: 1.0,
+            lr_tolerance_px: stereo_io::LEFT_RIGHT_TOLERANCE_PX,
         }
     }
 }
@@ -108,24 +108,7 @@ pub fn nonocc_mask(sample: &StereoSample, tolerance: f32) -> Option<NonOccMask> 
         });
     }
     let right = sample.disp_right.as_ref()?;
-    let left = &sample.disp_left;
-    let (w, h) = (left.width, left.height);
-    let mut mask = vec![false; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            if !left.valid[i] {
-                continue;
-            }
-            let d = left.data[i];
-            let xr = (x as f32 - d).round();
-            if xr < 0.0 || xr >= w as f32 {
-                continue;
-            }
-            let j = y * w + xr as usize;
-            mask[i] = right.valid[j] && (right.data[j] - d).abs() <= tolerance;
-        }
-    }
+    let mask = sample.disp_left.left_right_consistent(right, tolerance);
     Some(NonOccMask {
         mask,
         source: NonOccSource::LeftRightCheck,
