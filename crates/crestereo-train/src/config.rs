@@ -17,6 +17,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
+use stereo_io::DatasetFormat;
+
 use crate::augment::AugmentConfig;
 use crate::schedule::LrScheduleConfig;
 
@@ -174,10 +176,10 @@ impl Default for LogSettings {
 #[serde(deny_unknown_fields)]
 pub struct DatasetEntry {
     pub path: PathBuf,
-    /// A stereo-io format name (`stereogen`, `crestereo`, `sceneflow`, `middlebury`, …); detected
-    /// from the layout when absent.
-    #[serde(default)]
-    pub format: Option<String>,
+    /// A stereo-io layout (`stereogen`, `crestereo`, `sceneflow`, `middlebury`, `webdataset`, …);
+    /// detected from the files when absent. Checked when the file is read.
+    #[serde(default, with = "format_name")]
+    pub format: Option<DatasetFormat>,
     /// Relative sampling weight (any positive number; normalised over the list).
     #[serde(default = "one")]
     pub weight: f64,
@@ -192,8 +194,8 @@ fn one() -> f64 {
 #[serde(deny_unknown_fields)]
 pub struct ValidationSettings {
     pub path: PathBuf,
-    #[serde(default)]
-    pub format: Option<String>,
+    #[serde(default, with = "format_name")]
+    pub format: Option<DatasetFormat>,
     /// Evaluate every this many steps (and at the end).
     #[serde(default = "default_val_every")]
     pub every: u64,
@@ -230,10 +232,61 @@ fn default_val_stages() -> usize {
     2
 }
 
-/// A stereo-io layout name (`None` = detect from the files); `key` names the setting in errors.
-pub fn parse_format(name: Option<&str>, key: &str) -> Result<Option<stereo_io::DatasetFormat>> {
-    name.map(|f| f.parse().map_err(|e: String| anyhow::anyhow!("{key}: {e}")))
-        .transpose()
+/// A layout in the config as its stereo-io name; an unknown name fails the read of the file.
+mod format_name {
+    use serde::{Deserialize, Deserializer, Serializer};
+    use stereo_io::DatasetFormat;
+
+    pub fn serialize<S: Serializer>(f: &Option<DatasetFormat>, s: S) -> Result<S::Ok, S::Error> {
+        match f {
+            Some(f) => s.serialize_str(f.name()),
+            None => s.serialize_none(),
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<DatasetFormat>, D::Error> {
+        Option::<String>::deserialize(d)?
+            .map(|name| name.parse().map_err(serde::de::Error::custom))
+            .transpose()
+    }
+}
+
+/// Reads a config's text: a value that does not parse or check is one line naming its key
+/// path (`datasets[1].format`) and line.
+pub fn parse_config(text: &str) -> Result<TrainConfig> {
+    let cfg: TrainConfig = toml::from_str(text).map_err(|e| {
+        let at = e.span().map(|s| s.start.min(text.len()));
+        let line = at.map(|a| text[..a].lines().count().max(1));
+        let key = at.and_then(|a| key_path_at(text, a));
+        let place = match (line, key) {
+            (Some(l), Some(k)) => format!(" (line {l}, {k})"),
+            (Some(l), None) => format!(" (line {l})"),
+            _ => String::new(),
+        };
+        anyhow::anyhow!("{}{place}", e.message().trim())
+    })?;
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// The key path of the `key = value` line holding byte `at`: its table header (`[[datasets]]`
+/// counted into `datasets[i]`) and key.
+fn key_path_at(text: &str, at: usize) -> Option<String> {
+    let line_start = text[..at].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next()?;
+    let key = line.split_once('=')?.0.trim();
+    let mut table: Option<String> = None;
+    let mut counts = std::collections::HashMap::<&str, usize>::new();
+    for header in text[..line_start].lines().map(str::trim) {
+        if let Some(name) = header.strip_prefix("[[").and_then(|h| h.strip_suffix("]]")) {
+            let n = counts.entry(name.trim()).or_insert(0);
+            table = Some(format!("{}[{}]", name.trim(), *n));
+            *n += 1;
+        } else if let Some(name) = header.strip_prefix('[').and_then(|h| h.strip_suffix(']')) {
+            table = Some(name.trim().to_string());
+        }
+    }
+    Some(table.map_or_else(|| key.to_string(), |t| format!("{t}.{key}")))
 }
 
 impl TrainConfig {
@@ -241,22 +294,10 @@ impl TrainConfig {
     pub fn from_file(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read training config {}", path.display()))?;
-        let mut cfg: TrainConfig = toml::from_str(&text).map_err(|e| {
-            // One line: the message and where, rather than toml's multi-line snippet.
-            let line = e
-                .span()
-                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
-            let at = line.map_or(String::new(), |l| format!(" (line {l})"));
-            anyhow::anyhow!(
-                "training config {}{at}: {}",
-                path.display(),
-                e.message().trim()
-            )
-        })?;
+        let mut cfg =
+            parse_config(&text).with_context(|| format!("training config {}", path.display()))?;
         let base = path.parent().unwrap_or(Path::new("."));
         cfg.resolve_paths(base);
-        cfg.validate()
-            .with_context(|| format!("training config {}", path.display()))?;
         Ok(cfg)
     }
 
@@ -321,7 +362,6 @@ impl TrainConfig {
                     d.weight
                 );
             }
-            parse_format(d.format.as_deref(), &format!("datasets[{i}].format"))?;
         }
         Ok(())
     }
@@ -374,11 +414,10 @@ impl TrainConfig {
         if self.log.every == 0 {
             bail!("log.every must be at least 1");
         }
-        if let Some(v) = &self.validation {
-            if v.every == 0 || v.iters == 0 || !(1..=3).contains(&v.stages) {
-                bail!("validation: every and iters must be ≥ 1 and stages in 1..=3");
-            }
-            parse_format(v.format.as_deref(), "validation.format")?;
+        if let Some(v) = &self.validation
+            && (v.every == 0 || v.iters == 0 || !(1..=3).contains(&v.stages))
+        {
+            bail!("validation: every and iters must be ≥ 1 and stages in 1..=3");
         }
         Ok(())
     }
@@ -400,9 +439,7 @@ mod tests {
     use super::*;
 
     fn parse(text: &str) -> Result<TrainConfig> {
-        let cfg: TrainConfig = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
-        cfg.validate()?;
-        Ok(cfg)
+        parse_config(text)
     }
 
     #[test]
@@ -434,6 +471,27 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("datasets[0].format"), "{e}");
+        // Typed when read: the entry it is in, counted, and the validation table too.
+        let e =
+            parse("[[datasets]]\npath = \"a\"\n[[datasets]]\npath = \"b\"\nformat = \"kitty\"\n")
+                .unwrap_err()
+                .to_string();
+        assert!(
+            e.contains("datasets[1].format") && e.contains("kitty"),
+            "{e}"
+        );
+        let e = parse("[[datasets]]\npath = \"a\"\n[validation]\npath = \"v\"\nformat = \"x\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("validation.format") && e.contains("line 5"),
+            "{e}"
+        );
+        let cfg = parse("[[datasets]]\npath = \"a\"\nformat = \"webdataset\"\n").unwrap();
+        assert_eq!(
+            cfg.datasets[0].format,
+            Some(stereo_io::DatasetFormat::WebDataset)
+        );
         let e = parse("iters = 3\n[[datasets]]\npath = \"a\"\n")
             .unwrap_err()
             .to_string();

@@ -21,7 +21,7 @@ use rand_chacha::ChaCha8Rng;
 use stereo_io::{StereoDataset, open_dataset};
 
 use crate::augment::{AugmentConfig, TrainSample, augment_random};
-use crate::config::{DatasetEntry, parse_format};
+use crate::config::DatasetEntry;
 
 /// The training datasets, opened, with their normalised weights.
 pub struct MixedSource {
@@ -35,7 +35,7 @@ impl MixedSource {
         let mut datasets = Vec::new();
         let mut names = Vec::new();
         for (i, e) in entries.iter().enumerate() {
-            let ds = open_data(&e.path, e.format.as_deref(), &format!("datasets[{i}]"))?;
+            let ds = open_data(&e.path, e.format, &format!("datasets[{i}]"))?;
             names.push(format!(
                 "{} ({}, {} samples)",
                 e.path.display(),
@@ -55,8 +55,11 @@ impl MixedSource {
 }
 
 /// Opens a dataset that must hold samples; `key` names it in errors (`datasets[0]`, `--data`).
-pub fn open_data(path: &Path, format: Option<&str>, key: &str) -> Result<Box<dyn StereoDataset>> {
-    let format = parse_format(format, &format!("{key}.format"))?;
+pub fn open_data(
+    path: &Path,
+    format: Option<stereo_io::DatasetFormat>,
+    key: &str,
+) -> Result<Box<dyn StereoDataset>> {
     let ds = open_dataset(path, format)
         .with_context(|| format!("{key}: cannot open {}", path.display()))?;
     if ds.is_empty() {

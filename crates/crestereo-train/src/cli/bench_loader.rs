@@ -171,7 +171,7 @@ mod tests {
     fn data_spec_and_thread_counts() {
         let d = parse_data("/data/mb:middlebury").unwrap();
         assert_eq!(d.path, std::path::Path::new("/data/mb"));
-        assert_eq!(d.format.as_deref(), Some("middlebury"));
+        assert_eq!(d.format, Some(stereo_io::DatasetFormat::Middlebury));
         assert_eq!(parse_data("/data/ours").unwrap().format, None);
         assert_eq!(thread_counts(Some(&[4, 1, 4, 2])).unwrap(), [1, 2, 4]);
         assert!(thread_counts(Some(&[0, 2])).is_err());

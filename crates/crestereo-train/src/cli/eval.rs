@@ -17,7 +17,7 @@ pub struct EvalArgs {
     pub data: PathBuf,
     /// Force the dataset layout instead of detecting it.
     #[arg(long)]
-    pub format: Option<String>,
+    pub format: Option<stereo_io::DatasetFormat>,
     /// Weights: .pt/.pth (reference), .mpk, a checkpoint directory, or a run (newest checkpoint).
     #[arg(long, env = "CRESTEREO_WEIGHTS")]
     pub weights: Option<PathBuf>,
@@ -92,7 +92,7 @@ fn options(a: &EvalArgs) -> Result<EvalOptions> {
 }
 
 pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
-    let dataset = crestereo_train::data::open_data(&a.data, a.format.as_deref(), "--data")?;
+    let dataset = crestereo_train::data::open_data(&a.data, a.format, "--data")?;
     let evaluated = load_model::<B>(a, device)?;
     let opts = options(a)?;
     let bar = ProgressBar::new(0);

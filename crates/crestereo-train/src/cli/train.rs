@@ -85,7 +85,13 @@ pub(super) fn parse_data(spec: &str) -> Result<DatasetEntry> {
         None => (spec, 1.0),
     };
     let (path, format) = match rest.rsplit_once(':') {
-        Some((p, f)) if !f.contains('/') => (p, Some(f.to_string())),
+        Some((p, f)) if !f.contains('/') => (
+            p,
+            Some(
+                f.parse()
+                    .map_err(|e: String| anyhow::anyhow!("--data {spec}: {e}"))?,
+            ),
+        ),
         _ => (rest, None),
     };
     let path = std::path::absolute(path).with_context(|| format!("--data {spec}"))?;
@@ -246,7 +252,10 @@ mod tests {
             (PathBuf::from("/x/ours"), None, 98.0)
         );
         let d = parse_data("/x/mb:middlebury@2").unwrap();
-        assert_eq!((d.format.as_deref(), d.weight), (Some("middlebury"), 2.0));
+        assert_eq!(
+            (d.format, d.weight),
+            (Some(stereo_io::DatasetFormat::Middlebury), 2.0)
+        );
         assert!(
             parse_data("/x@abc")
                 .unwrap_err()

@@ -227,7 +227,7 @@ impl Validation {
         let Some(settings) = &cfg.validation else {
             return Ok(None);
         };
-        let data = open_data(&settings.path, settings.format.as_deref(), "validation")?;
+        let data = open_data(&settings.path, settings.format, "validation")?;
         Ok(Some(Self {
             settings: settings.clone(),
             data,
