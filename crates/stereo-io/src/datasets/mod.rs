@@ -328,6 +328,18 @@ fn same_size(path: &Path, what: &str, got: (usize, usize), want: (usize, usize))
     Ok(())
 }
 
+/// The error for a sample index past the end of `dataset`.
+pub(crate) fn out_of_range(dataset: &dyn StereoDataset, index: usize) -> Error {
+    Error::format(
+        dataset.root(),
+        format!(
+            "sample index {index} is out of range: the {} dataset has {} samples",
+            dataset.format(),
+            dataset.len()
+        ),
+    )
+}
+
 impl StereoDataset for FileListDataset {
     fn format(&self) -> DatasetFormat {
         self.format
@@ -342,16 +354,10 @@ impl StereoDataset for FileListDataset {
         self.samples.get(index).map(|s| s.id.as_str())
     }
     fn sample(&self, index: usize) -> Result<StereoSample> {
-        let f = self.samples.get(index).ok_or_else(|| {
-            Error::format(
-                &self.root,
-                format!(
-                    "sample index {index} is out of range: the {} dataset has {} samples",
-                    self.format,
-                    self.samples.len()
-                ),
-            )
-        })?;
+        let f = self
+            .samples
+            .get(index)
+            .ok_or_else(|| out_of_range(self, index))?;
         // The files are independent: decode them on parallel threads (a sample is 4+ files of
         // which each decoder uses about one core).
         let (left, right, disp_left, disp_right, masks) = std::thread::scope(|sc| {

@@ -204,12 +204,10 @@ impl StereoDataset for WebDataset {
     }
 
     fn sample(&self, index: usize) -> Result<StereoSample> {
-        let s = self.samples.get(index).ok_or_else(|| {
-            Error::format(
-                &self.root,
-                format!("no sample {index} (it has {})", self.len()),
-            )
-        })?;
+        let s = self
+            .samples
+            .get(index)
+            .ok_or_else(|| crate::datasets::out_of_range(self, index))?;
         let need = |suffix: &str| -> Result<(Vec<u8>, PathBuf)> {
             let path = self.member_path(s, suffix);
             let bytes = self
