@@ -128,6 +128,47 @@ pub fn audit_cmd(dataset: &std::path::Path) -> std::process::Command {
     c
 }
 
+/// `stereogen export DATASET --format FORMAT --out OUT`; add `--force`, `--jpeg`, ... to it.
+pub fn export_cmd(
+    dataset: &std::path::Path,
+    format: &str,
+    out: &std::path::Path,
+) -> std::process::Command {
+    let mut c = stereogen_cmd(["export"]);
+    c.arg(dataset).args(["--format", format, "--out"]).arg(out);
+    c
+}
+
+/// `stereogen stats DATASET`; add `--check`, `--verify`, `--out`, ... to it.
+pub fn stats_cmd(dataset: &std::path::Path) -> std::process::Command {
+    let mut c = stereogen_cmd(["stats"]);
+    c.arg(dataset);
+    c
+}
+
+/// `stereogen farm SCHEDULER` of `count` samples in `tasks` tasks of `recipe` into `out`, with
+/// one Cycles thread and the `stereogen` binary under test; add `--seed`, ... to it.
+pub fn farm_cmd(
+    scheduler: &str,
+    recipe: &std::path::Path,
+    out: &std::path::Path,
+    count: u64,
+    tasks: u64,
+) -> std::process::Command {
+    let mut c = stereogen_cmd(["farm", scheduler, "--threads", "1"]);
+    c.arg("--count")
+        .arg(count.to_string())
+        .arg("--tasks")
+        .arg(tasks.to_string())
+        .arg("--recipe")
+        .arg(recipe)
+        .arg("--out")
+        .arg(out)
+        .arg("--stereogen")
+        .arg(stereogen_bin());
+    c
+}
+
 /// A preset shrunk so a sample renders in about a second: 64×48, 2 samples, few objects.
 pub fn tiny_recipe(preset: &str) -> Recipe {
     let mut r = Recipe::preset(preset).expect("preset");

@@ -3,14 +3,13 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::process::Command;
 
 use stereogen::dataset::Manifest;
 use stereogen::plan::recipe::ShapeSource;
 use stereogen::plan::{BaseColor, MaterialSpec, SceneSpec, Shape};
 use stereogen::render::RenderService;
 use stereogen_e2e::scenes::{base, object, plane};
-use stereogen_e2e::{stereogen_bin, tiny_recipe, worker_config};
+use stereogen_e2e::{generate_cmd, tiny_recipe, worker_config};
 
 const CUBE_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n\
 f 1 2 3 4\nf 5 8 7 6\nf 1 5 6 2\nf 2 6 7 3\nf 3 7 8 4\nf 5 1 4 8\n";
@@ -133,21 +132,8 @@ fn every_mesh_format_loads_and_broken_candidates_fall_back() {
 }
 
 fn generate(recipe: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
-    Command::new(stereogen_bin())
-        .args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--seed",
-            "3",
-            "--count",
-            "3",
-            "--recipe",
-        ])
-        .arg(recipe)
-        .arg("--out")
-        .arg(out)
+    generate_cmd(recipe, out, 3)
+        .args(["--seed", "3"])
         .args(extra)
         .output()
         .unwrap()

@@ -5,13 +5,13 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 
 use serde_json::Value;
 use stereo_io::DisparityMap;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::recipe::PRESETS;
-use stereogen_e2e::{sha256_hex, stereogen_bin};
+use stereogen_e2e::{audit_cmd, sha256_hex};
 
 /// With seed 3 the first 8 scenes of the tiny `crestereo` mix cover all four categories.
 const MIX_SCENES: u64 = 8;
@@ -22,12 +22,9 @@ fn generate(dir: &Path, preset: &str, count: u64, seed: u64) -> PathBuf {
 }
 
 fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
-    let o = Command::new(stereogen_bin())
-        .arg("audit")
-        .arg(data)
-        .args(["--all", "--every-pixel", "--check", "--threads", "1"])
+    let o = audit_cmd(data)
+        .args(["--all", "--every-pixel", "--check"])
         .args(extra)
-        .stdin(Stdio::null())
         .output()
         .unwrap();
     let text = format!(

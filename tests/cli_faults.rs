@@ -3,17 +3,14 @@
 //! like success.
 
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 use std::time::{Duration, Instant};
 
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{generate_cmd, stereogen_cmd, write_tiny_recipe};
 
 fn stereogen<S: AsRef<std::ffi::OsStr>>(args: &[S], dir: &Path) -> Output {
-    Command::new(stereogen_bin())
-        .args(args)
+    stereogen_cmd(args)
         .current_dir(dir)
-        .env_remove("STEREOGEN_FAULT")
-        .stdin(Stdio::null())
         .output()
         .expect("run stereogen")
 }
@@ -98,28 +95,13 @@ fn failures_are_forgotten_once_rendered_and_broken_files_fail_stats() {
     let dir = tempfile::tempdir().unwrap();
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let generate = |fault: Option<&str>| {
-        let mut c = Command::new(stereogen_bin());
-        c.args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--seed",
-            "4",
-            "--count",
-            "3",
-            "--retries",
-            "0",
-            "--recipe",
-        ])
-        .arg(&recipe)
-        .args(["--out", "data"])
-        .current_dir(dir.path());
-        c.env_remove("STEREOGEN_FAULT");
+        let mut c = generate_cmd(&recipe, Path::new("data"), 3);
+        c.args(["--seed", "4", "--retries", "0"])
+            .current_dir(dir.path());
         if let Some(f) = fault {
             c.env("STEREOGEN_FAULT", f);
         }
-        c.stdin(Stdio::null()).output().unwrap()
+        c.output().unwrap()
     };
     let o = generate(Some("crash-always@1"));
     assert!(!o.status.success());
@@ -176,12 +158,9 @@ fn failures_are_forgotten_once_rendered_and_broken_files_fail_stats() {
 #[test]
 fn plan_stdout_is_only_the_scene_while_the_pack_installs() {
     let dir = tempfile::tempdir().unwrap();
-    let o = Command::new(stereogen_bin())
-        .args(["plan", "--seed", "3", "--index", "2"])
+    let o = stereogen_cmd(["plan", "--seed", "3", "--index", "2"])
         .current_dir(dir.path())
         .env("STEREOGEN_HOME", dir.path().join("fresh-home"))
-        .env_remove("STEREOGEN_FAULT")
-        .stdin(Stdio::null())
         .output()
         .expect("run stereogen");
     assert!(o.status.success(), "{}", stderr(&o));

@@ -4,7 +4,7 @@
 //! byte-identically.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use stereogen::assets::SkippedAsset;
 use stereogen::assets::pack::{FILES, PACKAGES, PackKind, ensure_installed, site_dir};
@@ -14,7 +14,7 @@ use stereogen::plan::spec::{BaseColor, MaterialSpec, SceneSpec};
 use stereogen::plan::{Recipe, plan_scene};
 use stereogen::render::RenderService;
 use stereogen::render::runtime::managed_python;
-use stereogen_e2e::{RenderedPair, stereogen_bin, tiny_recipe, worker_config};
+use stereogen_e2e::{RenderedPair, generate_cmd, stereogen_cmd, tiny_recipe, worker_config};
 
 /// The Python the tests' Blender runtime uses (it has pip), so setup installs no second Blender.
 fn python() -> PathBuf {
@@ -27,8 +27,7 @@ fn python() -> PathBuf {
 }
 
 fn stereogen(home: &Path, args: &[&str]) -> Output {
-    Command::new(stereogen_bin())
-        .args(args)
+    stereogen_cmd(args)
         .env("STEREOGEN_HOME", home)
         .env("STEREOGEN_PYTHON", python())
         .output()
@@ -275,28 +274,15 @@ fn a_dataset_records_its_asset_fingerprint_and_refuses_other_assets() {
     .unwrap();
     let recipe = stereogen_e2e::write_tiny_recipe(dir.path(), "crestereo");
     let out = dir.path().join("data");
-    let generate = |count: &str| {
-        Command::new(stereogen_bin())
-            .args([
-                "generate",
-                "--no-progress",
-                "--threads",
-                "1",
-                "--seed",
-                "4",
-                "--count",
-                count,
-                "--recipe",
-            ])
-            .arg(&recipe)
+    let generate = |count: u64| {
+        generate_cmd(&recipe, &out, count)
+            .args(["--seed", "4"])
             .arg("--textures")
             .arg(&photos)
-            .arg("--out")
-            .arg(&out)
             .output()
             .unwrap()
     };
-    let o = generate("1");
+    let o = generate(1);
     assert!(o.status.success(), "{}", text(&o));
     let info: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("dataset.json")).unwrap()).unwrap();
@@ -321,7 +307,7 @@ fn a_dataset_records_its_asset_fingerprint_and_refuses_other_assets() {
     image::RgbImage::from_pixel(16, 16, image::Rgb([1, 2, 3]))
         .save(photos.join("b.png"))
         .unwrap();
-    let o = generate("2");
+    let o = generate(2);
     let err = text(&o);
     assert!(!o.status.success(), "{err}");
     let last = err.trim().lines().last().unwrap();

@@ -4,25 +4,16 @@
 
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 
 use stereo_io::{DatasetFormat, DisparityMap, open_dataset};
-use stereogen_e2e::stereogen_bin;
+use stereogen_e2e::export_cmd;
 
 fn generate(dir: &Path) -> PathBuf {
     stereogen_e2e::generate_tiny_dataset(dir, "ours", 2, 3)
 }
 
 fn export(data: &Path, format: &str, out: &Path, extra: &[&str]) -> std::process::Output {
-    Command::new(stereogen_bin())
-        .arg("export")
-        .arg(data)
-        .args(["--format", format, "--out"])
-        .arg(out)
-        .args(extra)
-        .stdin(Stdio::null())
-        .output()
-        .unwrap()
+    export_cmd(data, format, out).args(extra).output().unwrap()
 }
 
 /// Same validity everywhere, and values within `tol` on valid pixels.

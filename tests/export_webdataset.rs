@@ -7,16 +7,11 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use stereo_io::{DatasetFormat, ImageEncoding, WritableFormat, create_writer, open_dataset};
-use stereogen_e2e::stereogen_bin;
+use stereogen_e2e::export_cmd;
 
 fn export(data: &Path, out: &Path, extra: &[&str]) -> Command {
-    let mut c = Command::new(stereogen_bin());
-    c.arg("export")
-        .arg(data)
-        .args(["--format", "webdataset", "--out"])
-        .arg(out)
-        .args(extra)
-        .stdin(Stdio::null());
+    let mut c = export_cmd(data, "webdataset", out);
+    c.args(extra);
     c
 }
 

@@ -15,7 +15,7 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
 use stereogen::dataset::Manifest;
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{farm_cmd, write_tiny_recipe};
 
 const TOOLS: &[&str] = &["openjd-cli==0.8.0", "kubernetes-validate==1.37.0"];
 
@@ -83,25 +83,8 @@ fn text(o: &Output) -> String {
 }
 
 fn farm(scheduler: &str, recipe: &Path, out: &Path) {
-    let o = Command::new(stereogen_bin())
-        .args([
-            "farm",
-            scheduler,
-            "--count",
-            "4",
-            "--tasks",
-            "2",
-            "--threads",
-            "1",
-            "--seed",
-            "4",
-            "--recipe",
-        ])
-        .arg(recipe)
-        .arg("--out")
-        .arg(out)
-        .arg("--stereogen")
-        .arg(stereogen_bin())
+    let o = farm_cmd(scheduler, recipe, out, 4, 2)
+        .args(["--seed", "4"])
         .output()
         .unwrap();
     assert!(o.status.success(), "farm {scheduler}: {}", text(&o));

@@ -12,31 +12,13 @@ use crestereo::CpuAutodiffBackend;
 use crestereo_train::config::{DatasetEntry, TrainConfig};
 use crestereo_train::train::{TrainOptions, train};
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
-
-fn stereogen(args: &[&str]) -> Command {
-    let mut c = Command::new(stereogen_bin());
-    c.args(args)
-        .stdin(Stdio::null())
-        .env_remove("STEREOGEN_FAULT")
-        .env_remove("STEREOGEN_SHARD");
-    c
-}
+use stereogen_e2e::{
+    audit_cmd, export_cmd, generate_cmd, stats_cmd, stereogen_cmd, write_tiny_recipe,
+};
 
 fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {
-    let mut c = stereogen(&[
-        "generate",
-        "--no-progress",
-        "--threads",
-        "1",
-        "--seed",
-        "9",
-        "--count",
-        &count.to_string(),
-        "--shard",
-        shard,
-    ]);
-    c.arg("--recipe").arg(recipe).arg("--out").arg(out);
+    let mut c = generate_cmd(recipe, out, count);
+    c.args(["--seed", "9", "--shard", shard]);
     c
 }
 
@@ -74,7 +56,7 @@ fn copy_tree(from: &Path, to: &Path) {
 }
 
 fn merge(out: &Path, verify: bool) -> Output {
-    let mut c = stereogen(&["merge"]);
+    let mut c = stereogen_cmd(["merge"]);
     c.arg(out);
     if verify {
         c.arg("--verify");
@@ -137,11 +119,7 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     }
 
     // Unmerged: readers say what to do instead of reading a part.
-    let o = run({
-        let mut c = stereogen(&["stats"]);
-        c.arg(&out);
-        c
-    });
+    let o = run(stats_cmd(&out));
     assert!(
         !o.status.success()
             && text(&o).contains("not merged yet")
@@ -150,7 +128,7 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
         text(&o)
     );
     let status = run({
-        let mut c = stereogen(&["status"]);
+        let mut c = stereogen_cmd(["status"]);
         c.arg(&out);
         c
     });
@@ -188,8 +166,8 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     );
     // The merged dataset reads like any other: stats --check, export, the stereo-io reader.
     let o = run({
-        let mut c = stereogen(&["stats", "--check"]);
-        c.arg(&out);
+        let mut c = stats_cmd(&out);
+        c.arg("--check");
         c
     });
     assert!(
@@ -198,11 +176,7 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
         text(&o)
     );
     let exported = dir.path().join("middlebury");
-    let o = run({
-        let mut c = stereogen(&["export", "--format", "middlebury", "--out"]);
-        c.arg(&exported).arg(&out);
-        c
-    });
+    let o = run(export_cmd(&out, "middlebury", &exported));
     assert!(
         o.status.success(),
         "export of the merged dataset: {}",
@@ -212,8 +186,8 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     train_two_steps_on(&out, &dir.path().join("train-run"));
     // The audit and the report take the merged dataset too (paths into the shards).
     let o = run({
-        let mut c = stereogen(&["audit", "--all", "--every-pixel", "--check"]);
-        c.arg(&out);
+        let mut c = audit_cmd(&out);
+        c.args(["--all", "--every-pixel", "--check"]);
         c
     });
     assert!(
@@ -223,7 +197,7 @@ fn shards_merge_into_one_dataset_and_broken_sets_list_each_problem() {
     );
     let report = dir.path().join("merged-report.html");
     let o = run({
-        let mut c = stereogen(&["report", "--out"]);
+        let mut c = stereogen_cmd(["report", "--out"]);
         c.arg(&report).arg(&out);
         c
     });
@@ -365,7 +339,7 @@ fn a_second_generate_fails_naming_the_holder_and_a_killed_holder_is_stale() {
     first.wait().unwrap();
     assert!(lock.exists());
     let status = text(&run({
-        let mut c = stereogen(&["status"]);
+        let mut c = stereogen_cmd(["status"]);
         c.arg(&out);
         c
     }));

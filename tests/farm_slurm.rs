@@ -12,7 +12,7 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen_e2e::{stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{farm_cmd, stats_cmd, write_tiny_recipe};
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/farm/slurm-cluster.sh");
 /// No farm round of this test takes near this long (one is about 20 s on 2 cores).
@@ -141,29 +141,8 @@ fn cluster_or_skip(dir: &Path) -> Option<Cluster> {
 
 /// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once.
 fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64) {
-    let o = Command::new(stereogen_bin())
-        .args([
-            "farm",
-            "slurm",
-            "--threads",
-            "1",
-            "--max-parallel",
-            "2",
-            "--seed",
-            "3",
-        ])
-        .args([
-            "--count",
-            &count.to_string(),
-            "--tasks",
-            &tasks.to_string(),
-            "--recipe",
-        ])
-        .arg(recipe)
-        .arg("--out")
-        .arg(out)
-        .arg("--stereogen")
-        .arg(stereogen_bin())
+    let o = farm_cmd("slurm", recipe, out, count, tasks)
+        .args(["--max-parallel", "2", "--seed", "3"])
         .output()
         .unwrap();
     assert!(
@@ -313,9 +292,8 @@ fn assert_plain_text_logs(out: &Path, tasks: u64) {
 }
 
 fn stats_check(out: &Path) -> Output {
-    Command::new(stereogen_bin())
-        .args(["stats", "--check"])
-        .arg(out)
+    stats_cmd(out)
+        .arg("--check")
         .arg("--out")
         .arg(out.join("stats-test"))
         .output()

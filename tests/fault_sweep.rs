@@ -11,12 +11,12 @@
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::render::scratch;
-use stereogen_e2e::{sha256_hex, stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{generate_cmd, sha256_hex, write_tiny_recipe};
 
 #[path = "../crates/stereo-io/tests/support/small_fs.rs"]
 #[macro_use]
@@ -117,25 +117,10 @@ impl Sweep {
             .dir
             .path()
             .join(format!("stderr-{}.txt", self.seen.runs.len()));
-        let child = Command::new(stereogen_bin())
-            .args([
-                "generate",
-                "--no-progress",
-                "--threads",
-                "1",
-                "--seed",
-                "3",
-                "--count",
-                &count.to_string(),
-                "--recipe",
-            ])
-            .arg(&self.recipe)
-            .arg("--out")
-            .arg(out)
+        let child = generate_cmd(&self.recipe, out, count)
+            .args(["--seed", "3"])
             .args(extra)
-            .env_remove("STEREOGEN_FAULT")
             .env_remove(scratch::SCRATCH_ENV)
-            .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(std::fs::File::create(&stderr).unwrap())
             .spawn()

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::plan::recipe::PRESETS;
-use stereogen_e2e::{sha256_hex, stereogen_bin, write_tiny_recipe};
+use stereogen_e2e::{sha256_hex, stereogen_cmd, write_tiny_recipe};
 
 /// The default preset shrunk so a sample renders in about a second.
 fn tiny_recipe(dir: &Path) -> PathBuf {
@@ -21,22 +21,8 @@ fn generate_cmd(recipe: &Path, out: &Path, count: u64) -> Command {
 }
 
 fn generate_with_seed(recipe: &Path, out: &Path, count: u64, seed: u64) -> Command {
-    let mut c = Command::new(stereogen_bin());
-    c.args([
-        "generate",
-        "--no-progress",
-        "--threads",
-        "1",
-        "--seed",
-        &seed.to_string(),
-        "--count",
-        &count.to_string(),
-        "--recipe",
-    ])
-    .arg(recipe)
-    .arg("--out")
-    .arg(out)
-    .env_remove("STEREOGEN_FAULT");
+    let mut c = stereogen_e2e::generate_cmd(recipe, out, count);
+    c.args(["--seed", &seed.to_string()]);
     c
 }
 
@@ -288,13 +274,7 @@ fn a_dataset_refuses_another_seed_or_recipe() {
 
 #[test]
 fn plan_is_byte_identical_across_processes() {
-    let plan = || {
-        run({
-            let mut c = Command::new(stereogen_bin());
-            c.args(["plan", "--seed", "9", "--index", "41"]);
-            c
-        })
-    };
+    let plan = || run(stereogen_cmd(["plan", "--seed", "9", "--index", "41"]));
     let (a, b) = (plan(), plan());
     assert!(a.status.success());
     assert!(!a.stdout.is_empty());

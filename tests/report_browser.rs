@@ -12,17 +12,14 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen_e2e::{generate_tiny_dataset, stereogen_bin};
+use stereogen_e2e::{generate_tiny_dataset, stereogen_cmd};
 
 const SCENES: u64 = 8;
 const THUMBNAILS: usize = 6;
 
 fn run(args: &[&str], paths: &[&Path]) -> (Output, String) {
-    let mut c = Command::new(stereogen_bin());
-    c.args(args)
-        .args(paths)
-        .env_remove("STEREOGEN_FAULT")
-        .stdin(Stdio::null());
+    let mut c = stereogen_cmd(args);
+    c.args(paths);
     let o = c.output().unwrap();
     let text = format!(
         "{}{}",

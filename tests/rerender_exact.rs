@@ -179,7 +179,6 @@ fn re_rendering_a_boolean_heavy_spec_stays_within_the_stated_bound() {
 #[test]
 #[ignore = "measurement: minutes per sample; run explicitly"]
 fn re_rendering_default_preset_samples_measured() {
-    use std::process::Command;
     use stereogen::dataset::Manifest;
     let count: u64 = std::env::var("STEREOGEN_RERENDER_COUNT")
         .ok()
@@ -187,8 +186,10 @@ fn re_rendering_default_preset_samples_measured() {
         .unwrap_or(20);
     let dir = tempfile::tempdir().unwrap();
     let first = dir.path().join("first");
-    let mut generate = Command::new(stereogen_e2e::stereogen_bin());
-    generate.args(["generate", "--no-progress", "--seed", "0", "--count"]);
+    // Not `generate_cmd`: a measurement at the default thread count, of the default recipe
+    // unless STEREOGEN_RERENDER_SIZE asks for another size.
+    let mut generate =
+        stereogen_e2e::stereogen_cmd(["generate", "--no-progress", "--seed", "0", "--count"]);
     generate.arg(count.to_string()).arg("--out").arg(&first);
     if let Ok(size) = std::env::var("STEREOGEN_RERENDER_SIZE") {
         let (w, h) = size.split_once('x').expect("STEREOGEN_RERENDER_SIZE=WxH");
@@ -215,8 +216,7 @@ fn re_rendering_default_preset_samples_measured() {
     );
     for e in &entries {
         let again = dir.path().join(format!("again-{}", e.index));
-        let o = Command::new(stereogen_e2e::stereogen_bin())
-            .arg("render")
+        let o = stereogen_e2e::stereogen_cmd(["render"])
             .arg("--spec")
             .arg(first.join(&e.files.scene))
             .arg("--out")

@@ -3,12 +3,11 @@
 use std::path::Path;
 use std::process::Command;
 
-use stereogen_e2e::stereogen_bin;
+use stereogen_e2e::stereogen_cmd;
 
 fn setup(home: &Path) -> Command {
-    let mut c = Command::new(stereogen_bin());
-    c.arg("setup")
-        .env("STEREOGEN_HOME", home)
+    let mut c = stereogen_cmd(["setup"]);
+    c.env("STEREOGEN_HOME", home)
         .env_remove("STEREOGEN_PYTHON")
         .env_remove("STEREOGEN_BOOTSTRAP_PYTHON");
     c

@@ -4,12 +4,12 @@
 //! must fail the check once its dataset.json claims a law it was not drawn from.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 
 use serde_json::Value;
 use stereogen::dataset::{DatasetInfo, Manifest};
 use stereogen::plan::Dist;
-use stereogen_e2e::stereogen_bin;
+use stereogen_e2e::stats_cmd;
 
 const SCENES: u64 = 24;
 
@@ -18,12 +18,9 @@ fn generate(dir: &Path) -> PathBuf {
 }
 
 fn stats(data: &Path, out: &Path) -> (Output, String) {
-    let o = Command::new(stereogen_bin())
-        .arg("stats")
-        .arg(data)
+    let o = stats_cmd(data)
         .args(["--check", "--plot", "--out"])
         .arg(out)
-        .stdin(Stdio::null())
         .output()
         .unwrap();
     let text = format!(

@@ -3,12 +3,11 @@
 //! lands in `failures.jsonl` with its Python traceback; rendered samples carry the worker's timings.
 
 use std::path::Path;
-use std::process::{Command, Stdio};
 
 use stereogen::dataset::Manifest;
 use stereogen::plan::spec::SPEC_FORMAT_VERSION;
 use stereogen::render::{Worker, WorkerError};
-use stereogen_e2e::{stereogen_bin, worker_config, write_tiny_recipe};
+use stereogen_e2e::{generate_cmd, worker_config, write_tiny_recipe};
 
 #[test]
 fn a_worker_that_reads_another_spec_version_is_refused_at_start() {
@@ -63,23 +62,9 @@ fn a_worker_that_reads_another_spec_version_is_refused_at_start() {
 }
 
 fn generate(recipe: &Path, out: &Path, fault: &str) -> std::process::Output {
-    Command::new(stereogen_bin())
-        .args([
-            "generate",
-            "--no-progress",
-            "--threads",
-            "1",
-            "--seed",
-            "3",
-            "--count",
-            "3",
-            "--recipe",
-        ])
-        .arg(recipe)
-        .arg("--out")
-        .arg(out)
+    generate_cmd(recipe, out, 3)
+        .args(["--seed", "3"])
         .env("STEREOGEN_FAULT", fault)
-        .stdin(Stdio::null())
         .output()
         .expect("run stereogen")
 }
