@@ -3,7 +3,7 @@
 //! like success.
 
 use std::path::Path;
-use std::process::Output;
+use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use stereogen_e2e::{generate_cmd, stereogen_cmd, write_tiny_recipe};
@@ -20,13 +20,10 @@ fn stderr(o: &Output) -> String {
 }
 
 /// Fails at once (no Blender started) with one line naming `expect`.
-fn assert_refused_at_once<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(
-    args: &[S],
-    dir: &Path,
-    expect: &str,
-) {
+fn assert_refused_at_once(mut c: Command, dir: &Path, expect: &str) {
+    let args: Vec<_> = c.get_args().map(|a| a.to_os_string()).collect();
     let t0 = Instant::now();
-    let o = stereogen(args, dir);
+    let o = c.current_dir(dir).output().expect("run stereogen");
     let err = stderr(&o);
     assert!(!o.status.success(), "{args:?} was accepted: {err}");
     assert!(err.contains(expect), "expected {expect:?} in: {err}");
@@ -41,31 +38,17 @@ fn assert_refused_at_once<S: AsRef<std::ffi::OsStr> + std::fmt::Debug>(
 fn impossible_arguments_are_refused_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
-    let recipe = recipe.to_str().unwrap();
-    let generate = |extra: &[&'static str]| -> Vec<String> {
-        [
-            "generate",
-            "--no-progress",
-            "--recipe",
-            recipe,
-            "--out",
-            "data",
-        ]
-        .iter()
-        .chain(extra)
-        .map(|s| s.to_string())
-        .collect()
+    let generate = |count: u64, extra: &[&str]| {
+        let mut c = generate_cmd(&recipe, Path::new("data"), count);
+        c.args(extra);
+        c
     };
     assert_refused_at_once(
-        &generate(&["--start", "18446744073709551613", "--count", "3"]),
+        generate(3, &["--start", "18446744073709551613"]),
         dir.path(),
         "the range ends past the largest index",
     );
-    assert_refused_at_once(
-        &generate(&["--count", "1", "--timeout", "0"]),
-        dir.path(),
-        "--timeout",
-    );
+    assert_refused_at_once(generate(1, &["--timeout", "0"]), dir.path(), "--timeout");
 
     let spec = stereogen(&["plan", "--seed", "1", "--index", "0"], dir.path());
     assert!(spec.status.success());
@@ -79,7 +62,7 @@ fn impossible_arguments_are_refused_before_any_work() {
         bad.as_object_mut().unwrap().remove("cameras");
         std::fs::write(dir.path().join("bad.json"), bad.to_string()).unwrap();
         assert_refused_at_once(
-            &["render", "--spec", "bad.json", "--out", "one"],
+            stereogen_cmd(["render", "--spec", "bad.json", "--out", "one"]),
             dir.path(),
             named,
         );
