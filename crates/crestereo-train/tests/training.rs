@@ -293,14 +293,16 @@ fn non_finite_losses_skip_the_step_and_are_logged() {
 fn overfits_a_single_batch() {
     let data = tempfile::tempdir().unwrap();
     dataset(data.path(), 1);
-    let mut cfg = tiny_config(data.path(), 150);
+    // 200 steps: at 150 the loss ended at 9.3-10.7% of the start across runs (float sums on a
+    // shared pool vary in their last bits with scheduling), too close to the bar to test it.
+    let mut cfg = tiny_config(data.path(), 200);
     cfg.batch_size = 1;
     cfg.accumulate = 1;
     // One fixed batch: no augmentation, the full 64×128 image every step.
     cfg.augment = AugmentConfig::none([64, 128]);
     cfg.schedule.lr = 1e-3;
     cfg.schedule.warmup_steps = 0;
-    cfg.schedule.decay_start = 150;
+    cfg.schedule.decay_start = 200;
     cfg.checkpoint.every = 1000;
     let run = tempfile::tempdir().unwrap();
     let out = train::<CpuAutodiffBackend>(
