@@ -3,6 +3,10 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+#[path = "support/short_run.rs"]
+#[allow(dead_code)]
+mod short_run;
+
 fn crestereo(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_crestereo"))
         .args(args)
@@ -50,19 +54,6 @@ fn train_then_eval_then_plot() {
         "--seed",
         "4",
     ]);
-    let small = [
-        "--crop",
-        "32x64",
-        "--iters",
-        "2",
-        "--batch-size",
-        "1",
-        "--accumulate",
-        "1",
-        "--no-progress",
-        "--threads",
-        "2",
-    ];
     let mut args = vec![
         "train",
         "--data",
@@ -78,7 +69,7 @@ fn train_then_eval_then_plot() {
         "--val-limit",
         "2",
     ];
-    args.extend(small);
+    args.extend(short_run::TINY_TRAINING);
     let text = ok(&args);
     assert!(text.contains("step 3 of 3"), "{text}");
     for f in [
