@@ -22,3 +22,8 @@ pub mod stats;
 
 pub use stats::stats_report::{CategoryStats, StatsReport, Status};
 pub use stats::{StatsOptions, compute, summary_lines, write_json};
+
+/// The width of a terminal summary's name column: the longest category name, at least 3 (`all`).
+pub(crate) fn name_column_width<'a>(names: impl Iterator<Item = &'a str>) -> usize {
+    names.map(str::len).max().unwrap_or(3).max(3)
+}

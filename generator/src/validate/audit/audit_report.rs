@@ -200,13 +200,7 @@ impl SampleAudit {
 
 /// The terminal summary: the categories, the overall line, failing samples by name, the verdict.
 pub fn summary_lines(report: &AuditReport) -> Vec<String> {
-    let w = report
-        .categories
-        .iter()
-        .map(|c| c.name.len())
-        .max()
-        .unwrap_or(3)
-        .max(3);
+    let w = crate::validate::name_column_width(report.categories.iter().map(|c| c.name.as_str()));
     let mut lines = vec![format!(
         "audit of {} ({} of {} samples, {} per sample, seed {})",
         report.dataset,

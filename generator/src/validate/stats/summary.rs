@@ -5,13 +5,7 @@ use super::stats_report::{StatsReport, Status};
 
 /// The terminal summary: one line per category, the overall line, read errors, and the verdict.
 pub fn summary_lines(report: &StatsReport) -> Vec<String> {
-    let w = report
-        .categories
-        .iter()
-        .map(|c| c.name.len())
-        .max()
-        .unwrap_or(3)
-        .max(3);
+    let w = crate::validate::name_column_width(report.categories.iter().map(|c| c.name.as_str()));
     let (lo, hi) = (report.law_support[0], report.law_support[1]);
     let mut lines = vec![format!(
         "stats of {} ({} samples, recipe {}, law on [{lo}, {hi}] px, KS alpha {})",
