@@ -7,6 +7,7 @@
 //! - [`train`]: the loop — sequence loss with a non-finite guard, gradient accumulation, Adam on
 //!   the [`schedule`], [`checkpoint`]s with exact resume, CSV and [`tensorboard`] logs.
 //! - [`eval`] and [`metrics`]: EPE, RMS, Bad-τ, D1, A50–A99, mxIoU over any dataset.
+//! - [`host_reads`]: counts the GPU backends' host reads (a step should wait only for its loss).
 //! - [`synthetic`]: analytic stereo pairs for tests and quick checks.
 
 pub mod augment;
@@ -14,6 +15,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod data;
 pub mod eval;
+pub mod host_reads;
 pub mod metrics;
 pub mod plot;
 pub mod schedule;

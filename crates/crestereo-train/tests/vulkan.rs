@@ -21,7 +21,6 @@ mod agcl_checks;
 #[path = "../../crestereo/tests/common/mod.rs"]
 mod common;
 
-use std::cell::Cell;
 use std::path::Path;
 use std::process::Command;
 use std::sync::OnceLock;
@@ -33,6 +32,7 @@ use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use common::network_checks;
 use crestereo::dispatch::{Kernels, kernels};
+use crestereo_train::host_reads::{HostReadCounter, count as reads};
 
 type W = Wgpu;
 type Wa = Autodiff<Wgpu>;
@@ -137,58 +137,6 @@ fn gradients_match_fixtures() {
     network_checks::assert_float32_gradients(&w);
 }
 
-thread_local! {
-    /// Host reads (`*_into_data` of the fusion backend) started on this thread.
-    static READS: Cell<usize> = const { Cell::new(0) };
-}
-
-/// Counts the backend's host reads: with Burn's `tracing` feature every `float_into_data`,
-/// `int_into_data` and `bool_into_data` of the fusion backend (the front of the wgpu and CUDA
-/// backends) opens a span, on the thread that asked for the data.
-struct ReadCounter;
-
-impl<S: tracing::Subscriber> tracing_subscriber::Layer<S> for ReadCounter {
-    fn register_callsite(
-        &self,
-        meta: &'static tracing::Metadata<'static>,
-    ) -> tracing::subscriber::Interest {
-        if is_read(meta) {
-            tracing::subscriber::Interest::always()
-        } else {
-            tracing::subscriber::Interest::never()
-        }
-    }
-
-    fn enabled(
-        &self,
-        meta: &tracing::Metadata<'_>,
-        _: tracing_subscriber::layer::Context<'_, S>,
-    ) -> bool {
-        is_read(meta)
-    }
-
-    fn on_new_span(
-        &self,
-        attrs: &tracing::span::Attributes<'_>,
-        _: &tracing::span::Id,
-        _: tracing_subscriber::layer::Context<'_, S>,
-    ) {
-        if is_read(attrs.metadata()) {
-            READS.with(|r| r.set(r.get() + 1));
-        }
-    }
-}
-
-fn is_read(meta: &tracing::Metadata<'_>) -> bool {
-    meta.is_span()
-        && meta.target().starts_with("burn_fusion")
-        && meta.name().ends_with("_into_data")
-}
-
-fn reads() -> usize {
-    READS.with(Cell::get)
-}
-
 /// Three Adam steps on the first sample of the fixture pair (reference weights, 2 iterations;
 /// one sample and two iterations keep lavapipe's share of CI small): the loss falls at every
 /// step, and the only host read of a step is its loss value.
@@ -198,8 +146,9 @@ fn training_steps_lower_the_loss_without_host_reads() {
         return;
     }
     use tracing_subscriber::layer::SubscriberExt;
-    let _ =
-        tracing::subscriber::set_global_default(tracing_subscriber::registry().with(ReadCounter));
+    let _ = tracing::subscriber::set_global_default(
+        tracing_subscriber::registry().with(HostReadCounter),
+    );
     // The counter sees reads only through the tracing callsites; check it does before relying
     // on a zero.
     let probe = Tensor::<W, 1>::from_floats([1.0, 2.0], &DEVICE);
@@ -270,7 +219,9 @@ fn training_steps_lower_the_loss_without_host_reads() {
 /// lavapipe with CUBECL_WGPU_DEFAULT_DEVICE=Cpu), against `crestereo infer --device cpu` on the
 /// fixture pair, both two-pass with 4 iterations (the Flex CLI is checked against the
 /// reference's 20-iteration prediction in `tests/cli.rs`, and the network on lavapipe against
-/// the fixtures above; 4 iterations keep lavapipe's share of CI small).
+/// the fixtures above; 4 iterations keep lavapipe's share of CI small). The Vulkan run is made
+/// twice with one kernel cache (`CRESTEREO_KERNEL_CACHE`): the first compiles, the second
+/// compiles nothing (CubeCL's compilation log counts the compilations) and gives the same bits.
 #[test]
 fn cli_infer_on_vulkan_matches_the_cpu() {
     if !lavapipe() {
@@ -279,8 +230,11 @@ fn cli_infer_on_vulkan_matches_the_cpu() {
     let fixtures = common::fixtures();
     let e = fixtures.join("eval_cascade_1x128x192");
     let out = tempfile::tempdir().unwrap();
-    let infer = |device: &str| {
-        let pfm = out.path().join(format!("disp_{device}.pfm"));
+    let cache = out.path().join("kernels");
+    let infer = |device: &str, run: usize| {
+        let pfm = out.path().join(format!("disp_{device}_{run}.pfm"));
+        let log = out.path().join(format!("cubecl_{device}_{run}.log"));
+        let t0 = std::time::Instant::now();
         let status = Command::new(env!("CARGO_BIN_EXE_crestereo"))
             .arg("infer")
             .args([e.join("left.png"), e.join("right.png")])
@@ -290,12 +244,41 @@ fn cli_infer_on_vulkan_matches_the_cpu() {
             .arg(fixtures.join("weights_seed0.pt"))
             .args(["--iters", "4", "--stages", "2", "--device", device])
             .env("CUBECL_WGPU_DEFAULT_DEVICE", "Cpu")
+            .env("CRESTEREO_KERNEL_CACHE", &cache)
+            .env("CUBECL_DEBUG_LOG", &log)
             .status()
             .unwrap();
         assert!(status.success(), "crestereo infer --device {device} failed");
-        stereo_io::read_disparity(&pfm, None).unwrap().0.data
+        let compiled = std::fs::read_to_string(&log)
+            .map(|l| l.matches("[START_KERNEL_COMPILATION]").count())
+            .unwrap_or(0);
+        println!(
+            "infer --device {device} (run {run}): {compiled} kernels compiled, {:.1} s",
+            t0.elapsed().as_secs_f64()
+        );
+        (
+            stereo_io::read_disparity(&pfm, None).unwrap().0.data,
+            compiled,
+        )
     };
-    let (vulkan, cpu) = (infer("vulkan"), infer("cpu"));
+    let (vulkan, compiled_cold) = infer("vulkan", 1);
+    let (vulkan_again, compiled_warm) = infer("vulkan", 2);
+    let (cpu, _) = infer("cpu", 1);
+    assert!(
+        compiled_cold > 0,
+        "the compilation log saw no kernel compiled on a cold cache"
+    );
+    assert_eq!(
+        compiled_warm, 0,
+        "kernels compiled again although the kernel cache held them"
+    );
+    assert!(
+        vulkan
+            .iter()
+            .zip(&vulkan_again)
+            .all(|(a, b)| a.to_bits() == b.to_bits()),
+        "cached kernels gave a different disparity"
+    );
     let (err, range) = common::max_err(&vulkan, &cpu);
     println!(
         "crestereo infer --device vulkan vs --device cpu: max |diff| = {err:.3e} (max |disparity| {range:.2})"

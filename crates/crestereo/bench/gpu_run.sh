@@ -10,8 +10,10 @@
 # OUT_DIR (default $OUT): summary.txt, results.json, the logs and the predictions.
 # DATA_DIR (optional): a small training dataset (any layout `crestereo train --data` reads, e.g.
 #   `crestereo synth --out D --count 64 --size 384x512`): 200 training steps on CUDA with their loss.
-# SIZES (env, default "small paper paper8 hd"): which sizes to time (hd = 1088x1920 inference,
-#   paper8 = the paper crop at batch 8). REPEATS (env, default 3).
+# SIZES (env, default "paper8 paper hd small", most wanted first): which sizes to time (hd =
+#   1088x1920 inference, paper8 = the paper crop at batch 8). REPEATS (env, default 3).
+# DEADLINE_S (env, default 480): the script's budget in seconds; a part that cannot start in
+#   time is skipped and said so, a running one is stopped at the deadline (what it wrote stays).
 # The whole script is made to fit one device call of at most 8 minutes on an H100/H200.
 set -uo pipefail
 BIN=$1
@@ -19,23 +21,48 @@ FIX=$2
 REF=$3
 OUT=${4:-${OUT:?give OUT_DIR or set OUT}}
 DATA=${5:-}
-SIZES=${SIZES:-small paper paper8 hd}
+SIZES=${SIZES:-paper8 paper hd small}
 REPEATS=${REPEATS:-3}
+DEADLINE=$(( $(date +%s) + ${DEADLINE_S:-480} ))
 mkdir -p "$OUT"
 SUMMARY=$OUT/summary.txt
 : >"$SUMMARY"
 say() { echo "$*" | tee -a "$SUMMARY"; }
+left() { echo $(( DEADLINE - $(date +%s) )); }
+# Runs "$@" with what is left of the budget as its limit; false (and said) when out of time.
+in_time() {
+    local l; l=$(left)
+    if [ "$l" -lt 15 ]; then say "   skipped (deadline): $*"; return 124; fi
+    timeout --kill-after=5 "$l" "$@"
+}
 chmod +x "$BIN" 2>/dev/null || true
 
 say "== machine"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$SUMMARY"
-python3 -c 'import torch; print("torch", torch.__version__, "cuda", torch.version.cuda)' | tee -a "$SUMMARY"
+# PyTorch's defaults are timed as they are: TF32 in cuDNN convolutions, fp32 matrix products.
+python3 -c 'import torch; b = torch.backends; print("torch", torch.__version__, "cuda", torch.version.cuda,
+    "cudnn.allow_tf32", b.cudnn.allow_tf32, "matmul.allow_tf32", b.cuda.matmul.allow_tf32)' | tee -a "$SUMMARY"
+
+# CubeCL compiles its kernels at run time with NVRTC and the toolkit's headers: CUDA_PATH (the
+# toolkit root, with include/) from nvcc when unset, libnvrtc from the toolkit or the pip wheels.
+if [ -z "${CUDA_PATH:-}" ] && command -v nvcc >/dev/null; then
+    CUDA_PATH=$(dirname "$(dirname "$(readlink -f "$(command -v nvcc)")")")
+    export CUDA_PATH
+fi
+for lib in libnvrtc.so libcuda.so.1; do
+    if ! ldconfig -p | grep -q "$lib"; then
+        dir=$(find "${CUDA_PATH:-/usr/local/cuda}" /usr/local/cuda* /usr/local/nvidia /opt /usr/lib \
+            -name "$lib*" -print 2>/dev/null | head -1)
+        [ -n "$dir" ] && export LD_LIBRARY_PATH=$(dirname "$dir")${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
+    fi
+done
+say "CUDA_PATH=${CUDA_PATH:-unset} LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-unset}"
 
 # --- 1. parity: the CLI's two-pass inference on the fixture PNGs, CUDA and CPU, vs pred_full.npy
 say "== parity (eval_cascade_1x128x192, two-pass, 20 iters) vs pred_full.npy"
 E=$FIX/eval_cascade_1x128x192
 for dev in cuda cpu; do
-    "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$dev.exr" --pfm "$OUT/pred_$dev.pfm" \
+    in_time "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$dev.exr" --pfm "$OUT/pred_$dev.pfm" \
         --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device "$dev" \
         >"$OUT/infer_$dev.log" 2>&1 || say "infer --device $dev FAILED (see infer_$dev.log)"
 done
@@ -58,6 +85,13 @@ for dev in ("cuda", "cpu"):
     print(f"{dev}: max |pred - pred_full| = {err:.3e} ({'PASS' if err <= 1e-3 else 'FAIL'} at 1e-3)")
 EOF
 
+if [ ! -s "$OUT/pred_cuda.pfm" ]; then
+    # Nothing below can run without a working CUDA backend: stop early, with the reason.
+    say "== CUDA inference failed; its log ends:"
+    tail -25 "$OUT/infer_cuda.log" | tee -a "$SUMMARY"
+    exit 1
+fi
+
 # --- 2. timing and peak GPU memory, each run in its own process while nvidia-smi polls
 poll_start() { nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 50 >"$1" & POLL=$!; }
 poll_stop() { kill "$POLL" 2>/dev/null; wait "$POLL" 2>/dev/null; }
@@ -79,13 +113,13 @@ for size in $SIZES; do
         if [ $what = train ]; then S=$TS; else S=$IS; fi
         csv=$(echo $S | tr ' ' ',')
         poll_start "$OUT/mem_burn_${what}_$size.txt"
-        "$BIN" bench --device cuda --what $what --repeats "$REPEATS" \
+        in_time "$BIN" bench --device cuda --what $what --repeats "$REPEATS" \
             $([ $what = train ] && echo --train-size || echo --infer-size) "$csv" \
             >"$OUT/burn_${what}_$size.log" 2>&1 || say "burn $what $size FAILED"
         poll_stop
         poll_start "$OUT/mem_torch_${what}_$size.txt"
         CRESTEREO_TORCH_DEVICE=cuda CRESTEREO_TORCH_REPEATS=$REPEATS \
-            python3 "$REF" bench 8 $what $S >"$OUT/torch_${what}_$size.log" 2>&1 || say "torch $what $size FAILED"
+            in_time python3 "$REF" bench 8 $what $S >"$OUT/torch_${what}_$size.log" 2>&1 || say "torch $what $size FAILED"
         poll_stop
         b=$(grep -E "^(train step|inference)" "$OUT/burn_${what}_$size.log" | tail -1)
         t=$(grep -E "^torch" "$OUT/torch_${what}_$size.log" | tail -1)
@@ -125,11 +159,13 @@ if [ -n "$DATA" ]; then
     say "== 200 training steps on $DATA (CUDA, batch 8, 384x512, 10 iters)"
     poll_start "$OUT/mem_train200.txt"
     start=$(date +%s)
-    "$BIN" train --device cuda --data "$DATA" --out "$OUT/run200" --steps 200 --batch-size 8 \
-        --crop 384x512 --iters 10 --checkpoint-every 200 --no-progress \
+    # --accumulate 1: one optimizer step per batch of 8 (the default accumulates 8 batches).
+    in_time "$BIN" train --device cuda --data "$DATA" --out "$OUT/run200" --steps 200 --batch-size 8 \
+        --accumulate 1 --crop 384x512 --iters 10 --checkpoint-every 200 --no-progress \
         >"$OUT/train200.log" 2>&1 || say "train 200 steps FAILED (see train200.log)"
     poll_stop
     say "   wall $(( $(date +%s) - start )) s, nvidia-smi peak $(( $(peak "$OUT/mem_train200.txt") - BASE )) MiB"
+    # Steps reached (all 200, or as many as the deadline allowed), first and last loss.
     [ -f "$OUT/run200/train_log.csv" ] && { head -2 "$OUT/run200/train_log.csv"; tail -1 "$OUT/run200/train_log.csv"; } | tee -a "$SUMMARY"
 fi
 say "== done; results.json and logs in $OUT"

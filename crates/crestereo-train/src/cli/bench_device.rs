@@ -15,6 +15,7 @@ use burn::prelude::*;
 use burn::tensor::backend::AutodiffBackend;
 use burn::tensor::ops::PadMode;
 use crestereo::{CREStereoConfig, InferenceOptions, sequence_loss};
+use crestereo_train::host_reads;
 
 fn sync<B: Backend>(device: &B::Device) {
     B::sync(device).expect("device sync");
@@ -53,27 +54,46 @@ pub fn bench_train<B: AutodiffBackend>(
     );
     let valid = Tensor::<B, 3>::ones([n, h, w], device);
     let (mut fwd, mut bwd, mut total) = (Vec::new(), Vec::new(), Vec::new());
+    // Host reads inside forward and inside backward + Adam, summed over the timed steps. The
+    // syncs around the clock readings wait for the device but read nothing back.
+    let counted = host_reads::visible::<B>(device);
+    let (mut reads_fwd, mut reads_rest) = (0, 0);
     for rep in 0..=repeats {
         sync::<B>(device);
         let t0 = Instant::now();
+        let r0 = host_reads::count();
         let preds = model.forward(l.clone(), r.clone(), iters, None);
         let loss = sequence_loss(&preds, disp.clone(), valid.clone(), 0.9);
+        let r1 = host_reads::count();
         sync::<B>(device);
         let t_fwd = t0.elapsed().as_secs_f64();
+        let r2 = host_reads::count();
         let grads = loss.backward();
         sync::<B>(device);
         let t_bwd = t0.elapsed().as_secs_f64() - t_fwd;
         let grads = GradientsParams::from_grads(grads, &model);
         model = optim.step(4e-4, model, grads);
+        let r3 = host_reads::count();
         sync::<B>(device);
         if rep > 0 {
             fwd.push(t_fwd);
             bwd.push(t_bwd);
             total.push(t0.elapsed().as_secs_f64());
+            reads_fwd += r1 - r0;
+            reads_rest += r3 - r2;
         }
     }
+    let reads = if counted {
+        format!(
+            "host reads per step: forward {}, backward+Adam {}",
+            reads_fwd as f64 / repeats as f64,
+            reads_rest as f64 / repeats as f64
+        )
+    } else {
+        "host reads not counted (no fusion backend, or built without `host-read-count`)".into()
+    };
     println!(
-        "train step (batch {n}, {h}x{w}, iters {iters}, device {}, median of {repeats} after a warm-up): forward {:.3}s, backward {:.3}s, total incl. Adam {:.3}s, peak RSS {:.0} MiB",
+        "train step (batch {n}, {h}x{w}, iters {iters}, device {}, median of {repeats} after a warm-up): forward {:.3}s, backward {:.3}s, total incl. Adam {:.3}s, peak RSS {:.0} MiB; {reads}",
         B::name(device),
         median(fwd),
         median(bwd),

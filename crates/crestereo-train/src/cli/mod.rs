@@ -6,6 +6,8 @@ mod bench_loader;
 mod eval;
 mod export;
 mod infer;
+#[cfg(feature = "kernel-cache")]
+mod kernel_cache;
 mod train;
 
 use std::process::ExitCode;
@@ -291,17 +293,27 @@ fn run_bench(
 
 /// The whole program: parse, run, print the error chain on failure.
 pub fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("CRESTEREO_LOG")
-                // CubeCL logs every autotuned kernel shape at info: quiet unless asked for.
-                .unwrap_or_else(|_| "info,cubecl_runtime=warn".into()),
-        )
+    use tracing_subscriber::prelude::*;
+    let log = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .without_time()
+        .with_filter(
+            tracing_subscriber::EnvFilter::try_from_env("CRESTEREO_LOG")
+                // CubeCL logs every autotuned kernel shape at info: quiet unless asked for.
+                .unwrap_or_else(|_| "info,cubecl_runtime=warn".into()),
+        );
+    // The log's filter is the log layer's own, so the read counter still sees the fusion
+    // backend's read spans (`bench --device cuda` prints them per training step).
+    tracing_subscriber::registry()
+        .with(log)
+        .with(crestereo_train::host_reads::HostReadCounter)
         .init();
     let cli = Cli::parse();
+    #[cfg(feature = "kernel-cache")]
+    if let Some(dir) = kernel_cache::configure() {
+        tracing::debug!("GPU kernel cache: {}", dir.display());
+    }
     // A bad CRESTEREO_ISA is a clear error here rather than a panic inside the first kernel.
     if let Err(e) = crestereo::simd::isa_from_env() {
         eprintln!("error: {e}");
