@@ -1,13 +1,18 @@
 //! `stereogen export --format webdataset` with the real CLI: a rendered dataset of ours as tar
-//! shards read back equal to the source (its EXRs byte for byte), and an export killed with
-//! SIGKILL mid-way that a re-run of the same command finishes to the bytes of a clean export.
+//! shards read back equal to the source (its EXRs byte for byte) by `open_dataset`, by `stats`
+//! and `report` and by the Python module; and an export killed with SIGKILL mid-way that a
+//! re-run of the same command finishes to the bytes of a clean export.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use serde_json::Value;
 use stereo_io::{DatasetFormat, ImageEncoding, WritableFormat, create_writer, open_dataset};
-use stereogen_e2e::export_cmd;
+use stereogen_e2e::{export_cmd, stats_cmd, stereogen_cmd};
+
+#[path = "../crates/stereo-io/tests/support/pinned_venv.rs"]
+mod pinned_venv;
 
 fn export(data: &Path, out: &Path, extra: &[&str]) -> Command {
     let mut c = export_cmd(data, "webdataset", out);
@@ -82,6 +87,209 @@ fn a_rendered_dataset_as_shards_reads_back_as_it_was() {
     let e = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && e.contains("--force"), "{e}");
     run(&mut export(&ours, &shards, &["--force"]));
+
+    // The readers of our folders read the export, from the shards as they are.
+    stats_equal_the_source(&ours, &shards, t.path());
+    report_from_shards(&ours, &shards);
+    python_reads_the_export(&ours, &shards, t.path());
+}
+
+/// `stats.json` without what an export cannot give (the object-level sample needs the
+/// SceneSpecs, which the shards do not carry; the gap check's bins follow its size) or says
+/// differently (where the dataset is).
+fn comparable(mut v: Value) -> Value {
+    let o = v.as_object_mut().unwrap();
+    for k in ["dataset", "notes", "pass"] {
+        o.remove(k);
+    }
+    let mut all: Vec<Value> = o["categories"].as_array().unwrap().clone();
+    all.push(o["overall"].clone());
+    for g in &mut all {
+        let g = g.as_object_mut().unwrap();
+        for k in ["objects", "status", "problems"] {
+            g.remove(k);
+        }
+        if let Some(p) = g.get_mut("pixels").and_then(Value::as_object_mut) {
+            p.remove("gap_check");
+            p.remove("in_support_fraction");
+        }
+    }
+    o.remove("categories");
+    o.remove("overall");
+    o.insert("groups".into(), Value::Array(all));
+    v
+}
+
+/// `a` and `b` equal, numbers to a relative 1e-9 (the parallel sums add in another order).
+fn assert_close(a: &Value, b: &Value, at: &str) {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            assert!(
+                (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0),
+                "{at}: {x} != {y}"
+            );
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            assert_eq!(x.len(), y.len(), "{at}: lengths");
+            for (i, (x, y)) in x.iter().zip(y).enumerate() {
+                assert_close(x, y, &format!("{at}[{i}]"));
+            }
+        }
+        (Value::Object(x), Value::Object(y)) => {
+            let keys = |m: &serde_json::Map<String, Value>| m.keys().cloned().collect::<Vec<_>>();
+            assert_eq!(keys(x), keys(y), "{at}: keys");
+            for (k, x) in x {
+                assert_close(x, &y[k], &format!("{at}.{k}"));
+            }
+        }
+        _ => assert_eq!(a, b, "{at}"),
+    }
+}
+
+/// `stats --verify` of the export (written into it, as by default) gives the source's figures,
+/// every member matching the manifest's checksum, and says in one line what it leaves out;
+/// `--check` decides alike.
+fn stats_equal_the_source(ours: &Path, shards: &Path, tmp: &Path) {
+    let source_dir = tmp.join("source-stats");
+    let said = run_out(stats_cmd(ours).arg("--out").arg(&source_dir));
+    assert!(said.contains("verdict:"), "{said}");
+    let said = run_out(stats_cmd(shards).arg("--verify"));
+    assert!(
+        said.contains("verified: every file of the 3 samples"),
+        "{said}"
+    );
+    let notes: Vec<&str> = said.lines().filter(|l| l.starts_with("NOTE ")).collect();
+    assert_eq!(notes.len(), 1, "{said}");
+    assert!(notes[0].contains("carry no SceneSpecs"), "{said}");
+    let read =
+        |p: PathBuf| -> Value { serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap() };
+    let (want, got) = (
+        read(source_dir.join("stats.json")),
+        read(shards.join("stats.json")),
+    );
+    assert_eq!(got["samples"], 3);
+    assert!(
+        want["overall"]["objects"]["count"].as_u64().unwrap() > 0,
+        "the source has an object-level sample"
+    );
+    assert_eq!(got["overall"]["objects"]["count"], 0, "the export has none");
+    assert!(got["overall"]["pixels"]["valid"].as_u64().unwrap() > 0);
+    assert_close(&comparable(got), &comparable(want), "stats.json");
+    let check = |d: &Path| {
+        let out = stats_cmd(d)
+            .arg("--check")
+            .arg("--out")
+            .arg(tmp.join("check"))
+            .output()
+            .unwrap();
+        out.status.success()
+    };
+    assert_eq!(check(shards), check(ours), "stats --check decides alike");
+}
+
+/// `report` of the export writes its page (statistics, gallery pictures from the shards) and
+/// lists what the export lacks.
+fn report_from_shards(ours: &Path, shards: &Path) {
+    let said = run_out(stereogen_cmd(["report"]).arg(shards));
+    assert!(said.contains("3 samples, 3 in the gallery"), "{said}");
+    let html = std::fs::read_to_string(shards.join("report.html")).unwrap();
+    for want in [
+        "data:image/jpeg;base64,",
+        "data:image/png;base64,",
+        "carry no SceneSpecs",
+        "<svg",
+    ] {
+        assert!(html.contains(want), "report.html lacks {want}");
+    }
+    assert!(!html.contains("cannot decode") && !html.contains("missing from its sample"));
+    let source = tempfile::tempdir().unwrap();
+    let said_source = run_out(
+        stereogen_cmd(["report"])
+            .arg(ours)
+            .arg("--out")
+            .arg(source.path().join("r.html")),
+    );
+    let gallery = |s: &str| {
+        s.split_once(" samples, ")
+            .map(|(_, r)| r.split(',').next().unwrap().to_string())
+    };
+    assert_eq!(
+        gallery(&said),
+        gallery(&said_source),
+        "{said}\n{said_source}"
+    );
+}
+
+const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
+
+/// The Python module opens the export as it opens the source (pytest
+/// crates/stereogen-py/pytests/test_webdataset.py, in the venv of tests/io_python.rs).
+fn python_reads_the_export(ours: &Path, shards: &Path, tmp: &Path) {
+    use pinned_venv::{ensure_venv, pip_install, run as run_checked};
+    let venv = ensure_venv("venv-test", PY_PINS);
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let wheels = tempfile::tempdir().unwrap();
+    let target = std::env::current_exe()
+        .unwrap()
+        .ancestors()
+        .nth(3)
+        .unwrap()
+        .to_path_buf();
+    run_checked(
+        Command::new(venv.join("bin/maturin"))
+            .args([
+                "build",
+                "--release",
+                "--auditwheel",
+                "skip",
+                "--manifest-path",
+            ])
+            .arg(root.join("crates/stereogen-py/Cargo.toml"))
+            .arg("--interpreter")
+            .arg(venv.join("bin/python"))
+            .arg("--out")
+            .arg(wheels.path())
+            .env("CARGO_TARGET_DIR", target.join("python-ext")),
+        "maturin build",
+    );
+    let wheel = std::fs::read_dir(wheels.path())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "whl"))
+        .expect("a wheel");
+    run_checked(
+        pip_install(&venv)
+            .args(["--no-deps", "--force-reinstall"])
+            .arg(&wheel),
+        "pip install wheel",
+    );
+    let fixture = tmp.join("webdataset-fixture.json");
+    let facts = serde_json::json!({"source": ours, "export": shards, "len": 3});
+    std::fs::write(&fixture, facts.to_string()).unwrap();
+    let said = run_checked(
+        Command::new(venv.join("bin/python"))
+            .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
+            .arg(root.join("crates/stereogen-py/pytests/test_webdataset.py"))
+            .env("STEREOGEN_PY_WEBDATASET", &fixture),
+        "pytest",
+    );
+    assert!(
+        said.contains("passed") && !said.contains("skipped"),
+        "{said}"
+    );
+}
+
+/// Runs `c`, asserting success; its stdout and stderr.
+fn run_out(c: &mut Command) -> String {
+    let out = c.output().unwrap();
+    let all = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "{all}");
+    all
 }
 
 /// A dataset that takes the export a few seconds: CREStereo's layout, written directly.

@@ -115,7 +115,7 @@ impl Dataset {
         sample_dict(py, sample)
     }
 
-    /// The layout name (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012, kitti2015, sintel, fallingthings).
+    /// The layout name (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012, kitti2015, sintel, fallingthings, webdataset).
     #[getter]
     fn format(&self) -> &'static str {
         self.inner.format().name()
@@ -146,7 +146,8 @@ impl Dataset {
 
 /// open_dataset(path, format=None) -> Dataset
 ///
-/// Opens a stereo dataset folder. Without `format` the layout is recognised from the folder.
+/// Opens a stereo dataset folder. Without `format` the layout is recognised from the folder; a
+/// WebDataset export (`stereogen export --format webdataset`) is read from its tar shards in place.
 #[pyfunction]
 #[pyo3(signature = (path, format=None))]
 fn open_dataset(py: Python<'_>, path: PathBuf, format: Option<&str>) -> PyResult<Dataset> {

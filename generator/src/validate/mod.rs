@@ -7,6 +7,8 @@
 //!   value at its level (the KS tests are one family at `--ks-alpha`, `stats/ks_family.rs`), or
 //!   when an equal-mass bin of the law inside its support gets no valid pixel (a gap); see
 //!   [`hist::gap_bins_for`] for how many bins the sample size allows.
+//! - [`dataset_files`]: our folder layout or a WebDataset export of it, detected; `stats` and
+//!   `report` read either.
 //! - [`hist`], [`accumulate`]: histograms, percentiles and the streaming accumulators.
 //! - [`plots`]: PNG plots (`--plot`).
 //! - [`audit`]: `stereogen audit`: the ground truth re-derived from the scene geometry by ray casting.
@@ -15,6 +17,7 @@
 pub mod accumulate;
 pub mod audit;
 pub mod contact_sheet;
+pub mod dataset_files;
 pub mod hist;
 pub mod html_report;
 pub mod plots;

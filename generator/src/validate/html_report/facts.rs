@@ -6,7 +6,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use crate::dataset::manifest::{read_failures, read_skipped_assets};
-use crate::dataset::{DatasetInfo, DatasetLayout, ManifestEntry, read_manifest};
+use crate::dataset::{DatasetInfo, DatasetLayout, ManifestEntry};
+use crate::validate::dataset_files::DatasetFiles;
 
 /// Lines of failures.jsonl and skipped_assets.jsonl shown on the page, at most.
 pub const MAX_LISTED: usize = 50;
@@ -25,6 +26,8 @@ pub struct Facts {
     pub skipped: Listed,
     /// Problems found while reading (one line each, naming the file).
     pub problems: Vec<String>,
+    /// Where the samples' files are read from (our folder layout or a WebDataset export).
+    pub files: Option<DatasetFiles>,
 }
 
 fn truncate(s: &str, n: usize) -> String {
@@ -69,16 +72,27 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
     );
     let layout = DatasetLayout::new(root);
     let mut problems = Vec::new();
-    let info = match layout.read_info() {
-        Ok(i) => Some(i),
-        Err(e) => {
+    // An export's manifest lines are in its shards: the folder names them.
+    let manifest_name = if DatasetFiles::is_shards(root) {
+        root.to_path_buf()
+    } else {
+        layout.manifest()
+    };
+    let mut files = DatasetFiles::open(root)
+        .map_err(|e| problems.push(e.to_string()))
+        .ok();
+    let info = match files.as_ref().map(DatasetFiles::read_info) {
+        Some(Ok(i)) => Some(i),
+        Some(Err(e)) => {
             problems.push(format!("{e}"));
             None
         }
+        None => None,
     };
-    let entries = match read_manifest(&layout.manifest()) {
-        Err(_) if !layout.manifest().exists() => Vec::new(),
-        Ok(m) => {
+    let entries = match files.as_mut().map(DatasetFiles::manifest) {
+        None => Vec::new(),
+        Some(Err(_)) if !manifest_name.exists() => Vec::new(),
+        Some(Ok(m)) => {
             if m.has_unfinished_line() {
                 problems.push(format!(
                     "{}: the unfinished last line was left out (generation still running?)",
@@ -89,19 +103,20 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
             e.sort_by_key(|e| e.index);
             e
         }
-        Err(e) => {
+        Some(Err(e)) => {
             problems.push(format!("{e:#}"));
             Vec::new()
         }
     };
     if entries.is_empty() && problems.is_empty() {
-        let none = if layout.manifest().exists() {
+        let none = if manifest_name.exists() {
             "holds no finished samples"
         } else {
             "does not exist: no finished samples"
         };
-        problems.push(format!("{} {none}", layout.manifest().display()));
+        problems.push(format!("{} {none}", manifest_name.display()));
     }
+    problems.extend(files.as_ref().and_then(DatasetFiles::no_logs_note));
     let failures = listed(
         read_failures(&layout.failures()).map(|c| c.records),
         |r| (r.index.to_string(), r.error.clone()),
@@ -118,6 +133,7 @@ pub fn read(root: &Path) -> anyhow::Result<Facts> {
         failures,
         skipped,
         problems,
+        files,
     })
 }
 

@@ -3,12 +3,12 @@
 //! scaled down to [`THUMB_WIDTH`] so the page stays small.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use base64::Engine;
 use image::imageops::FilterType;
 
-use crate::dataset::{DatasetLayout, ManifestEntry};
+use crate::dataset::ManifestEntry;
+use crate::validate::dataset_files::DatasetFiles;
 use stereo_io::colormap::{DisparityRange, colourise};
 
 /// Widest thumbnail (px); smaller images keep their size.
@@ -78,9 +78,16 @@ fn thumb_size(w: u32, h: u32) -> (u32, u32) {
     }
 }
 
-fn photo(path: &Path) -> Result<String, String> {
-    let img = image::open(path)
-        .map_err(|e| format!("{}: {e}", path.display()))?
+/// A file of the sample: its bytes (from its folder or its export's shard) and its name for
+/// messages.
+fn read(files: &DatasetFiles, e: &ManifestEntry, key: &str) -> Result<Vec<u8>, String> {
+    files.read(e, key).map_err(|err| err.to_string())
+}
+
+fn photo(files: &DatasetFiles, e: &ManifestEntry, key: &str) -> Result<String, String> {
+    let path = files.path(e, key);
+    let img = image::load_from_memory(&read(files, e, key)?)
+        .map_err(|err| format!("{}: {err}", path.display()))?
         .to_rgb8();
     let (w, h) = thumb_size(img.width(), img.height());
     let small = if (w, h) == img.dimensions() {
@@ -91,13 +98,15 @@ fn photo(path: &Path) -> Result<String, String> {
     let mut out = Vec::new();
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY)
         .encode_image(&small)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+        .map_err(|err| format!("{}: {err}", path.display()))?;
     Ok(data_uri("image/jpeg", &out))
 }
 
-/// The colourised map and the top of its scale.
-fn disparity(path: &Path) -> Result<(String, f32), String> {
-    let (map, _) = stereo_io::read_disparity_exr(path).map_err(|e| e.to_string())?;
+/// The colourised left map and the top of its scale.
+fn disparity(files: &DatasetFiles, e: &ManifestEntry) -> Result<(String, f32), String> {
+    let path = files.path(e, "disp_left");
+    let (map, _) = stereo_io::decode_disparity_exr(&read(files, e, "disp_left")?, &path)
+        .map_err(|err| err.to_string())?;
     let max = map.stats().map_or(1.0, |s| s.max).max(1e-3);
     let rgb = colourise(&map, DisparityRange::new(0.0, max));
     let img = image::RgbImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data)
@@ -111,17 +120,17 @@ fn disparity(path: &Path) -> Result<(String, f32), String> {
     let mut out = std::io::Cursor::new(Vec::new());
     small
         .write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+        .map_err(|err| format!("{}: {err}", path.display()))?;
     Ok((data_uri("image/png", out.get_ref()), max))
 }
 
 /// The tile of one sample; files that cannot be read become problems of the tile.
-pub fn tile(layout: &DatasetLayout, e: &ManifestEntry, caption: String) -> Tile {
+pub fn tile(files: &DatasetFiles, e: &ManifestEntry, caption: String) -> Tile {
     let mut problems = Vec::new();
     let mut keep = |r: Result<String, String>| r.map_err(|p| problems.push(p)).ok();
-    let left = keep(photo(&layout.abs(&e.files.left)));
-    let right = keep(photo(&layout.abs(&e.files.right)));
-    let (disparity, scale_max) = match disparity(&layout.abs(&e.files.disp_left)) {
+    let left = keep(photo(files, e, "left"));
+    let right = keep(photo(files, e, "right"));
+    let (disparity, scale_max) = match disparity(files, e) {
         Ok((uri, max)) => (Some(uri), format!("{max:.1}")),
         Err(p) => {
             problems.push(p);

@@ -3,6 +3,9 @@
 //! distribution against the recipe's law (as `stats` computes it), row/column coverage, the
 //! audit's results when `audit.json` exists, a gallery and the samples that stand out.
 //!
+//! It reads our folder layout or a WebDataset export of it (`export --format webdataset`), whose
+//! members it reads straight from the shards ([`super::dataset_files`]).
+//!
 //! Self-contained: the charts are inline SVG, the pictures data: URIs, the style inline; no
 //! script, no network. Fast and small on large datasets: the statistics stream over the maps
 //! (`stats`), the manifest is read once, and only the gallery and outlier samples' files are
@@ -26,7 +29,6 @@ use self::gallery::Tile;
 use self::sections::{AuditSection, StatsSection};
 use super::audit::{AUDIT_FILE, read_json};
 use super::stats::{StatsOptions, compute};
-use crate::dataset::DatasetLayout;
 
 /// Gallery samples, at most.
 pub const MAX_THUMBNAILS: usize = 200;
@@ -114,6 +116,7 @@ fn stats(dataset: &Path, facts: &Facts, problems: &mut Vec<String>) -> Option<St
     }
     match compute(&StatsOptions::new(dataset)) {
         Ok(s) => {
+            problems.extend(s.notes.iter().map(|n| format!("statistics: {n}")));
             problems.extend(
                 s.errors
                     .iter()
@@ -180,7 +183,6 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
     let mut problems = Vec::new();
     page.stats = stats(&opts.dataset, &facts, &mut problems);
     page.audit = audit(&opts.dataset, &mut problems);
-    let layout = DatasetLayout::new(&opts.dataset);
     let n = opts.thumbnails.min(MAX_THUMBNAILS);
     if opts.thumbnails > MAX_THUMBNAILS {
         problems.push(format!(
@@ -189,14 +191,16 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
         ));
     }
     let entries = &facts.entries;
-    let chosen = gallery::choose(entries, n);
-    page.gallery = rayon_map(&chosen, |&i| {
-        gallery::tile(&layout, &entries[i], format!("index {}", entries[i].index))
-    });
-    let odd = facts::outliers(entries, MAX_OUTLIERS);
-    page.outliers = rayon_map(&odd, |(i, why)| {
-        gallery::tile(&layout, &entries[*i], why.clone())
-    });
+    if let Some(files) = &facts.files {
+        let chosen = gallery::choose(entries, n);
+        page.gallery = rayon_map(&chosen, |&i| {
+            gallery::tile(files, &entries[i], format!("index {}", entries[i].index))
+        });
+        let odd = facts::outliers(entries, MAX_OUTLIERS);
+        page.outliers = rayon_map(&odd, |(i, why)| {
+            gallery::tile(files, &entries[*i], why.clone())
+        });
+    }
     for t in page.gallery.iter().chain(&page.outliers) {
         problems.extend(t.problems.iter().map(|p| format!("sample {}: {p}", t.id)));
     }

@@ -2,9 +2,10 @@
 //! typed [`FileError`] that names its file once.
 
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use crate::dataset::ManifestEntry;
+use crate::validate::dataset_files::DatasetFiles;
 
 /// A file of a sample that could not be read or failed verification.
 #[derive(Debug)]
@@ -62,19 +63,18 @@ fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// Reads one file of a sample: with `verify`, its checksum is compared with the manifest's and
-/// an image is decoded in full. Returns the bytes read.
+/// Reads one file of a sample (from its folder or its export's shard): with `verify`, its
+/// checksum is compared with the manifest's and an image is decoded in full. Returns the bytes
+/// read.
 pub fn read_sample_file(
-    root: &Path,
+    files: &DatasetFiles,
     e: &ManifestEntry,
     key: &str,
-    rel: &Path,
     verify: bool,
 ) -> Result<Vec<u8>, FileError> {
-    let path = root.join(rel);
-    let bytes =
-        std::fs::read(&path).map_err(|err| FileError::Io(stereo_io::Error::io(&path, err)))?;
+    let bytes = files.read(e, key).map_err(FileError::Io)?;
     if verify {
+        let path = files.path(e, key);
         let Some(recorded) = e.sha256.get(key) else {
             return Err(FileError::NoChecksum(path));
         };
@@ -96,14 +96,12 @@ pub fn read_sample_file(
     Ok(bytes)
 }
 
-/// Verifies the files the pixel pass does not read (images and the scene file).
-pub fn verify_other_files(root: &Path, e: &ManifestEntry) -> Vec<FileError> {
-    [
-        ("left", &e.files.left),
-        ("right", &e.files.right),
-        ("scene", &e.files.scene),
-    ]
-    .into_iter()
-    .filter_map(|(key, rel)| read_sample_file(root, e, key, rel, true).err())
-    .collect()
+/// Verifies the files the pixel pass does not read (images and the scene file, which an export
+/// may not carry).
+pub fn verify_other_files(files: &DatasetFiles, e: &ManifestEntry) -> Vec<FileError> {
+    ["left", "right", "scene"]
+        .into_iter()
+        .filter(|key| files.has(e, key))
+        .filter_map(|key| read_sample_file(files, e, key, true).err())
+        .collect()
 }

@@ -1,10 +1,12 @@
-//! The first step of the stats pass: the dataset's description, manifest and category list.
+//! The first step of the stats pass: the dataset's description, manifest and category list, from
+//! our folder layout or a WebDataset export of it ([`DatasetFiles`]).
 
 use std::path::Path;
 
 use anyhow::Context;
 
-use crate::dataset::{DatasetInfo, DatasetLayout, ManifestEntry, read_manifest};
+use crate::dataset::{DatasetInfo, ManifestEntry};
+use crate::validate::dataset_files::DatasetFiles;
 
 /// A dataset read for statistics.
 pub struct Loaded {
@@ -12,6 +14,8 @@ pub struct Loaded {
     pub entries: Vec<ManifestEntry>,
     /// Recipe categories in recipe order, then any other category found in the manifest.
     pub categories: Vec<String>,
+    /// Where the samples' files are read from.
+    pub files: DatasetFiles,
 }
 
 impl Loaded {
@@ -25,16 +29,16 @@ impl Loaded {
 }
 
 pub fn load(root: &Path) -> anyhow::Result<Loaded> {
-    let layout = DatasetLayout::new(root);
-    let info: DatasetInfo = layout
+    let mut files = DatasetFiles::open(root)?;
+    let info: DatasetInfo = files
         .read_info()
         .with_context(|| format!("{} is not a stereogen dataset", root.display()))?;
     // stats may run while `generate` appends: an unfinished last line is left out, with a note.
-    let manifest = read_manifest(&layout.manifest())?;
+    let manifest = files.manifest()?;
     if manifest.has_unfinished_line() {
         eprintln!(
             "stats: {}: ignoring an unfinished last line (generation still running?)",
-            layout.manifest().display()
+            root.join("manifest.jsonl").display()
         );
     }
     let entries = manifest.entries;
@@ -53,5 +57,6 @@ pub fn load(root: &Path) -> anyhow::Result<Loaded> {
         info,
         entries,
         categories,
+        files,
     })
 }

@@ -1,4 +1,5 @@
-//! The stats pass over a dataset, in four steps: [`load`] the recipe and manifest, the
+//! The stats pass over a dataset (our folder layout or a WebDataset export of it, see
+//! [`crate::validate::dataset_files`]), in four steps: [`load`] the recipe and manifest, the
 //! [`objects`] pass over every SceneSpec (object-level sample), the [`pixels`] pass that streams
 //! every disparity EXR through the accumulators in parallel, and [`compute`]'s assembly into a
 //! [`StatsReport`] ([`stats_report`]: what `stats.json` holds and each group's OK/FAIL/SKIP;
@@ -91,7 +92,17 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
     let root = &opts.dataset;
     let loaded = load::load(root)?;
     let law = loaded.info.recipe.placement.disparity_px.clone();
-    let mut objects = objects::object_pass(root, &loaded);
+    // An export without SceneSpecs: the object pass is not run, and the report says so.
+    let notes: Vec<String> = loaded
+        .files
+        .no_scenes_note(&loaded.entries)
+        .into_iter()
+        .collect();
+    let mut objects = if notes.is_empty() {
+        objects::object_pass(&loaded)
+    } else {
+        objects::ObjectPass::empty(loaded.categories.len())
+    };
 
     let gap_edges: Vec<Option<Vec<f64>>> = objects
         .targets
@@ -100,7 +111,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         .collect();
     let all_edges = opts.gap_edges(&law, objects.targets.iter().map(Vec::len).sum());
     let binning = pixels::binning(&loaded, &law, opts.bins.unwrap_or(DEFAULT_BINS));
-    let pixels = pixels::pixel_pass(root, &loaded, opts, |c| {
+    let pixels = pixels::pixel_pass(&loaded, opts, |c| {
         PixelAcc::new(&binning, gap_edges[c].as_deref(), all_edges.as_deref())
     });
 
@@ -145,6 +156,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         categories,
         overall,
         errors,
+        notes,
         pass,
         law,
     })

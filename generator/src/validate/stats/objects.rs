@@ -1,7 +1,5 @@
 //! The object pass: every SceneSpec's content-object targets (the object-level sample of the
-//! disparity law), by category.
-
-use std::path::Path;
+//! disparity law), by category. A WebDataset export without SceneSpecs has no such sample.
 
 use rayon::prelude::*;
 
@@ -14,27 +12,32 @@ pub struct ObjectPass {
     pub errors: Vec<FileError>,
 }
 
-pub fn object_pass(root: &Path, loaded: &Loaded) -> ObjectPass {
+impl ObjectPass {
+    /// No objects: the pass that is not run (an export without SceneSpecs).
+    pub fn empty(categories: usize) -> Self {
+        Self {
+            targets: vec![Vec::new(); categories],
+            errors: Vec::new(),
+        }
+    }
+}
+
+pub fn object_pass(loaded: &Loaded) -> ObjectPass {
     let read: Vec<Result<(usize, Vec<f64>), FileError>> = loaded
         .entries
         .par_iter()
         .map(|e| {
-            let path = root.join(&e.files.scene);
-            let bytes = std::fs::read(&path)
-                .map_err(|err| FileError::Io(stereo_io::Error::io(&path, err)))?;
+            let bytes = loaded.files.read(e, "scene").map_err(FileError::Io)?;
             let spec = crate::dataset::scene_file::decode_scene_spec(&bytes).map_err(|err| {
                 FileError::NotASceneSpec {
-                    path,
+                    path: loaded.files.path(e, "scene"),
                     message: format!("{err:#}"),
                 }
             })?;
             Ok((loaded.category_of(e), spec.target_disparities().collect()))
         })
         .collect();
-    let mut pass = ObjectPass {
-        targets: vec![Vec::new(); loaded.categories.len()],
-        errors: Vec::new(),
-    };
+    let mut pass = ObjectPass::empty(loaded.categories.len());
     for r in read {
         match r {
             Ok((c, t)) => pass.targets[c].extend(t),

@@ -1,7 +1,6 @@
-//! The pixel pass: every disparity EXR once, in parallel and streamed into fixed-size
+//! The pixel pass: every disparity EXR once (from its folder or its export's shard), in parallel and streamed into fixed-size
 //! accumulators, never more than one pair per thread in memory.
 
-use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
@@ -89,7 +88,6 @@ impl PixelPass {
 
 /// `new_acc(c)`: a fresh accumulator for category `c` (its gap-check bins differ).
 pub fn pixel_pass(
-    root: &Path,
     loaded: &Loaded,
     opts: &StatsOptions,
     new_acc: impl Fn(usize) -> PixelAcc + Sync,
@@ -103,13 +101,10 @@ pub fn pixel_pass(
             || PixelPass::empty(categories),
             |mut pass, e| {
                 let c = loaded.category_of(e);
-                let views = [
-                    ("disp_left", &e.files.disp_left),
-                    ("disp_right", &e.files.disp_right),
-                ];
-                for (view, (key, rel)) in views.into_iter().enumerate() {
-                    let read = read_sample_file(root, e, key, rel, opts.verify).and_then(|bytes| {
-                        stereo_io::decode_disparity_exr(&bytes, &root.join(rel))
+                let files = &loaded.files;
+                for (view, key) in ["disp_left", "disp_right"].into_iter().enumerate() {
+                    let read = read_sample_file(files, e, key, opts.verify).and_then(|bytes| {
+                        stereo_io::decode_disparity_exr(&bytes, &files.path(e, key))
                             .map_err(FileError::Io)
                     });
                     match read {
@@ -120,7 +115,7 @@ pub fn pixel_pass(
                     }
                 }
                 if opts.verify {
-                    pass.errors.extend(verify_other_files(root, e));
+                    pass.errors.extend(verify_other_files(files, e));
                 }
                 progress.tick();
                 pass

@@ -30,6 +30,9 @@ pub struct StatsReport {
     pub overall: CategoryStats,
     /// Samples whose files could not be read.
     pub errors: Vec<String>,
+    /// What could not be computed from this dataset and why (an export without SceneSpecs).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
     pub pass: bool,
 }
 

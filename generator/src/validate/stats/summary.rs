@@ -11,6 +11,7 @@ pub fn summary_lines(report: &StatsReport) -> Vec<String> {
         "stats of {} ({} samples, recipe {}, law on [{lo}, {hi}] px, KS alpha {})",
         report.dataset, report.samples, report.recipe, report.ks_alpha
     )];
+    lines.extend(report.notes.iter().map(|n| format!("NOTE {n}")));
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
     for e in report.errors.iter().take(10) {

@@ -14,6 +14,7 @@
 //! whose size differs from the index (a copy or export cut short) is named as such when the
 //! folder is opened, never read as a smaller dataset.
 
+pub mod members;
 mod read;
 mod write;
 
