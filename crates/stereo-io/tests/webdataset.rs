@@ -116,7 +116,8 @@ fn shards_hold_every_sample_as_the_source_has_it() {
     assert_eq!((summary.samples, summary.resumed_shards), (IDS, 0));
     assert!(summary.shards >= 4, "{summary:?}");
 
-    // GNU tar lists each shard: a sample's five members together, in order, under one key.
+    // GNU tar lists each shard: a sample's six members together, in order, under one key (the
+    // SceneSpec travels as stored, so `stats` can compute the object figures from shards).
     let mut keys = vec![];
     for split in ["train", "val"] {
         let index: serde_json::Value =
@@ -131,14 +132,15 @@ fn shards_hold_every_sample_as_the_source_has_it() {
             );
             let listing = String::from_utf8(gnu_tar(&["-tf"], &path)).unwrap();
             let names: Vec<&str> = listing.lines().collect();
-            assert_eq!(names.len() % 5, 0, "{listing}");
-            for group in names.chunks(5) {
+            assert_eq!(names.len() % 6, 0, "{listing}");
+            for group in names.chunks(6) {
                 let key = group[0].strip_suffix(".left.png").expect(group[0]);
                 let want: Vec<String> = [
                     "left.png",
                     "right.png",
                     "disp_left.exr",
                     "disp_right.exr",
+                    "scene.json",
                     "json",
                 ]
                 .iter()

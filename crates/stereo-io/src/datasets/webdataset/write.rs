@@ -266,31 +266,55 @@ fn prepare_output(out: &Path, plan: &Plan, force: bool) -> Result<Vec<(String, S
     Ok(vec![])
 }
 
-/// For our datasets, each sample's manifest line, by sample id: the sample's `.json` member.
-fn manifest_lines(
-    source: &Path,
-    format: DatasetFormat,
-) -> Result<HashMap<String, serde_json::Value>> {
+/// What a sample of our datasets carries besides its images: its manifest line (inside the
+/// `.json` member) and its SceneSpec file (member `scene.json` / `scene.json.gz`, bytes as
+/// stored), so `stats` and `report` can compute the object-level figures from the shards.
+struct OurSample {
+    manifest_line: serde_json::Value,
+    scene: PathBuf,
+}
+
+/// For our datasets, each sample's manifest line and SceneSpec path, by sample id.
+fn manifest_lines(source: &Path, format: DatasetFormat) -> Result<HashMap<String, OurSample>> {
     if format != DatasetFormat::Stereogen {
         return Ok(HashMap::new());
     }
-    let contents = read_manifest(&DatasetLayout::new(source).manifest())?;
+    let layout = DatasetLayout::new(source);
+    let contents = read_manifest(&layout.manifest())?;
     contents
         .entries
         .iter()
         .map(|e| {
-            let v =
+            let manifest_line =
                 serde_json::to_value(e).map_err(|err| Error::format(source, err.to_string()))?;
-            Ok((e.id.clone(), v))
+            let scene = layout.abs(&e.files.scene);
+            Ok((
+                e.id.clone(),
+                OurSample {
+                    manifest_line,
+                    scene,
+                },
+            ))
         })
         .collect()
+}
+
+/// The member name of a SceneSpec file: `scene.` and what follows `.scene.` in its file name
+/// (`json` or `json.gz`).
+fn scene_member(path: &Path) -> String {
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    match name.rsplit_once(".scene.") {
+        Some((_, ext)) => format!("scene.{ext}"),
+        None if name.ends_with(".gz") => "scene.json.gz".into(),
+        None => "scene.json".into(),
+    }
 }
 
 /// The members of a sample: the source's own files where they already are PNG/JPEG images and
 /// EXR disparities (byte for byte), encoded otherwise; then the sample's facts as JSON.
 fn sample_members(
     s: &StereoSample,
-    manifest: &HashMap<String, serde_json::Value>,
+    ours: &HashMap<String, OurSample>,
 ) -> Result<Vec<(String, Vec<u8>)>> {
     let image =
         |path: &Path, rgb: &crate::image_io::RgbImage, view: &str| -> Result<(String, Vec<u8>)> {
@@ -362,8 +386,12 @@ fn sample_members(
         "cy": m.cy,
         "ndisp": m.ndisp,
         "extra": m.extra,
-        "manifest": manifest.get(&m.id),
+        "manifest": ours.get(&m.id).map(|o| &o.manifest_line),
     });
+    if let Some(o) = ours.get(&m.id) {
+        let bytes = fs::read(&o.scene).map_err(|e| Error::io(&o.scene, e))?;
+        out.push((scene_member(&o.scene), bytes));
+    }
     out.push((
         member::JSON.into(),
         serde_json::to_vec(&facts).expect("JSON of plain values"),
