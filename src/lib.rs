@@ -146,6 +146,13 @@ pub fn stats_cmd(dataset: &std::path::Path) -> std::process::Command {
     c
 }
 
+/// `stereogen merge OUT`; add `--verify`, `--webdataset DIR`, ... to it.
+pub fn merge_cmd(out: &std::path::Path) -> std::process::Command {
+    let mut c = stereogen_cmd(["merge"]);
+    c.arg(out);
+    c
+}
+
 /// `stereogen farm SCHEDULER` of `count` samples in `tasks` tasks of `recipe` into `out`, with
 /// one Cycles thread and the `stereogen` binary under test; add `--seed`, ... to it.
 pub fn farm_cmd(

@@ -5,6 +5,8 @@
 //!   cluster needed) accepts both Jobs, and each render pod's command, run here with
 //!   `JOB_COMPLETION_INDEX` and the pod's environment, renders its shard; the merge Job's
 //!   commands then merge and check.
+//! - with `--webdataset DIR` the merge step of all three (Slurm's too) passes the shard options
+//!   on, and the OpenJD and Kubernetes merge steps run here write the shards.
 //!
 //! The tools live in a virtual environment under `~/.cache/stereogen/farm-venv` (pinned
 //! versions, installed with pip on first use). Where it cannot be made the tests print why and
@@ -16,6 +18,17 @@ use std::sync::OnceLock;
 
 use stereogen::dataset::Manifest;
 use stereogen_e2e::{farm_cmd, write_tiny_recipe};
+
+/// The `--webdataset` options the farms here are written with (DIR is `OUT/wds`); a size in
+/// bytes, as the job files spell it.
+const SHARDS: [&str; 6] = [
+    "--shard-size",
+    "1024",
+    "--shuffle-seed",
+    "5",
+    "--splits",
+    "train=0.75,val=0.25",
+];
 
 const TOOLS: &[&str] = &["openjd-cli==0.8.0", "kubernetes-validate==1.37.0"];
 
@@ -82,14 +95,18 @@ fn text(o: &Output) -> String {
     )
 }
 
+/// `farm SCHEDULER` of 4 samples in 2 tasks, its merge step writing shards into `OUT/wds`.
 fn farm(scheduler: &str, recipe: &Path, out: &Path) {
     let o = farm_cmd(scheduler, recipe, out, 4, 2)
-        .args(["--seed", "4"])
+        .args(["--seed", "4", "--webdataset"])
+        .arg(out.join("wds"))
+        .args(SHARDS)
         .output()
         .unwrap();
     assert!(o.status.success(), "farm {scheduler}: {}", text(&o));
 }
 
+/// The merged dataset, and its 4 samples as shards in `OUT/wds` (3 train, 1 val).
 fn assert_merged(out: &Path) {
     let entries = Manifest::read(&out.join("manifest.jsonl")).expect("a merged manifest");
     assert_eq!(
@@ -97,6 +114,79 @@ fn assert_merged(out: &Path) {
         vec![0, 1, 2, 3]
     );
     assert!(out.join("merge.json").is_file());
+    let wds = out.join("wds");
+    for name in ["train-000002.tar", "val-000000.tar", "val.index.json"] {
+        assert!(wds.join(name).is_file(), "the merge step wrote {name}");
+    }
+    let shards = stereo_io::open_dataset(&wds, None).expect("the shards read");
+    assert_eq!(shards.len(), 4);
+}
+
+/// The merge step's arguments hold `--webdataset OUT/wds` and [`SHARDS`] in each scheduler's
+/// file; relative and misplaced folders, and shard options without a folder, are refused.
+#[test]
+fn every_farm_passes_the_webdataset_options_to_its_merge_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let recipe = write_tiny_recipe(dir.path(), "crestereo");
+    let out = dir.path().join("farm");
+    let wds = out.join("wds");
+    let mut want = vec![
+        "merge".to_string(),
+        out.display().to_string(),
+        "--webdataset".into(),
+        wds.display().to_string(),
+    ];
+    want.extend(SHARDS.iter().map(|a| a.to_string()));
+    let line = want.join(" ");
+    for (scheduler, file) in [
+        ("slurm", "merge.sbatch"),
+        ("openjd", "openjd-template.yaml"),
+        ("k8s", "k8s-merge.yaml"),
+    ] {
+        farm(scheduler, &recipe, &out);
+        let text = std::fs::read_to_string(out.join("jobs").join(file)).unwrap();
+        // Slurm: one shell command line; OpenJD and Kubernetes: one YAML list item an argument.
+        let words: Vec<&str> = text
+            .lines()
+            .flat_map(|l| match l.trim().strip_prefix("- ") {
+                Some(item) => vec![item],
+                None => l.split_whitespace().collect(),
+            })
+            .map(|w| w.trim_matches(|c| c == '\'' || c == '"'))
+            .collect();
+        let found = words.windows(want.len()).any(|w| w == want.as_slice());
+        assert!(found, "{scheduler}: no `{line}` in {file}:\n{text}");
+    }
+    for (scheduler, dir_arg, why) in [
+        ("slurm", "wds".into(), "must be an absolute path"),
+        (
+            "k8s",
+            dir.path().join("elsewhere"),
+            "put the shards under it",
+        ),
+        ("openjd", out.join("shards/wds"), "a folder of their own"),
+    ] {
+        let o = farm_cmd(scheduler, &recipe, &out, 4, 2)
+            .arg("--webdataset")
+            .arg(&dir_arg)
+            .output()
+            .unwrap();
+        assert!(
+            !o.status.success() && text(&o).contains(why),
+            "{scheduler} --webdataset {}: {}",
+            dir_arg.display(),
+            text(&o)
+        );
+    }
+    let o = farm_cmd("slurm", &recipe, &out, 4, 2)
+        .args(SHARDS)
+        .output()
+        .unwrap();
+    assert!(
+        !o.status.success() && text(&o).contains("need --webdataset"),
+        "{}",
+        text(&o)
+    );
 }
 
 #[test]

@@ -1,12 +1,14 @@
 //! `stereogen farm slurm` on a real single-node Slurm cluster (Debian's `slurm-wlm` and `munge`,
 //! started by `tests/farm/slurm-cluster.sh` under a temporary directory): the emitted
-//! `submit.sh` renders a tiny dataset with a job array and a dependent merge-and-check job; then
-//! a task is preempted with SIGTERM, the file re-submitted, and the dataset is still complete.
+//! `submit.sh` renders a tiny dataset with a job array and a dependent merge-and-check job (the
+//! merge writing WebDataset shards too, `--webdataset`); then a task is preempted with SIGTERM,
+//! the file re-submitted, and the dataset is still complete.
 //!
 //! Without Slurm (not root, no packages and no `apt-get`) the test prints why and passes, unless
 //! `CI` or `STEREOGEN_REQUIRE_SLURM` is set: then it fails, so CI cannot skip it silently.
 
 use std::collections::BTreeMap;
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -139,10 +141,11 @@ fn cluster_or_skip(dir: &Path) -> Option<Cluster> {
     }
 }
 
-/// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once.
-fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64) {
+/// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once; `extra` added.
+fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64, extra: &[&OsStr]) {
     let o = farm_cmd("slurm", recipe, out, count, tasks)
         .args(["--max-parallel", "2", "--seed", "3"])
+        .args(extra)
         .output()
         .unwrap();
     assert!(
@@ -310,9 +313,11 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let (count, tasks) = (8, 4);
 
-    // One submission: 4 array tasks (2 at once), then merge and check.
+    // One submission: 4 array tasks (2 at once), then merge (into WebDataset shards too) and check.
     let out = dir.path().join("farm");
-    write_job_files(&recipe, &out, count, tasks);
+    let wds = dir.path().join("wds");
+    let shard_args = [OsStr::new("--webdataset"), wds.as_os_str()];
+    write_job_files(&recipe, &out, count, tasks, &shard_args);
     let (render, merge) = submit(&cluster, &out);
     cluster.wait_for_empty_queue("first farm");
     let merge_job = cluster.job(&merge);
@@ -337,6 +342,12 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     }
     assert_complete_farm(&out, count, tasks);
     assert_plain_text_logs(&out, tasks);
+    assert_eq!(
+        stereo_io::open_dataset(&wds, None)
+            .expect("the merge job's shards read")
+            .len() as u64,
+        count
+    );
     let stats = stats_check(&out);
     assert!(
         stats.status.success(),
@@ -347,7 +358,7 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
 
     // Preemption: SIGTERM to a task while it renders, then the same file again.
     let out = dir.path().join("preempted");
-    write_job_files(&recipe, &out, count, tasks);
+    write_job_files(&recipe, &out, count, tasks, &[]);
     let (render, _) = submit(&cluster, &out);
     let lock = out.join(format!("shards/0001-of-{tasks:04}/.stereogen.lock"));
     let t_wait = Instant::now();

@@ -4,6 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use stereogen::dataset::TaskArgs;
+use stereogen::dataset::export::WebDatasetArgs;
+use stereogen::dataset::merge::WebDatasetTarget;
 use stereogen::farm::{FarmOptions, Scheduler, write_job_files};
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -69,6 +71,13 @@ pub struct FarmArgs {
     /// The merge step recomputes every checksum (merge --verify).
     #[arg(long)]
     verify: bool,
+    /// The merge step also writes the merged dataset as WebDataset shards into DIR (merge
+    /// --webdataset; absolute, like --out; Kubernetes: under --out), cut by --shard-size,
+    /// --shuffle-seed and --splits.
+    #[arg(long, value_name = "DIR")]
+    webdataset: Option<PathBuf>,
+    #[command(flatten)]
+    shards: WebDatasetArgs,
     /// Environment of every task, KEY=VALUE (repeatable), e.g. STEREOGEN_HOME=/shared/stereogen.
     #[arg(long = "env", value_name = "KEY=VALUE", value_parser = parse_env)]
     env: Vec<(String, String)>,
@@ -85,6 +94,9 @@ fn parse_env(s: &str) -> Result<(String, String), String> {
 }
 
 pub fn run(a: FarmArgs) -> anyhow::Result<()> {
+    if a.webdataset.is_none() && !a.shards.is_default() {
+        anyhow::bail!("--shard-size, --shuffle-seed and --splits need --webdataset DIR");
+    }
     let scheduler = match a.scheduler {
         SchedulerArg::Slurm => Scheduler::Slurm,
         SchedulerArg::K8s => Scheduler::Kubernetes,
@@ -114,6 +126,11 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
         name: a.name,
         grace_s: a.grace,
         verify: a.verify,
+        webdataset: a.webdataset.map(|dir| WebDatasetTarget {
+            dir,
+            shards: a.shards,
+            force: false,
+        }),
         env: a.env,
     };
     let files = write_job_files(&opts, scheduler)?;

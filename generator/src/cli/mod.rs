@@ -34,6 +34,8 @@ pub struct Cli {
 /// the library's [`stereogen::dataset::generate_command`].
 pub use stereogen::dataset::{RecipeArgs, RuntimeArgs};
 
+// Parsed once per run: the size of the largest variant (farm's options) costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Install the managed Blender environment (bpy 4.5 LTS from PyPI) and check that it starts,
@@ -105,15 +107,8 @@ pub enum Command {
         /// MiddEval3 uses; a scene with only the other is read in that one) or both.
         #[arg(long, value_name = "VARIANT", default_value_t = stereo_io::MiddleburyVariant::Imperfect)]
         middlebury_variant: stereo_io::MiddleburyVariant,
-        /// webdataset only: close a shard once it holds this much (e.g. 1GiB, 500MB).
-        #[arg(long, value_name = "SIZE", default_value = "1GiB", value_parser = stereogen::dataset::export::parse_bytes)]
-        shard_size: u64,
-        /// webdataset only: seeds the order of the samples across shards.
-        #[arg(long, value_name = "S", default_value_t = 0)]
-        shuffle_seed: u64,
-        /// webdataset only: split names and fractions, e.g. train=0.98,val=0.02.
-        #[arg(long, value_name = "NAME=FRACTION,...", default_value = "train=1")]
-        splits: stereogen::dataset::export::SplitFractions,
+        #[command(flatten)]
+        shards: stereogen::dataset::export::WebDatasetArgs,
         /// webdataset only: replace the export already in --out (an unfinished one of the same
         /// options resumes without it).
         #[arg(long)]
@@ -154,7 +149,8 @@ pub enum Command {
     /// Job or an Open Job Description template, each followed by a merge-and-check step.
     Farm(farm::FarmArgs),
     /// Merge a farm's shards (OUT/shards/*) into one dataset: checks recipe, seed, version,
-    /// coverage of every index exactly once, locks and files; writes OUT/manifest.jsonl.
+    /// coverage of every index exactly once, locks and files; writes OUT/manifest.jsonl (and,
+    /// with --webdataset DIR, the merged dataset as WebDataset shards).
     Merge(merge::MergeArgs),
     /// Progress of a farm (or one dataset) from its files: per shard done, failed, remaining,
     /// samples per hour, ETA.
@@ -224,9 +220,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             jpeg_quality,
             jpeg_chroma,
             middlebury_variant,
-            shard_size,
-            shuffle_seed,
-            splits,
+            shards,
             force,
         } => {
             use stereogen::dataset::export::ExportSummary;
@@ -238,12 +232,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 jpeg_quality,
                 jpeg_chroma,
                 middlebury_variant,
-                shards: stereo_io::WebDatasetOptions {
-                    shard_bytes: shard_size,
-                    shuffle_seed,
-                    splits: splits.0,
-                    force,
-                },
+                shards: shards.options(force),
             };
             match stereogen::dataset::export::export(&opts)? {
                 ExportSummary::Layout { format, written: s } => {

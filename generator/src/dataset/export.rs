@@ -51,6 +51,71 @@ impl FromStr for SplitFractions {
     }
 }
 
+impl fmt::Display for SplitFractions {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, (name, fraction)) in self.0.iter().enumerate() {
+            let sep = if i == 0 { "" } else { "," };
+            write!(f, "{sep}{name}={fraction}")?;
+        }
+        Ok(())
+    }
+}
+
+/// The shard options of `export --format webdataset`, `merge --webdataset` and
+/// `farm --webdataset`, typed once (flattened into each command).
+#[derive(Debug, Clone, PartialEq, clap::Args)]
+pub struct WebDatasetArgs {
+    /// WebDataset: close a shard once it holds this much (e.g. 1GiB, 500MB).
+    #[arg(long, value_name = "SIZE", default_value = "1GiB", value_parser = parse_bytes)]
+    pub shard_size: u64,
+    /// WebDataset: seeds the order of the samples across shards.
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub shuffle_seed: u64,
+    /// WebDataset: split names and fractions, e.g. train=0.98,val=0.02.
+    #[arg(long, value_name = "NAME=FRACTION,...", default_value = "train=1")]
+    pub splits: SplitFractions,
+}
+
+impl Default for WebDatasetArgs {
+    fn default() -> Self {
+        let d = WebDatasetOptions::default();
+        Self {
+            shard_size: d.shard_bytes,
+            shuffle_seed: d.shuffle_seed,
+            splits: SplitFractions(d.splits),
+        }
+    }
+}
+
+impl WebDatasetArgs {
+    /// The writer's options (`force`: replace an export already in the output folder).
+    pub fn options(&self, force: bool) -> WebDatasetOptions {
+        WebDatasetOptions {
+            shard_bytes: self.shard_size,
+            shuffle_seed: self.shuffle_seed,
+            splits: self.splits.0.clone(),
+            force,
+        }
+    }
+
+    /// Whether any option differs from its default (they mean nothing without shards to write).
+    pub fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// The options as a command line gives them (every one, so a job file says what it writes).
+    pub fn to_args(&self) -> Vec<String> {
+        vec![
+            "--shard-size".into(),
+            self.shard_size.to_string(),
+            "--shuffle-seed".into(),
+            self.shuffle_seed.to_string(),
+            "--splits".into(),
+            self.splits.to_string(),
+        ]
+    }
+}
+
 /// What an export wrote.
 #[derive(Debug, Clone)]
 pub enum ExportSummary {
@@ -183,5 +248,31 @@ mod tests {
         );
         let e = "tfrecord".parse::<ExportFormat>().unwrap_err();
         assert!(e.contains("webdataset"), "{e}");
+    }
+
+    #[test]
+    fn webdataset_args_round_trip_through_their_command_line() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cmd {
+            #[command(flatten)]
+            shards: WebDatasetArgs,
+        }
+        let parse = |args: &[String]| {
+            Cmd::try_parse_from(std::iter::once("x".to_string()).chain(args.iter().cloned()))
+                .unwrap()
+                .shards
+        };
+        let defaults = parse(&[]);
+        assert_eq!(defaults, WebDatasetArgs::default());
+        assert!(defaults.is_default());
+        let given = WebDatasetArgs {
+            shard_size: 3_000_000,
+            shuffle_seed: 7,
+            splits: "train=0.98,val=0.02".parse().unwrap(),
+        };
+        assert!(!given.is_default());
+        assert_eq!(parse(&given.to_args()), given);
+        assert_eq!(given.options(true).splits, given.splits.0);
     }
 }

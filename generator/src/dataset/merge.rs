@@ -3,6 +3,11 @@
 //! exactly once and are finished, and that the files are there (and intact), then writes the
 //! top-level `dataset.json`, `manifest.jsonl` (paths into the shards) and `merge.json`. Nothing
 //! is copied. With any problem nothing is written and each problem is one line of the report.
+//!
+//! With [`MergeOptions::webdataset`] the merged dataset is then written as WebDataset shards by
+//! the same call `export --format webdataset` makes, so a farm run ends in shards after one pass
+//! over its sample files (the merge's checks read their sizes and a sample of their checksums;
+//! the shard writer reads each file once). A merge with problems writes no shard folder.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -14,6 +19,7 @@ use sha2::{Digest, Sha256};
 use stereo_io::DatasetInfo;
 use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardDirs, ShardId, ShardInfo};
 
+use super::export::{ExportFormat, ExportOptions, ExportSummary, WebDatasetArgs, export};
 use super::layout::DatasetLayout;
 use super::lock::{LockState, inspect, unix_now};
 use super::manifest::{ManifestEntry, read_failures, read_manifest};
@@ -28,6 +34,50 @@ pub struct MergeOptions {
     pub out: PathBuf,
     /// Recompute every file's SHA-256 (otherwise: sizes of all, checksums of a sample).
     pub verify: bool,
+    /// After a merge without problems, also write the merged dataset as WebDataset shards.
+    pub webdataset: Option<WebDatasetTarget>,
+}
+
+/// `merge --webdataset DIR`: where the shards go and how they are cut.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WebDatasetTarget {
+    pub dir: PathBuf,
+    pub shards: WebDatasetArgs,
+    /// Replace an export already in `dir` (an unfinished one of the same options resumes
+    /// without it).
+    pub force: bool,
+}
+
+impl WebDatasetTarget {
+    /// `--webdataset DIR` and the shard options, as a command line gives them.
+    pub fn to_args(&self) -> Vec<String> {
+        let mut a = vec![
+            "--webdataset".to_string(),
+            self.dir.to_string_lossy().into_owned(),
+        ];
+        a.extend(self.shards.to_args());
+        if self.force {
+            a.push("--force".into());
+        }
+        a
+    }
+}
+
+/// Refuses a shard folder that would overwrite the farm's output: OUT itself, or a folder under
+/// OUT/shards (which merge reads).
+pub fn check_webdataset_dir(out: &Path, dir: &Path) -> anyhow::Result<()> {
+    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let (out, dir) = (abs(out), abs(dir));
+    let shards = out.join(stereo_io::datasets::stereogen::SHARDS_DIR);
+    if dir == out || dir.starts_with(&shards) {
+        bail!(
+            "--webdataset {}: the shards cannot go into the farm's output {} or its shards/; name a folder of their own (e.g. {})",
+            dir.display(),
+            out.display(),
+            out.join("webdataset").display()
+        );
+    }
+    Ok(())
 }
 
 /// What merge found; `problems` empty means it wrote the merged dataset.
@@ -40,6 +90,8 @@ pub struct MergeReport {
     pub samples: u64,
     pub files_checked: u64,
     pub files_hashed: u64,
+    /// What `--webdataset` wrote.
+    pub webdataset: Option<stereo_io::WebDatasetSummary>,
 }
 
 /// One shard directory as read for the merge.
@@ -55,6 +107,9 @@ struct Shard {
 
 /// Reads every shard, checks everything, and writes the merge if nothing is wrong.
 pub fn merge(opts: &MergeOptions) -> anyhow::Result<MergeReport> {
+    if let Some(t) = &opts.webdataset {
+        check_webdataset_dir(&opts.out, &t.dir)?;
+    }
     let out = DatasetLayout::new(&opts.out);
     let ShardDirs {
         shards: found,
@@ -109,7 +164,36 @@ pub fn merge(opts: &MergeOptions) -> anyhow::Result<MergeReport> {
         opts.verify,
         report.files_hashed,
     )?;
+    if let Some(t) = &opts.webdataset {
+        report.webdataset = Some(write_shards(&opts.out, t)?);
+    }
     Ok(report)
+}
+
+/// The merged dataset in `out` as WebDataset shards: `export --format webdataset`'s own call.
+fn write_shards(
+    out: &Path,
+    target: &WebDatasetTarget,
+) -> anyhow::Result<stereo_io::WebDatasetSummary> {
+    let opts = ExportOptions {
+        dataset: out.to_path_buf(),
+        from: Some(stereo_io::DatasetFormat::Stereogen),
+        format: ExportFormat::WebDataset,
+        out: target.dir.clone(),
+        jpeg_quality: None,
+        jpeg_chroma: stereo_io::ChromaSampling::Full,
+        middlebury_variant: stereo_io::ReadOptions::default().middlebury_variant,
+        shards: target.shards.options(target.force),
+    };
+    match export(&opts) {
+        Ok(ExportSummary::Shards(s)) => Ok(s),
+        Ok(ExportSummary::Layout { .. }) => unreachable!("a WebDataset export writes shards"),
+        Err(e) => Err(e.context(format!(
+            "merged {}, but did not write its WebDataset shards into {}",
+            out.display(),
+            target.dir.display()
+        ))),
+    }
 }
 
 /// The number of shards: what most directories say (the largest on a tie); the others are problems.

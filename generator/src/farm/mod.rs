@@ -4,7 +4,8 @@
 //! serialised; what every task runs is the same `stereogen generate` a user would type
 //! ([`FarmOptions::generate_command`], serialised by [`GenerateCommand::to_args`]), with the shard taken from the scheduler (`--shard auto`) or
 //! the task parameter, so re-submitting the same file resumes. After the render tasks, a merge
-//! step runs `stereogen merge` and `stereogen stats --check` on the shared output.
+//! step runs `stereogen merge` and `stereogen stats --check` on the shared output; with
+//! [`FarmOptions::webdataset`] the merge also writes the dataset as WebDataset shards.
 //!
 //! The recipe is written once into the job directory (`recipe.toml`, the loaded recipe with the
 //! command line's asset folders applied), so every task reads the same recipe from shared storage.
@@ -18,6 +19,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 
 use crate::dataset::generate_command::{GenerateCommand, RecipeArgs, TaskArgs};
+use crate::dataset::merge::{WebDatasetTarget, check_webdataset_dir};
 use crate::dataset::shard::ShardArg;
 use crate::plan::Recipe;
 
@@ -63,6 +65,9 @@ pub struct FarmOptions {
     pub grace_s: u64,
     /// `merge --verify`: recompute every checksum in the merge step.
     pub verify: bool,
+    /// `merge --webdataset DIR ...`: the merge step also writes the dataset as WebDataset shards
+    /// into DIR (absolute, like `out`).
+    pub webdataset: Option<WebDatasetTarget>,
     /// Extra environment of every task (`KEY=VALUE`), e.g. `STEREOGEN_HOME`.
     pub env: Vec<(String, String)>,
     /// Where the job files (and the recipe) are written [default: `OUT/jobs`].
@@ -92,6 +97,15 @@ impl FarmOptions {
                 "--out {} must be an absolute path: every task and the merge step must find the same directory",
                 self.out.display()
             );
+        }
+        if let Some(t) = &self.webdataset {
+            if !t.dir.is_absolute() {
+                bail!(
+                    "--webdataset {} must be an absolute path: the merge step runs elsewhere",
+                    t.dir.display()
+                );
+            }
+            check_webdataset_dir(&self.out, &t.dir)?;
         }
         for (k, _) in &self.env {
             if k.is_empty()
@@ -137,11 +151,14 @@ impl FarmOptions {
         }
     }
 
-    /// `merge OUT [--verify]`.
+    /// `merge OUT [--verify] [--webdataset DIR --shard-size B --shuffle-seed S --splits ...]`.
     pub fn merge_args(&self) -> Vec<String> {
         let mut a = vec!["merge".to_string(), path(&self.out)];
         if self.verify {
             a.push("--verify".into());
+        }
+        if let Some(t) = &self.webdataset {
+            a.extend(t.to_args());
         }
         a
     }
@@ -168,6 +185,16 @@ pub enum Scheduler {
 /// written, the one to submit first.
 pub fn write_job_files(opts: &FarmOptions, scheduler: Scheduler) -> anyhow::Result<Vec<PathBuf>> {
     opts.check()?;
+    if let Some(t) = &opts.webdataset
+        && scheduler == Scheduler::Kubernetes
+        && !t.dir.starts_with(&opts.out)
+    {
+        bail!(
+            "--webdataset {}: a Kubernetes pod sees only the volume mounted at --out {}; put the shards under it",
+            t.dir.display(),
+            opts.out.display()
+        );
+    }
     std::fs::create_dir_all(&opts.job_dir)
         .with_context(|| format!("cannot create {}", opts.job_dir.display()))?;
     let recipe = toml::to_string(&opts.recipe).context("cannot write the recipe as TOML")?;
