@@ -5,9 +5,16 @@
 //! which index come from a sequential [`Planner`] (replayable, so the data position after a
 //! resume is just `k`), and the augmentation draws from the named streams of a seed made of
 //! `(seed, k)`. Worker count and timing therefore never change what the model sees.
+//!
+//! A WebDataset source is streamed: its epochs follow [`stream_order`] (shards dealt to streams,
+//! each read front to back through a shuffle buffer), which is computed from the index and the
+//! seeds alone, and the loader reads each stream's shards sequentially ([`streamed`]).
+
+mod source;
+pub mod stream_order;
+pub mod streamed;
 
 use std::collections::BTreeMap;
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::sync::{Arc, Condvar, Mutex};
@@ -18,55 +25,11 @@ use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use stereo_io::{StereoDataset, open_dataset};
 
 use crate::augment::{AugmentConfig, TrainSample, augment_random};
-use crate::config::DatasetEntry;
-
-/// The training datasets, opened, with their normalised weights.
-pub struct MixedSource {
-    pub datasets: Vec<Box<dyn StereoDataset>>,
-    pub names: Vec<String>,
-    pub weights: Vec<f64>,
-}
-
-impl MixedSource {
-    pub fn open(entries: &[DatasetEntry]) -> Result<Self> {
-        let mut datasets = Vec::new();
-        let mut names = Vec::new();
-        for (i, e) in entries.iter().enumerate() {
-            let ds = open_data(&e.path, e.format, &format!("datasets[{i}]"))?;
-            names.push(format!(
-                "{} ({}, {} samples)",
-                e.path.display(),
-                ds.format(),
-                ds.len()
-            ));
-            datasets.push(ds);
-        }
-        let total: f64 = entries.iter().map(|e| e.weight).sum();
-        let weights = entries.iter().map(|e| e.weight / total).collect();
-        Ok(Self {
-            datasets,
-            names,
-            weights,
-        })
-    }
-}
-
-/// Opens a dataset that must hold samples; `key` names it in errors (`datasets[0]`, `--data`).
-pub fn open_data(
-    path: &Path,
-    format: Option<stereo_io::DatasetFormat>,
-    key: &str,
-) -> Result<Box<dyn StereoDataset>> {
-    let ds = open_dataset(path, format)
-        .with_context(|| format!("{key}: cannot open {}", path.display()))?;
-    if ds.is_empty() {
-        bail!("{key}: {} holds no samples", path.display());
-    }
-    Ok(ds)
-}
+pub use source::{MixedSource, open_data};
+use stream_order::StreamLayout;
+use streamed::StreamReaders;
 
 /// One planned sample: its number in the run, where it comes from, and its augmentation seed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -75,6 +38,10 @@ pub struct SamplePlan {
     pub dataset: usize,
     pub index: usize,
     pub seed: u64,
+    /// The dataset's epoch this sample belongs to.
+    pub epoch: u64,
+    /// The stream it is read from, for a streamed dataset.
+    pub stream: Option<u32>,
 }
 
 /// Chooses the dataset of every sample by weight, and walks each dataset in its own shuffled
@@ -83,6 +50,8 @@ pub struct Planner {
     seed: u64,
     weights: Vec<f64>,
     lens: Vec<usize>,
+    /// The streamed datasets' layouts (`None`: a full shuffle per epoch).
+    layouts: Vec<Option<StreamLayout>>,
     pick: ChaCha8Rng,
     epochs: Vec<DatasetEpoch>,
     next: u64,
@@ -93,6 +62,8 @@ pub struct Planner {
 struct DatasetEpoch {
     number: u64,
     order: Vec<usize>,
+    /// The stream of each entry of `order` (empty when the dataset is not streamed).
+    streams: Vec<u32>,
     next: usize,
 }
 
@@ -104,13 +75,38 @@ pub fn mix_seed(a: u64, b: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The seed of epoch `epoch` of dataset `dataset`.
+pub fn epoch_seed(seed: u64, dataset: usize, epoch: u64) -> u64 {
+    mix_seed(mix_seed(seed, dataset as u64 + 1), epoch)
+}
+
 impl Planner {
+    /// Every dataset walked in full shuffles (random access).
     pub fn new(seed: u64, weights: &[f64], lens: &[usize]) -> Self {
+        Self::with_layouts(seed, weights, lens, vec![None; lens.len()])
+    }
+
+    /// Datasets with a layout are walked in [`stream_order`]'s epochs, the others in full
+    /// shuffles.
+    pub fn with_layouts(
+        seed: u64,
+        weights: &[f64],
+        lens: &[usize],
+        layouts: Vec<Option<StreamLayout>>,
+    ) -> Self {
         assert_eq!(weights.len(), lens.len());
+        assert_eq!(layouts.len(), lens.len());
+        for (l, &n) in layouts.iter().zip(lens) {
+            assert!(
+                l.as_ref().is_none_or(|l| l.len() == n),
+                "layout of another length"
+            );
+        }
         let mut p = Self {
             seed,
             weights: weights.to_vec(),
             lens: lens.to_vec(),
+            layouts,
             pick: ChaCha8Rng::seed_from_u64(mix_seed(seed, 0x5EED)),
             epochs: Vec::new(),
             next: 0,
@@ -121,15 +117,30 @@ impl Planner {
 
     /// Epoch `number` of `dataset`: every index once, in an order of its own.
     fn epoch(&self, dataset: usize, number: u64) -> DatasetEpoch {
+        let seed = epoch_seed(self.seed, dataset, number);
+        if let Some(layout) = &self.layouts[dataset] {
+            let o = layout.epoch_order(seed);
+            return DatasetEpoch {
+                number,
+                order: o.indices,
+                streams: o.streams,
+                next: 0,
+            };
+        }
         let mut order: Vec<usize> = (0..self.lens[dataset]).collect();
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(mix_seed(mix_seed(self.seed, dataset as u64 + 1), number));
-        order.shuffle(&mut rng);
+        order.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
         DatasetEpoch {
             number,
             order,
+            streams: Vec::new(),
             next: 0,
         }
+    }
+
+    /// `dataset`'s current epoch and the indices planned from it so far.
+    pub fn epoch_progress(&self, dataset: usize) -> (u64, &[usize]) {
+        let e = &self.epochs[dataset];
+        (e.number, &e.order[..e.next])
     }
 
     /// The ordinal of the sample [`Self::next_plan`] returns next.
@@ -150,19 +161,25 @@ impl Planner {
         self.weights.len() - 1
     }
 
-    /// The next index of `dataset`'s walk, starting its next epoch when this one is used up.
-    fn next_index(&mut self, dataset: usize) -> usize {
+    /// The next index of `dataset`'s walk (with its epoch and stream), starting its next epoch
+    /// when this one is used up.
+    fn next_index(&mut self, dataset: usize) -> (usize, u64, Option<u32>) {
         if self.epochs[dataset].next == self.lens[dataset] {
             self.epochs[dataset] = self.epoch(dataset, self.epochs[dataset].number + 1);
         }
         let epoch = &mut self.epochs[dataset];
         epoch.next += 1;
-        epoch.order[epoch.next - 1]
+        let at = epoch.next - 1;
+        (
+            epoch.order[at],
+            epoch.number,
+            epoch.streams.get(at).copied(),
+        )
     }
 
     pub fn next_plan(&mut self) -> SamplePlan {
         let dataset = self.pick_dataset();
-        let index = self.next_index(dataset);
+        let (index, epoch, stream) = self.next_index(dataset);
         let ordinal = self.next;
         self.next += 1;
         SamplePlan {
@@ -170,6 +187,8 @@ impl Planner {
             dataset,
             index,
             seed: mix_seed(self.seed ^ 0xA06_u64, ordinal),
+            epoch,
+            stream,
         }
     }
 
@@ -199,10 +218,12 @@ pub struct SkippedSample {
     pub error: String,
 }
 
-/// Decodes one plan; an unreadable sample is replaced by the next index of the same dataset
-/// (deterministically), up to `retries` times.
+/// Decodes one plan (a streamed dataset's from its stream in `streams`); an unreadable sample
+/// is replaced by the next index of the same dataset (deterministically, read by random
+/// access), up to `retries` times.
 pub fn load_sample(
     source: &MixedSource,
+    streams: Option<&StreamReaders>,
     plan: SamplePlan,
     augment: &AugmentConfig,
     retries: usize,
@@ -212,7 +233,11 @@ pub fn load_sample(
     let mut errors = Vec::new();
     for attempt in 0..=retries {
         let index = (plan.index + attempt) % ds.len();
-        match ds.sample(index) {
+        let streamed = streams
+            .filter(|_| attempt == 0)
+            .and_then(|s| s.sample(&plan));
+        let read = streamed.unwrap_or_else(|| Ok(ds.sample(index)?));
+        match read {
             Ok(sample) => {
                 let sample = augment_random(&sample, augment, plan.seed);
                 return Ok(LoadedSample {
@@ -256,6 +281,7 @@ struct Worker {
     jobs: Arc<Mutex<Receiver<SamplePlan>>>,
     results: SyncSender<Decoded>,
     source: Arc<MixedSource>,
+    streams: Option<Arc<StreamReaders>>,
     augment: AugmentConfig,
     retries: usize,
     stop: Arc<AtomicBool>,
@@ -273,6 +299,7 @@ impl Worker {
             }
             let result = load_sample(
                 &self.source,
+                self.streams.as_deref(),
                 plan,
                 &self.augment,
                 self.retries,
@@ -303,6 +330,8 @@ pub struct Loader {
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
     pub skipped: Arc<Mutex<Vec<SkippedSample>>>,
+    /// The readers of the streamed datasets, if any.
+    pub streams: Option<Arc<StreamReaders>>,
 }
 
 impl Loader {
@@ -317,6 +346,7 @@ impl Loader {
         retries: usize,
     ) -> Self {
         planner.skip_to(start);
+        let streams = StreamReaders::new(&source.webdatasets, &planner).map(Arc::new);
         let workers = workers.max(1);
         let prefetch = prefetch.max(1) as u64;
         let stop = Arc::new(AtomicBool::new(false));
@@ -338,6 +368,7 @@ impl Loader {
                 jobs: jobs.clone(),
                 results: res_tx.clone(),
                 source: source.clone(),
+                streams: streams.clone(),
                 augment: augment.clone(),
                 retries,
                 stop: stop.clone(),
@@ -353,6 +384,7 @@ impl Loader {
             stop,
             threads,
             skipped,
+            streams,
         }
     }
 

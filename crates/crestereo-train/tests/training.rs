@@ -417,6 +417,7 @@ fn loader_stays_within_its_prefetch_bound() {
         })],
         names: vec!["counted".into()],
         weights: vec![1.0],
+        webdatasets: vec![None],
     });
     let mut l = Loader::start(
         source,

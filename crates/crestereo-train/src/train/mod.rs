@@ -54,13 +54,14 @@ pub struct TrainOutcome {
 /// Adam over the network's parameters, as Burn builds it.
 type Adam<B> = OptimizerAdaptor<burn::optim::Adam, CREStereo<B>, B>;
 
-/// The fields a resumed run must share with the stored config: what defines the loss curve.
-/// Steps, loader, checkpoint, log and validation settings may change between sessions.
+/// The fields a resumed run must share with the stored config: what defines the loss curve
+/// (the WebDataset streaming settings decide the data order, so they are among them). Steps,
+/// loader, checkpoint, log and validation settings may change between sessions.
 fn identity(cfg: &TrainConfig) -> serde_json::Value {
     serde_json::json!({
         "seed": cfg.seed, "batch_size": cfg.batch_size, "accumulate": cfg.accumulate, "iters": cfg.iters,
         "gamma": cfg.gamma, "adam": cfg.adam, "schedule": cfg.schedule, "augment": cfg.augment,
-        "datasets": cfg.datasets, "init_weights": cfg.init_weights,
+        "datasets": cfg.datasets, "init_weights": cfg.init_weights, "webdataset": cfg.webdataset,
     })
 }
 
@@ -82,7 +83,7 @@ fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Che
         && identity(&old) != identity(cfg)
     {
         bail!(
-            "the config differs from the one this run started with ({}) in seed, batch, iters, loss, optimiser, schedule, augmentation or data — resume with the same config (steps, loader, checkpoint, log and validation settings may change)",
+            "the config differs from the one this run started with ({}) in seed, batch, iters, loss, optimiser, schedule, augmentation, data or WebDataset streaming — resume with the same config (steps, loader, checkpoint, log and validation settings may change)",
             stored.display()
         );
     }
@@ -147,7 +148,18 @@ fn open_training_data(cfg: &TrainConfig) -> Result<Arc<MixedSource>> {
 /// The data stream of the run from sample `position` on.
 pub fn start_loader(cfg: &TrainConfig, source: Arc<MixedSource>, position: u64) -> Loader {
     let lens: Vec<usize> = source.datasets.iter().map(|d| d.len()).collect();
-    let planner = Planner::new(cfg.seed, &source.weights, &lens);
+    let layouts = source.stream_layouts(&cfg.webdataset);
+    for (name, l) in source.names.iter().zip(&layouts) {
+        if let Some(l) = l {
+            tracing::info!(
+                "streaming {name}: {} shards dealt to {} streams each epoch, a shuffle buffer of {} samples per stream",
+                l.shard_samples.len(),
+                l.streams,
+                l.buffer
+            );
+        }
+    }
+    let planner = Planner::with_layouts(cfg.seed, &source.weights, &lens, layouts);
     let l = &cfg.loader;
     Loader::start(
         source,

@@ -20,7 +20,7 @@ mod write;
 
 use serde::{Deserialize, Serialize};
 
-pub use read::WebDataset;
+pub use read::{RawSample, ShardReader, WebDataset};
 pub use write::{WebDatasetOptions, WebDatasetSummary, export_webdataset, parse_splits};
 
 /// The index of one split: `<root>/<split>.index.json`.

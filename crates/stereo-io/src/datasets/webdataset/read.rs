@@ -1,8 +1,11 @@
 //! Reading a WebDataset folder: every split's shards, checked against their index, with each
-//! sample's members located once (tar headers only) so any sample can be read by seeking.
+//! sample's members located once (tar headers only) so any sample can be read by seeking, and
+//! any shard read front to back ([`ShardReader`]: one open file, members in stored order) by a
+//! loader that streams shards.
 
+use std::borrow::Cow;
 use std::fs::{self, File};
-use std::io::{Read, Seek, SeekFrom};
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use super::{INDEX_FORMAT, INDEX_SUFFIX, INDEX_VERSION, ShardIndex, member};
@@ -208,11 +211,20 @@ impl StereoDataset for WebDataset {
             .samples
             .get(index)
             .ok_or_else(|| crate::datasets::out_of_range(self, index))?;
-        let need = |suffix: &str| -> Result<(Vec<u8>, PathBuf)> {
+        self.decode_with(s, &|suffix| {
+            Ok(self.read_member(s, suffix)?.map(Cow::Owned))
+        })
+    }
+}
+
+impl WebDataset {
+    /// A sample from its members' bytes, however they were read (seeking or streaming): `get`
+    /// returns a member's bytes by suffix, `None` where the sample has no such member.
+    fn decode_with<'a>(&self, s: &SampleEntry, get: &MemberBytes<'a>) -> Result<StereoSample> {
+        let need = |suffix: &str| -> Result<(Cow<'a, [u8]>, PathBuf)> {
             let path = self.member_path(s, suffix);
-            let bytes = self
-                .read_member(s, suffix)?
-                .ok_or_else(|| Error::format(&path, "missing from its sample"))?;
+            let bytes =
+                get(suffix)?.ok_or_else(|| Error::format(&path, "missing from its sample"))?;
             Ok((bytes, path))
         };
         let image = |view: &str| -> Result<crate::image_io::RgbImage> {
@@ -227,11 +239,11 @@ impl StereoDataset for WebDataset {
         let (left, right) = (image(member::LEFT)?, image(member::RIGHT)?);
         let (bytes, path) = need(member::DISP_LEFT)?;
         let disp_left = decode_disparity_exr(&bytes, &path)?.0;
-        let disp_right = match self.read_member(s, member::DISP_RIGHT)? {
+        let disp_right = match get(member::DISP_RIGHT)? {
             Some(b) => Some(decode_disparity_exr(&b, &self.member_path(s, member::DISP_RIGHT))?.0),
             None => None,
         };
-        let valid_left = match self.read_member(s, member::VALID_LEFT)? {
+        let valid_left = match get(member::VALID_LEFT)? {
             Some(b) => {
                 let path = self.member_path(s, member::VALID_LEFT);
                 Some(
@@ -274,5 +286,155 @@ impl StereoDataset for WebDataset {
             valid_left,
             meta,
         })
+    }
+}
+
+/// A member's bytes by suffix (`None`: the sample has no such member), borrowed or read.
+type MemberBytes<'a> = dyn Fn(&str) -> Result<Option<Cow<'a, [u8]>>> + 'a;
+
+/// A sample's members as stored (nothing decoded): what a streaming loader buffers. Its cost in
+/// memory is the sum of its member sizes (a 960×540 sample of ours: about 2.3 MB).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RawSample {
+    /// The sample's index in the [`WebDataset`].
+    pub index: usize,
+    /// `(suffix, bytes)` in stored order: `left.png`, `right.png`, `disp_left.exr`, ...
+    pub members: Vec<(String, Vec<u8>)>,
+}
+
+impl RawSample {
+    /// The bytes of member `<key>.<suffix>`, if the sample has one.
+    pub fn member(&self, suffix: &str) -> Option<&[u8]> {
+        self.members
+            .iter()
+            .find(|(s, _)| s == suffix)
+            .map(|(_, b)| b.as_slice())
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.members.iter().map(|(_, b)| b.len()).sum()
+    }
+}
+
+impl WebDataset {
+    /// The number of samples of each shard, shards in index order: shard `n` holds the samples
+    /// numbered from the sum of the counts before it, consecutively.
+    pub fn shard_samples(&self) -> Vec<usize> {
+        let mut counts = vec![0; self.shards.len()];
+        for s in &self.samples {
+            counts[s.shard] += 1;
+        }
+        counts
+    }
+
+    /// Sample `index`'s members by seeking into its shard (random access).
+    pub fn read_raw(&self, index: usize) -> Result<RawSample> {
+        let s = self
+            .samples
+            .get(index)
+            .ok_or_else(|| crate::datasets::out_of_range(self, index))?;
+        let members = s
+            .members
+            .iter()
+            .map(|m| {
+                let bytes = self.read_member(s, &m.suffix)?.unwrap_or_default();
+                Ok((m.suffix.clone(), bytes))
+            })
+            .collect::<Result<_>>()?;
+        Ok(RawSample { index, members })
+    }
+
+    /// Decodes a sample read raw (by [`Self::read_raw`] or a [`ShardReader`]): the same arrays
+    /// [`StereoDataset::sample`] returns for its index, bit for bit.
+    pub fn decode(&self, raw: &RawSample) -> Result<StereoSample> {
+        let s = self
+            .samples
+            .get(raw.index)
+            .ok_or_else(|| crate::datasets::out_of_range(self, raw.index))?;
+        self.decode_with(s, &|suffix| Ok(raw.member(suffix).map(Cow::Borrowed)))
+    }
+
+    /// Opens shard `shard` (numbered in index order) for reading front to back.
+    pub fn shard_reader(&self, shard: usize) -> Result<ShardReader> {
+        let path = self.shards.get(shard).ok_or_else(|| {
+            Error::format(
+                &self.root,
+                format!("shard {shard} of {} asked for", self.shards.len()),
+            )
+        })?;
+        let file = File::open(path).map_err(|e| Error::io(path, e))?;
+        Ok(ShardReader {
+            shard,
+            path: path.clone(),
+            file: BufReader::with_capacity(1 << 20, file),
+            pos: 0,
+            next: self.samples.partition_point(|s| s.shard < shard),
+        })
+    }
+}
+
+/// One shard read sequentially: one open file, samples and their members in stored order,
+/// moving forward only (samples passed over are skipped without reading their bytes).
+pub struct ShardReader {
+    shard: usize,
+    path: PathBuf,
+    file: BufReader<File>,
+    /// The file position of `file`.
+    pos: u64,
+    /// The lowest sample index that may still be read.
+    next: usize,
+}
+
+impl ShardReader {
+    /// The shard's number in the dataset's index order.
+    pub fn shard(&self) -> usize {
+        self.shard
+    }
+
+    /// Reads sample `index` of `dataset` (the dataset this reader was opened from), which must
+    /// lie in this shard at or after the samples already read.
+    pub fn read(&mut self, dataset: &WebDataset, index: usize) -> Result<RawSample> {
+        let s = dataset
+            .samples
+            .get(index)
+            .ok_or_else(|| crate::datasets::out_of_range(dataset, index))?;
+        if s.shard != self.shard || index < self.next {
+            return Err(Error::format(
+                &self.path,
+                format!(
+                    "sample {index} asked of a reader of shard {} at sample {} (reads go forward within one shard)",
+                    self.shard, self.next
+                ),
+            ));
+        }
+        self.next = index + 1;
+        let mut members = Vec::with_capacity(s.members.len());
+        for m in &s.members {
+            let bytes = self.read_at(m.offset, m.size).inspect_err(|_| {
+                // Where the file stands after a failed read is unknown: seek from the start.
+                self.pos = u64::MAX;
+            })?;
+            members.push((m.suffix.clone(), bytes));
+        }
+        Ok(RawSample { index, members })
+    }
+
+    /// `size` bytes at `offset`, skipping forward from where the file stands (within the
+    /// buffer where the gap is small: tar headers and padding).
+    fn read_at(&mut self, offset: u64, size: u64) -> Result<Vec<u8>> {
+        let io = |e| Error::io(&self.path, e);
+        if offset != self.pos {
+            match offset.checked_sub(self.pos) {
+                Some(gap) => self.file.seek_relative(gap as i64),
+                None => self.file.seek(SeekFrom::Start(offset)).map(drop),
+            }
+            .map_err(io)?;
+            self.pos = offset;
+        }
+        let mut bytes = vec![0; size as usize];
+        self.file.read_exact(&mut bytes).map_err(io)?;
+        self.pos += size;
+        Ok(bytes)
     }
 }
