@@ -93,7 +93,7 @@ fn prune_old_builds(parent: &Path, current: &Path) {
         .filter(|e| e.path() != current && e.path().is_dir())
         .filter_map(|e| Some((e.metadata().ok()?.modified().ok()?, e.path())))
         .collect();
-    builds.sort_by(|a, b| b.0.cmp(&a.0));
+    builds.sort_by_key(|b| std::cmp::Reverse(b.0));
     for (_, old) in builds.into_iter().skip(KEEP_BUILDS) {
         let _ = std::fs::remove_dir_all(old);
     }
