@@ -23,10 +23,16 @@ struct Member {
 }
 
 #[derive(Debug, Clone)]
-struct SampleEntry {
-    key: String,
+pub(super) struct SampleEntry {
+    pub(super) key: String,
     shard: usize,
     members: Vec<Member>,
+}
+
+impl SampleEntry {
+    pub(super) fn suffixes(&self) -> impl Iterator<Item = &str> {
+        self.members.iter().map(|m| m.suffix.as_str())
+    }
 }
 
 /// A WebDataset folder opened for reading ([`StereoDataset`]); samples in index order: the
@@ -34,7 +40,7 @@ struct SampleEntry {
 pub struct WebDataset {
     root: PathBuf,
     shards: Vec<PathBuf>,
-    samples: Vec<SampleEntry>,
+    pub(super) samples: Vec<SampleEntry>,
 }
 
 impl WebDataset {
@@ -158,7 +164,7 @@ impl WebDataset {
         Ok(())
     }
 
-    fn read_member(&self, s: &SampleEntry, suffix: &str) -> Result<Option<Vec<u8>>> {
+    pub(super) fn read_member(&self, s: &SampleEntry, suffix: &str) -> Result<Option<Vec<u8>>> {
         let Some(m) = s.members.iter().find(|m| m.suffix == suffix) else {
             return Ok(None);
         };
@@ -172,7 +178,7 @@ impl WebDataset {
     }
 
     /// Where a member is named in errors: `<shard>/<key>.<suffix>`.
-    fn member_path(&self, s: &SampleEntry, suffix: &str) -> PathBuf {
+    pub(super) fn member_path(&self, s: &SampleEntry, suffix: &str) -> PathBuf {
         self.shards[s.shard].join(format!("{}.{suffix}", s.key))
     }
 }
