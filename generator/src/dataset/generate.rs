@@ -50,6 +50,9 @@ pub struct GenerateOptions {
     pub stop: StopFlag,
     /// Faults the workers inject (a test hook, parsed by the binary from STEREOGEN_FAULT).
     pub faults: FaultPlan,
+    /// Render only these indices of the range, in this order (`stereogen estimate` renders a
+    /// few samples spread over the categories); `None`: the whole range.
+    pub only: Option<Vec<u64>>,
 }
 
 impl GenerateOptions {
@@ -66,6 +69,7 @@ impl GenerateOptions {
             worker_options: WorkerOptions::default(),
             stop: StopFlag::new(),
             faults: FaultPlan::default(),
+            only: None,
         }
     }
 
@@ -80,9 +84,15 @@ impl GenerateOptions {
     /// The indices this run is responsible for (its range, less other shards'); the range was
     /// checked by [`check_options`].
     fn indices(&self) -> Vec<u64> {
-        (self.start..self.start + self.count)
-            .filter(|&i| self.shard.is_none_or(|s| s.owns(i)))
-            .collect()
+        let owned = |i: &u64| self.shard.is_none_or(|s| s.owns(*i));
+        match &self.only {
+            Some(only) => only
+                .iter()
+                .copied()
+                .filter(|i| (self.start..self.start + self.count).contains(i) && owned(i))
+                .collect(),
+            None => (self.start..self.start + self.count).filter(owned).collect(),
+        }
     }
 }
 
