@@ -91,7 +91,9 @@ impl GenerateOptions {
                 .copied()
                 .filter(|i| (self.start..self.start + self.count).contains(i) && owned(i))
                 .collect(),
-            None => (self.start..self.start + self.count).filter(owned).collect(),
+            None => (self.start..self.start + self.count)
+                .filter(owned)
+                .collect(),
         }
     }
 }
