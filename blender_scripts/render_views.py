@@ -86,10 +86,26 @@ DEPTH_FILTER = ("GAUSSIAN", 0.01)
 _FILTERS = {"blackman_harris": "BLACKMAN_HARRIS", "gaussian": "GAUSSIAN", "box": "BOX"}
 
 
+_PREFILTERS = {"accurate": "ACCURATE", "fast": "FAST", "none": "NONE"}
+_DENOISE_PASSES = {"rgb": "RGB", "albedo": "RGB_ALBEDO", "albedo_normal": "RGB_ALBEDO_NORMAL"}
+_DENOISE_QUALITY = {"high": "HIGH", "balanced": "BALANCED", "fast": "FAST"}
+
+
 def _colour_pass(scene, render):
+    # Keys added after spec format 3 may be absent: their defaults are what Cycles did before.
     c = scene.cycles
     c.samples = render["samples"]
     c.use_denoising = bool(render["denoise"])
+    c.denoiser = "OPENIMAGEDENOISE"
+    c.denoising_prefilter = _PREFILTERS[render.get("denoise_prefilter", "accurate")]
+    c.denoising_input_passes = _DENOISE_PASSES[render.get("denoise_passes", "albedo_normal")]
+    c.denoising_quality = _DENOISE_QUALITY[render.get("denoise_quality", "high")]
+    threshold = render.get("adaptive_threshold")
+    c.use_adaptive_sampling = threshold is not None
+    if threshold is not None:
+        c.adaptive_threshold = threshold
+        c.adaptive_min_samples = render.get("adaptive_min_samples", 0)
+    c.use_light_tree = render.get("light_tree", True)
     c.pixel_filter_type = _FILTERS[render["pixel_filter"]]
     c.filter_width = render["filter_width_px"]
     scene.view_layers[0].use_pass_z = False
@@ -99,6 +115,7 @@ def _depth_pass(scene):
     c = scene.cycles
     c.samples = 1
     c.use_denoising = False
+    c.use_adaptive_sampling = False
     c.pixel_filter_type, c.filter_width = DEPTH_FILTER
     scene.view_layers[0].use_pass_z = True
 

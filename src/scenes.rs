@@ -73,6 +73,12 @@ pub fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
             filter_width_px: 1.5,
             clip_start: 0.01,
             clip_end: 100.0,
+            adaptive_threshold: None,
+            adaptive_min_samples: 0,
+            denoise_prefilter: Default::default(),
+            denoise_passes: Default::default(),
+            denoise_quality: Default::default(),
+            light_tree: true,
         },
         world: WorldSpec {
             color: [0.8, 0.8, 0.8],

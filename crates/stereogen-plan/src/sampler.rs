@@ -157,6 +157,12 @@ fn render_settings(
         filter_width_px: r.filter_width_px,
         clip_start: (nearest_depth * cam.clip_start_factor).max(MIN_CLIP_START_M),
         clip_end: background_depth * cam.clip_end_factor,
+        adaptive_threshold: r.adaptive_threshold,
+        adaptive_min_samples: r.adaptive_min_samples,
+        denoise_prefilter: r.denoise_prefilter,
+        denoise_passes: r.denoise_passes,
+        denoise_quality: r.denoise_quality,
+        light_tree: r.light_tree,
     }
 }
 

@@ -48,6 +48,67 @@ pub struct RenderSettings {
     /// Camera clipping range in metres.
     pub clip_start: f64,
     pub clip_end: f64,
+    // Added after format version 3 was written: absent means what Cycles did before they were
+    // settable (adaptive sampling off, OpenImageDenoise's accurate prefilter with albedo and
+    // normal passes at high quality, light tree on), and such values are not written, so older
+    // specs read and re-render unchanged.
+    /// Adaptive sampling's noise threshold; `None`: off (every pixel gets `samples`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adaptive_threshold: Option<f64>,
+    /// Adaptive sampling's minimum samples per pixel; 0: Cycles' automatic choice.
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub adaptive_min_samples: u32,
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub denoise_prefilter: DenoisePrefilter,
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub denoise_passes: DenoisePasses,
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub denoise_quality: DenoiseQuality,
+    /// Cycles' light tree (many-light sampling).
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    pub light_tree: bool,
+}
+
+fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn is_true(v: &bool) -> bool {
+    *v
+}
+
+/// How OpenImageDenoise cleans its guiding passes before use.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DenoisePrefilter {
+    #[default]
+    Accurate,
+    Fast,
+    None,
+}
+
+/// The passes that guide the denoiser besides the noisy colour.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DenoisePasses {
+    Rgb,
+    Albedo,
+    #[default]
+    AlbedoNormal,
+}
+
+/// OpenImageDenoise's quality mode.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DenoiseQuality {
+    #[default]
+    High,
+    Balanced,
+    Fast,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -471,6 +532,62 @@ mod tests {
         assert_eq!(v["cameras"]["image_coordinates"], "pixel_corner_origin");
         assert_eq!(v["cameras"]["blender"]["sensor_fit"], "HORIZONTAL");
         assert_eq!(SceneSpec::from_json(&spec.to_json()).unwrap(), spec);
+    }
+
+    #[test]
+    fn render_keys_added_later_are_written_only_when_set_and_reach_the_spec() {
+        // A spec without them (every dataset made before) reads back to Cycles' old behaviour.
+        let spec = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 2);
+        let mut v = json_value(&spec);
+        for key in [
+            "adaptive_threshold",
+            "adaptive_min_samples",
+            "denoise_prefilter",
+            "denoise_passes",
+            "denoise_quality",
+            "light_tree",
+        ] {
+            v["render"].as_object_mut().unwrap().remove(key);
+        }
+        let old = SceneSpec::from_json(&v.to_string()).unwrap();
+        assert_eq!(old.render.adaptive_threshold, None);
+        assert!(old.render.light_tree);
+        assert_eq!(old.render.denoise_passes, DenoisePasses::AlbedoNormal);
+        let render = json_value(&old)["render"].clone();
+        assert!(render.get("light_tree").is_none() && render.get("denoise_prefilter").is_none());
+
+        let text = crate::recipe::PRESETS[0].1.replace(
+            "[render]\n",
+            "[render]\nadaptive_threshold = 0.05\nadaptive_min_samples = 4\n\
+             denoise_prefilter = \"fast\"\ndenoise_passes = \"albedo\"\n\
+             denoise_quality = \"balanced\"\nlight_tree = false\n",
+        );
+        let recipe = Recipe::from_toml_str(&text, "x.toml").unwrap();
+        let spec = plan_scene(&recipe, &AssetIndex::default(), 1, 2);
+        let render = json_value(&spec)["render"].clone();
+        assert_eq!(render["adaptive_threshold"], 0.05);
+        assert_eq!(render["adaptive_min_samples"], 4);
+        assert_eq!(render["denoise_prefilter"], "fast");
+        assert_eq!(render["denoise_passes"], "albedo");
+        assert_eq!(render["denoise_quality"], "balanced");
+        assert_eq!(render["light_tree"], false);
+        assert_eq!(SceneSpec::from_json(&spec.to_json()).unwrap(), spec);
+
+        for (bad, key) in [
+            ("adaptive_threshold = 0.0", "render.adaptive_threshold"),
+            (
+                "adaptive_min_samples = 100000",
+                "render.adaptive_min_samples",
+            ),
+        ] {
+            let text = crate::recipe::PRESETS[0]
+                .1
+                .replace("[render]\n", &format!("[render]\n{bad}\n"));
+            let err = Recipe::from_toml_str(&text, "x.toml")
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(key), "{err}");
+        }
     }
 
     #[test]

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 pub use super::dist::{CountRange, Dist, UniformRange};
-use super::spec::{MaterialClass, PixelFilter};
+use super::spec::{DenoisePasses, DenoisePrefilter, DenoiseQuality, MaterialClass, PixelFilter};
 
 mod validate;
 
@@ -65,6 +65,12 @@ added_keys! {
     pack_mesh_share: f64 = 0.5;
     procedural_share: f64 = 0.0;
     photo_texel_px: Option<[f64; 2]> = None;
+    adaptive_threshold: Option<f64> = None;
+    adaptive_min_samples: u32 = 0;
+    denoise_prefilter: DenoisePrefilter = DenoisePrefilter::Accurate;
+    denoise_passes: DenoisePasses = DenoisePasses::AlbedoNormal;
+    denoise_quality: DenoiseQuality = DenoiseQuality::High;
+    light_tree: bool = true;
 }
 
 /// Built-in presets: (name, TOML).
@@ -167,6 +173,38 @@ pub struct RenderRecipe {
     pub max_bounces: u32,
     pub pixel_filter: PixelFilter,
     pub filter_width_px: f64,
+    /// Adaptive sampling's noise threshold; absent: adaptive sampling off.
+    #[serde(
+        default = "default::adaptive_threshold",
+        skip_serializing_if = "is_default::adaptive_threshold"
+    )]
+    pub adaptive_threshold: Option<f64>,
+    /// Adaptive sampling's minimum samples per pixel (0: Cycles' automatic choice).
+    #[serde(
+        default = "default::adaptive_min_samples",
+        skip_serializing_if = "is_default::adaptive_min_samples"
+    )]
+    pub adaptive_min_samples: u32,
+    #[serde(
+        default = "default::denoise_prefilter",
+        skip_serializing_if = "is_default::denoise_prefilter"
+    )]
+    pub denoise_prefilter: DenoisePrefilter,
+    #[serde(
+        default = "default::denoise_passes",
+        skip_serializing_if = "is_default::denoise_passes"
+    )]
+    pub denoise_passes: DenoisePasses,
+    #[serde(
+        default = "default::denoise_quality",
+        skip_serializing_if = "is_default::denoise_quality"
+    )]
+    pub denoise_quality: DenoiseQuality,
+    #[serde(
+        default = "default::light_tree",
+        skip_serializing_if = "is_default::light_tree"
+    )]
+    pub light_tree: bool,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

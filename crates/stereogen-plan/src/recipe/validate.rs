@@ -51,6 +51,33 @@ fn render(r: &Recipe) -> Vec<Check<'_>> {
         int("render.samples", x.samples, 1, 65536),
         int("render.max_bounces", x.max_bounces, 0, 128),
         number("render.filter_width_px", x.filter_width_px, 0.01, 10.0),
+        Check::new(
+            "render.adaptive_threshold",
+            match x.adaptive_threshold {
+                // Cycles reads 0 as "choose from the sample count": say it explicitly instead.
+                Some(t) => Rule::Holds {
+                    holds: t.is_finite() && t > 0.0 && t <= 1.0,
+                    need: format!("need 0 < adaptive_threshold <= 1 (leave it out for no adaptive sampling), got {t}"),
+                },
+                None => Rule::AnyValue,
+            },
+        )
+        .with_default(),
+        Check::new(
+            "render.adaptive_min_samples",
+            Rule::Holds {
+                holds: x.adaptive_min_samples <= x.samples,
+                need: format!(
+                    "need adaptive_min_samples <= samples ({}), got {}",
+                    x.samples, x.adaptive_min_samples
+                ),
+            },
+        )
+        .with_default(),
+        Check::new("render.denoise_prefilter", Rule::AnyValue).with_default(),
+        Check::new("render.denoise_passes", Rule::AnyValue).with_default(),
+        Check::new("render.denoise_quality", Rule::AnyValue).with_default(),
+        Check::new("render.light_tree", Rule::AnyValue).with_default(),
     ]
 }
 
