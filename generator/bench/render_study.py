@@ -64,6 +64,7 @@ def setting(**kw):
 
 CANDIDATES = {
     # Samples alone, no denoiser.
+    "s4": setting(samples=4, denoise=False),
     "s8": setting(samples=8, denoise=False),
     "s16": setting(samples=16, denoise=False),
     "s32": setting(samples=32, denoise=False),

@@ -21,7 +21,7 @@ import os
 import cv2
 import numpy as np
 import OpenEXR
-from skimage.metrics import structural_similarity
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 # A setting is acceptable as a default when, in every category, it is no worse than the old
 # default by more than these margins.
@@ -106,6 +106,13 @@ def report(args, names, refs, candidates, old_default):
             conv[s["category"]].append(mse_ab)
         ref_lr[s["id"]] = lr_disagreement(ref[(s["id"], "left")], ref[(s["id"], "right")], *gt[s["id"]])[0]
 
+    # Our pooled PSNR uses the same formula as scikit-image's per image: check on every reference half.
+    psnr_diffs = []
+    for s in scenes:
+        for view in ("left", "right"):
+            a, r = img("ref-a", s, view), ref[(s["id"], view)]
+            psnr_diffs.append(abs(psnr(float(((a - r) ** 2).mean())) - peak_signal_noise_ratio(r, a, data_range=1.0)))
+
     rows = []
     for name in names:
         for cat in cats:
@@ -168,6 +175,7 @@ def report(args, names, refs, candidates, old_default):
         "scenes": scenes,
         "reference_samples": args.reference_samples,
         "reference_convergence": convergence,
+        "psnr_check": {"against": "skimage.metrics.peak_signal_noise_ratio", "images": len(psnr_diffs), "max_abs_difference_db": max(psnr_diffs)},
         "margins": {"psnr_db": PSNR_MARGIN_DB, "ssim": SSIM_MARGIN, "lr_levels": LR_MARGIN},
         "old_default": old_default,
         "recommended": recommended,
