@@ -7,6 +7,9 @@
 //!   commands then merge and check.
 //! - with `--webdataset DIR` the merge step of all three (Slurm's too) passes the shard options
 //!   on, and the OpenJD and Kubernetes merge steps run here write the shards.
+//! - a task's default resources (8 cores, threads named on its command line, Slurm's
+//!   `--signal=TERM@GRACE` and `--requeue`) are the same in all three; `--estimate` renders a
+//!   few samples and sets every scheduler's time limit from them.
 //!
 //! The tools live in a virtual environment under `~/.cache/stereogen/farm-venv` (pinned
 //! versions, installed with pip on first use). Where it cannot be made the tests print why and
@@ -17,7 +20,7 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
 use stereogen::dataset::Manifest;
-use stereogen_e2e::{farm_cmd, write_tiny_recipe};
+use stereogen_e2e::{farm_cmd, stereogen_bin, stereogen_cmd, write_tiny_recipe};
 
 /// The `--webdataset` options the farms here are written with (DIR is `OUT/wds`); a size in
 /// bytes, as the job files spell it.
@@ -95,10 +98,11 @@ fn text(o: &Output) -> String {
     )
 }
 
-/// `farm SCHEDULER` of 4 samples in 2 tasks, its merge step writing shards into `OUT/wds`.
+/// `farm SCHEDULER` of 4 samples in 2 tasks, its merge step writing shards into `OUT/wds`, with
+/// a time limit (so the schedulers' own checks see its field).
 fn farm(scheduler: &str, recipe: &Path, out: &Path) {
     let o = farm_cmd(scheduler, recipe, out, 4, 2)
-        .args(["--seed", "4", "--webdataset"])
+        .args(["--seed", "4", "--time-limit", "2:00:00", "--webdataset"])
         .arg(out.join("wds"))
         .args(SHARDS)
         .output()
@@ -330,4 +334,223 @@ fn kubernetes_jobs_validate_and_their_commands_render_and_merge() {
         assert!(o.status.success(), "{}: {}", container["name"], text(&o));
     }
     assert_merged(&out);
+}
+
+/// `farm SCHEDULER` of 40 samples in 4 tasks without `--threads` (unlike [`farm_cmd`]); the text
+/// of FILE in the job directory.
+fn job_file(scheduler: &str, recipe: &Path, out: &Path, file: &str, extra: &[&str]) -> String {
+    let o = stereogen_cmd(["farm", scheduler, "--count", "40", "--tasks", "4"])
+        .arg("--recipe")
+        .arg(recipe)
+        .arg("--out")
+        .arg(out)
+        .arg("--stereogen")
+        .arg(stereogen_bin())
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "farm {scheduler}: {}", text(&o));
+    assert!(
+        text(&o).contains("a render task asks for"),
+        "farm says what a task asks for: {}",
+        text(&o)
+    );
+    std::fs::read_to_string(out.join("jobs").join(file)).unwrap()
+}
+
+/// The `generate` line of a Slurm render script, or the argument list of a YAML file, as words.
+fn words(text: &str) -> Vec<String> {
+    text.lines()
+        .flat_map(|l| match l.trim().strip_prefix("- ") {
+            Some(item) => vec![item.to_string()],
+            None => l.split_whitespace().map(str::to_string).collect(),
+        })
+        .map(|w| w.trim_matches(|c| c == '\'' || c == '"').to_string())
+        .collect()
+}
+
+fn threads_arg(text: &str) -> Option<String> {
+    let w = words(text);
+    w.windows(2)
+        .find(|p| p[0] == "--threads")
+        .map(|p| p[1].clone())
+}
+
+/// Without --threads or --cpus-per-task a CPU task asks for 8 cores and runs 8 Cycles threads
+/// (split over --workers), a GPU task 4 cores and a GPU; Slurm's tasks are signalled GRACE
+/// seconds before their limit and requeue; no time limit without --estimate or --time-limit.
+#[test]
+fn a_farm_task_asks_for_8_cores_and_names_its_threads_by_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let recipe = write_tiny_recipe(dir.path(), "crestereo");
+    let out = dir.path().join("farm");
+    let sbatch = job_file("slurm", &recipe, &out, "render.sbatch", &[]);
+    for line in [
+        "#SBATCH --cpus-per-task=8",
+        "#SBATCH --signal=TERM@120",
+        "#SBATCH --requeue",
+    ] {
+        assert!(sbatch.lines().any(|l| l == line), "no {line} in:\n{sbatch}");
+    }
+    assert!(
+        !sbatch.contains("--time="),
+        "no time limit by default:\n{sbatch}"
+    );
+    assert_eq!(threads_arg(&sbatch).as_deref(), Some("8"), "{sbatch}");
+    let merge = std::fs::read_to_string(out.join("jobs/merge.sbatch")).unwrap();
+    assert!(
+        !merge.contains("--signal") && !merge.contains("--time="),
+        "{merge}"
+    );
+
+    let sbatch = job_file(
+        "slurm",
+        &recipe,
+        &out,
+        "render.sbatch",
+        &["--workers", "2", "--grace", "300"],
+    );
+    assert!(sbatch.contains("#SBATCH --cpus-per-task=8\n"), "{sbatch}");
+    assert!(sbatch.contains("#SBATCH --signal=TERM@300\n"), "{sbatch}");
+    assert_eq!(
+        threads_arg(&sbatch).as_deref(),
+        Some("4"),
+        "8 cores / 2 workers"
+    );
+    let sbatch = job_file(
+        "slurm",
+        &recipe,
+        &out,
+        "render.sbatch",
+        &["--cpus-per-task", "16", "--workers", "3"],
+    );
+    assert!(sbatch.contains("#SBATCH --cpus-per-task=16\n"), "{sbatch}");
+    assert_eq!(threads_arg(&sbatch).as_deref(), Some("5"));
+    let sbatch = job_file(
+        "slurm",
+        &recipe,
+        &out,
+        "render.sbatch",
+        &["--device", "gpu"],
+    );
+    assert!(
+        sbatch.contains("#SBATCH --cpus-per-task=4\n")
+            && sbatch.contains("#SBATCH --gpus-per-task=1\n"),
+        "{sbatch}"
+    );
+
+    let k8s = job_file("k8s", &recipe, &out, "k8s-render.yaml", &[]);
+    assert!(
+        k8s.contains("cpu: '8'") || k8s.contains("cpu: \"8\""),
+        "{k8s}"
+    );
+    assert_eq!(threads_arg(&k8s).as_deref(), Some("8"), "{k8s}");
+    assert!(!k8s.contains("activeDeadlineSeconds"), "{k8s}");
+    let openjd = job_file("openjd", &recipe, &out, "openjd-template.yaml", &[]);
+    let vcpu = openjd
+        .split("name: amount.worker.vcpu")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no vCPU host requirement:\n{openjd}"));
+    assert!(vcpu.trim_start().starts_with("min: 8"), "{openjd}");
+    assert_eq!(threads_arg(&openjd).as_deref(), Some("8"), "{openjd}");
+    assert!(!openjd.contains("timeout:"), "{openjd}");
+    let openjd = job_file(
+        "openjd",
+        &recipe,
+        &out,
+        "openjd-template.yaml",
+        &["--device", "gpu", "--gpus-per-task", "2"],
+    );
+    assert!(
+        openjd.contains("name: amount.worker.gpu\n") && openjd.contains("min: 2"),
+        "{openjd}"
+    );
+
+    // Slurm's forms of --time-limit are read, and written in each scheduler's.
+    let sbatch = job_file(
+        "slurm",
+        &recipe,
+        &out,
+        "render.sbatch",
+        &["--time-limit", "1-2:30"],
+    );
+    assert!(sbatch.contains("#SBATCH --time=1-02:30:00\n"), "{sbatch}");
+    let k8s = job_file(
+        "k8s",
+        &recipe,
+        &out,
+        "k8s-render.yaml",
+        &["--time-limit", "90"],
+    );
+    assert!(k8s.contains("activeDeadlineSeconds: 5400\n"), "{k8s}");
+    let o = stereogen_cmd(["farm", "slurm", "--count", "4", "--tasks", "2", "--out"])
+        .arg(&out)
+        .args(["--time-limit", "soon"])
+        .output()
+        .unwrap();
+    assert!(
+        !o.status.success() && text(&o).contains("Slurm's MM"),
+        "{}",
+        text(&o)
+    );
+}
+
+/// `--estimate` renders two samples here and sets each scheduler's time limit of the render
+/// tasks from them (rounded up to 5 minutes; tiny samples: 5 minutes), not the merge step's; an
+/// explicit --time-limit wins; the estimate is printed and written as JOB_DIR/estimate.json.
+#[test]
+fn farm_estimate_sets_the_render_tasks_time_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let recipe = write_tiny_recipe(dir.path(), "crestereo");
+    let out = dir.path().join("farm");
+    let work = dir.path().join("work");
+    let work_arg = work.to_str().unwrap();
+    let est = [
+        "--estimate",
+        "--sample",
+        "2",
+        "--threads",
+        "1",
+        "--work",
+        work_arg,
+    ];
+    let sbatch = job_file("slurm", &recipe, &out, "render.sbatch", &est);
+    assert!(sbatch.contains("#SBATCH --time=00:05:00\n"), "{sbatch}");
+    let merge = std::fs::read_to_string(out.join("jobs/merge.sbatch")).unwrap();
+    assert!(
+        !merge.contains("--time="),
+        "the merge step keeps the scheduler's default: {merge}"
+    );
+    let e: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("jobs/estimate.json")).unwrap())
+            .unwrap();
+    assert_eq!(e["time_limit_s"], 300, "{e:#}");
+    assert_eq!(e["task"]["tasks"], 4);
+    assert_eq!(e["task"]["samples"], 10);
+    assert_eq!(
+        e["task"]["units"], 1.0,
+        "--threads 1, one worker: one core per task"
+    );
+    assert_eq!(e["measured"]["samples"].as_array().unwrap().len(), 2);
+    assert_eq!(
+        std::fs::read_dir(&work).unwrap().count(),
+        0,
+        "the samples are removed"
+    );
+
+    let k8s = job_file("k8s", &recipe, &out, "k8s-render.yaml", &est);
+    assert!(k8s.contains("activeDeadlineSeconds: 300\n"), "{k8s}");
+    let k8s_merge = std::fs::read_to_string(out.join("jobs/k8s-merge.yaml")).unwrap();
+    assert!(!k8s_merge.contains("activeDeadlineSeconds"), "{k8s_merge}");
+    let openjd = job_file("openjd", &recipe, &out, "openjd-template.yaml", &est);
+    assert_eq!(
+        openjd.matches("timeout: 300\n").count(),
+        1,
+        "Render only: {openjd}"
+    );
+
+    let mut explicit = est.to_vec();
+    explicit.extend(["--time-limit", "3:00:00"]);
+    let sbatch = job_file("slurm", &recipe, &out, "render.sbatch", &explicit);
+    assert!(sbatch.contains("#SBATCH --time=03:00:00\n"), "{sbatch}");
 }

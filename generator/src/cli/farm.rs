@@ -6,7 +6,10 @@ use anyhow::Context;
 use stereogen::dataset::TaskArgs;
 use stereogen::dataset::export::WebDatasetArgs;
 use stereogen::dataset::merge::WebDatasetTarget;
-use stereogen::farm::{FarmOptions, Scheduler, write_job_files};
+use stereogen::farm::{FarmOptions, Scheduler, TimeLimit, write_job_files};
+use stereogen::render::Device;
+
+use super::estimate::{self, SampleArgs, Target};
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum SchedulerArg {
@@ -37,15 +40,22 @@ pub struct FarmArgs {
     /// GPUs each task asks for (Slurm --gpus-per-task, Kubernetes nvidia.com/gpu).
     #[arg(long, value_name = "G")]
     gpus_per_task: Option<u32>,
-    /// CPU cores each task asks for [default: workers × threads].
-    #[arg(long, value_name = "N")]
+    /// CPU cores each task asks for (Slurm --cpus-per-task, Kubernetes requests.cpu, OpenJD
+    /// amount.worker.vcpu) [default: workers × --threads; without --threads 8 for a CPU render, 4
+    /// for a GPU render, at least one per worker]. Every task's command line names its Cycles
+    /// threads (--threads, else these cores divided by --workers).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     cpus_per_task: Option<u32>,
     /// Memory each task asks for (Slurm: 16G; Kubernetes: 16Gi).
     #[arg(long, value_name = "SIZE")]
     memory: Option<String>,
-    /// Wall-time limit of a task (Slurm --time, e.g. 12:00:00).
-    #[arg(long, value_name = "TIME")]
-    time_limit: Option<String>,
+    /// Wall-time limit of a task, in Slurm's forms (12:00:00, 1-06:00:00, 90 = minutes): Slurm
+    /// --time, Kubernetes activeDeadlineSeconds of a pod, OpenJD action timeout; the merge step
+    /// gets it too [default: with --estimate, 1.5 × the largest task's projected wall time plus
+    /// --grace, rounded up to 5 minutes (render tasks only); without, none: the scheduler's
+    /// default applies].
+    #[arg(long, value_name = "TIME", value_parser = clap::value_parser!(TimeLimit))]
+    time_limit: Option<TimeLimit>,
     /// Slurm partition.
     #[arg(long, value_name = "P")]
     partition: Option<String>,
@@ -65,7 +75,8 @@ pub struct FarmArgs {
     /// Job name (prefix of the scheduler's job names).
     #[arg(long, value_name = "NAME", default_value = "stereogen")]
     name: String,
-    /// Seconds a task has between SIGTERM and SIGKILL (Kubernetes grace period, OpenJD notify period).
+    /// Seconds a task has between SIGTERM and SIGKILL (Kubernetes grace period, OpenJD notify
+    /// period); Slurm sends SIGTERM this long before the time limit (--signal=TERM@SECS).
     #[arg(long, value_name = "SECS", default_value_t = 120)]
     grace: u64,
     /// The merge step recomputes every checksum (merge --verify).
@@ -84,6 +95,14 @@ pub struct FarmArgs {
     /// Where the job files go [default: OUT/jobs].
     #[arg(long, value_name = "DIR")]
     job_dir: Option<PathBuf>,
+    /// First render --sample K of the run's samples here (as `stereogen estimate` does), print
+    /// the run's cost for --count and --tasks (per task: samples, wall time, core-hours), write
+    /// it as JOB_DIR/estimate.json, and set the time limit from it when --time-limit is not given.
+    /// Without it nothing is rendered and the files are written at once.
+    #[arg(long)]
+    estimate: bool,
+    #[command(flatten)]
+    sampling: SampleArgs,
 }
 
 fn parse_env(s: &str) -> Result<(String, String), String> {
@@ -108,7 +127,8 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
         (None, _) => std::env::current_exe()
             .context("cannot find this stereogen executable; pass --stereogen PATH")?,
     };
-    let opts = FarmOptions {
+    let measure_task = a.task.clone();
+    let mut opts = FarmOptions {
         recipe: a.task.recipe.load()?,
         task: a.task,
         tasks: a.tasks,
@@ -118,6 +138,7 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
         cpus_per_task: a.cpus_per_task,
         memory: a.memory,
         time_limit: a.time_limit,
+        merge_time_limit: a.time_limit,
         partition: a.partition,
         image: a.image,
         volume_claim: a.volume_claim,
@@ -133,10 +154,23 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
         }),
         env: a.env,
     };
+    let estimate = if a.estimate {
+        opts.check()?;
+        Some(farm_estimate(&mut opts, measure_task, &a.sampling)?)
+    } else {
+        None
+    };
     let files = write_job_files(&opts, scheduler)?;
     for f in &files {
         println!("wrote {}", f.display());
     }
+    if let Some(e) = estimate {
+        let path = opts.job_dir.join("estimate.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&e)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    println!("a render task asks for {}", opts.resources());
     let first = files[0].display();
     match scheduler {
         Scheduler::Slurm => println!("submit: bash {first}"),
@@ -150,4 +184,40 @@ pub fn run(a: FarmArgs) -> anyhow::Result<()> {
     }
     println!("watch: stereogen status {}", opts.out.display());
     Ok(())
+}
+
+/// `--estimate`: measures here with the task's workers (at most one per core here) and this
+/// machine's cores, projects onto the farm's tasks and their cores (or GPUs), prints it, and sets
+/// the render tasks' time limit when none was given.
+fn farm_estimate(
+    opts: &mut FarmOptions,
+    mut task: stereogen::dataset::TaskArgs,
+    sampling: &SampleArgs,
+) -> anyhow::Result<estimate::Estimate> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    task.workers = task.workers.clamp(1, cores);
+    task.runtime.threads = None;
+    let m = estimate::measure(&task, sampling)?;
+    let units = match opts.task.runtime.device {
+        Device::Cpu => f64::from(opts.cpus()),
+        Device::Gpu => f64::from(opts.gpus().unwrap_or(1)),
+    };
+    let target = Target {
+        tasks: opts.tasks,
+        workers: opts.task.workers,
+        units,
+    };
+    let mut e = estimate::project(
+        &m,
+        &opts.recipe,
+        opts.task.seed,
+        opts.task.start,
+        opts.task.count,
+        target,
+    );
+    if opts.time_limit.is_none() {
+        opts.time_limit = Some(e.set_time_limit(opts.grace_s));
+    }
+    print!("{}", e.text());
+    Ok(e)
 }

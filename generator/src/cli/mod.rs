@@ -2,6 +2,7 @@
 
 mod assets;
 mod audit;
+mod estimate;
 mod farm;
 mod generate;
 mod merge;
@@ -145,8 +146,31 @@ pub enum Command {
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
     },
+    /// What a dataset will cost before it is rendered: renders a few of its planned samples
+    /// (--sample K, spread over the recipe's categories) through `generate` into a temporary
+    /// folder (under --work, removed afterwards), and prints per category and in total the
+    /// projected core-hours (GPU-hours with --device gpu), output bytes and files for --count N,
+    /// with the spread of the measured sample times and the standard error of the mean; worker
+    /// start-up (Blender import) is reported apart, as a per-task cost. --json for a machine.
+    Estimate(estimate::EstimateArgs),
     /// Job files that render one dataset with many tasks: a Slurm array, a Kubernetes Indexed
     /// Job or an Open Job Description template, each followed by a merge-and-check step.
+    ///
+    /// What a render task asks for by default: 8 CPU cores for a CPU render (4 for a GPU render,
+    /// plus 1 GPU), one worker, and its Cycles threads written into its command line (cores ÷
+    /// workers), so Cycles uses exactly the cores asked for, not what it sees of a shared node.
+    /// Why 8: Cycles' path tracing scales almost linearly with threads, so a sample costs about
+    /// the same core-hours on 1 or 8 cores while its wall time, the work a preemption throws
+    /// away and the time limit a task needs shrink 8-fold; the serial part of a sample (scene
+    /// build, saving) wastes a growing share of wider tasks; 8 packs 32-128-core nodes evenly.
+    /// Override with --cpus-per-task, --threads, --workers.
+    ///
+    /// Time limit: --time-limit, or with --estimate one derived from rendering a few samples
+    /// here (1.5 × the largest task's projected wall time + --grace, rounded up to 5 minutes);
+    /// without either no limit is written (the scheduler's default applies): a rule without
+    /// measuring would be off by orders of magnitude across resolutions, sample counts and
+    /// devices. Slurm tasks also get --signal=TERM@GRACE and --requeue: SIGTERM GRACE seconds
+    /// before the limit stops `generate` cleanly (exit 75), the task requeues itself and resumes.
     Farm(farm::FarmArgs),
     /// Merge a farm's shards (OUT/shards/*) into one dataset: checks recipe, seed, version,
     /// coverage of every index exactly once, locks and files; writes OUT/manifest.jsonl (and,
@@ -180,6 +204,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Setup { runtime, no_pack } => setup::run(&runtime, !no_pack)?,
         Command::Assets { command } => assets::run(command)?,
         Command::Generate(command) => generate::run(&command)?,
+        Command::Estimate(args) => estimate::run(args)?,
         Command::Farm(args) => farm::run(args)?,
         Command::Merge(args) => merge::run(args)?,
         Command::Status(args) => status::run(args)?,

@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::{FarmOptions, INTERRUPTED_EXIT_CODE, JobFile, path};
+use super::{FarmOptions, INTERRUPTED_EXIT_CODE, JobFile, TimeLimit, path};
 use crate::dataset::shard::{SHARD_COUNT_ENV, ShardArg};
 
 #[derive(Debug, Clone, Serialize)]
@@ -88,6 +88,11 @@ pub struct PodTemplate {
 pub struct PodSpec {
     pub restart_policy: String,
     pub termination_grace_period_seconds: u64,
+    /// The task's time limit: the pod is stopped (SIGTERM, then SIGKILL after the grace period)
+    /// this many seconds after it started; an interrupted `generate` exits 75, which the pod
+    /// failure policy does not count, so the index gets a new pod that resumes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub active_deadline_seconds: Option<u64>,
     /// Run one after another before `containers`; a failure fails the pod.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub init_containers: Vec<Container>,
@@ -202,12 +207,14 @@ fn pod(
     role: &str,
     init_containers: Vec<Container>,
     container: Container,
+    time_limit: Option<TimeLimit>,
 ) -> PodTemplate {
     PodTemplate {
         metadata: meta(opts, format!("{}-{role}", opts.name), role),
         spec: PodSpec {
             restart_policy: "Never".into(),
             termination_grace_period_seconds: opts.grace_s,
+            active_deadline_seconds: time_limit.map(TimeLimit::seconds),
             init_containers,
             containers: vec![container],
             volumes: vec![Volume {
@@ -224,7 +231,7 @@ fn pod(
 pub fn render_job(opts: &FarmOptions) -> Job {
     let mut command = vec![path(&opts.stereogen)];
     command.extend(opts.generate_command(Some(ShardArg::Auto)).to_args());
-    let c = container(opts, "render", command, opts.cpus(), opts.gpus_per_task);
+    let c = container(opts, "render", command, opts.cpus(), opts.gpus());
     Job {
         api_version: "batch/v1".into(),
         kind: "Job".into(),
@@ -256,7 +263,7 @@ pub fn render_job(opts: &FarmOptions) -> Job {
                     },
                 ],
             }),
-            template: pod(opts, "render", vec![], c),
+            template: pod(opts, "render", vec![], c, opts.time_limit),
         },
     }
 }
@@ -289,7 +296,7 @@ pub fn merge_job(opts: &FarmOptions) -> Job {
             backoff_limit_per_index: None,
             backoff_limit: Some(0),
             pod_failure_policy: None,
-            template: pod(opts, "merge", vec![merge], check),
+            template: pod(opts, "merge", vec![merge], check, opts.merge_time_limit),
         },
     }
 }

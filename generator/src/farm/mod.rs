@@ -22,6 +22,80 @@ use crate::dataset::generate_command::{GenerateCommand, RecipeArgs, TaskArgs};
 use crate::dataset::merge::{WebDatasetTarget, check_webdataset_dir};
 use crate::dataset::shard::ShardArg;
 use crate::plan::Recipe;
+use crate::render::Device;
+
+/// Cores a CPU render task asks for when neither `--cpus-per-task` nor `--threads` is given.
+/// Cycles' path tracing scales almost linearly with threads, so a sample's core-seconds hardly
+/// change with the count, while its wall time (and so the work lost to a preemption, and the
+/// length of the time limit) shrinks; the single-threaded parts of a sample (scene build,
+/// saving) waste a growing share of a task above about 8. Eight cores also pack the common
+/// 32-128-core farm nodes without remainder.
+pub const DEFAULT_CPU_TASK_CORES: u32 = 8;
+/// Cores a GPU render task asks for by default: the scene build, the depth passes' host work,
+/// saving and checking the files; Cycles renders colour on the GPU.
+pub const DEFAULT_GPU_TASK_CORES: u32 = 4;
+
+/// A task's wall-time limit, whole seconds. Parsed from Slurm's forms (`MM`, `MM:SS`,
+/// `HH:MM:SS`, `D-HH`, `D-HH:MM`, `D-HH:MM:SS`); written as Slurm's `[D-]HH:MM:SS` or as seconds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct TimeLimit(pub u64);
+
+impl TimeLimit {
+    pub fn seconds(self) -> u64 {
+        self.0
+    }
+
+    /// `D-HH:MM:SS` (days only when there are any).
+    pub fn slurm(self) -> String {
+        let s = self.0;
+        let (d, h, m, s) = (s / 86_400, s / 3_600 % 24, s / 60 % 60, s % 60);
+        if d > 0 {
+            format!("{d}-{h:02}:{m:02}:{s:02}")
+        } else {
+            format!("{h:02}:{m:02}:{s:02}")
+        }
+    }
+
+    /// `seconds` rounded up to a whole number of `step` seconds.
+    pub fn round_up(seconds: f64, step: u64) -> Self {
+        let steps = (seconds.max(1.0) / step as f64).ceil() as u64;
+        Self(steps.max(1) * step)
+    }
+}
+
+impl std::str::FromStr for TimeLimit {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let bad = || {
+            format!(
+                "time limit {text:?}: use Slurm's MM, MM:SS, HH:MM:SS, D-HH, D-HH:MM or D-HH:MM:SS"
+            )
+        };
+        let num = |p: &str| p.parse::<u64>().map_err(|_| bad());
+        let (days, rest) = match text.split_once('-') {
+            Some((d, rest)) => (Some(num(d)?), rest),
+            None => (None, text),
+        };
+        let parts = rest
+            .split(':')
+            .map(num)
+            .collect::<Result<Vec<u64>, String>>()?;
+        let seconds = match (days, parts.as_slice()) {
+            (None, [m]) => m * 60,
+            (None, [m, s]) => m * 60 + s,
+            (None, [h, m, s]) => h * 3600 + m * 60 + s,
+            (Some(d), [h]) => d * 86_400 + h * 3600,
+            (Some(d), [h, m]) => d * 86_400 + h * 3600 + m * 60,
+            (Some(d), [h, m, s]) => d * 86_400 + h * 3600 + m * 60 + s,
+            _ => return Err(bad()),
+        };
+        if seconds == 0 {
+            return Err(format!("time limit {text:?} is zero"));
+        }
+        Ok(Self(seconds))
+    }
+}
 
 /// The exit code of a `generate` that stopped on SIGTERM/SIGINT before finishing its range
 /// (EX_TEMPFAIL: nothing is wrong, run the same command again to resume). The job files treat
@@ -44,12 +118,17 @@ pub struct FarmOptions {
     /// The shared output directory, as the tasks see it.
     pub out: PathBuf,
     pub gpus_per_task: Option<u32>,
-    /// CPU cores a task asks for [default: workers × threads, at least 1].
+    /// CPU cores a task asks for [default: see [`FarmOptions::cpus`]].
     pub cpus_per_task: Option<u32>,
     /// Memory a task asks for (`16G`; Kubernetes: `16Gi`).
     pub memory: Option<String>,
-    /// Wall-time limit of a task (Slurm `--time`, e.g. `12:00:00`).
-    pub time_limit: Option<String>,
+    /// Wall-time limit of a render task (Slurm `--time`, Kubernetes pod
+    /// `activeDeadlineSeconds`, OpenJD action `timeout`): `--time-limit`, or set from
+    /// `--estimate`. `None`: the scheduler's default.
+    pub time_limit: Option<TimeLimit>,
+    /// Wall-time limit of the merge step: an explicit `--time-limit` only (an estimate is about
+    /// rendering).
+    pub merge_time_limit: Option<TimeLimit>,
     pub partition: Option<String>,
     /// Container image (Kubernetes).
     pub image: String,
@@ -123,17 +202,63 @@ impl FarmOptions {
         self.job_dir.join("recipe.toml")
     }
 
-    /// Cores a task asks for.
+    /// Cores a task asks for: `--cpus-per-task`; else workers × `--threads`; else
+    /// [`DEFAULT_CPU_TASK_CORES`] (a CPU render) or [`DEFAULT_GPU_TASK_CORES`] (a GPU render),
+    /// at least one per worker.
     pub fn cpus(&self) -> u32 {
-        self.cpus_per_task.unwrap_or_else(|| {
-            (self.task.workers as u32 * self.task.runtime.threads.unwrap_or(1)).max(1)
-        })
+        let workers = self.task.workers.max(1) as u32;
+        match (self.cpus_per_task, self.task.runtime.threads) {
+            (Some(c), _) => c.max(1),
+            (None, Some(t)) => (workers * t).max(1),
+            (None, None) => {
+                let default = match self.task.runtime.device {
+                    Device::Cpu => DEFAULT_CPU_TASK_CORES,
+                    Device::Gpu => DEFAULT_GPU_TASK_CORES,
+                };
+                default.max(workers)
+            }
+        }
+    }
+
+    /// Cycles threads of each worker, always written into the task's command line so a worker
+    /// uses what the task asked for, not what it sees of the node: `--threads`, else the task's
+    /// cores divided by the workers (at least 1).
+    pub fn threads(&self) -> u32 {
+        self.task
+            .runtime
+            .threads
+            .unwrap_or_else(|| (self.cpus() / self.task.workers.max(1) as u32).max(1))
+    }
+
+    /// GPUs a render task asks for: `--gpus-per-task`, else 1 when it renders on the GPU.
+    pub fn gpus(&self) -> Option<u32> {
+        self.gpus_per_task
+            .or((self.task.runtime.device == Device::Gpu).then_some(1))
+    }
+
+    /// What a render task asks for, in words (for `farm`'s output and the job files' comments).
+    pub fn resources(&self) -> String {
+        let device = self
+            .gpus()
+            .map_or(String::new(), |g| format!(", {g} GPU(s)"));
+        let limit = self
+            .time_limit
+            .map_or("the scheduler's default time limit".to_string(), |t| {
+                format!("a time limit of {}", t.slurm())
+            });
+        format!(
+            "{} core(s) ({} worker(s) × {} Cycles thread(s)){device}, {limit}",
+            self.cpus(),
+            self.task.workers,
+            self.threads()
+        )
     }
 
     /// The `generate` every render task runs, with `shard` (each scheduler says its own) and
     /// the recipe file in the job directory.
     pub fn generate_command(&self, shard: Option<ShardArg>) -> GenerateCommand {
         let mut task = self.task.clone();
+        task.runtime.threads = Some(self.threads());
         task.recipe = RecipeArgs {
             recipe: path(&self.recipe_path()),
             shapenet: None,
@@ -226,3 +351,33 @@ fn write(path: &Path, bytes: &[u8], executable: bool) -> anyhow::Result<()> {
 
 /// A file of a job: its name in the job directory, its text, whether it is executable.
 pub type JobFile = (String, String, bool);
+
+#[cfg(test)]
+mod tests {
+    use super::TimeLimit;
+
+    #[test]
+    fn time_limits_read_every_slurm_form_and_write_slurms_canonical_one() {
+        for (text, seconds, slurm) in [
+            ("90", 5_400, "01:30:00"),
+            ("90:30", 5_430, "01:30:30"),
+            ("12:00:00", 43_200, "12:00:00"),
+            ("2-3", 183_600, "2-03:00:00"),
+            ("2-03:15", 184_500, "2-03:15:00"),
+            ("1-00:00:01", 86_401, "1-00:00:01"),
+        ] {
+            let t: TimeLimit = text.parse().unwrap();
+            assert_eq!(
+                (t.seconds(), t.slurm().as_str()),
+                (seconds, slurm),
+                "{text}"
+            );
+            assert_eq!(t.slurm().parse::<TimeLimit>().unwrap(), t);
+        }
+        for bad in ["", "1:2:3:4", "a", "1-", "0", "-5", "1-2-3"] {
+            assert!(bad.parse::<TimeLimit>().is_err(), "{bad:?}");
+        }
+        assert_eq!(TimeLimit::round_up(301.0, 300).seconds(), 600);
+        assert_eq!(TimeLimit::round_up(0.2, 300).seconds(), 300);
+    }
+}

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::{FarmOptions, JobFile, path};
+use super::{FarmOptions, JobFile, TimeLimit, path};
 
 pub const SPECIFICATION_VERSION: &str = "jobtemplate-2023-09";
 
@@ -37,7 +37,21 @@ pub struct Step {
     pub dependencies: Vec<Dependency>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub parameter_space: Option<ParameterSpace>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host_requirements: Option<HostRequirements>,
     pub script: StepScript,
+}
+
+/// What a worker host must have to run a step's tasks (`amount.worker.vcpu`, `amount.worker.gpu`).
+#[derive(Debug, Clone, Serialize)]
+pub struct HostRequirements {
+    pub amounts: Vec<AmountRequirement>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct AmountRequirement {
+    pub name: String,
+    pub min: u32,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -76,6 +90,10 @@ pub struct Actions {
 pub struct Action {
     pub command: String,
     pub args: Vec<String>,
+    /// Seconds the action may run; then it is cancelled like any other (SIGTERM, `generate`
+    /// stops cleanly, the task fails and a retry resumes it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub timeout: Option<u64>,
     pub cancelation: Cancelation,
 }
 
@@ -89,10 +107,11 @@ pub struct Cancelation {
 /// The task parameter naming the shard.
 const SHARD_PARAM: &str = "Shard";
 
-fn action(opts: &FarmOptions, args: Vec<String>) -> Action {
+fn action(opts: &FarmOptions, args: Vec<String>, time_limit: Option<TimeLimit>) -> Action {
     Action {
         command: path(&opts.stereogen),
         args,
+        timeout: time_limit.map(TimeLimit::seconds),
         cancelation: Cancelation {
             mode: "NOTIFY_THEN_TERMINATE".into(),
             notify_period_in_seconds: opts.grace_s,
@@ -104,6 +123,7 @@ fn step(
     name: &str,
     depends_on: Option<&str>,
     parameter_space: Option<ParameterSpace>,
+    host_requirements: Option<HostRequirements>,
     on_run: Action,
 ) -> Step {
     Step {
@@ -116,10 +136,26 @@ fn step(
             })
             .unwrap_or_default(),
         parameter_space,
+        host_requirements,
         script: StepScript {
             actions: Actions { on_run },
         },
     }
+}
+
+/// A render task's host: the task's cores ([`FarmOptions::cpus`]) and, rendering on a GPU, its GPUs.
+fn render_host(opts: &FarmOptions) -> HostRequirements {
+    let mut amounts = vec![AmountRequirement {
+        name: "amount.worker.vcpu".into(),
+        min: opts.cpus(),
+    }];
+    if let Some(gpus) = opts.gpus() {
+        amounts.push(AmountRequirement {
+            name: "amount.worker.gpu".into(),
+            min: gpus,
+        });
+    }
+    HostRequirements { amounts }
 }
 
 pub fn template(opts: &FarmOptions) -> JobTemplate {
@@ -157,18 +193,26 @@ pub fn template(opts: &FarmOptions) -> JobTemplate {
             }]
         },
         steps: vec![
-            step("Render", None, Some(shards), action(opts, render)),
+            step(
+                "Render",
+                None,
+                Some(shards),
+                Some(render_host(opts)),
+                action(opts, render, opts.time_limit),
+            ),
             step(
                 "Merge",
                 Some("Render"),
                 None,
-                action(opts, opts.merge_args()),
+                None,
+                action(opts, opts.merge_args(), opts.merge_time_limit),
             ),
             step(
                 "Check",
                 Some("Merge"),
                 None,
-                action(opts, opts.check_args()),
+                None,
+                action(opts, opts.check_args(), opts.merge_time_limit),
             ),
         ],
     }

@@ -4,12 +4,13 @@
 //!
 //! The `#SBATCH` lines come from [`SbatchOptions`] serialised field by field; commands are argv
 //! lists quoted for the shell. Each render task runs `generate --shard auto` as a job step
-//! (`srun`), so `scancel --signal=TERM` and preemption reach it; when it stops interrupted
-//! (exit [`INTERRUPTED_EXIT_CODE`]) the script requeues the task, which resumes where it stopped.
+//! (`srun`), so `scancel --signal=TERM`, preemption and the `--signal=TERM@GRACE` that Slurm sends
+//! GRACE seconds before the time limit reach it; when it stops interrupted (exit
+//! [`INTERRUPTED_EXIT_CODE`]) the script requeues the task, which resumes where it stopped.
 
 use serde::Serialize;
 
-use super::{FarmOptions, INTERRUPTED_EXIT_CODE, JobFile, path};
+use super::{FarmOptions, INTERRUPTED_EXIT_CODE, JobFile, TimeLimit, path};
 use crate::dataset::shard::ShardArg;
 
 /// `#SBATCH` options. Field names are sbatch's long options (`cpus_per_task` → `--cpus-per-task`);
@@ -30,6 +31,10 @@ pub struct SbatchOptions {
     pub mem: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub time: Option<String>,
+    /// `TERM@SECS`: SIGTERM to the job steps SECS before the time limit, so `generate` stops
+    /// cleanly (exit 75) and the script requeues the task before Slurm kills it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub signal: Option<String>,
     /// Log file (`%A` array job id, `%a` task id, `%j` job id).
     pub output: String,
     /// `append`: a requeued task adds to its log instead of replacing it.
@@ -94,7 +99,13 @@ fn quote(s: &str) -> String {
         .unwrap_or_else(|_| format!("'{}'", s.replace('\0', "").replace('\'', r"'\''")))
 }
 
-fn options(opts: &FarmOptions, job_name: String, cpus: u32, output: &str) -> SbatchOptions {
+fn options(
+    opts: &FarmOptions,
+    job_name: String,
+    cpus: u32,
+    time: Option<TimeLimit>,
+    output: &str,
+) -> SbatchOptions {
     SbatchOptions {
         job_name,
         array: None,
@@ -103,7 +114,8 @@ fn options(opts: &FarmOptions, job_name: String, cpus: u32, output: &str) -> Sba
         cpus_per_task: cpus,
         gpus_per_task: None,
         mem: opts.memory.clone(),
-        time: opts.time_limit.clone(),
+        time: time.map(TimeLimit::slurm),
+        signal: None,
         output: path(&opts.job_dir.join("logs").join(output)),
         open_mode: "append".into(),
         requeue: false,
@@ -117,13 +129,15 @@ pub fn render_script(opts: &FarmOptions) -> BatchScript {
         opts,
         format!("{}-render", opts.name),
         opts.cpus(),
+        opts.time_limit,
         "render-%A_%a.out",
     );
+    o.signal = Some(format!("TERM@{}", opts.grace_s.max(1)));
     o.array = Some(match opts.max_parallel {
         Some(m) => format!("0-{}%{m}", opts.tasks - 1),
         None => format!("0-{}", opts.tasks - 1),
     });
-    o.gpus_per_task = opts.gpus_per_task;
+    o.gpus_per_task = opts.gpus();
     o.requeue = true;
     let mut generate = vec![
         "srun".to_string(),
@@ -136,7 +150,8 @@ pub fn render_script(opts: &FarmOptions) -> BatchScript {
         comment: vec![
             format!("Written by `stereogen farm slurm` (stereogen {}).", env!("CARGO_PKG_VERSION")),
             format!("Renders samples {}..{} in {} shards; shard = SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.", opts.task.start, opts.task.start + opts.task.count, opts.tasks),
-            format!("Exit {code} = generate stopped on SIGTERM/SIGINT: the task requeues itself and resumes."),
+            format!("A task asks for {}.", opts.resources()),
+            format!("Exit {code} = generate stopped on SIGTERM/SIGINT (scancel, preemption, or --signal {} s before the time limit): the task requeues itself and resumes.", opts.grace_s.max(1)),
         ],
         options: o,
         env: opts.env.clone(),
@@ -165,7 +180,13 @@ pub fn merge_script(opts: &FarmOptions) -> BatchScript {
             format!("Written by `stereogen farm slurm` (stereogen {}).", env!("CARGO_PKG_VERSION")),
             "Runs after every render task ended (afterany): merges the shards and checks the dataset.".into(),
         ],
-        options: options(opts, format!("{}-merge", opts.name), 2, "merge-%j.out"),
+        options: options(
+            opts,
+            format!("{}-merge", opts.name),
+            2,
+            opts.merge_time_limit,
+            "merge-%j.out",
+        ),
         env: opts.env.clone(),
         body: vec!["set -e".into(), command_line(&merge), command_line(&check), "echo \"stereogen farm: merge and check passed\"".into()],
     }
