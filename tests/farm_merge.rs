@@ -81,6 +81,7 @@ fn train_two_steps_on(data: &Path, run: &Path) {
             path: data.to_path_buf(),
             format: None,
             weight: 1.0,
+            splits: None,
         }],
         steps: 2,
         batch_size: 2,

@@ -6,6 +6,7 @@
 //! [[datasets]]
 //! path = "/data/stereogen"          # any layout stereo-io reads; relative paths are relative to this file
 //! weight = 98
+//! # splits = ["train"]              # a WebDataset export's splits (default: train, or its only one)
 //! [[datasets]]
 //! path = "/data/middlebury2014"
 //! format = "middlebury"             # optional: force the layout instead of detecting it
@@ -211,6 +212,23 @@ pub struct DatasetEntry {
     /// Relative sampling weight (any positive number; normalised over the list).
     #[serde(default = "one")]
     pub weight: f64,
+    /// The splits of a WebDataset export to train on (`<split>.index.json`); absent: `train`
+    /// where the export has one, its only split where it has one, else an error asking. A run
+    /// stores the splits it chose, so they are part of its identity on `--resume`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub splits: Option<Vec<String>>,
+}
+
+impl DatasetEntry {
+    /// `path` at weight 1, its layout detected, a WebDataset's default split.
+    pub fn new(path: PathBuf) -> Self {
+        Self {
+            path,
+            format: None,
+            weight: 1.0,
+            splits: None,
+        }
+    }
 }
 
 fn one() -> f64 {
@@ -224,6 +242,10 @@ pub struct ValidationSettings {
     pub path: PathBuf,
     #[serde(default, with = "format_name")]
     pub format: Option<DatasetFormat>,
+    /// The splits of a WebDataset export to evaluate; absent: its only split, else `val`, else
+    /// `test`, else an error asking.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub splits: Option<Vec<String>>,
     /// Evaluate every this many steps (and at the end).
     #[serde(default = "default_val_every")]
     pub every: u64,
@@ -242,6 +264,7 @@ impl ValidationSettings {
         Self {
             path,
             format: None,
+            splits: None,
             every: default_val_every(),
             limit: 0,
             iters: default_val_iters(),
@@ -258,6 +281,16 @@ fn default_val_iters() -> usize {
 }
 fn default_val_stages() -> usize {
     2
+}
+
+/// A split list, where given, names at least one split, none of them empty.
+fn check_split_names(splits: Option<&[String]>, key: &str) -> Result<()> {
+    if let Some(s) = splits
+        && (s.is_empty() || s.iter().any(|n| n.trim().is_empty()))
+    {
+        bail!("{key} must name at least one split, none empty, got {s:?}");
+    }
+    Ok(())
 }
 
 /// A layout in the config as its stereo-io name; an unknown name fails the read of the file.
@@ -390,6 +423,10 @@ impl TrainConfig {
                     d.weight
                 );
             }
+            check_split_names(d.splits.as_deref(), &format!("datasets[{i}].splits"))?;
+        }
+        if let Some(v) = &self.validation {
+            check_split_names(v.splits.as_deref(), "validation.splits")?;
         }
         Ok(())
     }

@@ -27,7 +27,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::augment::{AugmentConfig, TrainSample, augment_random};
-pub use source::{MixedSource, open_data};
+pub use source::{
+    MixedSource, SplitUse, choose_splits, describe, is_webdataset, open_data, open_webdataset,
+};
 use stream_order::StreamLayout;
 use streamed::StreamReaders;
 

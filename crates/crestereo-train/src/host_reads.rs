@@ -18,8 +18,19 @@ thread_local! {
     static READS: Cell<usize> = const { Cell::new(0) };
 }
 
-/// A tracing layer that counts host reads of the fusion backend, per thread.
+/// A tracing layer that counts host reads of the fusion backend, per thread. It enables read
+/// spans alone, so beside another layer it must go through its own filter ([`layer`]): as a
+/// plain layer its `never` for every other callsite disables them for the whole subscriber (the
+/// `crestereo` log showed nothing at any level that way).
 pub struct HostReadCounter;
+
+/// [`HostReadCounter`] behind a per-layer filter of the read spans, to stack beside a log layer.
+pub fn layer<S>() -> impl Layer<S>
+where
+    S: Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+{
+    HostReadCounter.with_filter(tracing_subscriber::filter::filter_fn(is_read))
+}
 
 fn is_read(meta: &Metadata<'_>) -> bool {
     meta.is_span()

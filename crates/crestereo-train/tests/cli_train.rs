@@ -270,3 +270,164 @@ fn a_streamed_webdataset_run_resumes_bit_exactly() {
     assert_eq!(log(&straight).len(), 7);
     assert_eq!(log(&straight), log(&split));
 }
+
+/// `ok` with the info log shown (where the data and its splits are announced).
+fn ok_logged(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_crestereo"))
+        .args(args)
+        .env("CRESTEREO_LOG", "info")
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "crestereo {args:?} failed:\n{text}");
+    text
+}
+
+/// An export made with `--splits train=0.6,val=0.4`: `train --data DIR:webdataset` trains on
+/// the train split (and says so), stores it in the run's config and refuses a resume on
+/// another; `:NAME` picks a split, an unknown one is an error listing the splits; `eval` takes
+/// `val` by default (the ids it reports are val's) and `:train` when named; an export without
+/// `train` but with two splits asks which.
+#[test]
+fn webdataset_splits_train_on_train_and_evaluate_on_val() {
+    use stereo_io::StereoDataset;
+    let dir = tempfile::tempdir().unwrap();
+    let (synth, shards) = (dir.path().join("synth"), dir.path().join("shards"));
+    ok(&[
+        "synth",
+        "--out",
+        s(&synth),
+        "--count",
+        "5",
+        "--size",
+        "64x128",
+        "--seed",
+        "6",
+    ]);
+    let export = |out: &Path, splits: &str| {
+        stereo_io::export_webdataset(
+            &synth,
+            out,
+            None,
+            &stereo_io::ReadOptions::default(),
+            &stereo_io::WebDatasetOptions {
+                shuffle_seed: 4,
+                splits: stereo_io::parse_splits(splits).unwrap(),
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    export(&shards, "train=0.6,val=0.4");
+    let ids = |split: &str| -> Vec<String> {
+        let ds = stereo_io::WebDataset::open_splits(&shards, &[split]).unwrap();
+        let mut v: Vec<String> = (0..ds.len()).map(|i| ds.id(i).unwrap().into()).collect();
+        v.sort();
+        v
+    };
+    let (train, val) = (ids("train"), ids("val"));
+    assert_eq!((train.len(), val.len()), (3, 2));
+
+    let data = format!("{}:webdataset", s(&shards));
+    let run = dir.path().join("run");
+    let mut args = vec!["train", "--data", &data, "--out", s(&run), "--steps", "2"];
+    args.extend(short_run::TINY_TRAINING);
+    let text = ok_logged(&args);
+    assert!(
+        text.contains(&format!(
+            "{} (webdataset split train, 3 samples)",
+            s(&shards)
+        )),
+        "{text}"
+    );
+    let stored = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(stored.contains("splits = [\"train\"]"), "{stored}");
+    // Naming the split it chose is the same run; another split is not.
+    let train_named = format!("{data}:train");
+    let resume = ["--out", s(&run), "--resume", "--no-progress"];
+    ok(&[&["train", "--data", &train_named][..], &resume].concat());
+    let val_named = format!("{data}:val");
+    let e = fails(&[&["train", "--data", &val_named][..], &resume].concat());
+    assert!(e.contains("WebDataset splits included"), "{e}");
+
+    let val_run = dir.path().join("val_run");
+    let mut args = vec![
+        "train",
+        "--data",
+        &val_named,
+        "--out",
+        s(&val_run),
+        "--steps",
+        "1",
+    ];
+    args.extend(short_run::TINY_TRAINING);
+    let text = ok_logged(&args);
+    assert!(text.contains("(webdataset split val, 2 samples)"), "{text}");
+    let unknown = format!("{data}:tset");
+    let e = fails(&[
+        "train",
+        "--data",
+        &unknown,
+        "--out",
+        s(&dir.path().join("r2")),
+        "--steps",
+        "1",
+    ]);
+    assert!(
+        e.contains("no split \"tset\"") && e.contains("its splits: train, val"),
+        "{e}"
+    );
+
+    // Evaluation: `val` by default, the split named otherwise; the report's ids are its own.
+    let eval_ids = |spec: &str| -> Vec<String> {
+        let json = dir.path().join("eval.json");
+        let text = ok_logged(&[
+            "eval",
+            "--data",
+            spec,
+            "--weights",
+            s(&run),
+            "--iters",
+            "2",
+            "--stages",
+            "1",
+            "--json",
+            s(&json),
+        ]);
+        assert!(text.contains("webdataset split"), "{text}");
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+        let mut v: Vec<String> = report["per_image"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["id"].as_str().unwrap().to_string())
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(eval_ids(&data), val);
+    assert_eq!(eval_ids(s(&shards)), val);
+    assert_eq!(eval_ids(&train_named), train);
+
+    // No `train` and two splits: train asks which rather than mixing them.
+    let ab = dir.path().join("ab");
+    export(&ab, "a=0.5,b=0.5");
+    let e = fails(&[
+        "train",
+        "--data",
+        s(&ab),
+        "--out",
+        s(&dir.path().join("r3")),
+        "--steps",
+        "1",
+    ]);
+    assert!(
+        e.contains("splits a, b and no `train` split") && e.contains("DIR:webdataset:SPLIT"),
+        "{e}"
+    );
+}

@@ -28,6 +28,7 @@ fn tiny_config(data: &Path, steps: u64) -> TrainConfig {
             path: data.to_path_buf(),
             format: None,
             weight: 1.0,
+            splits: None,
         }],
         steps,
         batch_size: 1,

@@ -126,6 +126,11 @@ fn the_epoch_order_is_a_permutation_that_follows_the_seeds_and_the_buffer() {
 /// A crestereo-layout dataset of `count` 64×128 pairs exported as WebDataset shards of about
 /// two samples each; returns the export's folder.
 fn shards(dir: &Path, count: usize) -> std::path::PathBuf {
+    shards_split(dir, count, "train=1")
+}
+
+/// [`shards`] split as `splits` says (`train=0.6,val=0.4`).
+fn shards_split(dir: &Path, count: usize, splits: &str) -> std::path::PathBuf {
     let (src, out) = (dir.join("src"), dir.join("shards"));
     write_crestereo_dataset(&src, count, 128, 64, 21).unwrap();
     let summary = export_webdataset(
@@ -136,13 +141,124 @@ fn shards(dir: &Path, count: usize) -> std::path::PathBuf {
         &WebDatasetOptions {
             shard_bytes: 40_000,
             shuffle_seed: 2,
-            splits: parse_splits("train=1").unwrap(),
+            splits: parse_splits(splits).unwrap(),
             force: false,
         },
     )
     .unwrap();
     assert!(summary.shards >= 4, "{summary:?}");
     out
+}
+
+/// The sample ids of `splits` of the export at `root`, read by stereo-io alone.
+fn ids_of(root: &Path, splits: &[&str]) -> Vec<String> {
+    use stereo_io::StereoDataset;
+    let ds = stereo_io::WebDataset::open_splits(root, splits).unwrap();
+    (0..ds.len())
+        .map(|i| ds.id(i).unwrap().to_string())
+        .collect()
+}
+
+/// The ids of every sample two streamed epochs of `entry` hand the trainer.
+fn ids_trained_on(entry: DatasetEntry) -> Result<Vec<String>, String> {
+    let source = Arc::new(MixedSource::open(&[entry]).map_err(|e| format!("{e:#}"))?);
+    let n = source.datasets[0].len();
+    let layouts = source.stream_layouts(&StreamSettings {
+        streams: 2,
+        shuffle_buffer: 2,
+    });
+    let mut l = Loader::start(
+        source.clone(),
+        Planner::with_layouts(5, &[1.0], &[n], layouts),
+        0,
+        AugmentConfig::none([32, 64]),
+        2,
+        2,
+        0,
+    );
+    assert!(l.streams.is_some());
+    Ok((0..2 * n)
+        .map(|_| {
+            let s = l.next_sample().unwrap();
+            source.datasets[0].id(s.index).unwrap().to_string()
+        })
+        .collect())
+}
+
+/// A two-split export trains on `train` alone unless told otherwise: the samples the loader
+/// hands out over two epochs are exactly the train split's, twice; `splits = ["val"]` gives
+/// val's; a split the export lacks is an error listing the ones it has.
+#[test]
+fn a_two_split_export_trains_on_its_train_split_unless_told() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = shards_split(dir.path(), 10, "train=0.6,val=0.4");
+    let (train, val) = (ids_of(&data, &["train"]), ids_of(&data, &["val"]));
+    assert_eq!((train.len(), val.len()), (6, 4));
+    assert!(train.iter().all(|t| !val.contains(t)));
+    let entry = |splits: Option<&[&str]>| DatasetEntry {
+        splits: splits.map(|s| s.iter().map(|x| x.to_string()).collect()),
+        ..DatasetEntry::new(data.clone())
+    };
+    let twice = |ids: &[String]| {
+        let mut v = [ids, ids].concat();
+        v.sort();
+        v
+    };
+    let sorted = |mut v: Vec<String>| {
+        v.sort();
+        v
+    };
+    assert_eq!(sorted(ids_trained_on(entry(None)).unwrap()), twice(&train));
+    assert_eq!(
+        sorted(ids_trained_on(entry(Some(&["val"]))).unwrap()),
+        twice(&val)
+    );
+    let both = sorted(ids_trained_on(entry(Some(&["val", "train"]))).unwrap());
+    assert_eq!(both, twice(&[train.clone(), val.clone()].concat()));
+    let e = ids_trained_on(entry(Some(&["test"]))).unwrap_err();
+    assert!(
+        e.contains("no split \"test\"") && e.contains("its splits: train, val"),
+        "{e}"
+    );
+    // The log line names the split.
+    let source = MixedSource::open(&[entry(None)]).unwrap();
+    assert!(
+        source.names[0].contains("(webdataset split train, 6 samples)"),
+        "{}",
+        source.names[0]
+    );
+}
+
+/// Without a `train` split, several splits are never mixed silently (train and evaluation ask
+/// which), a single split is used as it is, and evaluation takes `val`, else `test`.
+#[test]
+fn split_defaults_without_a_train_split_and_for_evaluation() {
+    use crestereo_train::data::{SplitUse, choose_splits};
+    let dir = tempfile::tempdir().unwrap();
+    let two = shards_split(&dir.path().join("two"), 8, "a=0.5,b=0.5");
+    let e = format!(
+        "{:#}",
+        MixedSource::open(&[DatasetEntry::new(two.clone())])
+            .err()
+            .unwrap()
+    );
+    assert!(
+        e.contains("splits a, b and no `train` split") && e.contains("DIR:webdataset:SPLIT"),
+        "{e}"
+    );
+    let e = choose_splits(&two, None, SplitUse::Eval, "--data")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no `val` or `test` split"), "{e}");
+    let pick = |root: &Path, purpose| choose_splits(root, None, purpose, "k").unwrap();
+    let one = shards_split(&dir.path().join("one"), 8, "holdout=1");
+    assert_eq!(pick(&one, SplitUse::Train), ["holdout"]);
+    assert_eq!(pick(&one, SplitUse::Eval), ["holdout"]);
+    let three = shards_split(&dir.path().join("three"), 8, "train=0.5,test=0.25,val=0.25");
+    assert_eq!(pick(&three, SplitUse::Train), ["train"]);
+    assert_eq!(pick(&three, SplitUse::Eval), ["val"]);
+    let tt = shards_split(&dir.path().join("tt"), 8, "train=0.5,test=0.5");
+    assert_eq!(pick(&tt, SplitUse::Eval), ["test"]);
 }
 
 #[test]
@@ -154,6 +270,7 @@ fn streamed_samples_match_a_resume_other_threads_and_random_access() {
             path: data.clone(),
             format: Some(stereo_io::DatasetFormat::WebDataset),
             weight: 1.0,
+            splits: None,
         }])
         .unwrap(),
     );
@@ -238,6 +355,7 @@ fn streaming_off_reads_the_webdataset_by_seeking_in_a_full_shuffle() {
             path: data,
             format: None,
             weight: 1.0,
+            splits: None,
         }])
         .unwrap(),
     );

@@ -217,6 +217,66 @@ fn shards_hold_every_sample_as_the_source_has_it() {
     assert_eq!(files(&out), files(&again));
 }
 
+/// A split is opened on its own: `open_splits` reads the named splits' shards only (in index
+/// order, whatever the order asked), `open` every split, and a split the export lacks is an
+/// error listing those it has.
+#[test]
+fn splits_open_on_their_own() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    export(&source, &out, &opts(false)).unwrap();
+    assert_eq!(WebDataset::split_names(&out).unwrap(), ["train", "val"]);
+    let ids = |ds: &WebDataset| -> Vec<String> {
+        (0..ds.len())
+            .map(|i| ds.id(i).unwrap().to_string())
+            .collect()
+    };
+    let index_count = |split: &str| -> usize {
+        let index: serde_json::Value =
+            serde_json::from_slice(&fs::read(out.join(format!("{split}.index.json"))).unwrap())
+                .unwrap();
+        index["samples"].as_u64().unwrap() as usize
+    };
+    let train = WebDataset::open_splits(&out, &["train"]).unwrap();
+    let val = WebDataset::open_splits(&out, &["val"]).unwrap();
+    assert_eq!(
+        (train.splits(), val.splits()),
+        (&["train".to_string()][..], &["val".to_string()][..])
+    );
+    assert_eq!(
+        (train.len(), val.len()),
+        (index_count("train"), index_count("val"))
+    );
+    assert!(train.len() > val.len() && !val.is_empty());
+    let (train_ids, val_ids) = (ids(&train), ids(&val));
+    assert!(train_ids.iter().all(|k| !val_ids.contains(k)));
+    let all = WebDataset::open(&out).unwrap();
+    assert_eq!(ids(&all), [train_ids.clone(), val_ids.clone()].concat());
+    let both = WebDataset::open_splits(&out, &["val", "train", "val"]).unwrap();
+    assert_eq!(ids(&both), ids(&all));
+    // A val sample read from its split alone is the one read from the whole export.
+    let k = train.len();
+    assert!(val.sample(0).unwrap().left == all.sample(k).unwrap().left);
+    // Streaming numbers the shards of the opened splits only.
+    assert_eq!(val.shard_samples().iter().sum::<usize>(), val.len());
+    assert_eq!(val.shard_reader(0).unwrap().read(&val, 0).unwrap().index, 0);
+    let e = WebDataset::open_splits(&out, &["test"])
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("no split \"test\"") && e.contains("its splits: train, val"),
+        "{e}"
+    );
+    let none: [&str; 0] = [];
+    let e = WebDataset::open_splits(&out, &none)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("no split asked for"), "{e}");
+}
+
 #[test]
 fn a_shard_cut_short_is_named_not_read_as_fewer_samples() {
     let t = tempfile::tempdir().unwrap();

@@ -12,9 +12,10 @@ use crestereo_train::eval::{EvalOptions, evaluate};
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
-    /// Dataset root (any layout stereo-io reads).
-    #[arg(long)]
-    pub data: PathBuf,
+    /// Dataset root (any layout stereo-io reads): DIR, DIR:FORMAT, or a WebDataset export's
+    /// splits as DIR:webdataset:SPLIT[,SPLIT] (default: its only split, else `val`, else `test`).
+    #[arg(long, value_name = "DIR[:FORMAT[:SPLITS]]")]
+    pub data: String,
     /// Force the dataset layout instead of detecting it.
     #[arg(long)]
     pub format: Option<stereo_io::DatasetFormat>,
@@ -92,7 +93,20 @@ fn options(a: &EvalArgs) -> Result<EvalOptions> {
 }
 
 pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
-    let dataset = crestereo_train::data::open_data(&a.data, a.format, "--data")?;
+    let at = super::train::parse_location(&a.data, "--data")?;
+    let format = match (at.format, a.format) {
+        (Some(x), Some(y)) if x != y => {
+            bail!("--data {} says {x}, --format says {y}", a.data)
+        }
+        (x, y) => x.or(y),
+    };
+    let dataset = crestereo_train::data::open_data(
+        &at.path,
+        format,
+        at.splits.as_deref(),
+        crestereo_train::data::SplitUse::Eval,
+        "--data",
+    )?;
     let evaluated = load_model::<B>(a, device)?;
     let opts = options(a)?;
     let bar = ProgressBar::new(0);

@@ -303,11 +303,12 @@ pub fn main() -> ExitCode {
                 // CubeCL logs every autotuned kernel shape at info: quiet unless asked for.
                 .unwrap_or_else(|_| "info,cubecl_runtime=warn".into()),
         );
-    // The log's filter is the log layer's own, so the read counter still sees the fusion
-    // backend's read spans (`bench --device cuda` prints them per training step).
+    // Each layer has its own filter: the log's leaves the fusion backend's read spans to the
+    // counter (`bench --device cuda` prints them per training step), the counter's leaves
+    // every event to the log.
     tracing_subscriber::registry()
         .with(log)
-        .with(crestereo_train::host_reads::HostReadCounter)
+        .with(crestereo_train::host_reads::layer())
         .init();
     let cli = Cli::parse();
     #[cfg(feature = "kernel-cache")]

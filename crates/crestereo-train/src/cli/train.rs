@@ -1,6 +1,6 @@
 //! `crestereo train`: a config file and/or flags → [`crestereo_train::train::train`].
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use burn::tensor::backend::AutodiffBackend;
@@ -18,12 +18,14 @@ pub struct TrainArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Training data, repeatable: DIR, DIR:FORMAT or DIR:FORMAT@WEIGHT (e.g. ours@98 and
-    /// mb:middlebury@2). Replaces the config's datasets.
-    #[arg(long = "data", value_name = "DIR[:FORMAT][@WEIGHT]")]
+    /// mb:middlebury@2); a WebDataset export's splits as DIR:webdataset:SPLIT[,SPLIT] (default:
+    /// `train`, or the export's only split). Replaces the config's datasets.
+    #[arg(long = "data", value_name = "DIR[:FORMAT[:SPLITS]][@WEIGHT]")]
     pub data: Vec<String>,
-    /// Held-out data evaluated every --val-every steps.
-    #[arg(long)]
-    pub val: Option<PathBuf>,
+    /// Held-out data evaluated every --val-every steps: DIR, DIR:FORMAT or
+    /// DIR:webdataset:SPLIT[,SPLIT] (default: the export's only split, else `val`, else `test`).
+    #[arg(long, value_name = "DIR[:FORMAT[:SPLITS]]")]
+    pub val: Option<String>,
     #[arg(long)]
     pub val_every: Option<u64>,
     /// Validation samples at most (0 = all).
@@ -81,32 +83,70 @@ pub struct TrainArgs {
     pub no_progress: bool,
 }
 
-/// `DIR`, `DIR:FORMAT` or either with `@WEIGHT` (a `:` followed by a path is part of the
-/// directory).
+/// Where data is: a directory, its layout, and for a WebDataset export the splits to read.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct DataLocation {
+    pub path: PathBuf,
+    pub format: Option<stereo_io::DatasetFormat>,
+    pub splits: Option<Vec<String>>,
+}
+
+/// `DIR`, `DIR:FORMAT` or `DIR:webdataset:SPLIT[,SPLIT]` (`flag` names the option in errors).
+/// An existing directory is taken as it is; a `:` followed by a path is part of the directory.
+pub(super) fn parse_location(spec: &str, flag: &str) -> Result<DataLocation> {
+    let literal = |p: &str| -> Result<DataLocation> {
+        Ok(DataLocation {
+            path: std::path::absolute(p).with_context(|| format!("{flag} {spec}"))?,
+            format: None,
+            splits: None,
+        })
+    };
+    if Path::new(spec).is_dir() {
+        return literal(spec);
+    }
+    let Some((head, last)) = spec.rsplit_once(':').filter(|(_, l)| !l.contains('/')) else {
+        return literal(spec);
+    };
+    let (path, format, splits) = match head.rsplit_once(':') {
+        Some((dir, f)) if f == stereo_io::DatasetFormat::WebDataset.name() => {
+            let splits: Vec<String> = last.split(',').map(|s| s.trim().to_string()).collect();
+            if splits.iter().any(String::is_empty) {
+                bail!("{flag} {spec}: an empty split name (DIR:webdataset:SPLIT[,SPLIT])");
+            }
+            (dir, stereo_io::DatasetFormat::WebDataset, Some(splits))
+        }
+        _ => {
+            let format = last.parse().map_err(|e: String| {
+                anyhow::anyhow!(
+                    "{flag} {spec}: {e} (splits go after the layout: DIR:webdataset:SPLIT)"
+                )
+            })?;
+            (head, format, None)
+        }
+    };
+    Ok(DataLocation {
+        format: Some(format),
+        splits,
+        ..literal(path)?
+    })
+}
+
+/// `DIR`, `DIR:FORMAT`, `DIR:webdataset:SPLIT[,SPLIT]` or any of them with `@WEIGHT`.
 pub(super) fn parse_data(spec: &str) -> Result<DatasetEntry> {
     let (rest, weight) = match spec.rsplit_once('@') {
-        Some((r, w)) => (
+        Some((r, w)) if !Path::new(spec).is_dir() => (
             r,
             w.parse::<f64>()
                 .with_context(|| format!("--data {spec}: weight `{w}` is not a number"))?,
         ),
-        None => (spec, 1.0),
+        _ => (spec, 1.0),
     };
-    let (path, format) = match rest.rsplit_once(':') {
-        Some((p, f)) if !f.contains('/') => (
-            p,
-            Some(
-                f.parse()
-                    .map_err(|e: String| anyhow::anyhow!("--data {spec}: {e}"))?,
-            ),
-        ),
-        _ => (rest, None),
-    };
-    let path = std::path::absolute(path).with_context(|| format!("--data {spec}"))?;
+    let at = parse_location(rest, "--data")?;
     Ok(DatasetEntry {
-        path,
-        format,
+        path: at.path,
+        format: at.format,
         weight,
+        splits: at.splits,
     })
 }
 
@@ -150,11 +190,22 @@ pub fn build_config(a: &TrainArgs) -> Result<TrainConfig> {
 /// `--val`, `--val-every`, `--val-limit`.
 fn apply_validation_flags(cfg: &mut TrainConfig, a: &TrainArgs) -> Result<()> {
     if let Some(v) = &a.val {
-        let path = std::path::absolute(v)?;
-        cfg.validation = Some(match cfg.validation.take() {
-            Some(old) => ValidationSettings { path, ..old },
-            None => ValidationSettings::new(path),
-        });
+        let at = parse_location(v, "--val")?;
+        let mut val = match cfg.validation.take() {
+            Some(old) => ValidationSettings {
+                path: at.path,
+                ..old
+            },
+            None => ValidationSettings::new(at.path),
+        };
+        // What the flag names replaces the config's; what it leaves out is kept.
+        if at.format.is_some() {
+            val.format = at.format;
+        }
+        if at.splits.is_some() {
+            val.splits = at.splits;
+        }
+        cfg.validation = Some(val);
     }
     if let Some(val) = cfg.validation.as_mut() {
         if let Some(e) = a.val_every {
@@ -272,6 +323,33 @@ mod tests {
                 .to_string()
                 .contains("weight")
         );
+        // A WebDataset export's splits follow its layout; an existing directory is as it is.
+        let d = parse_data("/x/wds:webdataset:val@3").unwrap();
+        assert_eq!(
+            (d.path, d.format, d.splits, d.weight),
+            (
+                PathBuf::from("/x/wds"),
+                Some(stereo_io::DatasetFormat::WebDataset),
+                Some(vec!["val".to_string()]),
+                3.0
+            )
+        );
+        let d = parse_data("/x/wds:webdataset:train, extra").unwrap();
+        assert_eq!(d.splits, Some(vec!["train".into(), "extra".into()]));
+        assert_eq!(parse_data("/x/wds:webdataset").unwrap().splits, None);
+        for bad in ["/x/wds:webdataset:", "/x/wds:webdataset:a,,b"] {
+            let e = parse_data(bad).unwrap_err().to_string();
+            assert!(e.contains("empty split"), "{e}");
+        }
+        let e = parse_data("/x/mb:middlebury:val").unwrap_err().to_string();
+        assert!(e.contains("DIR:webdataset:SPLIT"), "{e}");
+        let dir = tempfile::tempdir().unwrap();
+        let odd = dir.path().join("a:b@2");
+        std::fs::create_dir(&odd).unwrap();
+        let d = parse_data(odd.to_str().unwrap()).unwrap();
+        assert_eq!((d.path, d.format, d.weight), (odd.clone(), None, 1.0));
+        let at = parse_location(odd.to_str().unwrap(), "--val").unwrap();
+        assert_eq!((at.path, at.format), (odd, None));
         assert_eq!(parse_crop("128x256").unwrap(), [128, 256]);
         assert!(parse_crop("128").is_err());
     }

@@ -65,6 +65,42 @@ fn identity(cfg: &TrainConfig) -> serde_json::Value {
     })
 }
 
+/// `cfg` with the splits of each WebDataset source written out (those named, else the default
+/// [`crate::data::choose_splits`] picks), so the stored config says which part of an export a
+/// run trains on and a resume that would read other splits is refused. Splits named for another
+/// layout are an error.
+pub fn with_chosen_splits(cfg: &TrainConfig) -> Result<TrainConfig> {
+    let mut cfg = cfg.clone();
+    for (i, d) in cfg.datasets.iter_mut().enumerate() {
+        let key = format!("datasets[{i}]");
+        if crate::data::is_webdataset(&d.path, d.format) {
+            d.splits = Some(crate::data::choose_splits(
+                &d.path,
+                d.splits.as_deref(),
+                crate::data::SplitUse::Train,
+                &key,
+            )?);
+        } else if d.splits.is_some() {
+            bail!(
+                "{key}: splits are named for {}, which is not a WebDataset export",
+                d.path.display()
+            );
+        }
+    }
+    Ok(cfg)
+}
+
+/// A config stored before runs recorded their splits read every split of a WebDataset export:
+/// its entries without splits mean all of them (for the identity check on resume).
+fn stored_splits(mut old: TrainConfig) -> TrainConfig {
+    for d in &mut old.datasets {
+        if d.splits.is_none() && crate::data::is_webdataset(&d.path, d.format) {
+            d.splits = stereo_io::WebDataset::split_names(&d.path).ok();
+        }
+    }
+    old
+}
+
 /// Prepares the run directory: stores the config on a fresh start, checks it on resume.
 /// Returns the checkpoint to continue from.
 fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Checkpoint>> {
@@ -80,10 +116,10 @@ fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Che
     }
     if resume
         && let Some(old) = TrainConfig::stored(run)?
-        && identity(&old) != identity(cfg)
+        && identity(&stored_splits(old)) != identity(cfg)
     {
         bail!(
-            "the config differs from the one this run started with ({}) in seed, batch, iters, loss, optimiser, schedule, augmentation, data or WebDataset streaming — resume with the same config (steps, loader, checkpoint, log and validation settings may change)",
+            "the config differs from the one this run started with ({}) in seed, batch, iters, loss, optimiser, schedule, augmentation, data (WebDataset splits included) or WebDataset streaming — resume with the same config (steps, loader, checkpoint, log and validation settings may change)",
             stored.display()
         );
     }
@@ -239,7 +275,13 @@ impl Validation {
         let Some(settings) = &cfg.validation else {
             return Ok(None);
         };
-        let data = open_data(&settings.path, settings.format, "validation")?;
+        let data = open_data(
+            &settings.path,
+            settings.format,
+            settings.splits.as_deref(),
+            crate::data::SplitUse::Eval,
+            "validation",
+        )?;
         Ok(Some(Self {
             settings: settings.clone(),
             data,
@@ -578,6 +620,7 @@ pub fn train<B: AutodiffBackend>(
     device: &B::Device,
 ) -> Result<TrainOutcome> {
     cfg.validate()?;
+    let cfg = &with_chosen_splits(cfg)?;
     let mut trainer = Trainer::<B>::open(cfg, run, opts, device)?;
     while !trainer.finished() {
         let report;

@@ -1,4 +1,5 @@
-//! Reading a WebDataset folder: every split's shards, checked against their index, with each
+//! Reading a WebDataset folder: its splits' shards (every split, or those named), checked
+//! against their index, with each
 //! sample's members located once (tar headers only) so any sample can be read by seeking, and
 //! any shard read front to back ([`ShardReader`]: one open file, members in stored order) by a
 //! loader that streams shards.
@@ -36,9 +37,11 @@ impl SampleEntry {
 }
 
 /// A WebDataset folder opened for reading ([`StereoDataset`]); samples in index order: the
-/// splits by name, each split's shards in order, each shard's samples as stored.
+/// splits opened, by name, each split's shards in order, each shard's samples as stored.
 pub struct WebDataset {
     root: PathBuf,
+    /// The splits opened, sorted by name.
+    splits: Vec<String>,
     shards: Vec<PathBuf>,
     pub(super) samples: Vec<SampleEntry>,
 }
@@ -60,14 +63,18 @@ impl WebDataset {
         })
     }
 
-    /// Opens every split in `root`. A shard missing, of another size than its index says, or
-    /// holding other than its index's number of samples is an error naming it.
-    pub fn open(root: &Path) -> Result<Self> {
-        let indices = index_files(root);
+    /// The splits of the export at `root` (one per `<split>.index.json`), sorted by name. An
+    /// unfinished export, or a folder with no index, is an error.
+    pub fn split_names(root: &Path) -> Result<Vec<String>> {
         if let Some(e) = Self::unfinished_error(root) {
             return Err(e);
         }
-        if indices.is_empty() {
+        let names: Vec<String> = index_files(root)
+            .iter()
+            .filter_map(|p| p.file_name()?.to_str()?.strip_suffix(INDEX_SUFFIX))
+            .map(str::to_string)
+            .collect();
+        if names.is_empty() {
             return Err(Error::format(
                 root,
                 format!(
@@ -75,8 +82,52 @@ impl WebDataset {
                 ),
             ));
         }
+        Ok(names)
+    }
+
+    /// Opens every split in `root` (what tools that read a whole export want: `stats`,
+    /// `report`, a conversion). A trainer or an evaluation should name its splits
+    /// ([`Self::open_splits`]): an export's `val` part is not training data.
+    pub fn open(root: &Path) -> Result<Self> {
+        let all = Self::split_names(root)?;
+        Self::open_splits(root, &all)
+    }
+
+    /// Opens the named splits of `root`, in index order (by name) whatever the order asked,
+    /// each once. A split the export does not have is an error listing those it has; a shard
+    /// missing, of another size than its index says, or holding other than its index's number
+    /// of samples is an error naming it.
+    pub fn open_splits<S: AsRef<str>>(root: &Path, splits: &[S]) -> Result<Self> {
+        let available = Self::split_names(root)?;
+        if splits.is_empty() {
+            return Err(Error::format(
+                root,
+                format!("no split asked for; its splits: {}", available.join(", ")),
+            ));
+        }
+        for want in splits {
+            let want = want.as_ref();
+            if !available.iter().any(|a| a == want) {
+                return Err(Error::format(
+                    root,
+                    format!(
+                        "no split {want:?} in this WebDataset export; its splits: {}",
+                        available.join(", ")
+                    ),
+                ));
+            }
+        }
+        let chosen: Vec<String> = available
+            .into_iter()
+            .filter(|a| splits.iter().any(|w| w.as_ref() == a))
+            .collect();
+        let indices: Vec<PathBuf> = chosen
+            .iter()
+            .map(|split| root.join(format!("{split}{INDEX_SUFFIX}")))
+            .collect();
         let mut out = Self {
             root: root.to_path_buf(),
+            splits: chosen,
             shards: vec![],
             samples: vec![],
         };
@@ -120,6 +171,11 @@ impl WebDataset {
             }
         }
         Ok(out)
+    }
+
+    /// The splits this dataset holds (those opened), sorted by name.
+    pub fn splits(&self) -> &[String] {
+        &self.splits
     }
 
     /// Lists the members of the shard at `path`, reading tar headers only.
