@@ -111,10 +111,10 @@ def main():
             if fault == "raise":
                 raise RuntimeError("injected failure")
             spec = req["spec"]
-            t0 = time.perf_counter()
-            scene_builder.reset()
-            scene, skipped, notes = scene_builder.build(spec, opts["threads"], opts["device"])
-            timings["build_s"] = time.perf_counter() - t0
+            render_views._timed(timings, "reset_s", scene_builder.reset)
+            scene, skipped, notes = render_views._timed(
+                timings, "build_s", lambda: scene_builder.build(spec, opts["threads"], opts["device"])
+            )
             files = render_views.render_both(scene, spec, req["out_dir"], timings)
             send({"status": "ok", "files": files, "timings": timings, "rss_bytes": rss_bytes(), "skipped_assets": skipped, "notes": notes})
         except Exception as e:  # one bad spec must not take the worker down

@@ -4,7 +4,7 @@
 //! the run cleanly between samples. Progress goes to a callback ([`Progress`]); drawing it is the
 //! caller's business.
 
-use std::collections::{BTreeSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::PathBuf;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -98,6 +98,16 @@ impl GenerateOptions {
     }
 }
 
+/// Keys [`generate`] adds to a manifest entry's `render_timings`, beside the worker's steps and
+/// [`finalize_sample`]'s: seconds spent planning the scene; starting the worker that rendered it
+/// (only on a worker's first sample: paid once per worker); and the render request's round trip
+/// less the worker's own steps (the spec's JSON out, the pipe, the reply, the scratch folder).
+/// Appending the manifest line cannot be in the line itself: it is in
+/// [`GenerateSummary::manifest_seconds_per_sample`].
+pub const PLAN_TIMING: &str = "plan_s";
+pub const WORKER_START_TIMING: &str = "worker_start_s";
+pub const REQUEST_TIMING: &str = "request_s";
+
 /// What [`generate`] reports as it goes; called from the worker threads.
 #[derive(Debug, Clone, Copy)]
 pub enum Progress<'a> {
@@ -131,6 +141,8 @@ pub struct GenerateSummary {
     pub seconds_per_sample: f64,
     /// Mean seconds per rendered sample spent reading its files back to verify them.
     pub verify_seconds_per_sample: f64,
+    /// Mean seconds per rendered sample spent appending (and syncing) its manifest line.
+    pub manifest_seconds_per_sample: f64,
     /// The run stopped early on [`GenerateOptions::stop`]; samples it did not finish are left
     /// for the next run.
     pub interrupted: bool,
@@ -318,6 +330,8 @@ struct Totals {
     busy_seconds: f64,
     /// Seconds spent reading samples back to verify them.
     verify_seconds: f64,
+    /// Seconds spent appending manifest lines.
+    manifest_seconds: f64,
 }
 
 /// State the worker threads share during one run.
@@ -346,10 +360,15 @@ impl Run<'_> {
             let Some(index) = self.queue.lock().unwrap().pop_front() else {
                 break;
             };
-            let spec = plan_scene(&self.opts.recipe, &self.assets, self.opts.seed, index);
             let t0 = Instant::now();
+            let spec = plan_scene(&self.opts.recipe, &self.assets, self.opts.seed, index);
+            let plan_s = t0.elapsed().as_secs_f64();
+            let t1 = Instant::now();
             match service.render(&spec, |attempt| self.opts.faults.fault(index, attempt)) {
-                Ok(rendered) => self.finish_sample(&spec, &rendered, t0),
+                Ok(rendered) => {
+                    let timings = stage_timings(&rendered, plan_s, t1.elapsed().as_secs_f64());
+                    self.finish_sample(&spec, &rendered, &timings, t0)
+                }
                 // Abandoned: its scratch is gone with `service.render`, it stays pending.
                 Err(WorkerError::Interrupted) => break,
                 Err(e) if e.is_fatal() => self.fail_run(anyhow::Error::new(e)),
@@ -360,8 +379,15 @@ impl Run<'_> {
         service.shutdown();
     }
 
-    /// Writes a rendered sample into the dataset and appends its manifest line.
-    fn finish_sample(&self, spec: &SceneSpec, rendered: &Rendered, t0: Instant) {
+    /// Writes a rendered sample into the dataset and appends its manifest line. `t0`: when its
+    /// planning began; `timings`: its stages so far.
+    fn finish_sample(
+        &self,
+        spec: &SceneSpec,
+        rendered: &Rendered,
+        timings: &BTreeMap<String, f64>,
+        t0: Instant,
+    ) {
         let reply = &rendered.reply;
         record_skipped(
             &self.logs,
@@ -376,16 +402,22 @@ impl Run<'_> {
             &reply.files,
             &reply.notes,
             t0.elapsed().as_secs_f64(),
-            &reply.timings,
+            timings,
         )
         .and_then(|entry| {
+            let t = Instant::now();
             self.append(&entry)?;
-            Ok(entry)
+            Ok((entry, t.elapsed().as_secs_f64()))
         });
         match finished {
-            Ok(entry) => {
+            Ok((entry, manifest_s)) => {
+                tracing::debug!(
+                    "sample {}: manifest line appended in {manifest_s:.4} s",
+                    spec.id
+                );
                 let mut totals = self.totals.lock().unwrap();
                 totals.rendered += 1;
+                totals.manifest_seconds += manifest_s;
                 totals.busy_seconds += entry.render_seconds;
                 totals.verify_seconds += entry
                     .render_timings
@@ -435,6 +467,28 @@ impl Run<'_> {
         self.stop.store(true, Ordering::SeqCst);
         self.fatal.lock().unwrap().get_or_insert(error);
     }
+}
+
+/// The worker's steps plus the generator's own before finishing: [`PLAN_TIMING`],
+/// [`WORKER_START_TIMING`] (where this render started a worker) and [`REQUEST_TIMING`], what of
+/// the render's `render_s` wall seconds neither the start nor a worker step accounts for.
+fn stage_timings(rendered: &Rendered, plan_s: f64, render_s: f64) -> BTreeMap<String, f64> {
+    let mut timings = rendered.reply.timings.clone();
+    let worker_steps: f64 = timings
+        .iter()
+        .filter(|(k, _)| !k.ends_with("_cpu_s"))
+        .map(|(_, v)| v)
+        .sum();
+    let start = rendered.worker_start_s.unwrap_or(0.0);
+    timings.insert(PLAN_TIMING.to_string(), plan_s);
+    if let Some(s) = rendered.worker_start_s {
+        timings.insert(WORKER_START_TIMING.to_string(), s);
+    }
+    timings.insert(
+        REQUEST_TIMING.to_string(),
+        (render_s - start - worker_steps).max(0.0),
+    );
+    timings
 }
 
 /// Runs a generation and returns what happened. Fatal problems (no Blender, unwritable output,
@@ -527,6 +581,7 @@ pub fn generate(
         skipped,
         seconds_per_sample: per_sample(totals.busy_seconds),
         verify_seconds_per_sample: per_sample(totals.verify_seconds),
+        manifest_seconds_per_sample: per_sample(totals.manifest_seconds),
         failed: totals.failed,
         worker_restarts: totals.restarts,
         seconds: started.elapsed().as_secs_f64(),

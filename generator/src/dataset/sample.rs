@@ -16,7 +16,10 @@ use crate::plan::SceneSpec;
 use crate::render::protocol::RenderedFiles;
 
 /// Keys the generator adds to a manifest entry's `render_timings`, beside the worker's steps:
-/// seconds spent writing the sample's files, and reading them back to verify them.
+/// seconds spent decoding the worker's PNGs, reading its depth EXRs and converting them to
+/// disparity, writing the sample's files, and reading them back to verify them.
+pub const DECODE_PNG_TIMING: &str = "decode_png_s";
+pub const CONVERT_TIMING: &str = "convert_s";
 pub const WRITE_TIMING: &str = "write_s";
 pub const VERIFY_TIMING: &str = "verify_s";
 
@@ -197,7 +200,8 @@ fn read_back(path: &Path) -> anyhow::Result<Vec<u8>> {
 /// compared with what was written; checksums taken from what was read) and returns its manifest
 /// entry; the caller appends the entry to the manifest last. On any error nothing of the sample
 /// stays in the dataset. `render_timings` is where the worker says its time went (stage →
-/// seconds); [`WRITE_TIMING`] and [`VERIFY_TIMING`] are added.
+/// seconds); [`DECODE_PNG_TIMING`], [`CONVERT_TIMING`], [`WRITE_TIMING`] and [`VERIFY_TIMING`]
+/// are added, and `render_seconds` (the time before this call) grows by all four.
 pub fn finalize_sample(
     layout: &DatasetLayout,
     spec: &SceneSpec,
@@ -214,12 +218,20 @@ pub fn finalize_sample(
         .to_path_buf();
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
 
+    let t0 = Instant::now();
+    let disp_left = disparity_from_depth_exr(&files.left_depth_exr, spec)?;
+    let disp_right = disparity_from_depth_exr(&files.right_depth_exr, spec)?;
+    let convert_s = t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let left = read_worker_png(&files.left_png, spec)?;
+    let right = read_worker_png(&files.right_png, spec)?;
+    let decode_png_s = t0.elapsed().as_secs_f64();
     let content = SampleContent {
         spec,
-        disp_left: disparity_from_depth_exr(&files.left_depth_exr, spec)?,
-        disp_right: disparity_from_depth_exr(&files.right_depth_exr, spec)?,
-        left: read_worker_png(&files.left_png, spec)?,
-        right: read_worker_png(&files.right_png, spec)?,
+        disp_left,
+        disp_right,
+        left,
+        right,
     };
     let t0 = Instant::now();
     let written = content.write(layout, &paths).and_then(|()| {
@@ -239,6 +251,8 @@ pub fn finalize_sample(
         }
     };
     let mut timings = render_timings.clone();
+    timings.insert(CONVERT_TIMING.to_string(), convert_s);
+    timings.insert(DECODE_PNG_TIMING.to_string(), decode_png_s);
     timings.insert(WRITE_TIMING.to_string(), write_s);
     timings.insert(VERIFY_TIMING.to_string(), verify_s);
     let (cx, cy) = spec.rig.principal_point();
@@ -256,7 +270,7 @@ pub fn finalize_sample(
         cy,
         disparity_left: summary(&content.disp_left),
         disparity_right: summary(&content.disp_right),
-        render_seconds: render_seconds + write_s + verify_s,
+        render_seconds: render_seconds + convert_s + decode_png_s + write_s + verify_s,
         render_timings: timings,
         notes: notes.to_vec(),
         sha256,

@@ -132,8 +132,9 @@ pub struct RenderedFiles {
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderOutput {
     pub files: RenderedFiles,
-    /// Seconds per step: `build_s`, `colour_left_s`, `depth_left_s`, `colour_right_s`,
-    /// `depth_right_s`, `save_s`.
+    /// Seconds per step: `reset_s`, `build_s`, `colour_left_s`, `colour_right_s`,
+    /// `depth_left_s`, `depth_right_s`, `save_s` (and `<step>_cpu_s`, the worker's CPU seconds,
+    /// where STEREOGEN_TIMINGS_CPU is set).
     #[serde(default)]
     pub timings: BTreeMap<String, f64>,
     #[serde(default)]

@@ -515,6 +515,8 @@ pub struct RenderService {
     worker: Option<Worker>,
     /// Worker restarts so far (crashes and hangs).
     pub restarts: u32,
+    /// Seconds the last worker start took (process start to its hello), until a render takes it.
+    started_s: Option<f64>,
 }
 
 /// A finished render: the reply plus the scratch directory that holds its files until dropped
@@ -522,6 +524,9 @@ pub struct RenderService {
 pub struct Rendered {
     pub reply: RenderOutput,
     pub scratch: tempfile::TempDir,
+    /// Seconds spent starting a worker for this render (process start, Blender's import, the
+    /// hello), where this render started one; a worker's first sample pays it.
+    pub worker_start_s: Option<f64>,
 }
 
 /// An exported geometry: the reply plus the scratch directory that holds its file until dropped.
@@ -536,12 +541,15 @@ impl RenderService {
             cfg,
             worker: None,
             restarts: 0,
+            started_s: None,
         }
     }
 
     fn ensure_worker(&mut self) -> Result<&mut Worker, WorkerError> {
         if self.worker.is_none() {
+            let t0 = std::time::Instant::now();
             self.worker = Some(Worker::spawn(&self.cfg)?);
+            self.started_s = Some(t0.elapsed().as_secs_f64());
         }
         Ok(self.worker.as_mut().expect("just set"))
     }
@@ -552,10 +560,15 @@ impl RenderService {
         spec: &SceneSpec,
         fault: impl Fn(u32) -> Option<Fault>,
     ) -> Result<Rendered, WorkerError> {
+        self.started_s = None;
         let (reply, scratch) = self.with_retries(spec, |worker, dir, attempt, timeout| {
             worker.render(spec, dir, fault(attempt), timeout)
         })?;
-        Ok(Rendered { reply, scratch })
+        Ok(Rendered {
+            reply,
+            scratch,
+            worker_start_s: self.started_s.take(),
+        })
     }
 
     /// Writes the evaluated geometry of `spec` (no render), retrying on crashes and hangs.
