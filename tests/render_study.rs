@@ -68,7 +68,7 @@ fn the_study_renders_reference_and_candidates_and_reports_per_category() {
         );
         assert!(psnr > 5.0 && psnr < 80.0, "{r}");
         assert!(ssim > 0.0 && ssim <= 1.0, "{r}");
-        assert!(lr >= 0.0 && lr < 100.0, "{r}");
+        assert!((0.0..100.0).contains(&lr), "{r}");
         assert!(r["cpu_s_per_view"].as_f64().unwrap() > 0.0, "{r}");
     }
     // Noise falls with samples: without the denoiser, 32 samples are closer to the reference
