@@ -76,12 +76,15 @@ CANDIDATES = {
     "s16-dn": setting(samples=16),
     "s32-dn": setting(samples=32),
     "s64-dn": setting(samples=64),
+    "s24-dn": setting(samples=24),
     # The denoiser's options, at 16 and 8 samples.
     "s16-dn-fast": setting(samples=16, denoise_prefilter="fast"),
     "s16-dn-albedo": setting(samples=16, denoise_passes="albedo"),
     "s16-dn-rgb": setting(samples=16, denoise_passes="rgb"),
     "s16-dn-balanced": setting(samples=16, denoise_quality="balanced"),
     "s8-dn-fast": setting(samples=8, denoise_prefilter="fast"),
+    "s32-dn-fast": setting(samples=32, denoise_prefilter="fast"),
+    "s32-dn-albedo": setting(samples=32, denoise_passes="albedo"),
     # Adaptive sampling (max samples, noise threshold; min samples: Cycles' automatic choice).
     "a32-t0.02-dn": setting(samples=32, adaptive_threshold=0.02),
     "a64-t0.05-dn": setting(samples=64, adaptive_threshold=0.05),
@@ -97,8 +100,8 @@ OLD_DEFAULT = "s32-dn"
 # CANDIDATES are there for --candidates.
 STUDY = [
     "s4", "s8", "s16", "s32", "s64",
-    "s4-dn", "s8-dn", "s16-dn", "s32-dn",
-    "s8-dn-fast", "s16-dn-fast", "s16-dn-albedo", "s16-dn-rgb",
+    "s4-dn", "s8-dn", "s16-dn", "s24-dn", "s32-dn",
+    "s8-dn-fast", "s16-dn-fast", "s16-dn-albedo", "s16-dn-rgb", "s32-dn-fast", "s32-dn-albedo",
     "a32-t0.02-dn", "a64-t0.05-dn",
     "s16-dn-nolt", "s16-dn-b4", "s16-dn-b6",
 ]
