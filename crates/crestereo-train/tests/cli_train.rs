@@ -8,15 +8,28 @@ use std::process::{Command, Output};
 mod short_run;
 
 fn crestereo(args: &[&str]) -> Output {
+    crestereo_logging(args, "warn")
+}
+
+fn crestereo_logging(args: &[&str], level: &str) -> Output {
     Command::new(env!("CARGO_BIN_EXE_crestereo"))
         .args(args)
-        .env("CRESTEREO_LOG", "warn")
+        .env("CRESTEREO_LOG", level)
         .output()
         .unwrap()
 }
 
 fn ok(args: &[&str]) -> String {
-    let out = crestereo(args);
+    ok_at(args, "warn")
+}
+
+/// `ok` with the info log shown (where the data and its splits are announced).
+fn ok_logged(args: &[&str]) -> String {
+    ok_at(args, "info")
+}
+
+fn ok_at(args: &[&str], level: &str) -> String {
+    let out = crestereo_logging(args, level);
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),
@@ -207,13 +220,9 @@ fn bad_input_gets_one_clear_line() {
     assert!(e.contains("holds no checkpoint"), "{e}");
 }
 
-/// `--data DIR:webdataset` streams the shards (2 streams, a buffer of 2 samples each): a run
-/// stopped with `--stop-at` and resumed logs the same losses as one run straight through, and a
-/// resume with other streaming settings is refused (they decide the data order).
-#[test]
-fn a_streamed_webdataset_run_resumes_bit_exactly() {
-    let dir = tempfile::tempdir().unwrap();
-    let (synth, shards) = (dir.path().join("synth"), dir.path().join("shards"));
+/// Five synthetic 64x128 pairs (seed 6) in DIR/synth, the source of the WebDataset tests.
+fn synth_five(dir: &Path) -> std::path::PathBuf {
+    let synth = dir.join("synth");
     ok(&[
         "synth",
         "--out",
@@ -225,6 +234,16 @@ fn a_streamed_webdataset_run_resumes_bit_exactly() {
         "--seed",
         "6",
     ]);
+    synth
+}
+
+/// `--data DIR:webdataset` streams the shards (2 streams, a buffer of 2 samples each): a run
+/// stopped with `--stop-at` and resumed logs the same losses as one run straight through, and a
+/// resume with other streaming settings is refused (they decide the data order).
+#[test]
+fn a_streamed_webdataset_run_resumes_bit_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let (synth, shards) = (synth_five(dir.path()), dir.path().join("shards"));
     let summary = stereo_io::export_webdataset(
         &synth,
         &shards,
@@ -271,22 +290,6 @@ fn a_streamed_webdataset_run_resumes_bit_exactly() {
     assert_eq!(log(&straight), log(&split));
 }
 
-/// `ok` with the info log shown (where the data and its splits are announced).
-fn ok_logged(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_crestereo"))
-        .args(args)
-        .env("CRESTEREO_LOG", "info")
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "crestereo {args:?} failed:\n{text}");
-    text
-}
-
 /// An export made with `--splits train=0.6,val=0.4`: `train --data DIR:webdataset` trains on
 /// the train split (and says so), stores it in the run's config and refuses a resume on
 /// another; `:NAME` picks a split, an unknown one is an error listing the splits; `eval` takes
@@ -296,18 +299,7 @@ fn ok_logged(args: &[&str]) -> String {
 fn webdataset_splits_train_on_train_and_evaluate_on_val() {
     use stereo_io::StereoDataset;
     let dir = tempfile::tempdir().unwrap();
-    let (synth, shards) = (dir.path().join("synth"), dir.path().join("shards"));
-    ok(&[
-        "synth",
-        "--out",
-        s(&synth),
-        "--count",
-        "5",
-        "--size",
-        "64x128",
-        "--seed",
-        "6",
-    ]);
+    let (synth, shards) = (synth_five(dir.path()), dir.path().join("shards"));
     let export = |out: &Path, splits: &str| {
         stereo_io::export_webdataset(
             &synth,
