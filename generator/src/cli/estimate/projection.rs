@@ -1,0 +1,454 @@
+//! Projecting a measurement onto a whole run: per category and per task, with the spread of
+//! the sample times, and how it is printed.
+
+use super::*;
+
+/// min / median / max / mean and the standard error of the mean.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Spread {
+    pub min: f64,
+    pub median: f64,
+    pub max: f64,
+    pub mean: f64,
+    /// Standard error of the mean (`None` from one value).
+    pub sem: Option<f64>,
+}
+
+impl Spread {
+    fn of(v: &[f64]) -> Self {
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let sem = (v.len() > 1).then(|| {
+            let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            (var / n).sqrt()
+        });
+        Self {
+            min: v.iter().copied().fold(f64::INFINITY, f64::min),
+            median: median(v),
+            max: v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            mean,
+            sem,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CategoryEstimate {
+    pub name: String,
+    pub weight: f64,
+    /// Samples of this category in the range.
+    pub samples: u64,
+    /// Samples measured.
+    pub measured: usize,
+    /// Measured wall seconds per sample here (worker start-up excluded).
+    pub seconds: Option<Spread>,
+    /// Device seconds (core- or GPU-seconds) per sample at the target's cores per worker.
+    pub device_seconds: Option<Spread>,
+    pub hours: f64,
+    /// Standard error of `hours`.
+    pub hours_sem: f64,
+    pub files: u64,
+    pub bytes: u64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TaskEstimate {
+    pub tasks: u64,
+    /// Samples of the largest task.
+    pub samples: u64,
+    pub workers: usize,
+    /// Cores (CPU) or GPUs a task has.
+    pub units: f64,
+    /// Projected wall seconds of the largest task, and their standard error.
+    pub wall_s: f64,
+    pub wall_s_sem: f64,
+    /// Device hours of the largest task.
+    pub hours: f64,
+    /// Fixed wall seconds each task pays once (included in `wall_s`).
+    pub fixed_s: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Estimate {
+    pub recipe: String,
+    pub width: u32,
+    pub height: u32,
+    pub samples_per_pixel: u32,
+    pub seed: u64,
+    pub start: u64,
+    pub count: u64,
+    pub device: String,
+    /// `core-hours` or `GPU-hours`.
+    pub unit: String,
+    pub measured: Measurement,
+    /// Measured wall seconds per sample here, over every category.
+    pub seconds: Spread,
+    pub categories: Vec<CategoryEstimate>,
+    /// Device hours of the samples, of the tasks' fixed time, and their sum.
+    pub sample_hours: f64,
+    pub fixed_hours: f64,
+    pub hours: f64,
+    pub hours_sem: f64,
+    pub files: u64,
+    pub bytes: u64,
+    pub task: TaskEstimate,
+    /// Set by `farm --estimate` when no --time-limit was given: seconds, and how.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time_limit_s: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time_limit_rule: Option<String>,
+}
+
+/// Where the projection goes: how many tasks, and the workers and cores (or GPUs) of each.
+#[derive(Debug, Clone, Copy)]
+pub struct Target {
+    pub tasks: u64,
+    pub workers: usize,
+    /// Cores (CPU) or GPUs of a task.
+    pub units: f64,
+}
+
+impl Target {
+    /// A run like the measured one: its workers, with the cores they had here.
+    pub fn like(m: &Measurement, tasks: u64) -> Self {
+        Self {
+            tasks,
+            workers: m.workers,
+            units: m.units_per_worker * m.workers as f64,
+        }
+    }
+}
+
+/// Samples per category in `start..start+count` (exactly, up to [`EXACT_COUNT_LIMIT`]).
+fn category_counts(recipe: &Recipe, seed: u64, start: u64, count: u64) -> Vec<u64> {
+    if count <= EXACT_COUNT_LIMIT {
+        let mut n: BTreeMap<&str, u64> = BTreeMap::new();
+        for i in start..start + count {
+            *n.entry(scene_category(recipe, seed, i).name.as_str())
+                .or_default() += 1;
+        }
+        recipe
+            .categories
+            .iter()
+            .map(|c| n.get(c.name.as_str()).copied().unwrap_or(0))
+            .collect()
+    } else {
+        let total: f64 = recipe.categories.iter().map(|c| c.weight).sum();
+        recipe
+            .categories
+            .iter()
+            .map(|c| (c.weight / total * count as f64).round() as u64)
+            .collect()
+    }
+}
+
+/// Projects a measurement onto `count` samples from `start` run as `target`.
+pub fn project(
+    m: &Measurement,
+    recipe: &Recipe,
+    seed: u64,
+    start: u64,
+    count: u64,
+    target: Target,
+) -> Estimate {
+    let per_worker = target.units / target.workers.max(1) as f64;
+    // Wall seconds of a sample on a worker of the target, and its device seconds.
+    let wall = |s: &SampleCost| {
+        let scale = match m.device {
+            Device::Cpu => m.units_per_worker / per_worker,
+            Device::Gpu => 1.0,
+        };
+        (s.seconds - s.parallel_seconds) + s.parallel_seconds * scale
+    };
+    let counts = category_counts(recipe, seed, start, count);
+    // The relative spread pooled over categories measured twice or more, for those measured once.
+    let mut pooled = (0.0, 0.0);
+    let by_cat = |name: &str| -> Vec<&SampleCost> {
+        m.samples.iter().filter(|s| s.category == name).collect()
+    };
+    for c in &recipe.categories {
+        let v: Vec<f64> = by_cat(&c.name)
+            .into_iter()
+            .map(|s| wall(s) * per_worker)
+            .collect();
+        if v.len() > 1 {
+            let sp = Spread::of(&v);
+            let var = v.iter().map(|x| (x - sp.mean).powi(2)).sum::<f64>();
+            pooled.0 += var / (sp.mean * sp.mean);
+            pooled.1 += (v.len() - 1) as f64;
+        }
+    }
+    // With no category measured twice, the spread over all samples (categories mixed: larger).
+    let pooled_cv = if pooled.1 > 0.0 {
+        Some((pooled.0 / pooled.1).sqrt())
+    } else {
+        let all: Vec<f64> = m.samples.iter().map(|s| wall(s) * per_worker).collect();
+        let sp = Spread::of(&all);
+        sp.sem.map(|sem| sem * (all.len() as f64).sqrt() / sp.mean)
+    };
+    let mean = |v: &[u64]| v.iter().sum::<u64>() as f64 / v.len().max(1) as f64;
+    let mut categories = Vec::new();
+    let (mut sample_ds, mut var_ds, mut files, mut bytes) = (0.0, 0.0, 0u64, 0u64);
+    let mut manifest_bytes = 0.0;
+    for (c, &n) in recipe.categories.iter().zip(&counts) {
+        let measured = by_cat(&c.name);
+        let pick: Vec<&SampleCost> = if measured.is_empty() {
+            m.samples.iter().collect()
+        } else {
+            measured.clone()
+        };
+        let ds: Vec<f64> = pick.iter().map(|s| wall(s) * per_worker).collect();
+        let sp = Spread::of(&ds);
+        let sem = sp
+            .sem
+            .or_else(|| pooled_cv.map(|cv| cv * sp.mean / (ds.len() as f64).sqrt()))
+            .unwrap_or(0.0);
+        let f = mean(&pick.iter().map(|s| s.files).collect::<Vec<_>>());
+        let b = mean(&pick.iter().map(|s| s.bytes).collect::<Vec<_>>());
+        let mb = mean(&pick.iter().map(|s| s.manifest_bytes).collect::<Vec<_>>());
+        let nf = n as f64;
+        sample_ds += nf * sp.mean;
+        var_ds += (nf * sem).powi(2);
+        manifest_bytes += nf * mb;
+        let cat_files = (nf * f).round() as u64;
+        let cat_bytes = (nf * (b + mb)).round() as u64;
+        files += cat_files;
+        bytes += cat_bytes;
+        categories.push(CategoryEstimate {
+            name: c.name.clone(),
+            weight: c.weight,
+            samples: n,
+            measured: measured.len(),
+            seconds: (!measured.is_empty())
+                .then(|| Spread::of(&measured.iter().map(|s| s.seconds).collect::<Vec<_>>())),
+            device_seconds: (!measured.is_empty()).then_some(sp),
+            hours: nf * sp.mean / 3600.0,
+            hours_sem: nf * sem / 3600.0,
+            files: cat_files,
+            bytes: cat_bytes,
+        });
+    }
+    // Per task: dataset.json and its manifest; more than one task: the merged manifest too.
+    files += target.tasks * m.dataset_files;
+    bytes += target.tasks * m.dataset_bytes;
+    if target.tasks > 1 {
+        files += 1;
+        bytes += manifest_bytes.round() as u64;
+    }
+    let fixed_hours = target.tasks as f64 * m.task_fixed_s * target.units / 3600.0;
+    let task_samples = count.div_ceil(target.tasks);
+    let per_sample_wall = sample_ds / count as f64 / per_worker;
+    let per_sample_wall_sem = var_ds.sqrt() / count as f64 / per_worker;
+    let workers = target.workers.max(1) as f64;
+    let task_wall = m.task_fixed_s + task_samples as f64 * per_sample_wall / workers;
+    let task = TaskEstimate {
+        tasks: target.tasks,
+        samples: task_samples,
+        workers: target.workers,
+        units: target.units,
+        wall_s: task_wall,
+        wall_s_sem: task_samples as f64 * per_sample_wall_sem / workers,
+        hours: task_wall * target.units / 3600.0,
+        fixed_s: m.task_fixed_s,
+    };
+    Estimate {
+        recipe: recipe.name.clone(),
+        width: recipe.camera.width,
+        height: recipe.camera.height,
+        samples_per_pixel: recipe.render.samples,
+        seed,
+        start,
+        count,
+        device: m.device.to_string(),
+        unit: match m.device {
+            Device::Cpu => "core-hours",
+            Device::Gpu => "GPU-hours",
+        }
+        .into(),
+        seconds: Spread::of(&m.samples.iter().map(|s| s.seconds).collect::<Vec<_>>()),
+        measured: m.clone(),
+        categories,
+        sample_hours: sample_ds / 3600.0,
+        fixed_hours,
+        hours: sample_ds / 3600.0 + fixed_hours,
+        hours_sem: var_ds.sqrt() / 3600.0,
+        files,
+        bytes,
+        task,
+        time_limit_s: None,
+        time_limit_rule: None,
+    }
+}
+
+impl Estimate {
+    /// The time limit of a task from this estimate: [`TIME_LIMIT_SAFETY`] × the largest task's
+    /// projected wall time, plus `grace_s`, rounded up to [`TIME_LIMIT_STEP_S`].
+    pub fn time_limit(&self, grace_s: u64) -> TimeLimit {
+        TimeLimit::round_up(
+            TIME_LIMIT_SAFETY * self.task.wall_s + grace_s as f64,
+            TIME_LIMIT_STEP_S,
+        )
+    }
+
+    pub fn set_time_limit(&mut self, grace_s: u64) -> TimeLimit {
+        let t = self.time_limit(grace_s);
+        self.time_limit_s = Some(t.seconds());
+        self.time_limit_rule = Some(format!(
+            "{TIME_LIMIT_SAFETY} × the largest task's projected {:.0} s + {grace_s} s grace, rounded up to {} min",
+            self.task.wall_s,
+            TIME_LIMIT_STEP_S / 60
+        ));
+        t
+    }
+
+    /// The estimate as a table.
+    pub fn text(&self) -> String {
+        let m = &self.measured;
+        let unit = &self.unit;
+        let mut out = Vec::new();
+        let starts: Vec<String> = m.worker_start_s.iter().map(|s| format!("{s:.1}")).collect();
+        out.push(format!(
+            "estimate of {} samples of {} ({}×{} px, {} samples per pixel), seed {}, on the {}",
+            self.count,
+            self.recipe,
+            self.width,
+            self.height,
+            self.samples_per_pixel,
+            self.seed,
+            self.device
+        ));
+        out.push(format!(
+            "measured here: {} sample(s) with {} worker(s) × {} thread(s) on {}{}{}",
+            m.samples.len(),
+            m.workers,
+            m.threads,
+            m.machine,
+            if m.failed > 0 {
+                format!(", {} failed", m.failed)
+            } else {
+                String::new()
+            },
+            if m.worker_restarts > 0 {
+                format!(", {} worker restart(s)", m.worker_restarts)
+            } else {
+                String::new()
+            }
+        ));
+        out.push(format!(
+            "per task, once: {:.1} s wall (asset index, dataset, shutdown, and worker start-up, Blender import: {} s per worker)",
+            m.task_fixed_s,
+            starts.join(", ")
+        ));
+        let t = &self.task;
+        let unit_word = match m.device {
+            Device::Cpu => "core(s)",
+            Device::Gpu => "GPU(s)",
+        };
+        out.push(format!(
+            "projected to {} task(s) of {} worker(s) and {} {unit_word}",
+            t.tasks,
+            t.workers,
+            fmt_units(t.units)
+        ));
+        out.push(String::new());
+        out.push(format!(
+            "{:<12} {:>7} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
+            "category", "weight", "samples", "n", "s/sample min/med/max", unit, "output", "files"
+        ));
+        for c in &self.categories {
+            let spread = c.seconds.map_or("(not measured)".to_string(), |s| {
+                format!("{:.1} / {:.1} / {:.1}", s.min, s.median, s.max)
+            });
+            out.push(format!(
+                "{:<12} {:>7.3} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
+                c.name,
+                c.weight,
+                c.samples,
+                c.measured,
+                spread,
+                format!("{} ± {}", fmt_hours(c.hours), fmt_hours(c.hours_sem)),
+                fmt_bytes(c.bytes),
+                c.files
+            ));
+        }
+        let s = &self.seconds;
+        out.push(format!(
+            "{:<12} {:>7} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
+            "total",
+            "",
+            self.count,
+            m.samples.len(),
+            format!("{:.1} / {:.1} / {:.1}", s.min, s.median, s.max),
+            format!("{} ± {}", fmt_hours(self.hours), fmt_hours(self.hours_sem)),
+            fmt_bytes(self.bytes),
+            self.files
+        ));
+        out.push(String::new());
+        out.push(format!(
+            "{unit}: samples {} + per-task fixed time {}; ± is one standard error of the mean over the measured samples",
+            fmt_hours(self.sample_hours),
+            fmt_hours(self.fixed_hours)
+        ));
+        out.push(format!(
+            "largest task: {} samples, {} ± {} wall ({} {unit})",
+            t.samples,
+            fmt_duration(t.wall_s),
+            fmt_duration(t.wall_s_sem),
+            fmt_hours(t.hours)
+        ));
+        if let (Some(l), Some(rule)) = (self.time_limit_s, &self.time_limit_rule) {
+            out.push(format!(
+                "time limit per task: {} ({rule})",
+                TimeLimit(l).slurm()
+            ));
+        }
+        if m.device == Device::Cpu
+            && (t.units / t.workers.max(1) as f64 - m.units_per_worker).abs() > 1e-9
+        {
+            out.push(format!(
+                "cores per worker {} here, {} in the projection: the colour and depth renders scaled linearly, the rest of a sample not",
+                fmt_units(m.units_per_worker),
+                fmt_units(t.units / t.workers.max(1) as f64)
+            ));
+        }
+        out.join("\n") + "\n"
+    }
+}
+
+fn fmt_units(u: f64) -> String {
+    if (u - u.round()).abs() < 1e-9 {
+        format!("{}", u.round() as u64)
+    } else {
+        format!("{u:.2}")
+    }
+}
+
+fn fmt_hours(h: f64) -> String {
+    if h >= 100.0 {
+        format!("{h:.0}")
+    } else if h >= 1.0 {
+        format!("{h:.1}")
+    } else {
+        format!("{h:.3}")
+    }
+}
+
+fn fmt_duration(s: f64) -> String {
+    if s >= 3600.0 {
+        format!("{:.1} h", s / 3600.0)
+    } else if s >= 60.0 {
+        format!("{:.1} min", s / 60.0)
+    } else {
+        format!("{s:.1} s")
+    }
+}
+
+fn fmt_bytes(b: u64) -> String {
+    let b = b as f64;
+    for (unit, size) in [("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)] {
+        if b >= size {
+            return format!("{:.1} {unit}", b / size);
+        }
+    }
+    format!("{b:.0} B")
+}
