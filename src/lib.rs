@@ -3,6 +3,7 @@
 //! (`stereogen::validate::audit::raycast`), so the analytic scenes also check the audit itself.
 
 pub mod scenes;
+pub mod slurm_cluster;
 
 use std::path::PathBuf;
 use std::sync::OnceLock;

@@ -7,139 +7,14 @@
 //! Without Slurm (not root, no packages and no `apt-get`) the test prints why and passes, unless
 //! `CI` or `STEREOGEN_REQUIRE_SLURM` is set: then it fails, so CI cannot skip it silently.
 
-use std::collections::BTreeMap;
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
+use stereogen_e2e::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
 use stereogen_e2e::{farm_cmd, stats_cmd, write_tiny_recipe};
-
-const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/farm/slurm-cluster.sh");
-/// No farm round of this test takes near this long (one is about 20 s on 2 cores).
-const ROUND_TIMEOUT: Duration = Duration::from_secs(600);
-
-/// The cluster's daemons, stopped (by their pid files) when this is dropped, pass or fail.
-struct Cluster {
-    dir: PathBuf,
-    conf: PathBuf,
-}
-
-impl Cluster {
-    /// Starts the cluster, or says why it cannot.
-    fn start(dir: &Path) -> Result<Self, String> {
-        // A port of our own, so a cluster left by another run does not answer.
-        let port = 20_000 + std::process::id() % 20_000;
-        let o = Command::new("bash")
-            .args([SCRIPT, "start"])
-            .arg(dir)
-            .env("STEREOGEN_INSTALL_SLURM", "1")
-            .env("STEREOGEN_SLURM_PORT", port.to_string())
-            .stdin(Stdio::null())
-            .output()
-            .map_err(|e| format!("cannot run {SCRIPT}: {e}"))?;
-        let cluster = Self {
-            dir: dir.to_path_buf(),
-            conf: dir.join("slurm.conf"),
-        };
-        if !o.status.success() {
-            return Err(format!(
-                "{SCRIPT} start failed ({}): {}",
-                o.status,
-                String::from_utf8_lossy(&o.stderr).trim()
-            ));
-        }
-        Ok(cluster)
-    }
-
-    fn cmd(&self, program: &str) -> Command {
-        let mut c = Command::new(program);
-        c.env("SLURM_CONF", &self.conf).stdin(Stdio::null());
-        c
-    }
-
-    fn run(&self, program: &str, args: &[&str]) -> Output {
-        self.cmd(program)
-            .args(args)
-            .output()
-            .unwrap_or_else(|e| panic!("{program}: {e}"))
-    }
-
-    /// Fields of `scontrol show job ID` (for an array: its first task), e.g. `JobState`.
-    fn job(&self, id: &str) -> BTreeMap<String, String> {
-        let o = self.run("scontrol", &["show", "job", "--oneliner", id]);
-        let text = String::from_utf8_lossy(&o.stdout);
-        text.lines()
-            .next()
-            .unwrap_or("")
-            .split_whitespace()
-            .filter_map(|kv| kv.split_once('='))
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect()
-    }
-
-    /// Every job's `id state` as squeue sees them (pending, running, ...).
-    fn queue(&self) -> String {
-        String::from_utf8_lossy(&self.run("squeue", &["-h", "-o", "%i %T"]).stdout).into_owned()
-    }
-
-    fn wait_for_empty_queue(&self, what: &str) {
-        let t0 = Instant::now();
-        while !self.queue().trim().is_empty() {
-            assert!(
-                t0.elapsed() < ROUND_TIMEOUT,
-                "{what}: jobs still queued after {ROUND_TIMEOUT:?}:\n{}\n{}",
-                self.queue(),
-                self.logs()
-            );
-            std::thread::sleep(Duration::from_millis(500));
-        }
-    }
-
-    fn logs(&self) -> String {
-        let tail = |name: &str| {
-            std::fs::read_to_string(self.dir.join("log").join(name))
-                .unwrap_or_default()
-                .lines()
-                .rev()
-                .take(15)
-                .collect::<Vec<_>>()
-                .join("\n")
-        };
-        format!(
-            "slurmctld.log (last lines, reversed):\n{}\nslurmd.log:\n{}",
-            tail("slurmctld.log"),
-            tail("slurmd.log")
-        )
-    }
-}
-
-impl Drop for Cluster {
-    fn drop(&mut self) {
-        let _ = Command::new("bash")
-            .args([SCRIPT, "stop"])
-            .arg(&self.dir)
-            .stdin(Stdio::null())
-            .output();
-    }
-}
-
-/// The cluster, or `None` after printing why not (a failure where Slurm is required).
-fn cluster_or_skip(dir: &Path) -> Option<Cluster> {
-    let required =
-        std::env::var_os("CI").is_some() || std::env::var_os("STEREOGEN_REQUIRE_SLURM").is_some();
-    match Cluster::start(dir) {
-        Ok(c) => Some(c),
-        Err(why) if required => panic!(
-            "a Slurm cluster is required here (CI or STEREOGEN_REQUIRE_SLURM is set) but: {why}"
-        ),
-        Err(why) => {
-            eprintln!("SKIPPED farm_slurm: no local Slurm cluster: {why}");
-            None
-        }
-    }
-}
 
 /// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once; `extra` added.
 fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64, extra: &[&OsStr]) {

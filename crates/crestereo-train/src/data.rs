@@ -10,6 +10,7 @@
 //! each read front to back through a shuffle buffer), which is computed from the index and the
 //! seeds alone, and the loader reads each stream's shards sequentially ([`streamed`]).
 
+pub mod share;
 mod source;
 pub mod stream_order;
 pub mod streamed;
@@ -27,6 +28,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::augment::{AugmentConfig, TrainSample, augment_random};
+use share::Share;
 pub use source::{
     MixedSource, SplitUse, choose_splits, describe, is_webdataset, open_data, open_webdataset,
 };
@@ -48,6 +50,7 @@ pub struct SamplePlan {
 
 /// Chooses the dataset of every sample by weight, and walks each dataset in its own shuffled
 /// epochs (every sample once per epoch) so small datasets are not drawn with replacement.
+#[derive(Clone)]
 pub struct Planner {
     seed: u64,
     weights: Vec<f64>,
@@ -61,6 +64,7 @@ pub struct Planner {
 
 /// Where one dataset's walk stands: its current epoch's shuffled order and the next position
 /// in it.
+#[derive(Clone)]
 struct DatasetEpoch {
     number: u64,
     order: Vec<usize>,
@@ -143,6 +147,12 @@ impl Planner {
     pub fn epoch_progress(&self, dataset: usize) -> (u64, &[usize]) {
         let e = &self.epochs[dataset];
         (e.number, &e.order[..e.next])
+    }
+
+    /// Whether every sample of `dataset`'s epoch `epoch` has been planned.
+    pub fn epoch_complete(&self, dataset: usize, epoch: u64) -> bool {
+        let e = &self.epochs[dataset];
+        e.number > epoch || (e.number == epoch && e.next >= self.lens[dataset])
     }
 
     /// The ordinal of the sample [`Self::next_plan`] returns next.
@@ -321,13 +331,26 @@ impl Worker {
     }
 }
 
+/// How the loader decodes: augmentation, threads, look-ahead, retries of unreadable samples.
+#[derive(Debug, Clone)]
+pub struct LoaderSettings {
+    pub augment: AugmentConfig,
+    pub workers: usize,
+    pub prefetch: usize,
+    pub retries: usize,
+}
+
 /// Background decoding: a planner thread hands out plans, `workers` threads decode and augment,
 /// and [`Loader::next_sample`] returns results in plan order. At most `prefetch` samples exist
 /// ahead of the consumer (planned, in progress or waiting), so memory stays bounded.
 pub struct Loader {
     results: Receiver<Decoded>,
     waiting: BTreeMap<u64, Result<LoadedSample>>,
+    /// This replica's next sample.
     next: u64,
+    share: Share,
+    /// How far (in ordinals) the planner may run ahead of `next`.
+    ahead: u64,
     credit: Arc<(Mutex<u64>, Condvar)>,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
@@ -340,29 +363,56 @@ impl Loader {
     /// Starts the stream at sample `start` of `planner`'s sequence.
     pub fn start(
         source: Arc<MixedSource>,
-        mut planner: Planner,
+        planner: Planner,
         start: u64,
         augment: AugmentConfig,
         workers: usize,
         prefetch: usize,
         retries: usize,
     ) -> Self {
+        let settings = LoaderSettings {
+            augment,
+            workers,
+            prefetch,
+            retries,
+        };
+        Self::start_share(source, planner, start, settings, Share::whole())
+    }
+
+    /// Starts the stream of `share`'s samples at sample `start` (a global position) of
+    /// `planner`'s sequence: the plans of other replicas are made (plans are cheap) but not
+    /// loaded, and their samples of a streamed source are passed over unread.
+    pub fn start_share(
+        source: Arc<MixedSource>,
+        mut planner: Planner,
+        start: u64,
+        settings: LoaderSettings,
+        share: Share,
+    ) -> Self {
+        let LoaderSettings {
+            augment,
+            workers,
+            prefetch,
+            retries,
+        } = settings;
         planner.skip_to(start);
-        let streams = StreamReaders::new(&source.webdatasets, &planner).map(Arc::new);
+        let streams = StreamReaders::new(&source.webdatasets, &planner, share).map(Arc::new);
         let workers = workers.max(1);
-        let prefetch = prefetch.max(1) as u64;
+        // Ordinals the planner may run ahead: `prefetch` of this replica's samples.
+        let ahead = (prefetch.max(1) * share.replicas) as u64;
         let stop = Arc::new(AtomicBool::new(false));
+        let first = share.first_owned_from(start);
         // `credit` = the highest ordinal (exclusive) the planner may hand out.
-        let credit = Arc::new((Mutex::new(start + prefetch), Condvar::new()));
+        let credit = Arc::new((Mutex::new(first + ahead), Condvar::new()));
         let skipped = Arc::new(Mutex::new(Vec::new()));
         let (job_tx, job_rx) = sync_channel::<SamplePlan>(workers);
         let jobs = Arc::new(Mutex::new(job_rx));
-        let (res_tx, res_rx) = sync_channel(prefetch as usize + workers);
+        let (res_tx, res_rx) = sync_channel(prefetch.max(1) + workers);
         let mut threads = Vec::new();
         {
             let (credit, stop) = (credit.clone(), stop.clone());
             threads.push(std::thread::spawn(move || {
-                plan_loop(planner, job_tx, &credit, &stop)
+                plan_loop(planner, share, job_tx, &credit, &stop)
             }));
         }
         for _ in 0..workers {
@@ -381,7 +431,9 @@ impl Loader {
         Self {
             results: res_rx,
             waiting: BTreeMap::new(),
-            next: start,
+            next: first,
+            share,
+            ahead,
             credit,
             stop,
             threads,
@@ -390,8 +442,8 @@ impl Loader {
         }
     }
 
-    /// The ordinal of the next sample [`Self::next_sample`] returns: the data position to store
-    /// in a checkpoint.
+    /// The ordinal of the next sample [`Self::next_sample`] returns (for a loader of the whole
+    /// run: the data position to store in a checkpoint).
     pub fn position(&self) -> u64 {
         self.next
     }
@@ -399,9 +451,9 @@ impl Loader {
     pub fn next_sample(&mut self) -> Result<LoadedSample> {
         loop {
             if let Some(r) = self.waiting.remove(&self.next) {
-                self.next += 1;
+                self.next = self.share.first_owned_from(self.next + 1);
                 let (lock, cv) = &*self.credit;
-                *lock.lock().unwrap() += 1;
+                *lock.lock().unwrap() = self.next + self.ahead;
                 cv.notify_all();
                 return r;
             }
@@ -421,6 +473,7 @@ impl Loader {
 
 fn plan_loop(
     mut planner: Planner,
+    share: Share,
     jobs: SyncSender<SamplePlan>,
     credit: &(Mutex<u64>, Condvar),
     stop: &AtomicBool,
@@ -433,7 +486,11 @@ fn plan_loop(
                 limit = cv.wait(limit).unwrap();
             }
         }
-        if stop.load(Ordering::Relaxed) || jobs.send(planner.next_plan()).is_err() {
+        if stop.load(Ordering::Relaxed) {
+            return;
+        }
+        let plan = planner.next_plan();
+        if share.owns(plan.ordinal) && jobs.send(plan).is_err() {
             return;
         }
     }

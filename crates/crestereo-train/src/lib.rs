@@ -7,6 +7,8 @@
 //! - [`train`]: the loop — sequence loss with a non-finite guard, gradient accumulation, Adam on
 //!   the [`schedule`], [`checkpoint`]s with exact resume, CSV and [`tensorboard`] logs.
 //! - [`eval`] and [`metrics`]: EPE, RMS, Bad-τ, D1, A50–A99, mxIoU over any dataset.
+//! - [`parallel`]: data-parallel training over devices, processes and nodes (Burn's collective).
+//! - [`interrupt`]: SIGTERM/SIGINT stop a run after its step, with a checkpoint (exit 75).
 //! - [`host_reads`]: counts the GPU backends' host reads (a step should wait only for its loss).
 //! - [`synthetic`]: analytic stereo pairs for tests and quick checks.
 
@@ -16,7 +18,10 @@ pub mod config;
 pub mod data;
 pub mod eval;
 pub mod host_reads;
+pub mod interrupt;
 pub mod metrics;
+pub mod oom;
+pub mod parallel;
 pub mod plot;
 pub mod schedule;
 pub mod synthetic;

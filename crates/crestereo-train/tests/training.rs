@@ -242,6 +242,57 @@ fn resumed_run_matches_a_straight_run_exactly() {
     assert_eq!(scalars.iter().filter(|s| s.tag == "train/loss").count(), 20);
 }
 
+/// Two runs of the same config give the same bits while other work competes for the CPU pool
+/// the network's kernels run on (partial sums are combined in a fixed order, never in the order
+/// work-stealing happened to produce).
+#[test]
+fn a_run_repeats_bit_for_bit_while_the_pool_is_busy() {
+    use rayon::prelude::*;
+    let data = tempfile::tempdir().unwrap();
+    dataset(data.path(), 4);
+    let cfg = tiny_config(data.path(), 4);
+    let device = Default::default();
+    let quiet = TrainOptions {
+        progress: false,
+        ..TrainOptions::default()
+    };
+    let calm = tempfile::tempdir().unwrap();
+    let a = crestereo::threads::on_pool(|| {
+        train::<CpuAutodiffBackend>(&cfg, calm.path(), &quiet, &device).unwrap()
+    });
+    let busy = tempfile::tempdir().unwrap();
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let b = std::thread::scope(|scope| {
+        for _ in 0..2 {
+            scope.spawn(|| {
+                while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    let v: f64 = (0..50_000u32)
+                        .into_par_iter()
+                        .map(|i| f64::from(i).sqrt())
+                        .sum();
+                    std::hint::black_box(v);
+                }
+            });
+        }
+        let b = crestereo::threads::on_pool(|| {
+            train::<CpuAutodiffBackend>(&cfg, busy.path(), &quiet, &device).unwrap()
+        });
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        b
+    });
+    assert_eq!(a.first_loss, b.first_loss);
+    assert_eq!(a.last_loss, b.last_loss);
+    for ((name, x), (_, y)) in weights(&a.checkpoint.unwrap())
+        .iter()
+        .zip(&weights(&b.checkpoint.unwrap()))
+    {
+        assert!(
+            x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{name} differs between a calm and a busy run"
+        );
+    }
+}
+
 #[test]
 fn non_finite_losses_skip_the_step_and_are_logged() {
     let data = tempfile::tempdir().unwrap();

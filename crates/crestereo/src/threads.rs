@@ -7,11 +7,59 @@
 //! ~22,000 context switches that way (PyTorch's OpenMP threads, which spin between regions:
 //! ~200). Run from inside the pool instead, the calling thread is itself a worker: it takes
 //! its share of each kernel and only the other workers are signalled.
+//!
+//! Partial results of a parallel kernel are kept per fixed chunk ([`chunk_len`]) and added in
+//! chunk order ([`sum_in_order`]), so a run's bits never depend on the load on the pool.
+
+use rayon::prelude::*;
 
 /// Runs `work` on a thread of rayon's global pool (building the pool if it does not exist yet)
 /// and returns its result; already on a pool thread, it simply calls it.
 pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| work())
+}
+
+/// The length of the chunks that cut `items` into one contiguous run per thread of the current
+/// pool (at least one item each). Kernels that keep partial results per chunk use it: the cut
+/// depends on the data's size and the configured thread count only.
+pub fn chunk_len(items: usize) -> usize {
+    items.div_ceil(rayon::current_num_threads().max(1)).max(1)
+}
+
+/// The element-wise sum of `parts`, added in the order of `parts` (parallel over elements, never
+/// over parts).
+///
+/// Why not rayon's `fold` + `reduce`: rayon splits a parallel iterator adaptively (a stolen job
+/// splits again), so which items share a partial sum, and the order partials are combined in,
+/// change from run to run with the load on the pool; float addition is not associative, so the
+/// bits of a gradient did too. Partials made per [`chunk_len`] chunk and combined here give the
+/// same bits under any load.
+pub fn sum_in_order(parts: Vec<Vec<f32>>) -> Vec<f32> {
+    const BLOCK: usize = 1 << 14;
+    let mut parts = parts.into_iter();
+    let Some(mut total) = parts.next() else {
+        return Vec::new();
+    };
+    let rest: Vec<Vec<f32>> = parts.collect();
+    if rest.is_empty() {
+        return total;
+    }
+    assert!(
+        rest.iter().all(|p| p.len() == total.len()),
+        "partial sums of different lengths"
+    );
+    total
+        .par_chunks_mut(BLOCK)
+        .enumerate()
+        .for_each(|(b, dst)| {
+            let (at, len) = (b * BLOCK, dst.len());
+            for part in &rest {
+                for (d, s) in dst.iter_mut().zip(&part[at..at + len]) {
+                    *d += s;
+                }
+            }
+        });
+    total
 }
 
 #[cfg(test)]
@@ -32,5 +80,35 @@ mod tests {
             super::on_pool(|| rayon::current_thread_index() == outer)
         });
         assert!(same);
+    }
+
+    #[test]
+    fn partial_sums_are_added_in_part_order() {
+        // Values whose sum depends on the order of addition in f32.
+        let parts: Vec<Vec<f32>> = (0..5)
+            .map(|p| {
+                (0..40_000)
+                    .map(|i| {
+                        ((i * 7 + p * 13) % 101) as f32 * 1e-3 + if p == 2 { 1e7 } else { 0.0 }
+                    })
+                    .collect()
+            })
+            .collect();
+        let expected: Vec<f32> = (0..40_000)
+            .map(|i| parts.iter().fold(0f32, |acc, p| acc + p[i]))
+            .collect();
+        let summed = super::sum_in_order(parts.clone());
+        assert_eq!(summed.len(), expected.len());
+        assert!(
+            summed
+                .iter()
+                .zip(&expected)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
+        assert_eq!(super::sum_in_order(Vec::new()), Vec::<f32>::new());
+        assert_eq!(super::sum_in_order(vec![vec![1.0, 2.0]]), vec![1.0, 2.0]);
+        assert!(super::chunk_len(0) >= 1);
+        let n = rayon::current_num_threads();
+        assert_eq!(super::chunk_len(10 * n), 10);
     }
 }

@@ -17,6 +17,7 @@ use std::time::UNIX_EPOCH;
 
 use cubecl_common::config::RuntimeConfig;
 use cubecl_runtime::config::CubeClRuntimeConfig;
+use cubecl_runtime::config::autotune::AutotuneLevel;
 use cubecl_runtime::config::cache::CacheConfig;
 
 /// Build folders kept beside the current one (the newest first); older ones are removed.
@@ -42,8 +43,37 @@ pub fn configure() -> Option<PathBuf> {
     let mut config = CubeClRuntimeConfig::from_current_dir().override_from_env();
     config.compilation.cache = Some(CacheConfig::File(dir.clone()));
     config.autotune.cache = CacheConfig::File(dir.clone());
+    if let Some(level) = autotune_level() {
+        config.autotune.level = level;
+    }
     CubeClRuntimeConfig::set(config);
     Some(dir)
+}
+
+/// `CRESTEREO_AUTOTUNE_LEVEL`: minimal, balanced (CubeCL's default), extensive or full.
+/// `crestereo warmup --autotune-level` sets it; the commands that use a warmed cache must see
+/// the same level to find its results.
+fn autotune_level() -> Option<AutotuneLevel> {
+    let value = std::env::var("CRESTEREO_AUTOTUNE_LEVEL").ok()?;
+    match parse_autotune_level(&value) {
+        Ok(level) => Some(level),
+        Err(e) => {
+            tracing::warn!("{e}; CubeCL's default level is used");
+            None
+        }
+    }
+}
+
+pub fn parse_autotune_level(value: &str) -> Result<AutotuneLevel, String> {
+    match value.trim().to_ascii_lowercase().as_str() {
+        "minimal" => Ok(AutotuneLevel::Minimal),
+        "balanced" => Ok(AutotuneLevel::Balanced),
+        "extensive" => Ok(AutotuneLevel::Extensive),
+        "full" => Ok(AutotuneLevel::Full),
+        other => Err(format!(
+            "autotune level `{other}` is not minimal, balanced, extensive or full"
+        )),
+    }
 }
 
 fn default_parent() -> Option<PathBuf> {

@@ -3,12 +3,15 @@
 mod bench;
 mod bench_device;
 mod bench_loader;
+mod devices;
 mod eval;
 mod export;
+mod farm;
 mod infer;
 #[cfg(feature = "kernel-cache")]
 mod kernel_cache;
 mod train;
+mod warmup;
 
 use std::process::ExitCode;
 
@@ -52,6 +55,18 @@ enum Command {
         #[command(flatten)]
         backend: BackendArgs,
     },
+    /// Compile and autotune every GPU kernel a training config's shapes need into the kernel
+    /// cache, and say how many and how long (prepare a cluster image or a shared cache once).
+    Warmup {
+        #[command(flatten)]
+        args: warmup::WarmupArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// Job files for running training on a cluster: `farm slurm` writes an sbatch script for a
+    /// multi-node data-parallel run.
+    #[command(subcommand)]
+    Farm(farm::FarmCommand),
     /// Take a model out of the binary: an ONNX graph or a PyTorch state dict.
     #[command(subcommand)]
     Export(export::ExportCommand),
@@ -142,6 +157,7 @@ impl Command {
         match self {
             Command::Infer { backend, .. }
             | Command::Train { backend, .. }
+            | Command::Warmup { backend, .. }
             | Command::Eval { backend, .. } => backend.threads,
             Command::Bench { threads, .. } => *threads,
             _ => 0,
@@ -189,7 +205,7 @@ macro_rules! with_backend {
     (@wgpu false) => { burn::backend::Wgpu };
 }
 
-fn run(cli: Cli) -> Result<()> {
+fn run(cli: Cli, cache: Option<std::path::PathBuf>) -> Result<()> {
     match cli.command {
         Command::Infer { args, backend } => {
             with_backend!(backend.device, false, |B| infer::infer::<B>(
@@ -198,9 +214,16 @@ fn run(cli: Cli) -> Result<()> {
             ))
         }
         Command::Train { args, backend } => {
-            with_backend!(backend.device, true, |B| train::run::<B>(
+            let devices = args
+                .devices
+                .as_deref()
+                .map(|d| devices::parse_devices(d, backend.device))
+                .transpose()?;
+            let kind = devices.as_ref().map_or(backend.device, |d| d.kind);
+            with_backend!(kind, true, |B| train::run::<B>(
                 &args,
-                &Default::default()
+                &Default::default(),
+                devices.as_ref()
             ))
         }
         Command::Eval { args, backend } => {
@@ -209,6 +232,14 @@ fn run(cli: Cli) -> Result<()> {
                 &Default::default()
             ))
         }
+        Command::Warmup { args, backend } => {
+            with_backend!(backend.device, true, |B| warmup::run::<B>(
+                &args,
+                &Default::default(),
+                cache.as_deref()
+            ))
+        }
+        Command::Farm(command) => farm::run(&command),
         Command::Export(command) => export::run(&command),
         Command::Plot { run, out, smooth } => {
             crestereo_train::plot::plot_run(&run, &out, smooth)?;
@@ -300,8 +331,11 @@ pub fn main() -> ExitCode {
         .without_time()
         .with_filter(
             tracing_subscriber::EnvFilter::try_from_env("CRESTEREO_LOG")
-                // CubeCL logs every autotuned kernel shape at info: quiet unless asked for.
-                .unwrap_or_else(|_| "info,cubecl_runtime=warn".into()),
+                // CubeCL logs every autotuned kernel shape at info, Burn's collective every
+                // connection and transfer: quiet unless asked for.
+                .unwrap_or_else(|_| {
+                    "info,cubecl_runtime=warn,burn_collective=warn,burn_communication=warn".into()
+                }),
         );
     // Each layer has its own filter: the log's leaves the fusion backend's read spans to the
     // counter (`bench --device cuda` prints them per training step), the counter's leaves
@@ -311,8 +345,22 @@ pub fn main() -> ExitCode {
         .with(crestereo_train::host_reads::layer())
         .init();
     let cli = Cli::parse();
+    if let Command::Warmup { args, .. } = &cli.command
+        && let Some(level) = &args.autotune_level
+    {
+        #[cfg(feature = "kernel-cache")]
+        if let Err(e) = kernel_cache::parse_autotune_level(level) {
+            eprintln!("error: --autotune-level: {e}");
+            return ExitCode::FAILURE;
+        }
+        // SAFETY: at start-up, before any other thread exists; read by `kernel_cache`.
+        unsafe { std::env::set_var("CRESTEREO_AUTOTUNE_LEVEL", level) };
+    }
     #[cfg(feature = "kernel-cache")]
-    if let Some(dir) = kernel_cache::configure() {
+    let cache = kernel_cache::configure();
+    #[cfg(not(feature = "kernel-cache"))]
+    let cache: Option<std::path::PathBuf> = None;
+    if let Some(dir) = &cache {
         tracing::debug!("GPU kernel cache: {}", dir.display());
     }
     // A bad CRESTEREO_ISA is a clear error here rather than a panic inside the first kernel.
@@ -322,8 +370,15 @@ pub fn main() -> ExitCode {
     }
     set_threads(cli.command.threads());
     // The whole command on a pool thread: each kernel then starts without a cold hand-over.
-    match crestereo::threads::on_pool(|| run(cli)) {
+    match crestereo::threads::on_pool(|| run(cli, cache)) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e)
+            if e.downcast_ref::<crestereo_train::interrupt::Interrupted>()
+                .is_some() =>
+        {
+            eprintln!("{e}");
+            ExitCode::from(crestereo_train::interrupt::EXIT_INTERRUPTED)
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE

@@ -6,7 +6,12 @@ use anyhow::{Context, Result, bail};
 use burn::tensor::backend::AutodiffBackend;
 
 use crestereo_train::config::{DatasetEntry, TrainConfig, ValidationSettings};
-use crestereo_train::train::{TrainOptions, train};
+use crestereo_train::interrupt::Interrupted;
+use crestereo_train::parallel::topology::{ProcessFlags, process_env, resolve};
+use crestereo_train::parallel::{ParallelOptions, default_timeouts, train_parallel};
+use crestereo_train::train::{TrainOptions, TrainOutcome, train};
+
+use super::devices::{DeviceList, FromDeviceIndex};
 
 #[derive(Debug, clap::Args)]
 pub struct TrainArgs {
@@ -81,6 +86,23 @@ pub struct TrainArgs {
     /// Hide the progress bar.
     #[arg(long)]
     pub no_progress: bool,
+    /// Devices of this process, one model replica each: `cuda:0,cuda:1`, `vulkan:0,vulkan:1`,
+    /// `cpu,cpu` (CPU replicas share the cores), or a count (`4` = devices 0..4 of --device).
+    /// --batch-size is the global batch, split evenly over every replica of every process.
+    /// Under Slurm or torchrun, each process is one node's worth of devices (see --nnodes).
+    #[arg(long, value_name = "LIST")]
+    pub devices: Option<String>,
+    #[command(flatten)]
+    pub process: ProcessFlags,
+    /// Seconds an all-reduce of a data-parallel run may wait for the other replicas before the
+    /// run stops as stuck (a process that ends is noticed at once). Covers replica 0's
+    /// checkpoint writes.
+    #[arg(long, default_value_t = 300, value_name = "SECS")]
+    pub collective_timeout: u64,
+    /// In a data-parallel run, check that the replicas hold the same weights every N steps
+    /// (always checked at checkpoints).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub check_replicas_every: u64,
 }
 
 /// Where data is: a directory, its layout, and for a WebDataset export the splits to read.
@@ -267,28 +289,88 @@ fn scale_schedule(cfg: &mut TrainConfig, warmup_flag: Option<u64>) {
     );
 }
 
-pub fn run<B: AutodiffBackend>(a: &TrainArgs, device: &B::Device) -> Result<()> {
+/// Runs `crestereo train`: on `device`, or with `devices` (from --devices) as a data-parallel
+/// run, in this process or as one rank of several (flags, torchrun's or Slurm's environment).
+pub fn run<B: AutodiffBackend>(
+    a: &TrainArgs,
+    device: &B::Device,
+    devices: Option<&DeviceList>,
+) -> Result<()>
+where
+    B::Device: FromDeviceIndex,
+{
     let cfg = build_config(a)?;
+    let group = resolve(&a.process, &process_env)?;
+    let leads = group.as_ref().is_none_or(|g| g.rank == 0);
     let eff = cfg.batch_size * cfg.accumulate;
-    tracing::info!(
-        "training {} steps, batch {} × {} = {eff}, crop {}x{}, iters {}, lr {:e}, run {}",
-        cfg.steps,
-        cfg.batch_size,
-        cfg.accumulate,
-        cfg.augment.crop[0],
-        cfg.augment.crop[1],
-        cfg.iters,
-        cfg.schedule.lr,
-        a.out.display()
-    );
+    if leads {
+        tracing::info!(
+            "training {} steps, batch {} × {} = {eff}, crop {}x{}, iters {}, lr {:e}, run {}",
+            cfg.steps,
+            cfg.batch_size,
+            cfg.accumulate,
+            cfg.augment.crop[0],
+            cfg.augment.crop[1],
+            cfg.iters,
+            cfg.schedule.lr,
+            a.out.display()
+        );
+    }
+    crestereo_train::interrupt::install().context("cannot install the SIGTERM/SIGINT handlers")?;
     let opts = TrainOptions {
         resume: a.resume,
         progress: !a.no_progress,
         stop_at: a.stop_at,
+        check_replicas_every: a.check_replicas_every,
     };
-    let out = train::<B>(&cfg, &a.out, &opts, device)?;
+    let out = if devices.is_some() || group.is_some() {
+        let list: Vec<B::Device> = match devices {
+            Some(l) => l
+                .devices
+                .iter()
+                .map(|&d| B::Device::from_index(d))
+                .collect::<Result<_>>()?,
+            None => vec![device.clone()],
+        };
+        let options = ParallelOptions {
+            group,
+            timeouts: default_timeouts(a.collective_timeout),
+        };
+        train_parallel::<B>(&cfg, &a.out, &opts, &list, &options)?
+    } else {
+        crestereo_train::oom::on_device(
+            || train::<B>(&cfg, &a.out, &opts, device),
+            "training",
+            crestereo_train::oom::TRAINING_ADVICE,
+        )?
+    };
+    if leads {
+        report(&cfg, &out);
+    }
+    if out.interrupted {
+        return Err(Interrupted {
+            step: out.step,
+            checkpoint: out.checkpoint,
+        }
+        .into());
+    }
+    Ok(())
+}
+
+fn report(cfg: &TrainConfig, out: &TrainOutcome) {
+    let steps = out.session_steps.max(1) as f64;
+    let sync = if out.sync_s > 0.0 {
+        format!(
+            ", {:.3} s per step of which all-reduce {:.3} s ({:.1}%)",
+            out.session_s / steps,
+            out.sync_s / steps,
+            100.0 * out.sync_s / out.session_s.max(1e-9)
+        )
+    } else {
+        String::new()
+    };
     eprintln!(
-        "step {} of {}: loss {} → {}, {:.2} samples/s, {} skipped steps{}",
+        "step {} of {}: loss {} → {}, {:.2} samples/s{sync}, {} skipped steps{}",
         out.step,
         cfg.steps,
         out.first_loss.map_or("-".into(), |l| format!("{l:.4}")),
@@ -296,9 +378,9 @@ pub fn run<B: AutodiffBackend>(a: &TrainArgs, device: &B::Device) -> Result<()> 
         out.samples_per_s,
         out.skipped_steps,
         out.checkpoint
+            .as_ref()
             .map_or(String::new(), |c| format!(", checkpoint {}", c.display()))
     );
-    Ok(())
 }
 
 #[cfg(test)]

@@ -19,6 +19,7 @@ use anyhow::{Result, anyhow};
 use stereo_io::datasets::webdataset::{RawSample, ShardReader};
 use stereo_io::{StereoSample, WebDataset};
 
+use super::share::{Ownership, Share};
 use super::stream_order::StreamLayout;
 use super::{Planner, SamplePlan, epoch_seed};
 
@@ -38,14 +39,16 @@ pub struct StreamReaders {
     seed: u64,
     sets: Vec<Option<Streamed>>,
     readers: Mutex<HashMap<StreamKey, Arc<Mutex<StreamReader>>>>,
+    /// The samples other replicas read (empty for a run of one).
+    ownership: Mutex<Ownership>,
     /// The most samples one reader has held in its buffer.
     peak: AtomicUsize,
 }
 
 impl StreamReaders {
-    /// The readers for `planner`'s streamed datasets, `planner` standing at the loader's start;
-    /// `None` when no dataset is streamed.
-    pub fn new(data: &[Option<Arc<WebDataset>>], planner: &Planner) -> Option<Self> {
+    /// The readers for `planner`'s streamed datasets, `planner` standing at the loader's start,
+    /// reading `share`'s samples; `None` when no dataset is streamed.
+    pub fn new(data: &[Option<Arc<WebDataset>>], planner: &Planner, share: Share) -> Option<Self> {
         let sets: Vec<Option<Streamed>> = (0..planner.layouts.len())
             .map(|d| {
                 let layout = planner.layouts[d].clone()?;
@@ -62,6 +65,7 @@ impl StreamReaders {
             seed: planner.seed,
             sets,
             readers: Mutex::new(HashMap::new()),
+            ownership: Mutex::new(Ownership::new(planner, share)),
             peak: AtomicUsize::new(0),
         })
     }
@@ -126,14 +130,15 @@ impl StreamReaders {
                 (starts[s]..starts[s] + set.layout.shard_samples[s]).map(move |i| (s, i))
             })
             .collect();
-        let skip: HashSet<usize> = if set.started_in.0 == epoch {
-            read.iter()
-                .map(|&(_, i)| i)
-                .filter(|i| set.started_in.1.contains(i))
-                .collect()
-        } else {
-            HashSet::new()
-        };
+        let others = self.ownership.lock().unwrap().others(dataset, epoch);
+        // Passed over unread: samples planned before the loader started, and other replicas'.
+        let skip: HashSet<usize> = read
+            .iter()
+            .map(|&(_, i)| i)
+            .filter(|i| {
+                (set.started_in.0 == epoch && set.started_in.1.contains(i)) || others.contains(i)
+            })
+            .collect();
         StreamReader {
             left: read.len() - skip.len(),
             read,

@@ -6,28 +6,26 @@
 //! `val_log.csv`, `tensorboard/`, `checkpoints/step-*/`.
 
 mod logs;
+mod session;
+mod trainer;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use burn::module::AutodiffModule;
+use burn::optim::AdamConfig;
 use burn::optim::adaptor::OptimizerAdaptor;
-use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, Optimizer};
 use burn::prelude::*;
 use burn::tensor::backend::AutodiffBackend;
-use crestereo::{CREStereo, CREStereoConfig, sequence_loss};
-use indicatif::{ProgressBar, ProgressStyle};
-use stereo_io::StereoDataset;
+use crestereo::{CREStereo, CREStereoConfig};
 
-use crate::checkpoint::{
-    Checkpoint, Learner, TrainState, list_checkpoints, load_checkpoint, save_checkpoint,
-};
-use crate::config::{TrainConfig, ValidationSettings};
-use crate::data::{Loader, MixedSource, Planner, collate, open_data};
-use crate::eval::{EvalOptions, evaluate};
-use logs::{RunLogs, StepReport, append};
+use crate::checkpoint::{Checkpoint, Learner, TrainState, list_checkpoints, load_checkpoint};
+use crate::config::TrainConfig;
+use crate::data::share::Share;
+use crate::data::{Loader, LoaderSettings, MixedSource, Planner};
+use crate::parallel::replica::Replica;
+use trainer::Trainer;
+pub use trainer::check_batch_split;
 
 #[derive(Debug, Clone, Default)]
 pub struct TrainOptions {
@@ -37,6 +35,9 @@ pub struct TrainOptions {
     /// Stop (with a checkpoint) after this step without changing the schedule: time-boxed runs
     /// and the resume test.
     pub stop_at: Option<u64>,
+    /// In a data-parallel run, check that the replicas hold the same weights every this many
+    /// steps (0: at checkpoints only, where it is always checked).
+    pub check_replicas_every: u64,
 }
 
 /// What a run (or this part of it) did.
@@ -49,10 +50,19 @@ pub struct TrainOutcome {
     pub checkpoint: Option<PathBuf>,
     pub samples_per_s: f64,
     pub resumed_from: Option<u64>,
+    /// Stopped early by SIGTERM/SIGINT (after a checkpoint): the CLI exits with
+    /// [`crate::interrupt::EXIT_INTERRUPTED`].
+    pub interrupted: bool,
+    /// Steps taken in this session, and its wall-clock seconds.
+    pub session_steps: u64,
+    pub session_s: f64,
+    /// Seconds of this session spent in the replicas' step all-reduce (waiting for the slowest
+    /// replica included); 0 for a run of one device.
+    pub sync_s: f64,
 }
 
 /// Adam over the network's parameters, as Burn builds it.
-type Adam<B> = OptimizerAdaptor<burn::optim::Adam, CREStereo<B>, B>;
+pub(crate) type Adam<B> = OptimizerAdaptor<burn::optim::Adam, CREStereo<B>, B>;
 
 /// The fields a resumed run must share with the stored config: what defines the loss curve
 /// (the WebDataset streaming settings decide the data order, so they are among them). Steps,
@@ -107,13 +117,7 @@ fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Che
     std::fs::create_dir_all(run)
         .with_context(|| format!("cannot create run directory {}", run.display()))?;
     let stored = run.join("config.toml");
-    let latest = list_checkpoints(run)?.pop();
-    if !resume && latest.is_some() {
-        bail!(
-            "{} already holds checkpoints: pass --resume to continue it, or choose another --out",
-            run.display()
-        );
-    }
+    let latest = existing_checkpoint(run, resume)?;
     if resume
         && let Some(old) = TrainConfig::stored(run)?
         && identity(&stored_splits(old)) != identity(cfg)
@@ -126,36 +130,20 @@ fn prepare_run(cfg: &TrainConfig, run: &Path, resume: bool) -> Result<Option<Che
     let text = toml::to_string_pretty(cfg).context("cannot serialise the config")?;
     stereo_io::write_bytes_atomically(&stored, text.as_bytes())
         .with_context(|| format!("cannot write {}", stored.display()))?;
-    Ok(if resume { latest } else { None })
+    Ok(latest)
 }
 
-/// The step's logged figures, read back to the host together (one read per micro-batch: the
-/// backend waits for the device once): the loss, and the mean absolute disparity error of the
-/// last prediction over valid pixels (NaN where no pixel is valid).
-fn loss_and_epe<B: Backend>(
-    loss: &Tensor<B, 1>,
-    pred: &Tensor<B, 4>,
-    disp: &Tensor<B, 3>,
-    valid: &Tensor<B, 3>,
-) -> (f64, f64) {
-    let [n, _, h, w] = pred.dims();
-    let d = pred
-        .clone()
-        .slice([0..n, 0..1, 0..h, 0..w])
-        .reshape([n, h, w]);
-    let err = ((d - disp.clone()).abs() * valid.clone()).sum();
-    let count = valid.clone().sum();
-    let figures = Tensor::cat(vec![loss.clone().reshape([1]), err, count], 0)
-        .into_data()
-        .convert::<f64>()
-        .into_vec::<f64>()
-        .expect("three float figures");
-    let epe = if figures[2] > 0.0 {
-        figures[1] / figures[2]
-    } else {
-        f64::NAN
-    };
-    (figures[0], epe)
+/// The checkpoint a run continues from (`None` on a fresh start); refuses a fresh start over
+/// existing checkpoints. Writes nothing (the replicas of a parallel run other than 0 call it).
+fn existing_checkpoint(run: &Path, resume: bool) -> Result<Option<Checkpoint>> {
+    let latest = list_checkpoints(run)?.pop();
+    if !resume && latest.is_some() {
+        bail!(
+            "{} already holds checkpoints: pass --resume to continue it, or choose another --out",
+            run.display()
+        );
+    }
+    Ok(if resume { latest } else { None })
 }
 
 /// A freshly initialised network whose weights depend only on `seed`. Burn's backends draw
@@ -172,21 +160,33 @@ pub fn seeded_model<B: Backend>(seed: u64, device: &B::Device) -> CREStereo<B> {
     model
 }
 
-/// The training datasets, opened and announced with their shares.
-fn open_training_data(cfg: &TrainConfig) -> Result<Arc<MixedSource>> {
+/// The training datasets, opened (and announced with their shares when `announce`).
+fn open_training_data(cfg: &TrainConfig, announce: bool) -> Result<Arc<MixedSource>> {
     let source = MixedSource::open(&cfg.datasets)?;
-    for (name, w) in source.names.iter().zip(&source.weights) {
-        tracing::info!("training data {:.1}%: {name}", 100.0 * w);
+    if announce {
+        for (name, w) in source.names.iter().zip(&source.weights) {
+            tracing::info!("training data {:.1}%: {name}", 100.0 * w);
+        }
     }
     Ok(Arc::new(source))
 }
 
 /// The data stream of the run from sample `position` on.
 pub fn start_loader(cfg: &TrainConfig, source: Arc<MixedSource>, position: u64) -> Loader {
+    start_loader_share(cfg, source, position, Share::whole())
+}
+
+/// `share`'s part of the run's data stream from sample `position` (global) on.
+pub fn start_loader_share(
+    cfg: &TrainConfig,
+    source: Arc<MixedSource>,
+    position: u64,
+    share: Share,
+) -> Loader {
     let lens: Vec<usize> = source.datasets.iter().map(|d| d.len()).collect();
     let layouts = source.stream_layouts(&cfg.webdataset);
     for (name, l) in source.names.iter().zip(&layouts) {
-        if let Some(l) = l {
+        if let Some(l) = l.as_ref().filter(|_| share.replica == 0) {
             tracing::info!(
                 "streaming {name}: {} shards dealt to {} streams each epoch, a shuffle buffer of {} samples per stream",
                 l.shard_samples.len(),
@@ -196,21 +196,18 @@ pub fn start_loader(cfg: &TrainConfig, source: Arc<MixedSource>, position: u64) 
         }
     }
     let planner = Planner::with_layouts(cfg.seed, &source.weights, &lens, layouts);
-    let l = &cfg.loader;
-    Loader::start(
-        source,
-        planner,
-        position,
-        cfg.augment.clone(),
-        cfg.workers(),
-        l.prefetch,
-        l.max_bad_retries,
-    )
+    let settings = LoaderSettings {
+        augment: cfg.augment.clone(),
+        workers: cfg.workers(),
+        prefetch: cfg.loader.prefetch,
+        retries: cfg.loader.max_bad_retries,
+    };
+    Loader::start_share(source, planner, position, settings, share)
 }
 
 /// The network and optimiser a run starts from: a seeded init (or `init_weights`) and a fresh
 /// Adam with the config's settings.
-fn initial_learner<B: AutodiffBackend>(
+pub(crate) fn initial_learner<B: AutodiffBackend>(
     cfg: &TrainConfig,
     device: &B::Device,
 ) -> Result<Learner<B, Adam<B>>> {
@@ -243,6 +240,7 @@ fn resume<B: AutodiffBackend>(
     checkpoint: &Checkpoint,
     fresh: Learner<B, Adam<B>>,
     device: &B::Device,
+    announce: bool,
 ) -> Result<Learner<B, Adam<B>>> {
     let dir = &checkpoint.dir;
     let restored = load_checkpoint(dir, fresh.model, fresh.optim, device)?;
@@ -255,364 +253,19 @@ fn resume<B: AutodiffBackend>(
             state.step
         );
     }
-    tracing::info!(
-        "resuming from {} (step {}, sample {})",
-        dir.display(),
-        state.step,
-        state.samples
-    );
+    if announce {
+        tracing::info!(
+            "resuming from {} (step {}, sample {})",
+            dir.display(),
+            state.step,
+            state.samples
+        );
+    }
     Ok(restored)
 }
 
-/// Held-out data evaluated during training.
-struct Validation {
-    settings: ValidationSettings,
-    data: Box<dyn StereoDataset>,
-}
-
-impl Validation {
-    fn open(cfg: &TrainConfig) -> Result<Option<Self>> {
-        let Some(settings) = &cfg.validation else {
-            return Ok(None);
-        };
-        let data = open_data(
-            &settings.path,
-            settings.format,
-            settings.splits.as_deref(),
-            crate::data::SplitUse::Eval,
-            "validation",
-        )?;
-        Ok(Some(Self {
-            settings: settings.clone(),
-            data,
-        }))
-    }
-
-    /// Due every `every` steps and at the end.
-    fn due(&self, step: u64, end: u64) -> bool {
-        step.is_multiple_of(self.settings.every) || step == end
-    }
-
-    fn options(&self) -> EvalOptions {
-        let s = &self.settings;
-        EvalOptions {
-            iters: s.iters,
-            stages: s.stages,
-            limit: s.limit,
-            ..EvalOptions::default()
-        }
-    }
-}
-
-/// This session of a run (a resumed run starts a new one): its clock, its sample count and the
-/// progress bar.
-struct Session {
-    bar: ProgressBar,
-    started: Instant,
-    /// Training time of the earlier sessions.
-    elapsed_before: f64,
-    samples: u64,
-}
-
-impl Session {
-    fn start(opts: &TrainOptions, steps: u64, state: &TrainState) -> Self {
-        let bar = if opts.progress {
-            ProgressBar::new(steps)
-        } else {
-            ProgressBar::hidden()
-        };
-        bar.set_style(
-            ProgressStyle::with_template(
-                "{spinner} step {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        bar.set_position(state.step);
-        Self {
-            bar,
-            started: Instant::now(),
-            elapsed_before: state.elapsed_s,
-            samples: 0,
-        }
-    }
-
-    /// Training time of the whole run so far.
-    fn elapsed_s(&self) -> f64 {
-        self.elapsed_before + self.started.elapsed().as_secs_f64()
-    }
-
-    fn samples_per_s(&self) -> f64 {
-        self.samples as f64 / self.started.elapsed().as_secs_f64().max(1e-9)
-    }
-
-    fn show(&self, step: u64, r: &StepReport) {
-        self.bar.set_position(step);
-        self.bar.set_message(format!(
-            "loss {:.4} epe {:.3} lr {:.2e} {:.2} samples/s",
-            r.logged_loss(),
-            r.epe,
-            r.lr,
-            r.samples_per_s
-        ));
-    }
-}
-
-/// The summed gradients of one step's passes.
-struct Accumulated<B: AutodiffBackend> {
-    grads: GradientsAccumulator<CREStereo<B>>,
-    loss: f64,
-    epe: f64,
-    /// False once a pass's loss was not finite (later passes are then not run).
-    finite: bool,
-}
-
-/// A run in progress: the network and its optimiser, the data stream, the logs and where the
-/// run stands. [`train`] drives it one step at a time.
-struct Trainer<'a, B: AutodiffBackend> {
-    cfg: &'a TrainConfig,
-    run: &'a Path,
-    device: &'a B::Device,
-    model: CREStereo<B>,
-    optim: Adam<B>,
-    state: TrainState,
-    loader: Loader,
-    logs: RunLogs,
-    validation: Option<Validation>,
-    session: Session,
-    outcome: TrainOutcome,
-    /// The step of this session's newest checkpoint.
-    last_checkpoint: Option<u64>,
-    /// The step this session stops after.
-    end: u64,
-}
-
-impl<'a, B: AutodiffBackend> Trainer<'a, B> {
-    /// Opens the run: its directory, data, network and optimiser (restored on resume), logs and
-    /// data stream.
-    fn open(
-        cfg: &'a TrainConfig,
-        run: &'a Path,
-        opts: &TrainOptions,
-        device: &'a B::Device,
-    ) -> Result<Self> {
-        let latest = prepare_run(cfg, run, opts.resume)?;
-        let source = open_training_data(cfg)?;
-        let validation = Validation::open(cfg)?;
-        let mut learner = initial_learner::<B>(cfg, device)?;
-        if let Some(checkpoint) = &latest {
-            learner = resume(cfg, checkpoint, learner, device)?;
-        }
-        let Learner {
-            model,
-            optim,
-            state,
-        } = learner;
-        let logs = RunLogs::open(run, state.step, cfg.log.tensorboard)?;
-        let loader = start_loader(cfg, source, state.samples);
-        let end = opts.stop_at.map_or(cfg.steps, |s| s.min(cfg.steps));
-        let session = Session::start(opts, cfg.steps, &state);
-        let outcome = TrainOutcome {
-            step: state.step,
-            first_loss: None,
-            last_loss: None,
-            skipped_steps: state.skipped_steps,
-            checkpoint: None,
-            samples_per_s: 0.0,
-            resumed_from: latest.map(|c| c.step),
-        };
-        Ok(Self {
-            cfg,
-            run,
-            device,
-            model,
-            optim,
-            state,
-            loader,
-            logs,
-            validation,
-            session,
-            outcome,
-            last_checkpoint: None,
-            end,
-        })
-    }
-
-    fn finished(&self) -> bool {
-        self.state.step >= self.end
-    }
-
-    /// One optimiser step: the accumulated passes, then Adam — or no update at all when a loss
-    /// was not finite. Consumes the trainer because Burn's optimiser takes the model by value.
-    fn step(mut self) -> Result<(Self, StepReport)> {
-        let lr = self.cfg.schedule().lr(self.state.step);
-        let mut passes = self.accumulate()?;
-        self.state.samples = self.loader.position();
-        if passes.finite {
-            self.model = self.optim.step(lr, self.model, passes.grads.grads());
-            self.outcome.first_loss.get_or_insert(passes.loss);
-            self.outcome.last_loss = Some(passes.loss);
-        } else {
-            self.state.skipped_steps += 1;
-            tracing::warn!(
-                "step {}: non-finite loss, step skipped (weights and optimiser unchanged; {} skipped so far)",
-                self.state.step,
-                self.state.skipped_steps
-            );
-        }
-        self.state.step += 1;
-        self.state.elapsed_s = self.session.elapsed_s();
-        let report = StepReport {
-            lr,
-            loss: passes.loss,
-            epe: passes.epe,
-            finite: passes.finite,
-            samples_per_s: self.session.samples_per_s(),
-        };
-        self.session.show(self.state.step, &report);
-        Ok((self, report))
-    }
-
-    /// The step's `accumulate` forward/backward passes with their gradients summed. After a
-    /// non-finite loss the remaining micro-batches are still drawn, so the data position never
-    /// depends on a skip.
-    fn accumulate(&mut self) -> Result<Accumulated<B>> {
-        let cfg = self.cfg;
-        let mut acc = Accumulated {
-            grads: GradientsAccumulator::new(),
-            loss: 0.0,
-            epe: 0.0,
-            finite: true,
-        };
-        for _ in 0..cfg.accumulate {
-            let samples: Vec<_> = self
-                .loader
-                .next_batch(cfg.batch_size)?
-                .into_iter()
-                .map(|s| s.sample)
-                .collect();
-            self.session.samples += samples.len() as u64;
-            if !acc.finite {
-                continue;
-            }
-            let batch = collate::<B>(&samples, self.device)?;
-            let preds = self.model.forward(batch.left, batch.right, cfg.iters, None);
-            let loss = sequence_loss(&preds, batch.disp.clone(), batch.valid.clone(), cfg.gamma)
-                .div_scalar(cfg.accumulate as f64);
-            let (value, epe) = loss_and_epe(
-                &loss,
-                preds.last().expect("predictions"),
-                &batch.disp,
-                &batch.valid,
-            );
-            if !value.is_finite() {
-                acc.finite = false;
-                continue;
-            }
-            acc.loss += value;
-            acc.epe += epe / cfg.accumulate as f64;
-            let grads = GradientsParams::from_grads(loss.backward(), &self.model);
-            acc.grads.accumulate(&self.model, grads);
-        }
-        Ok(acc)
-    }
-
-    /// A row of the training logs every `log.every` steps, at the end, and after every skip.
-    fn log(&mut self, report: &StepReport) -> Result<()> {
-        let step = self.state.step;
-        if step.is_multiple_of(self.cfg.log.every) || step == self.end || !report.finite {
-            self.logs.training(&self.state, report)?;
-        }
-        Ok(())
-    }
-
-    /// Evaluates the held-out data when due.
-    fn validate(&mut self) -> Result<()> {
-        let step = self.state.step;
-        let Some(validation) = self.validation.as_ref().filter(|v| v.due(step, self.end)) else {
-            return Ok(());
-        };
-        let report = evaluate(
-            &self.model.valid(),
-            validation.data.as_ref(),
-            "training",
-            &validation.options(),
-            self.device,
-            |_, _, _| {},
-        )?;
-        if let Some(m) = report.mean_all {
-            self.logs.validation(step, &report, &m)?;
-            self.session.bar.println(format!(
-                "step {step}: validation EPE {:.3}, Bad-2 {:.2}% on {} images",
-                m.epe, m.bad_2, report.images
-            ));
-        }
-        Ok(())
-    }
-
-    /// A checkpoint every `checkpoint.every` steps and at the end.
-    fn checkpoint(&mut self) -> Result<()> {
-        let step = self.state.step;
-        if step.is_multiple_of(self.cfg.checkpoint.every) || step == self.end {
-            self.save()?;
-        }
-        Ok(())
-    }
-
-    fn save(&mut self) -> Result<()> {
-        let dir = save_checkpoint(
-            self.run,
-            &self.model,
-            &self.optim,
-            &self.state,
-            self.cfg.checkpoint.keep,
-        )?;
-        self.outcome.checkpoint = Some(dir);
-        self.last_checkpoint = Some(self.state.step);
-        Ok(())
-    }
-
-    /// Ends the session: a last checkpoint if the newest state has none, the list of replaced
-    /// samples, and the outcome.
-    fn finish(mut self) -> Result<TrainOutcome> {
-        let step = self.state.step;
-        if self.last_checkpoint != Some(step) && step > 0 && self.outcome.resumed_from != Some(step)
-        {
-            self.save()?;
-        }
-        self.session.bar.finish_and_clear();
-        self.list_skipped_samples()?;
-        Ok(TrainOutcome {
-            step,
-            skipped_steps: self.state.skipped_steps,
-            samples_per_s: self.session.samples_per_s(),
-            ..self.outcome
-        })
-    }
-
-    /// Appends the samples the loader could not read (and replaced) to `skipped_samples.jsonl`.
-    fn list_skipped_samples(&self) -> Result<()> {
-        let skipped = self.loader.skipped.lock().unwrap().clone();
-        if skipped.is_empty() {
-            return Ok(());
-        }
-        let path = self.run.join("skipped_samples.jsonl");
-        for s in &skipped {
-            append(
-                &path,
-                &serde_json::json!({"dataset": s.dataset, "id": s.id, "error": s.error})
-                    .to_string(),
-            )?;
-        }
-        tracing::warn!(
-            "{} unreadable training samples were replaced by neighbours (listed in skipped_samples.jsonl)",
-            skipped.len()
-        );
-        Ok(())
-    }
-}
-
-/// Trains (or continues) a run. Generic over the autodiff backend: Flex on CPU, CUDA with the
-/// `cuda` feature.
+/// Trains (or continues) a run on one device. Generic over the autodiff backend: Flex on CPU,
+/// CUDA or wgpu with their features.
 pub fn train<B: AutodiffBackend>(
     cfg: &TrainConfig,
     run: &Path,
@@ -621,7 +274,25 @@ pub fn train<B: AutodiffBackend>(
 ) -> Result<TrainOutcome> {
     cfg.validate()?;
     let cfg = &with_chosen_splits(cfg)?;
-    let mut trainer = Trainer::<B>::open(cfg, run, opts, device)?;
+    drive(Trainer::<B>::open(cfg, run, opts, device, None)?)
+}
+
+/// Trains one replica of a data-parallel run (see [`crate::parallel`], which starts them): the
+/// same loop, its passes' gradients averaged with the other replicas' before each Adam step.
+pub fn train_replica<B: AutodiffBackend>(
+    cfg: &TrainConfig,
+    run: &Path,
+    opts: &TrainOptions,
+    device: &B::Device,
+    replica: Replica<B>,
+) -> Result<TrainOutcome> {
+    cfg.validate()?;
+    check_batch_split(cfg, replica.count)?;
+    let cfg = &with_chosen_splits(cfg)?;
+    drive(Trainer::<B>::open(cfg, run, opts, device, Some(replica))?)
+}
+
+fn drive<B: AutodiffBackend>(mut trainer: Trainer<'_, B>) -> Result<TrainOutcome> {
     while !trainer.finished() {
         let report;
         (trainer, report) = trainer.step()?;

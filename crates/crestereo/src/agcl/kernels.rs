@@ -77,7 +77,7 @@ impl Bilinear {
 /// Splits `rows` parallel row tasks into about one chunk per thread (the gradient kernels keep
 /// one scatter buffer per chunk).
 fn rows_per_chunk(rows: usize) -> usize {
-    rows.div_ceil(rayon::current_num_threads().max(1)).max(1)
+    crate::threads::chunk_len(rows)
 }
 
 /// Sampling position of candidate `k` at pixel (x, y): `x + flow + window offset + learned
@@ -196,16 +196,22 @@ pub fn offset_corr_backward(
     let zeros = vec![0f32; c];
     let chunk = rows_per_chunk(rows);
     let right_size = if need_right { nb * hw * c } else { 0 };
-    let right_grad = grads
+    // One scatter buffer per fixed chunk of rows, the buffers added in chunk order: the bits
+    // depend on the shape and the pool's thread count, never on which thread stole what.
+    let partials: Vec<Vec<f32>> = grads
         .left
-        .par_chunks_mut(w * c)
-        .zip(grads.offset.par_chunks_mut(w * 2 * k_num))
-        .zip(grads.flow.par_chunks_mut(w * 2))
+        .par_chunks_mut(chunk * w * c)
+        .zip(grads.offset.par_chunks_mut(chunk * w * 2 * k_num))
+        .zip(grads.flow.par_chunks_mut(chunk * w * 2))
         .enumerate()
-        .with_min_len(chunk)
-        .fold(
-            || vec![0f32; right_size],
-            |mut dright, (row, ((dl_row, doff_row), dflow_row))| {
+        .map(|(ci, ((dl_rows, doff_rows), dflow_rows))| {
+            let mut dright = vec![0f32; right_size];
+            let rows = dl_rows
+                .chunks_mut(w * c)
+                .zip(doff_rows.chunks_mut(w * 2 * k_num))
+                .zip(dflow_rows.chunks_mut(w * 2));
+            for (j, ((dl_row, doff_row), dflow_row)) in rows.enumerate() {
+                let row = ci * chunk + j;
                 let (n, y) = (row / h, row % h);
                 let img = &right[n * hw * c..(n + 1) * hw * c];
                 for x in 0..w {
@@ -254,20 +260,11 @@ pub fn offset_corr_backward(
                     dflow_row[x * 2] = dfx;
                     dflow_row[x * 2 + 1] = dfy;
                 }
-                dright
-            },
-        )
-        .reduce(
-            || vec![0f32; right_size],
-            |mut a, b| {
-                if a.is_empty() {
-                    return b;
-                }
-                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                a
-            },
-        );
-    grads.right = right_grad;
+            }
+            dright
+        })
+        .collect();
+    grads.right = crate::threads::sum_in_order(partials);
     grads
 }
 
@@ -424,13 +421,15 @@ pub fn shift_corr_backward(
     let (cg, hw) = (c / g_num, h * w);
     let mut dleft = vec![0f32; nb * hw * c];
     let size = nb * hw * c;
-    let dright = dleft
-        .par_chunks_mut(w * c)
+    let chunk = rows_per_chunk(nb * h);
+    // As in `offset_corr_backward`: a scatter buffer per fixed row chunk, added in chunk order.
+    let partials: Vec<Vec<f32>> = dleft
+        .par_chunks_mut(chunk * w * c)
         .enumerate()
-        .with_min_len(rows_per_chunk(nb * h))
-        .fold(
-            || vec![0f32; size],
-            |mut dright, (row, dl_row)| {
+        .map(|(ci, dl_rows)| {
+            let mut dright = vec![0f32; size];
+            for (j, dl_row) in dl_rows.chunks_mut(w * c).enumerate() {
+                let row = ci * chunk + j;
                 let (n, y) = (row / h, row % h);
                 for x in 0..w {
                     let p = y * w + x;
@@ -448,15 +447,74 @@ pub fn shift_corr_backward(
                         }
                     }
                 }
-                dright
-            },
-        )
-        .reduce(
-            || vec![0f32; size],
-            |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                a
-            },
-        );
+            }
+            dright
+        })
+        .collect();
+    let dright = crate::threads::sum_in_order(partials);
     (dleft, dright)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::corr::SearchWindow;
+
+    /// The scatter kernels' bits depend on the shape and the pool's thread count only, whatever
+    /// else runs on the pool (see `crate::threads::sum_in_order`).
+    #[test]
+    fn gradient_bits_do_not_depend_on_the_load() {
+        let d = Dims {
+            n: 2,
+            c: 16,
+            h: 12,
+            w: 20,
+        };
+        let values = |len: usize, salt: usize| -> Vec<f32> {
+            (0..len)
+                .map(|i| (((i * 7919 + salt * 104_729) % 2003) as f32 - 1001.0) * 1e-3)
+                .collect()
+        };
+        let hw = d.h * d.w;
+        let spec = CorrSpec::new(SearchWindow::Square3x3, 4);
+        let k = spec.candidates();
+        let (left, right) = (values(d.n * hw * d.c, 1), values(d.n * hw * d.c, 2));
+        let flow: Vec<f32> = values(d.n * 2 * hw, 3).iter().map(|v| v * 3.0).collect();
+        let offset = values(d.n * 2 * k * hw, 4);
+        let grad = values(d.n * spec.groups * k * hw, 5);
+        let run = || {
+            let a = offset_corr_backward(&left, &right, &flow, &offset, &grad, d, spec, true);
+            let (sl, sr) = shift_corr_backward(&left, &right, &grad, d, spec);
+            [a.left, a.right, a.flow, a.offset, sl, sr]
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(4)
+            .build()
+            .expect("a thread pool");
+        let quiet = pool.install(run);
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        pool.in_place_scope(|scope| {
+            for _ in 0..3 {
+                scope.spawn(|_| {
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        let v: f64 = (0..20_000u32)
+                            .into_par_iter()
+                            .map(|i| f64::from(i).sqrt())
+                            .sum();
+                        std::hint::black_box(v);
+                    }
+                });
+            }
+            for round in 0..12 {
+                let busy = pool.install(run);
+                for (q, b) in quiet.iter().zip(&busy) {
+                    assert!(
+                        q.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()),
+                        "round {round}: a gradient's bits changed under load"
+                    );
+                }
+            }
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        });
+    }
 }

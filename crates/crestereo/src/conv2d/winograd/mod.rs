@@ -345,55 +345,42 @@ pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
         let (phases, ph, pq) = split_plane(&plan);
         phases * ph * pq
     };
-    // Each worker sums its blocks' products into its own dU (laid out (C_out, ξ, C_in)); the
-    // partial sums are added at the end.
+    // The blocks are cut into one fixed run per pool thread; each run sums its blocks'
+    // products into its own dU (laid out (C_out, ξ, C_in)) and the runs' sums are added in run
+    // order, so the bits depend on the shape and the thread count, never on the scheduling.
     let bl = balanced_block(g, &plan, WEIGHT_GRAD_BLOCK);
-    let du = blocks(g, &plan, bl)
-        .into_par_iter()
-        .fold(
-            || {
-                (
-                    None::<Vec<f32>>,
-                    Scratch::new(xi * g.cin * bl),
-                    Scratch::new(xi * g.cout * bl),
-                    Lanebuf::new(&plan, bl),
-                )
-            },
-            |(mut du, mut v, mut dm, mut buf), (b, (t0, len))| {
+    let all = blocks(g, &plan, bl);
+    let per_run = crate::threads::chunk_len(all.len());
+    let partials: Vec<Vec<f32>> = all
+        .par_chunks(per_run)
+        .map(|run| {
+            let mut v = Scratch::new(xi * g.cin * bl);
+            let mut dm = Scratch::new(xi * g.cout * bl);
+            let mut buf = Lanebuf::new(&plan, bl);
+            let mut sum = vec![0f32; g.cout * xi * g.cin];
+            for (i, &(b, (t0, len))) in run.iter().enumerate() {
                 let image = &split[b * g.cin * plane..][..g.cin * plane];
                 transform_input(image, g, &plan, (t0, len), &mut v, &mut buf);
                 let dy_b = &dy[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
                 transform_output_grad(dy_b, g, &plan, (t0, len), &mut dm, &mut buf);
-                let accumulate = du.is_some();
-                let sum = du.get_or_insert_with(|| vec![0f32; g.cout * xi * g.cin]);
                 for e in 0..xi {
                     matmul_with(
                         Parallelism::None,
                         (g.cout, g.cin, len),
-                        sum,
+                        &mut sum,
                         View::new(e * g.cin, xi * g.cin, 1),
-                        accumulate,
+                        i > 0,
                         &dm,
                         View::new(e * g.cout * bl, bl, 1),
                         &v,
                         View::new(e * g.cin * bl, 1, bl),
                     );
                 }
-                (du, v, dm, buf)
-            },
-        )
-        .map(|(du, ..)| du)
-        .reduce(
-            || None,
-            |a, b| match (a, b) {
-                (Some(mut a), Some(b)) => {
-                    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                    Some(a)
-                }
-                (a, b) => a.or(b),
-            },
-        )
-        .expect("at least one block");
+            }
+            sum
+        })
+        .collect();
+    let du = crate::threads::sum_in_order(partials);
     // dW per output channel: the taps as lanes over input channels, each a weighted sum of
     // the ξ lanes of dU (the kernel transform's coefficients, transposed).
     let coef = plan.kernel_coefficients();
@@ -493,6 +480,51 @@ mod tests {
             assert_eq!(count, n * plan.tiles().div_ceil(bl));
             assert!(bl <= WEIGHT_GRAD_BLOCK);
         }
+    }
+
+    /// The weight gradient's bits depend on the shape and the pool's thread count only: the
+    /// same inputs give the same bits while other work competes for the pool's threads (rayon's
+    /// adaptive splitting once made the partial sums, and so the bits, follow the load).
+    #[test]
+    fn weight_gradient_bits_do_not_depend_on_the_load() {
+        let g = geometry(2, 24, 40, 3);
+        let x: Vec<f32> = (0..g.n * g.cin * g.h * g.w)
+            .map(|i| ((i * 7919 % 1009) as f32 - 504.0) * 1e-3)
+            .collect();
+        let dy: Vec<f32> = (0..g.n * g.cout * g.ho * g.wo)
+            .map(|i| ((i * 104_729 % 2003) as f32 - 1001.0) * 1e-2)
+            .collect();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(4)
+            .build()
+            .expect("a thread pool");
+        let quiet = pool.install(|| weight_grad(&x, &dy, &g));
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        pool.in_place_scope(|scope| {
+            // Competing jobs on the same pool steal and split differently each time.
+            for _ in 0..3 {
+                scope.spawn(|_| {
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        let v: f64 = (0..20_000u32)
+                            .into_par_iter()
+                            .map(|i| f64::from(i).sqrt())
+                            .sum();
+                        std::hint::black_box(v);
+                    }
+                });
+            }
+            for round in 0..12 {
+                let busy = pool.install(|| weight_grad(&x, &dy, &g));
+                assert!(
+                    quiet
+                        .iter()
+                        .zip(&busy)
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "round {round}: the weight gradient's bits changed under load"
+                );
+            }
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        });
     }
 
     /// Each axis transform computes the correlation it stands for, exactly on small integers.

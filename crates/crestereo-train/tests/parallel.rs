@@ -1,0 +1,403 @@
+//! Data-parallel training through the `crestereo` binary on Flex: two processes on the loopback
+//! (per-rank batch 1) and two CPU replicas in one process follow a one-replica run with the
+//! whole batch (2) step for step; a killed rank stops the other within seconds and `--resume`
+//! continues the run exactly; SIGTERM stops every rank after a common step with a checkpoint
+//! (exit 75).
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use crestereo::CREStereoConfig;
+use crestereo::CpuBackend;
+use crestereo::weights::{load_record, named_parameters};
+
+/// The equality bound of the targets: losses and weights within 1e-5 relative.
+const TOLERANCE: f64 = 1e-5;
+
+fn crestereo() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_crestereo"));
+    c.env("CRESTEREO_LOG", "warn").stdin(Stdio::null());
+    c
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Eight synthetic 64×128 pairs and a config of 32×64 crops, 2 iterations, global batch 2,
+/// logged and checkpointed every step.
+fn setup(dir: &Path, steps: u64) -> PathBuf {
+    let data = dir.join("data");
+    let o = crestereo()
+        .args([
+            "synth",
+            "--out",
+            s(&data),
+            "--count",
+            "8",
+            "--size",
+            "64x128",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let cfg = dir.join("train.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            r#"steps = {steps}
+batch_size = 2
+accumulate = 1
+iters = 2
+seed = 5
+
+[[datasets]]
+path = "{}"
+
+[augment]
+crop = [32, 64]
+
+[schedule]
+warmup_steps = 2
+decay_start = {}
+
+[loader]
+workers = 1
+prefetch = 2
+
+[log]
+every = 1
+
+[checkpoint]
+every = 1
+keep = 3
+"#,
+            data.display(),
+            steps / 2
+        ),
+    )
+    .unwrap();
+    cfg
+}
+
+/// `crestereo train` of one process with `extra` flags (one CPU thread unless told).
+fn train(cfg: &Path, run: &Path, extra: &[&str]) -> Command {
+    let mut c = crestereo();
+    c.args([
+        "train",
+        "--config",
+        s(cfg),
+        "--out",
+        s(run),
+        "--no-progress",
+    ]);
+    if !extra.contains(&"--threads") {
+        c.args(["--threads", "1"]);
+    }
+    c.args(extra);
+    c
+}
+
+/// A master port whose next three ports are free too (orchestrator, liveness, two data
+/// services).
+fn free_ports() -> u16 {
+    loop {
+        let p = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        if p < 60_000 && (p..p + 4).all(|q| std::net::TcpListener::bind(("0.0.0.0", q)).is_ok()) {
+            return p;
+        }
+    }
+}
+
+/// Rank `rank` of two processes on the loopback.
+fn rank(cfg: &Path, run: &Path, rank: usize, port: u16, extra: &[&str]) -> Child {
+    let r = rank.to_string();
+    let p = port.to_string();
+    let mut args = vec![
+        "--nnodes",
+        "2",
+        "--node-rank",
+        &r,
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        &p,
+        "--check-replicas-every",
+        "1",
+    ];
+    args.extend(extra);
+    train(cfg, run, &args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+fn wait_ok(children: Vec<Child>) {
+    for c in children {
+        let o = c.wait_with_output().unwrap();
+        assert!(o.status.success(), "a rank failed:\n{}", text(&o));
+    }
+}
+
+/// (step, loss) of every row of a run's training log.
+fn losses(run: &Path) -> Vec<(u64, f64)> {
+    std::fs::read_to_string(run.join("train_log.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[0].parse().unwrap(), f[3].parse().unwrap())
+        })
+        .collect()
+}
+
+fn weights(run: &Path, step: u64) -> Vec<(String, Vec<f32>)> {
+    let device = Default::default();
+    let model = load_record(
+        CREStereoConfig::new().init::<CpuBackend>(&device),
+        run.join(format!("checkpoints/step-{step:08}/model.mpk")),
+        &device,
+    )
+    .unwrap();
+    named_parameters(&model)
+        .into_iter()
+        .map(|p| (p.name, p.data))
+        .collect()
+}
+
+/// Largest relative difference of the per-step losses, and of each weight tensor (its largest
+/// element difference over its largest magnitude), between two runs.
+fn differences(a: &Path, b: &Path, step: u64) -> (f64, f64) {
+    let (la, lb) = (losses(a), losses(b));
+    assert_eq!(la.len(), lb.len(), "{la:?} vs {lb:?}");
+    let loss = la
+        .iter()
+        .zip(&lb)
+        .map(|((sa, x), (sb, y))| {
+            assert_eq!(sa, sb);
+            (x - y).abs() / x.abs().max(1e-12)
+        })
+        .fold(0.0, f64::max);
+    let weight = weights(a, step)
+        .iter()
+        .zip(&weights(b, step))
+        .map(|((name, x), (_, y))| {
+            let scale = x.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
+            let diff = x
+                .iter()
+                .zip(y)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0f32, f32::max);
+            assert!(diff.is_finite(), "{name}");
+            f64::from(diff / scale)
+        })
+        .fold(0.0, f64::max);
+    (loss, weight)
+}
+
+#[test]
+fn two_processes_train_as_one_with_the_whole_batch() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = setup(dir.path(), 5);
+    let (one, two) = (dir.path().join("one"), dir.path().join("two"));
+    let o = train(&cfg, &one, &["--threads", "2"]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let port = free_ports();
+    let t0 = Instant::now();
+    wait_ok(vec![
+        rank(&cfg, &two, 0, port, &[]),
+        rank(&cfg, &two, 1, port, &[]),
+    ]);
+    let parallel_s = t0.elapsed().as_secs_f64();
+    let (loss, weight) = differences(&one, &two, 5);
+    eprintln!(
+        "2 processes × batch 1 vs 1 process × batch 2, 5 steps: losses differ by {loss:.2e}, weights by {weight:.2e} (relative); {parallel_s:.1} s"
+    );
+    assert!(loss <= TOLERANCE, "losses differ by {loss:e}");
+    assert!(weight <= TOLERANCE, "weights differ by {weight:e}");
+    // Only rank 0 writes: one log, checkpoints of every step (3 kept), no per-rank leftovers.
+    assert_eq!(losses(&two).len(), 5);
+    assert!(two.join("checkpoints/step-00000005/model.mpk").is_file());
+}
+
+#[test]
+fn two_replicas_in_one_process_train_as_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = setup(dir.path(), 4);
+    let (one, two) = (dir.path().join("one"), dir.path().join("two"));
+    let o = train(&cfg, &one, &[]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let o = train(
+        &cfg,
+        &two,
+        &["--devices", "cpu,cpu", "--check-replicas-every", "1"],
+    )
+    .output()
+    .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let (loss, weight) = differences(&one, &two, 4);
+    eprintln!("2 replicas in one process vs 1: losses {loss:.2e}, weights {weight:.2e}");
+    assert!(
+        loss <= TOLERANCE && weight <= TOLERANCE,
+        "{loss:e} {weight:e}"
+    );
+    // One replica through the collective is the plain run, bit for bit.
+    let via = dir.path().join("via");
+    let o = train(&cfg, &via, &["--devices", "cpu"]).output().unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(losses(&one), losses(&via));
+    assert_eq!(weights(&one, 4), weights(&via, 4));
+    // A batch the replicas cannot share is refused in one line.
+    let o = train(&cfg, &dir.path().join("odd"), &["--devices", "3"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("cannot be split evenly over 3 replicas"),
+        "{}",
+        text(&o)
+    );
+}
+
+/// Waits until `path` exists (at most `limit`).
+fn wait_for(path: &Path, limit: Duration) {
+    let t0 = Instant::now();
+    while !path.exists() {
+        assert!(t0.elapsed() < limit, "{} did not appear", path.display());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_killed_rank_stops_the_other_and_resume_continues_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = setup(dir.path(), 8);
+    let (straight, broken) = (dir.path().join("straight"), dir.path().join("broken"));
+    let port = free_ports();
+    wait_ok(vec![
+        rank(&cfg, &straight, 0, port, &[]),
+        rank(&cfg, &straight, 1, port, &[]),
+    ]);
+
+    let port = free_ports();
+    let r0 = rank(&cfg, &broken, 0, port, &[]);
+    let mut r1 = rank(&cfg, &broken, 1, port, &[]);
+    wait_for(
+        &broken.join("checkpoints/step-00000003/state.json"),
+        Duration::from_secs(300),
+    );
+    r1.kill().unwrap();
+    let killed = Instant::now();
+    let _ = r1.wait();
+    let o = r0.wait_with_output().unwrap();
+    let stopped_s = killed.elapsed().as_secs_f64();
+    let said = text(&o);
+    eprintln!("rank 0 stopped {stopped_s:.2} s after rank 1 was killed: {said}");
+    assert!(!o.status.success(), "rank 0 went on:\n{said}");
+    assert_eq!(o.status.code(), Some(69), "{said}");
+    assert!(stopped_s < 60.0, "rank 0 took {stopped_s} s to stop");
+    assert!(
+        said.contains("rank 1 of 2") && said.contains("disconnected"),
+        "{said}"
+    );
+    assert!(
+        said.lines().filter(|l| l.starts_with("error")).count() == 1,
+        "{said}"
+    );
+
+    // Resume: the two ranks continue from the newest whole checkpoint and end as the
+    // straight run did.
+    let port = free_ports();
+    wait_ok(vec![
+        rank(&cfg, &broken, 0, port, &["--resume"]),
+        rank(&cfg, &broken, 1, port, &["--resume"]),
+    ]);
+    assert_eq!(losses(&straight), losses(&broken));
+    assert_eq!(weights(&straight, 8), weights(&broken, 8));
+}
+
+#[test]
+fn sigterm_stops_every_rank_after_a_common_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = setup(dir.path(), 12);
+    let run = dir.path().join("run");
+    let port = free_ports();
+    let r0 = rank(&cfg, &run, 0, port, &[]);
+    let r1 = rank(&cfg, &run, 1, port, &[]);
+    wait_for(
+        &run.join("checkpoints/step-00000002/state.json"),
+        Duration::from_secs(300),
+    );
+    // Only rank 1 is signalled: the flag travels with the step's all-reduce.
+    let status = Command::new("kill")
+        .args(["-TERM", &r1.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let (o0, o1) = (
+        r0.wait_with_output().unwrap(),
+        r1.wait_with_output().unwrap(),
+    );
+    assert_eq!(o0.status.code(), Some(75), "{}", text(&o0));
+    assert_eq!(o1.status.code(), Some(75), "{}", text(&o1));
+    let stopped = losses(&run).last().unwrap().0;
+    assert!(stopped < 12, "the run did not stop early");
+    assert!(
+        run.join(format!("checkpoints/step-{stopped:08}/model.mpk"))
+            .is_file()
+    );
+    assert!(
+        text(&o0).contains(&format!("after step {stopped}")),
+        "{}",
+        text(&o0)
+    );
+    // Requeued: the same command with --resume finishes the run.
+    let port = free_ports();
+    wait_ok(vec![
+        rank(&cfg, &run, 0, port, &["--resume"]),
+        rank(&cfg, &run, 1, port, &["--resume"]),
+    ]);
+    assert_eq!(losses(&run).last().unwrap().0, 12);
+}
+
+#[test]
+fn mismatched_ranks_are_refused_before_any_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = setup(dir.path(), 2);
+    let run = dir.path().join("run");
+    let port = free_ports();
+    let r0 = rank(&cfg, &run, 0, port, &[]);
+    // Rank 1 with another seed: another run.
+    let r1 = rank(&cfg, &run, 1, port, &["--seed", "6"]);
+    let (o0, o1) = (
+        r0.wait_with_output().unwrap(),
+        r1.wait_with_output().unwrap(),
+    );
+    assert!(!o0.status.success() && !o1.status.success());
+    assert!(
+        text(&o0).contains("rank 1 runs another config"),
+        "{}",
+        text(&o0)
+    );
+    assert!(
+        text(&o1).contains("rank 0 refused the run"),
+        "{}",
+        text(&o1)
+    );
+    assert!(!run.join("checkpoints").exists() || losses(&run).is_empty());
+}
