@@ -89,6 +89,18 @@ pub fn stereogen_bin() -> PathBuf {
     bin
 }
 
+/// The `crestereo` binary (the trainer's CLI) that `cargo test --workspace` built next to this
+/// test executable (same caveat as [`stereogen_bin`]).
+pub fn crestereo_bin() -> PathBuf {
+    let bin = stereogen_bin().with_file_name("crestereo");
+    assert!(
+        bin.is_file(),
+        "{} is missing: run the tests with `cargo test --workspace` so the CLI is built",
+        bin.display()
+    );
+    bin
+}
+
 /// `stereogen ARGS` as every test runs it: the binary built next to the test, no stdin, and none
 /// of the environment that steers a run from outside (`STEREOGEN_FAULT`, `STEREOGEN_SHARD`); a
 /// test that wants them sets them on the command.

@@ -14,6 +14,22 @@ pub fn instance_norm<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
     crate::norm::instance_norm_act(x, eps, false)
 }
 
+/// Whether the parameter of this (reference) name is a bias that an instance normalisation
+/// subtracts again: `fnet.conv1` and every residual block's `conv1`, `conv2` and `downsample.0`
+/// feed an [`instance_norm`], which removes each channel's mean, so no output depends on their
+/// biases and the gradient a loss gives them is rounding noise (Adam then moves them by about
+/// the learning rate in a random direction). Comparisons of trained weights leave them out.
+pub fn bias_cancelled_by_instance_norm(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix("fnet.") else {
+        return false;
+    };
+    rest == "conv1.bias"
+        || (rest.starts_with("layer")
+            && [".conv1.bias", ".conv2.bias", ".downsample.0.bias"]
+                .iter()
+                .any(|end| rest.ends_with(end)))
+}
+
 /// A PyTorch-style `nn.Conv2d(cin, cout, k, stride, padding)` with symmetric zero padding.
 pub(crate) fn conv_cfg(
     cin: usize,
@@ -174,5 +190,60 @@ impl<B: Backend> BasicEncoder<B> {
         let both = g.concat(&[left, right], 0);
         let out = self.emit(g, &both);
         (g.narrow(&out, 0, 0, n), g.narrow(&out, 0, n, n))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::CpuAutodiffBackend as A;
+    use burn::tensor::Distribution;
+
+    /// The biases an instance normalisation subtracts get a rounding-level gradient; the others
+    /// a real one — the fact `bias_cancelled_by_instance_norm` states.
+    #[test]
+    fn normalised_biases_get_no_gradient() {
+        let device = Default::default();
+        A::seed(&device, 3);
+        let encoder = BasicEncoderConfig::new().init::<A>(&device);
+        let x = Tensor::<A, 4>::random([1, 3, 32, 48], Distribution::Uniform(-1.0, 1.0), &device);
+        let out = encoder.forward(x);
+        let probe = Tensor::<A, 4>::random(out.dims(), Distribution::Normal(0.0, 1.0), &device);
+        let grads = (out * probe).sum().backward();
+        let size = |t: Option<Tensor<crate::CpuBackend, 1>>| -> f32 {
+            t.expect("a gradient").abs().max().into_scalar()
+        };
+        let cancelled = [
+            size(encoder.conv1.bias.as_ref().unwrap().grad(&grads)),
+            size(encoder.layer1[0].conv1.bias.as_ref().unwrap().grad(&grads)),
+            size(encoder.layer1[0].conv2.bias.as_ref().unwrap().grad(&grads)),
+            size(
+                encoder.layer1[0]
+                    .downsample
+                    .bias
+                    .as_ref()
+                    .unwrap()
+                    .grad(&grads),
+            ),
+        ];
+        let kept = size(encoder.conv2.bias.as_ref().unwrap().grad(&grads));
+        for (i, c) in cancelled.iter().enumerate() {
+            assert!(*c < 1e-4 * kept, "bias {i}: gradient {c} vs {kept}");
+        }
+        for name in [
+            "fnet.conv1.bias",
+            "fnet.layer1.0.conv1.bias",
+            "fnet.layer3.1.conv2.bias",
+            "fnet.layer2.0.downsample.0.bias",
+        ] {
+            assert!(bias_cancelled_by_instance_norm(name), "{name}");
+        }
+        for name in [
+            "fnet.conv2.bias",
+            "fnet.conv1.weight",
+            "update_block.gru.convz1.bias",
+        ] {
+            assert!(!bias_cancelled_by_instance_norm(name), "{name}");
+        }
     }
 }

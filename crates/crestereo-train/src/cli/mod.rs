@@ -334,7 +334,7 @@ pub fn main() -> ExitCode {
                 // CubeCL logs every autotuned kernel shape at info, Burn's collective every
                 // connection and transfer: quiet unless asked for.
                 .unwrap_or_else(|_| {
-                    "info,cubecl_runtime=warn,burn_collective=warn,burn_communication=warn".into()
+                    "info,cubecl_runtime=warn,burn_collective=warn,burn_collective::global::orchestrator=off,burn_communication=warn".into()
                 }),
         );
     // Each layer has its own filter: the log's leaves the fusion backend's read spans to the

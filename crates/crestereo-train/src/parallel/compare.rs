@@ -8,13 +8,21 @@ use anyhow::{Context, Result, bail};
 use crestereo::weights::{load_record, named_parameters};
 use crestereo::{CREStereoConfig, CpuBackend};
 
-/// The largest relative differences between two runs.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// The relative differences between two runs.
+#[derive(Debug, Clone, PartialEq)]
 pub struct RunDifference {
-    /// Of the logged losses, |a − b| / |a|, over the steps both logged.
+    /// Of the logged losses, |a − b| / |a|, largest over the steps both logged.
     pub loss: f64,
-    /// Of the weights: per tensor, its largest element difference over its largest magnitude.
+    /// Of the weights together, ‖a − b‖₂ / ‖a‖₂, leaving out the biases an instance
+    /// normalisation cancels ([`crestereo::encoder::bias_cancelled_by_instance_norm`]): no
+    /// output depends on them, their gradient is rounding noise, and Adam moves them by about
+    /// the learning rate either way, in any two runs whose sums round differently.
     pub weight: f64,
+    /// The same over every weight, those biases included.
+    pub all_weights: f64,
+    /// Tensor by tensor (the cancelled biases left out): the largest ‖a − b‖₂ / ‖a‖₂, and its
+    /// name.
+    pub worst_tensor: (f64, String),
 }
 
 /// (step, loss) of every row of a run's `train_log.csv`.
@@ -66,21 +74,38 @@ pub fn compare_runs(a: &Path, b: &Path, step: u64) -> Result<RunDifference> {
         .zip(&lb)
         .map(|((_, x), (_, y))| (x - y).abs() / x.abs().max(1e-12))
         .fold(0.0, f64::max);
-    let mut weight = 0.0f64;
+    // (difference², norm²) over the weights that matter, and over all.
+    let (mut kept, mut all) = ((0.0f64, 0.0f64), (0.0f64, 0.0f64));
+    let mut worst_tensor = (0.0f64, String::new());
     for ((name, x), (_, y)) in checkpoint_weights(a, step)?
         .iter()
         .zip(&checkpoint_weights(b, step)?)
     {
-        let scale = x.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-12);
-        let diff = x
-            .iter()
-            .zip(y)
-            .map(|(p, q)| (p - q).abs())
-            .fold(0f32, f32::max);
-        if !diff.is_finite() {
+        let (mut d2, mut n2) = (0.0f64, 0.0f64);
+        for (p, q) in x.iter().zip(y) {
+            let d = f64::from(p - q);
+            d2 += d * d;
+            n2 += f64::from(*p) * f64::from(*p);
+        }
+        if !d2.is_finite() {
             bail!("{name} is not finite in one of the runs");
         }
-        weight = weight.max(f64::from(diff / scale));
+        all = (all.0 + d2, all.1 + n2);
+        if crestereo::encoder::bias_cancelled_by_instance_norm(name) {
+            continue;
+        }
+        kept = (kept.0 + d2, kept.1 + n2);
+        let rel = d2.sqrt() / n2.sqrt().max(1e-30);
+        if rel > worst_tensor.0 {
+            worst_tensor = (rel, name.clone());
+        }
     }
-    Ok(RunDifference { loss, weight })
+    let ratio = |(d2, n2): (f64, f64)| d2.sqrt() / n2.sqrt().max(1e-30);
+    let (weight, all_weights) = (ratio(kept), ratio(all));
+    Ok(RunDifference {
+        loss,
+        weight,
+        all_weights,
+        worst_tensor,
+    })
 }

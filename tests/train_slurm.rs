@@ -1,0 +1,236 @@
+//! Data-parallel training launched by Slurm, on the real single-node cluster the farm tests start:
+//! `crestereo farm slurm` writes the job, `sbatch` runs two tasks (two CPU ranks, per-rank batch
+//! 1) that must follow a one-process run with the whole batch (2) step for step; then a job is
+//! sent SIGTERM mid-run, every rank stops after a common step (exit 75), the job requeues itself
+//! and finishes the run, bit for bit as two ranks that were never stopped.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use crestereo_train::parallel::compare::{compare_runs, logged_losses};
+use stereogen_e2e::crestereo_bin;
+use stereogen_e2e::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn crestereo(args: &[&str]) -> String {
+    let o = Command::new(crestereo_bin())
+        .args(args)
+        .env("CRESTEREO_LOG", "warn")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(o.status.success(), "crestereo {args:?}:\n{text}");
+    text
+}
+
+/// Eight synthetic pairs (made once) and a tiny config (32×64 crops, 2 iterations, global batch
+/// 2), logged and checkpointed every step.
+fn setup(dir: &Path, steps: u64) -> std::path::PathBuf {
+    let data = dir.join("data");
+    if !data.exists() {
+        crestereo(&[
+            "synth",
+            "--out",
+            s(&data),
+            "--count",
+            "8",
+            "--size",
+            "64x128",
+        ]);
+    }
+    let cfg = dir.join(format!("train-{steps}.toml"));
+    std::fs::write(
+        &cfg,
+        format!(
+            "steps = {steps}\nbatch_size = 2\naccumulate = 1\niters = 2\nseed = 5\n\
+             [[datasets]]\npath = \"{}\"\n[augment]\ncrop = [32, 64]\n\
+             [schedule]\nwarmup_steps = 2\ndecay_start = {}\n[loader]\nworkers = 1\nprefetch = 2\n\
+             [log]\nevery = 1\n[checkpoint]\nevery = 1\nkeep = 2\n",
+            data.display(),
+            steps / 2
+        ),
+    )
+    .unwrap();
+    cfg
+}
+
+/// `crestereo farm slurm` for two CPU ranks on the one node, then `sbatch`; returns the job id.
+fn submit(cluster: &Cluster, job_dir: &Path, cfg: &Path, run: &Path) -> String {
+    crestereo(&[
+        "farm",
+        "slurm",
+        "--job-dir",
+        s(job_dir),
+        "--nodes",
+        "1",
+        "--tasks-per-node",
+        "2",
+        "--devices",
+        "cpu",
+        "--cpus-per-task",
+        "1",
+        "--time",
+        "00:10:00",
+        "--grace",
+        "30",
+        "--",
+        "--config",
+        s(cfg),
+        "--out",
+        s(run),
+        "--no-progress",
+        "--check-replicas-every",
+        "1",
+    ]);
+    let o = cluster.run("sbatch", &[s(&job_dir.join("train.sbatch"))]);
+    let said = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "sbatch: {said}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    said.split_whitespace().last().unwrap().to_string()
+}
+
+fn job_log(job_dir: &Path, id: &str) -> String {
+    std::fs::read_to_string(job_dir.join(format!("logs/train-{id}.out"))).unwrap_or_default()
+}
+
+#[test]
+fn two_slurm_tasks_train_as_one_process_and_survive_a_requeue() {
+    let t0 = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let Some(cluster) = cluster_or_skip(&dir.path().join("slurm")) else {
+        return;
+    };
+    let cfg = setup(dir.path(), 6);
+    let one = dir.path().join("one");
+    crestereo(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--out",
+        s(&one),
+        "--no-progress",
+        "--threads",
+        "2",
+    ]);
+
+    // Two tasks = two ranks (the master address and port from the job, the ranks from Slurm).
+    let (job_dir, two) = (dir.path().join("job"), dir.path().join("two"));
+    let id = submit(&cluster, &job_dir, &cfg, &two);
+    cluster.wait_for_empty_queue("training job");
+    let log = job_log(&job_dir, &id);
+    assert!(
+        log.contains("exited with code 0"),
+        "job {id}: {:?}\n{log}\n{}",
+        cluster.job(&id),
+        cluster.logs()
+    );
+    let d = compare_runs(&one, &two, 6).unwrap();
+    eprintln!(
+        "Slurm, 2 tasks × batch 1 vs 1 process × batch 2: losses {:.2e}, weights {:.2e} (relative)",
+        d.loss, d.weight
+    );
+    assert!(d.loss <= 1e-5 && d.weight <= 1e-5, "{d:?}");
+
+    // Preemption: SIGTERM to the job's tasks mid-run; every rank stops after one common step
+    // with a checkpoint, exits 75, and the job requeues itself and finishes.
+    let long = setup(dir.path(), 12);
+    let straight = dir.path().join("straight");
+    two_ranks_on_the_loopback(&long, &straight);
+    let (job_dir, run) = (dir.path().join("job-requeue"), dir.path().join("requeued"));
+    let id = submit(&cluster, &job_dir, &long, &run);
+    let started = Instant::now();
+    while !run.join("checkpoints/step-00000003/state.json").exists() {
+        assert!(
+            started.elapsed() < ROUND_TIMEOUT,
+            "the job never reached step 3: {}\n{}",
+            cluster.queue(),
+            job_log(&job_dir, &id)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let o = cluster.run("scancel", &["--signal=TERM", &id]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    cluster.wait_for_empty_queue("requeued training job");
+    let log = job_log(&job_dir, &id);
+    assert!(log.contains("exited with code 75"), "{log}");
+    assert!(log.contains("interrupted; requeueing"), "{log}");
+    assert!(
+        log.contains("exited with code 0"),
+        "the requeued job did not finish:\n{log}"
+    );
+    let losses = logged_losses(&run).unwrap();
+    assert_eq!(losses.last().unwrap().0, 12);
+    // The same two ranks straight through: the stop and requeue changed no bit.
+    let d = compare_runs(&straight, &run, 12).unwrap();
+    eprintln!(
+        "Slurm, preempted and requeued vs a straight two-rank run: losses {:.2e}, weights {:.2e}; test {:.1} s",
+        d.loss,
+        d.weight,
+        t0.elapsed().as_secs_f64()
+    );
+    assert_eq!((d.loss, d.weight), (0.0, 0.0));
+    assert_eq!(losses, logged_losses(&straight).unwrap());
+}
+
+/// Two ranks of `cfg` on the loopback, outside Slurm (one CPU thread each).
+fn two_ranks_on_the_loopback(cfg: &Path, run: &Path) {
+    let port = loop {
+        let p = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        if p < 60_000 && (p..p + 4).all(|q| std::net::TcpListener::bind(("0.0.0.0", q)).is_ok()) {
+            break p;
+        }
+    };
+    let ranks: Vec<_> = (0..2)
+        .map(|r| {
+            Command::new(crestereo_bin())
+                .args([
+                    "train",
+                    "--config",
+                    s(cfg),
+                    "--out",
+                    s(run),
+                    "--no-progress",
+                ])
+                .args([
+                    "--threads",
+                    "1",
+                    "--nnodes",
+                    "2",
+                    "--node-rank",
+                    &r.to_string(),
+                ])
+                .args([
+                    "--master-addr",
+                    "127.0.0.1",
+                    "--master-port",
+                    &port.to_string(),
+                ])
+                .env("CRESTEREO_LOG", "warn")
+                .stdin(Stdio::null())
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for r in ranks {
+        let o = r.wait_with_output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+}
