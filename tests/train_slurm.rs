@@ -1,8 +1,8 @@
 //! Data-parallel training launched by Slurm, on the real single-node cluster the farm tests start:
-//! `crestereo farm slurm` writes the job, `sbatch` runs two tasks (two CPU ranks, per-rank batch
-//! 1) that must follow a one-process run with the whole batch (2) step for step; then a job is
-//! sent SIGTERM mid-run, every rank stops after a common step (exit 75), the job requeues itself
-//! and finishes the run, bit for bit as two ranks that were never stopped.
+//! `crestereo farm slurm` writes the job, `sbatch` runs two tasks (two CPU ranks, one sample per
+//! rank and step) that must follow a one-process run with the whole batch of two, step for step;
+//! then a job is sent SIGTERM mid-run, every rank stops after a common step (exit 75), the job
+//! requeues itself and finishes the run, bit for bit as two ranks that were never stopped.
 
 use std::path::Path;
 use std::process::{Command, Stdio};

@@ -250,10 +250,11 @@ fn a_run_repeats_bit_for_bit_while_the_pool_is_busy() {
     use rayon::prelude::*;
     let data = tempfile::tempdir().unwrap();
     dataset(data.path(), 4);
-    let cfg = tiny_config(data.path(), 4);
+    let cfg = tiny_config(data.path(), 8);
     let device = Default::default();
     let quiet = TrainOptions {
         progress: false,
+        stop_at: Some(3),
         ..TrainOptions::default()
     };
     let calm = tempfile::tempdir().unwrap();

@@ -62,6 +62,59 @@ pub fn sum_in_order(parts: Vec<Vec<f32>>) -> Vec<f32> {
     total
 }
 
+/// Test support: runs `run` once on a quiet pool of `threads` threads, then `rounds` more times
+/// while three jobs keep that pool busy with parallel work of their own (so jobs are stolen and
+/// split differently each time), and returns the first round whose outputs' bits differ from
+/// the quiet run's. The busy jobs stop on every exit, a panic included, so a failure reports
+/// instead of hanging the pool.
+#[cfg(test)]
+pub(crate) fn first_round_that_differs_under_load(
+    threads: usize,
+    rounds: usize,
+    run: impl Fn() -> Vec<Vec<f32>> + Send + Sync,
+) -> Option<usize> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    struct StopOnDrop<'a>(&'a AtomicBool);
+    impl Drop for StopOnDrop<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::Relaxed);
+        }
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool");
+    let quiet = pool.install(&run);
+    let stop = AtomicBool::new(false);
+    let mut changed_at = None;
+    pool.in_place_scope(|scope| {
+        let _stop = StopOnDrop(&stop);
+        for _ in 0..3 {
+            scope.spawn(|_| {
+                while !stop.load(Ordering::Relaxed) {
+                    let v: f64 = (0..20_000u32)
+                        .into_par_iter()
+                        .map(|i| f64::from(i).sqrt())
+                        .sum();
+                    std::hint::black_box(v);
+                }
+            });
+        }
+        for round in 0..rounds {
+            let busy = pool.install(&run);
+            let same = quiet.len() == busy.len()
+                && quiet.iter().zip(&busy).all(|(q, b)| {
+                    q.len() == b.len() && q.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+                });
+            if !same {
+                changed_at = Some(round);
+                break;
+            }
+        }
+    });
+    changed_at
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
