@@ -302,7 +302,7 @@ fn relative_links_and_anchors_resolve() {
         }
     }
     println!("{checked} relative links checked");
-    assert!(checked > 100, "only {checked} links found: is the parser broken?");
+    assert!(checked > 50, "only {checked} links found: is the parser broken?");
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 

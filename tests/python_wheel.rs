@@ -17,14 +17,15 @@ use stereogen_e2e::export_cmd;
 mod python_envs;
 use python_envs::{base_venvs, fresh_venv, pinned_venv::run, python_home, repo_root, target_dir};
 
-/// The wheel, built once per test run with the guide's command into `<target>/python-wheel/dist`.
+/// The wheel, built once per test run with the guide's command into `<target>/python-wheel`
+/// (by the maturin and for the Python of tests/io_python.rs, in its cargo folder: one build of
+/// the module serves both).
 fn wheel() -> &'static PathBuf {
     static WHEEL: OnceLock<PathBuf> = OnceLock::new();
     WHEEL.get_or_init(|| {
-        let (_, hub) = base_venvs();
-        let maturin = python_envs::pinned_venv::ensure_venv("venv-test", python_envs::MATURIN_PINS);
-        let build = target_dir().join("python-wheel");
-        let dist = build.join("dist");
+        let maturin =
+            python_envs::pinned_venv::ensure_venv("venv-test", python_envs::MATURIN_PINS);
+        let dist = target_dir().join("python-wheel");
         let _ = std::fs::remove_dir_all(&dist);
         let t = Instant::now();
         run(
@@ -33,9 +34,9 @@ fn wheel() -> &'static PathBuf {
                 .arg("--out")
                 .arg(&dist)
                 .arg("--interpreter")
-                .arg(hub.join("bin/python"))
+                .arg(maturin.join("bin/python"))
                 .current_dir(repo_root())
-                .env("CARGO_TARGET_DIR", build.join("cargo")),
+                .env("CARGO_TARGET_DIR", target_dir().join("python-ext")),
             "maturin build --release",
         );
         let wheel = std::fs::read_dir(&dist)
