@@ -467,6 +467,10 @@ fn guide_commands_run_as_written() {
         );
         assert!(out.status.success(), "{what} failed ({}):\n{said}", out.status);
         println!("{what}: {:.1} s", t.elapsed().as_secs_f64());
+        let lines: Vec<&str> = said.lines().collect();
+        for l in &lines[lines.len().saturating_sub(12)..] {
+            println!("    {l}");
+        }
         said
     };
     for (page, name) in PAGES {

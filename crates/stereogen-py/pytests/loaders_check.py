@@ -107,7 +107,8 @@ def torch_mode():
     every_sample_equal(folder, "StereoDataset")
     by_seeking = st.StereoDataset(SHARDS, right=True, transform=with_worker)
     every_sample_equal(by_seeking, "StereoDataset over the shards")
-    three_steps(st.StereoWebDataset(SHARDS, split="train", shuffle_shards=True, shuffle_buffer=4), "StereoWebDataset")
+    shuffled = st.StereoWebDataset(SHARDS, split=["train", "val"], shuffle_shards=True, shuffle_buffer=4)
+    three_steps(shuffled, "StereoWebDataset")
     three_steps(st.StereoDataset(FOLDER), "StereoDataset")
 
 
