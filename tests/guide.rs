@@ -113,14 +113,19 @@ fn every_command_block_says_who_runs_it() {
         for b in blocks(&read(&page)) {
             let at = format!("{page}:{}", b.line);
             if b.lang.is_empty() {
-                problems.push(format!("{at}: a block without a language (`text` for output)"));
+                problems.push(format!(
+                    "{at}: a block without a language (`text` for output)"
+                ));
                 continue;
             }
             if !COMMAND_LANGUAGES.contains(&b.lang.as_str()) {
                 continue;
             }
             let Some(name) = b.run else {
-                problems.push(format!("{at}: a {} block without a `<!-- run: NAME -->` marker", b.lang));
+                problems.push(format!(
+                    "{at}: a {} block without a `<!-- run: NAME -->` marker",
+                    b.lang
+                ));
                 continue;
             };
             used.insert(name.clone());
@@ -143,7 +148,9 @@ fn every_command_block_says_who_runs_it() {
     }
     for (page, name) in PAGES {
         if !used.contains(*name) {
-            problems.push(format!("{page}: no block marked {name}, which the runner expects"));
+            problems.push(format!(
+                "{page}: no block marked {name}, which the runner expects"
+            ));
         }
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
@@ -217,7 +224,11 @@ fn anchors(text: &str) -> BTreeSet<String> {
         if let Some(h) = l.strip_prefix('#') {
             let base = slug(h.trim_start_matches('#').replace('`', "").as_str());
             let n = seen.entry(base.clone()).or_default();
-            out.insert(if *n == 0 { base.clone() } else { format!("{base}-{n}") });
+            out.insert(if *n == 0 {
+                base.clone()
+            } else {
+                format!("{base}-{n}")
+            });
             *n += 1;
         }
     }
@@ -270,7 +281,11 @@ fn relative_links_and_anchors_resolve() {
     let mut checked = 0;
     for file in markdown_files() {
         let text = std::fs::read_to_string(&file).unwrap();
-        let rel = file.strip_prefix(repo_root()).unwrap().display().to_string();
+        let rel = file
+            .strip_prefix(repo_root())
+            .unwrap()
+            .display()
+            .to_string();
         for link in links(&text) {
             if link.contains("://") || link.starts_with("mailto:") || link.is_empty() {
                 continue;
@@ -294,7 +309,8 @@ fn relative_links_and_anchors_resolve() {
             checked += 1;
             if let Some(a) = anchor {
                 let is_md = target.extension().is_some_and(|x| x == "md");
-                let known = is_md && anchors(&std::fs::read_to_string(&target).unwrap()).contains(a);
+                let known =
+                    is_md && anchors(&std::fs::read_to_string(&target).unwrap()).contains(a);
                 if !known {
                     problems.push(format!("{rel}: {link}: no heading with anchor #{a}"));
                 }
@@ -302,17 +318,29 @@ fn relative_links_and_anchors_resolve() {
         }
     }
     println!("{checked} relative links checked");
-    assert!(checked > 50, "only {checked} links found: is the parser broken?");
+    assert!(
+        checked > 50,
+        "only {checked} links found: is the parser broken?"
+    );
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
 
 #[test]
 fn anchors_follow_github() {
-    assert_eq!(slug(" What a run will cost: stereogen estimate"), "what-a-run-will-cost-stereogen-estimate");
-    assert_eq!(slug("CREStereo against PyTorch (CPU)"), "crestereo-against-pytorch-cpu");
+    assert_eq!(
+        slug(" What a run will cost: stereogen estimate"),
+        "what-a-run-will-cost-stereogen-estimate"
+    );
+    assert_eq!(
+        slug("CREStereo against PyTorch (CPU)"),
+        "crestereo-against-pytorch-cpu"
+    );
     let a = anchors("# A\n## B b\n```sh\n# not a heading\n```\n## B b\n");
     assert_eq!(a, ["a", "b-b", "b-b-1"].map(String::from).into());
-    assert_eq!(links("[x](a.md#b) `[y](c.md)` ![i](d.png)"), ["a.md#b", "d.png"]);
+    assert_eq!(
+        links("[x](a.md#b) `[y](c.md)` ![i](d.png)"),
+        ["a.md#b", "d.png"]
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -322,7 +350,11 @@ fn anchors_follow_github() {
 fn bin(name: &str) -> PathBuf {
     let exe = std::env::current_exe().unwrap();
     let bin = exe.parent().unwrap().parent().unwrap().join(name);
-    assert!(bin.is_file(), "{} missing: run through `cargo test --workspace`", bin.display());
+    assert!(
+        bin.is_file(),
+        "{} missing: run through `cargo test --workspace`",
+        bin.display()
+    );
     bin
 }
 
@@ -330,16 +362,31 @@ fn help(bin_path: &Path, args: &[&str]) -> String {
     let mut c = Command::new(bin_path);
     c.args(args).arg("--help").env("COLUMNS", "100");
     for (k, _) in std::env::vars() {
-        if ["STEREOGEN_", "CRESTEREO_", "CUBECL_", "RAYON_"].iter().any(|p| k.starts_with(p)) {
+        if ["STEREOGEN_", "CRESTEREO_", "CUBECL_", "RAYON_"]
+            .iter()
+            .any(|p| k.starts_with(p))
+        {
             c.env_remove(k);
         }
     }
     let out = c.output().unwrap();
-    assert!(out.status.success(), "{args:?} --help: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{args:?} --help: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let text = String::from_utf8(out.stdout).unwrap();
     let home = std::env::var("HOME").unwrap_or_default();
-    let text = if home.len() > 1 { text.replace(&home, "~") } else { text };
-    text.lines().map(str::trim_end).collect::<Vec<_>>().join("\n") + "\n"
+    let text = if home.len() > 1 {
+        text.replace(&home, "~")
+    } else {
+        text
+    };
+    text.lines()
+        .map(str::trim_end)
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n"
 }
 
 /// The subcommands a help text lists (its `Commands:` section), `help` left out.
@@ -360,12 +407,17 @@ fn subcommands(help: &str) -> Vec<(String, String)> {
 fn reference_pages() -> BTreeMap<String, String> {
     let note = "<!-- generated from `--help` by tests/guide.rs: run `STEREOGEN_BLESS_DOCS=1 cargo test --release -p stereogen-e2e --test guide reference` after `cargo build --release` to rewrite -->";
     let mut pages = BTreeMap::new();
-    let mut index = format!("# Command reference\n\n{note}\n\nEvery page is the command's `--help`, as the binary prints it.\n");
+    let mut index = format!(
+        "# Command reference\n\n{note}\n\nEvery page is the command's `--help`, as the binary prints it.\n"
+    );
     for name in ["stereogen", "crestereo"] {
         let b = bin(name);
         let top = help(&b, &[]);
         let _ = std::fmt::Write::write_fmt(&mut index, format_args!("\n## `{name}`\n\n"));
-        pages.insert(format!("{name}.md"), format!("# {name}\n\n{note}\n\n```text\n{top}```\n"));
+        pages.insert(
+            format!("{name}.md"),
+            format!("# {name}\n\n{note}\n\n```text\n{top}```\n"),
+        );
         index += &format!("- [`{name}`]({name}.md): the overview\n");
         for (sub, what) in subcommands(&top) {
             let h = help(&b, &[&sub]);
@@ -465,7 +517,11 @@ fn guide_commands_run_as_written() {
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr)
         );
-        assert!(out.status.success(), "{what} failed ({}):\n{said}", out.status);
+        assert!(
+            out.status.success(),
+            "{what} failed ({}):\n{said}",
+            out.status
+        );
         println!("{what}: {:.1} s", t.elapsed().as_secs_f64());
         let lines: Vec<&str> = said.lines().collect();
         for l in &lines[lines.len().saturating_sub(12)..] {
@@ -484,14 +540,26 @@ fn guide_commands_run_as_written() {
                 std::fs::write(&file, &b.code).unwrap();
                 run(&what, Command::new(venv.join("bin/python")).arg(&file));
             } else {
-                run(&what, Command::new("bash").args(["-euo", "pipefail", "-c", &b.code]));
+                run(
+                    &what,
+                    Command::new("bash").args(["-euo", "pipefail", "-c", &b.code]),
+                );
             }
         }
     }
     // What the blocks made: a card with the content pack's licences, the reports, the models.
     let card = std::fs::read_to_string(work.path().join("tour-shards/README.md")).unwrap();
-    for needle in ["- cc0-1.0", "- cc-by-4.0", "- mit", "- apache-2.0", "task_categories:"] {
-        assert!(card.contains(needle), "the tour's card lacks {needle:?}:\n{card}");
+    for needle in [
+        "- cc0-1.0",
+        "- cc-by-4.0",
+        "- mit",
+        "- apache-2.0",
+        "task_categories:",
+    ] {
+        assert!(
+            card.contains(needle),
+            "the tour's card lacks {needle:?}:\n{card}"
+        );
     }
     for made in [
         "tour/report.html",

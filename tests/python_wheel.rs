@@ -23,8 +23,7 @@ use python_envs::{base_venvs, fresh_venv, pinned_venv::run, python_home, repo_ro
 fn wheel() -> &'static PathBuf {
     static WHEEL: OnceLock<PathBuf> = OnceLock::new();
     WHEEL.get_or_init(|| {
-        let maturin =
-            python_envs::pinned_venv::ensure_venv("venv-test", python_envs::MATURIN_PINS);
+        let maturin = python_envs::pinned_venv::ensure_venv("venv-test", python_envs::MATURIN_PINS);
         let dist = target_dir().join("python-wheel");
         let _ = std::fs::remove_dir_all(&dist);
         let t = Instant::now();
@@ -72,16 +71,25 @@ fn the_wheel_installs_into_a_fresh_venv_and_torch_is_an_extra() {
         pinned_venv_pip(&bare).arg(wheel).arg("numpy==2.4.6"),
         "pip install the wheel",
     );
-    println!("pip install wheel + numpy: {:.1} s", t.elapsed().as_secs_f64());
+    println!(
+        "pip install wheel + numpy: {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
     let ok = python(
         &bare,
         "import stereogen; print(stereogen.__version__, stereogen.open_dataset, stereogen.decode_sample)",
     );
-    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
     let no_torch = python(&bare, "import stereogen.torch");
     let err = String::from_utf8_lossy(&no_torch.stderr);
     assert!(
-        !no_torch.status.success() && err.contains("ImportError") && err.contains("stereogen[torch]"),
+        !no_torch.status.success()
+            && err.contains("ImportError")
+            && err.contains("stereogen[torch]"),
         "without torch, `import stereogen.torch` must say which extra is missing:\n{err}"
     );
     // With the `torch` extra: pip resolves it against the PyTorch a venv already sees.
@@ -89,13 +97,23 @@ fn the_wheel_installs_into_a_fresh_venv_and_torch_is_an_extra() {
     let with_torch = fresh_venv(&python_home().join("wheel-test-torch"), &[&torch]);
     let spec = format!("{}[torch]", wheel.display());
     let t = Instant::now();
-    run(pinned_venv_pip(&with_torch).arg(&spec), "pip install wheel[torch]");
-    println!("pip install wheel[torch] on torch: {:.1} s", t.elapsed().as_secs_f64());
+    run(
+        pinned_venv_pip(&with_torch).arg(&spec),
+        "pip install wheel[torch]",
+    );
+    println!(
+        "pip install wheel[torch] on torch: {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
     let ok = python(
         &with_torch,
         "import stereogen.torch as st; print(st.StereoDataset, st.StereoWebDataset, st.to_tensors)",
     );
-    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
 }
 
 fn pinned_venv_pip(venv: &Path) -> Command {
@@ -122,7 +140,11 @@ fn fixture() -> &'static Fixture {
             .args(["--shard-size", "1B", "--splits", "train=0.67,val=0.33"])
             .output()
             .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let refs = dir.path().join("refs");
         std::fs::create_dir_all(&refs).unwrap();
         let ds = open_dataset(&folder, None).unwrap();
@@ -132,7 +154,10 @@ fn fixture() -> &'static Fixture {
             let (w, h) = (s.left.width, s.left.height);
             let f = |v: &[u8]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
             let b = |v: &[bool]| v.iter().map(|&x| x as u8 as f32).collect::<Vec<f32>>();
-            let right = s.disp_right.as_ref().expect("ours have a right-view disparity");
+            let right = s
+                .disp_right
+                .as_ref()
+                .expect("ours have a right-view disparity");
             let valid = s.valid_mask().to_vec();
             for (name, shape, data) in [
                 ("left", vec![h, w, 3], f(&s.left.data)),
@@ -142,8 +167,11 @@ fn fixture() -> &'static Fixture {
                 ("disp_right", vec![h, w], right.data.clone()),
                 ("valid_right", vec![h, w], b(&right.valid)),
             ] {
-                write_npy(&refs.join(format!("{id}_{name}.npy")), &NpyArray { shape, data })
-                    .unwrap();
+                write_npy(
+                    &refs.join(format!("{id}_{name}.npy")),
+                    &NpyArray { shape, data },
+                )
+                .unwrap();
             }
         }
         Fixture {

@@ -86,14 +86,7 @@ pub fn fresh_venv(dir: &Path, on: &[&Path]) -> PathBuf {
     dir.to_path_buf()
 }
 
-/// `$STEREOGEN_HOME/python` (default `~/.cache/stereogen/python`), where the venvs live.
-pub fn python_home() -> PathBuf {
-    std::env::var_os("STEREOGEN_HOME")
-        .filter(|h| !h.is_empty())
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/stereogen"))
-        .join("python")
-}
+pub use pinned_venv::python_home;
 
 /// The target directory of this test build (`<target>/<profile>/deps/<test>` → `<target>`).
 pub fn target_dir() -> PathBuf {

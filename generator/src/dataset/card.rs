@@ -190,15 +190,11 @@ fn licences_of(recipe: &Recipe) -> Vec<LicenceUse> {
             .iter()
             .find(|p| p.name == package)
             .map_or("", |p| p.version);
-        let kind = match kind {
-            PackKind::Photo => "photo",
-            PackKind::Mesh => "mesh",
-        };
-        let plural = if n == 1 { "" } else { "es" };
-        let kind = if kind == "photo" && n != 1 {
-            "photos".to_string()
-        } else {
-            format!("{kind}{plural}")
+        let kind = match (kind, n) {
+            (PackKind::Photo, 1) => "photo",
+            (PackKind::Photo, _) => "photos",
+            (PackKind::Mesh, 1) => "mesh",
+            (PackKind::Mesh, _) => "meshes",
         };
         out.insert(LicenceUse {
             licence: licence.to_string(),
@@ -497,7 +493,9 @@ of it; CC-BY content asks for attribution when you publish images that show it):
         }
         let attributions: BTreeSet<&str> = FILES
             .iter()
-            .filter(|f| f.licence.starts_with("CC-BY") && licences.iter().any(|l| l.licence == f.licence))
+            .filter(|f| {
+                f.licence.starts_with("CC-BY") && licences.iter().any(|l| l.licence == f.licence)
+            })
             .map(|f| f.source)
             .collect();
         for a in attributions {
@@ -524,12 +522,18 @@ mod tests {
     #[test]
     fn the_default_preset_lists_the_pack_licences_and_exclusions_apply() {
         let mut recipe = Recipe::preset("crestereo").unwrap();
-        let all: BTreeSet<String> = licences_of(&recipe).into_iter().map(|l| l.licence).collect();
+        let all: BTreeSet<String> = licences_of(&recipe)
+            .into_iter()
+            .map(|l| l.licence)
+            .collect();
         for l in ["CC0-1.0", "CC-BY-4.0", "MIT", "Apache-2.0", "public-domain"] {
             assert!(all.contains(l), "{l} missing from {all:?}");
         }
         recipe.sources.exclude_licences = vec!["cc-by-4.0".into()];
-        let kept: BTreeSet<String> = licences_of(&recipe).into_iter().map(|l| l.licence).collect();
+        let kept: BTreeSet<String> = licences_of(&recipe)
+            .into_iter()
+            .map(|l| l.licence)
+            .collect();
         assert!(!kept.contains("CC-BY-4.0"), "{kept:?}");
         recipe.sources.builtin_pack = false;
         assert!(licences_of(&recipe).is_empty());

@@ -27,7 +27,7 @@ pub fn run(cmd: &mut Command, what: &str) -> String {
 
 /// `$STEREOGEN_HOME/python`, the rule of `stereogen_assets::stereogen_home` (which the crates
 /// sharing this file cannot all depend on).
-fn python_home() -> PathBuf {
+pub fn python_home() -> PathBuf {
     std::env::var_os("STEREOGEN_HOME")
         .filter(|h| !h.is_empty())
         .map(PathBuf::from)
