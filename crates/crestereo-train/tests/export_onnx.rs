@@ -247,15 +247,15 @@ fn check_against_burn(
     (model, burns)
 }
 
-/// The README's onnxruntime block (after `<!-- onnx-snippet -->`), run as a user would: in a
-/// folder holding `crestereo.onnx`, `left.png` and `right.png`. Returns its `disparity.npy`.
+/// The guide's onnxruntime block (docs/guide/deploy.md, after `<!-- run: onnx-snippet -->`), run
+/// as a user would: in a folder holding `crestereo.onnx`, `left.png` and `right.png`. Returns its
+/// `disparity.npy`.
 fn run_readme_snippet(venv: &Path, dir: &Path, model: &Path, pair: &Pair) -> Vec<f32> {
-    let readme =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../README.md"))
-            .unwrap();
+    let page = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/guide/deploy.md");
+    let readme = std::fs::read_to_string(&page).unwrap();
     let after = readme
-        .split_once("<!-- onnx-snippet -->")
-        .expect("the README's onnx-snippet marker")
+        .split_once("<!-- run: onnx-snippet -->")
+        .expect("the deploy page's onnx-snippet marker")
         .1;
     let code = after
         .split_once("```python\n")
@@ -272,7 +272,7 @@ fn run_readme_snippet(venv: &Path, dir: &Path, model: &Path, pair: &Pair) -> Vec
         Command::new(venv.join("bin/python"))
             .arg("snippet.py")
             .current_dir(&work),
-        "the README's onnxruntime snippet",
+        "the deploy page's onnxruntime snippet",
     );
     stereo_io::read_npy(&work.join("disparity.npy"))
         .unwrap()
@@ -298,11 +298,11 @@ fn onnxruntime_matches_crestereo_infer_with_reference_and_trained_weights() {
         &[&fixture, &random],
     );
 
-    // The README's five lines, images decoded by OpenCV.
+    // The deploy page's five lines, images decoded by OpenCV.
     let snippet = run_readme_snippet(&venv, dir.path(), &model, &fixture);
     let diff = max_abs_diff(&snippet, &burn[0]);
-    println!("README snippet (cv2.imread + onnxruntime) vs crestereo infer: {diff:.3e} px");
-    assert!(diff <= BOUND_PX, "README snippet: {diff} px");
+    println!("deploy page snippet (cv2.imread + onnxruntime) vs crestereo infer: {diff:.3e} px");
+    assert!(diff <= BOUND_PX, "deploy page snippet: {diff} px");
 
     // A model after a few training steps from the reference weights.
     let run = short_run::fine_tune(dir.path(), &reference);

@@ -1,4 +1,5 @@
-//! The `stereogen` Python module: stereo datasets as NumPy arrays, disparity files, a dataset's
+//! The `stereogen._stereogen` extension of the Python package `stereogen` (its Python part, with
+//! `stereogen.torch`, is under `python/`): stereo datasets as NumPy arrays, disparity files, a dataset's
 //! sidecar logs (`failures.jsonl`, `skipped_assets.jsonl`), and scene
 //! planning — the same Rust code the generator and trainer use.
 //!
@@ -7,9 +8,9 @@
 use std::path::PathBuf;
 
 use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
-use pyo3::exceptions::{PyIndexError, PyOSError, PyValueError};
+use pyo3::exceptions::{PyIndexError, PyOSError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyTuple};
+use pyo3::types::{PyBytes, PyDict, PyTuple};
 use stereo_io::{
     DatasetFormat, DisparityFormat, DisparityMap, DisparityMeta, StereoDataset, StereoSample,
 };
@@ -185,18 +186,7 @@ fn read_disparity<'py>(
     let (map, meta) = py
         .detach(|| stereo_io::read_disparity(&path, format))
         .map_err(to_py)?;
-    let (h, w) = (map.height, map.width);
-    let disp = array_hw(py, map.data, h, w)?;
-    let valid = array_hw(py, map.valid, h, w)?;
-    if with_meta {
-        let m = PyDict::new(py);
-        m.set_item("f_px", meta.f_px)?;
-        m.set_item("baseline_m", meta.baseline_m)?;
-        m.set_item("view", meta.view)?;
-        PyTuple::new(py, [disp, valid, m.into_any()])
-    } else {
-        PyTuple::new(py, [disp, valid])
-    }
+    disparity_tuple(py, map, meta, with_meta)
 }
 
 /// write_disparity(path, array, f_px=None, baseline=None, valid=None, format=None, view=None)
@@ -266,6 +256,92 @@ fn write_disparity(
         .map_err(to_py)
 }
 
+/// decode_sample(members, key=None) -> dict
+///
+/// Decodes one sample of a WebDataset shard from its members, as the `webdataset` package hands
+/// them over: a dict of member name after the key (`left.png`, `disp_left.exr`, `json`, ...) to
+/// bytes; entries whose name starts with `__` (`__key__`, `__url__`) are ignored, and `json` may
+/// also be an already decoded dict. Returns what `Dataset[i]` returns for that sample, bit for bit.
+#[pyfunction]
+#[pyo3(signature = (members, key=None))]
+fn decode_sample<'py>(
+    py: Python<'py>,
+    members: &Bound<'py, PyDict>,
+    key: Option<String>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let mut list: Vec<(String, Vec<u8>)> = Vec::with_capacity(members.len());
+    let mut url = None;
+    let mut found_key = None;
+    for (name, value) in members.iter() {
+        let name: String = name.extract()?;
+        match name.as_str() {
+            "__key__" => found_key = value.extract::<String>().ok(),
+            "__url__" => url = value.extract::<String>().ok(),
+            _ if name.starts_with("__") => {}
+            _ => {
+                let bytes = if let Ok(b) = value.cast::<PyBytes>() {
+                    b.as_bytes().to_vec()
+                } else if name == "json" {
+                    let text: String = py
+                        .import("json")?
+                        .call_method1("dumps", (value,))?
+                        .extract()?;
+                    text.into_bytes()
+                } else {
+                    return Err(PyTypeError::new_err(format!(
+                        "member {name:?}: bytes expected, got {}",
+                        value.get_type().name()?
+                    )));
+                };
+                list.push((name, bytes));
+            }
+        }
+    }
+    let key = key.or(found_key).unwrap_or_default();
+    let shard = PathBuf::from(url.unwrap_or_default());
+    let sample = py
+        .detach(|| stereo_io::datasets::webdataset::decode_members(&shard, &key, &list))
+        .map_err(to_py)?;
+    sample_dict(py, sample)
+}
+
+/// decode_disparity(data, with_meta=False) -> (disparity, valid) or (disparity, valid, meta)
+///
+/// A disparity EXR of ours (a `disp_left.exr` member of a shard, say) decoded from its bytes, as
+/// `read_disparity` decodes the file.
+#[pyfunction]
+#[pyo3(signature = (data, with_meta=false))]
+fn decode_disparity<'py>(
+    py: Python<'py>,
+    data: &[u8],
+    with_meta: bool,
+) -> PyResult<Bound<'py, PyTuple>> {
+    let (map, meta) = py
+        .detach(|| stereo_io::decode_disparity_exr(data, std::path::Path::new("<bytes>")))
+        .map_err(to_py)?;
+    disparity_tuple(py, map, meta, with_meta)
+}
+
+fn disparity_tuple<'py>(
+    py: Python<'py>,
+    map: DisparityMap,
+    meta: DisparityMeta,
+    with_meta: bool,
+) -> PyResult<Bound<'py, PyTuple>> {
+    let (h, w) = (map.height, map.width);
+    let disp = array_hw(py, map.data, h, w)?;
+    let valid = array_hw(py, map.valid, h, w)?;
+    if with_meta {
+        let m = PyDict::new(py);
+        m.set_item("f_px", meta.f_px)?;
+        m.set_item("baseline_m", meta.baseline_m)?;
+        m.set_item("view", meta.view)?;
+        PyTuple::new(py, [disp, valid, m.into_any()])
+    } else {
+        PyTuple::new(py, [disp, valid])
+    }
+}
+
 /// Records of a sidecar log as a list of dicts (the fields of the Rust record type, through JSON).
 fn sidecar_records<'py, R: stereo_io::datasets::stereogen::SidecarRecord + Send>(
     py: Python<'py>,
@@ -328,12 +404,14 @@ mod anyhow_free {
     pub type Result<T> = std::result::Result<T, String>;
 }
 
-#[pymodule(name = "stereogen")]
+#[pymodule(name = "_stereogen")]
 fn stereogen_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Dataset>()?;
     m.add_function(wrap_pyfunction!(open_dataset, m)?)?;
     m.add_function(wrap_pyfunction!(detect_format, m)?)?;
     m.add_function(wrap_pyfunction!(read_disparity, m)?)?;
+    m.add_function(wrap_pyfunction!(decode_disparity, m)?)?;
+    m.add_function(wrap_pyfunction!(decode_sample, m)?)?;
     m.add_function(wrap_pyfunction!(write_disparity, m)?)?;
     m.add_function(wrap_pyfunction!(plan_scene, m)?)?;
     m.add_function(wrap_pyfunction!(read_failures, m)?)?;

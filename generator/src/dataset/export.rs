@@ -190,7 +190,7 @@ pub struct ExportOptions {
 
 /// Writes every sample of `opts.dataset` into `opts.out` in `opts.format`: a layout with
 /// `stereogen_samples.tsv` mapping the exported samples back to the source's, or shards with an
-/// index per split.
+/// index per split and a dataset card (`README.md`, [`super::card`]).
 pub fn export(opts: &ExportOptions) -> anyhow::Result<ExportSummary> {
     let images = match (opts.jpeg_quality, opts.jpeg_chroma) {
         (None, ChromaSampling::Full) => ImageEncoding::Lossless,
@@ -212,6 +212,7 @@ pub fn export(opts: &ExportOptions) -> anyhow::Result<ExportSummary> {
                 &read,
                 &opts.shards,
             )?;
+            super::card::write_card(&opts.out)?;
             return Ok(ExportSummary::Shards(s));
         }
     };

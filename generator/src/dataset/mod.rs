@@ -1,5 +1,6 @@
 //! The on-disk dataset: layout, manifest, finishing a sample atomically, and resumable generation.
 
+pub mod card;
 pub mod export;
 pub mod generate;
 pub mod generate_command;

@@ -27,7 +27,7 @@ pub fn run(cmd: &mut Command, what: &str) -> String {
 
 /// `$STEREOGEN_HOME/python`, the rule of `stereogen_assets::stereogen_home` (which the crates
 /// sharing this file cannot all depend on).
-fn python_home() -> PathBuf {
+pub fn python_home() -> PathBuf {
     std::env::var_os("STEREOGEN_HOME")
         .filter(|h| !h.is_empty())
         .map(PathBuf::from)
@@ -87,12 +87,25 @@ pub fn ensure_venv_on(base: &Path, name: &str, pins: &[&str]) -> PathBuf {
     })
 }
 
+/// `<name>-<pins>` (`numpy==2.4.6` written `numpy2.4.6`, joined by `-`); a list too long for a
+/// file name is named by its FNV-1a hash instead (`<name>-<16 hex digits>`).
+fn venv_dir_name(name: &str, pins: &[&str]) -> String {
+    let joined = pins.join("-").replace("==", "");
+    if joined.len() <= 160 {
+        return format!("{name}-{joined}");
+    }
+    let hash = joined.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    });
+    format!("{name}-{hash:016x}")
+}
+
 fn ensure_venv_made(name: &str, pins: &[&str], install: impl FnOnce(&Path)) -> PathBuf {
     let base = python_home();
     std::fs::create_dir_all(&base).unwrap();
     let lock = std::fs::File::create(base.join(".lock")).unwrap();
     lock.lock().expect("lock the Python environments");
-    let venv = base.join(format!("{name}-{}", pins.join("-").replace("==", "")));
+    let venv = base.join(venv_dir_name(name, pins));
     if !venv.join(".complete").is_file() {
         let python =
             std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").unwrap_or_else(|_| "python3".into());

@@ -21,6 +21,11 @@ impl ShardMembers {
         WebDataset::open(root).map(Self)
     }
 
+    /// Like [`Self::open`], the named splits only.
+    pub fn open_splits<S: AsRef<str>>(root: &Path, splits: &[S]) -> Result<Self> {
+        WebDataset::open_splits(root, splits).map(Self)
+    }
+
     pub fn root(&self) -> &Path {
         self.0.root()
     }

@@ -20,8 +20,8 @@ mod write;
 
 use serde::{Deserialize, Serialize};
 
-pub use read::{RawSample, ShardReader, WebDataset};
-pub use write::{WebDatasetOptions, WebDatasetSummary, export_webdataset, parse_splits};
+pub use read::{RawSample, ShardReader, WebDataset, decode_members};
+pub use write::{CARD_FILE, WebDatasetOptions, WebDatasetSummary, export_webdataset, parse_splits};
 
 /// The index of one split: `<root>/<split>.index.json`.
 pub const INDEX_SUFFIX: &str = ".index.json";

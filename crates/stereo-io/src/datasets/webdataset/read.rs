@@ -351,6 +351,40 @@ impl WebDataset {
     }
 }
 
+/// Decodes one sample from its members as a loader that streams a shard has them (`(suffix,
+/// bytes)` after `<key>.`, e.g. `left.png`, `disp_left.exr`, `json`): the arrays
+/// [`WebDataset`]'s `sample` returns for it, bit for bit. `shard` only names the members in errors.
+pub fn decode_members(
+    shard: &Path,
+    key: &str,
+    members: &[(String, Vec<u8>)],
+) -> Result<StereoSample> {
+    let dataset = WebDataset {
+        root: shard.parent().unwrap_or(Path::new("")).to_path_buf(),
+        splits: vec![],
+        shards: vec![shard.to_path_buf()],
+        samples: vec![],
+    };
+    let entry = SampleEntry {
+        key: key.to_string(),
+        shard: 0,
+        members: members
+            .iter()
+            .map(|(suffix, bytes)| Member {
+                suffix: suffix.clone(),
+                offset: 0,
+                size: bytes.len() as u64,
+            })
+            .collect(),
+    };
+    dataset.decode_with(&entry, &|suffix| {
+        Ok(members
+            .iter()
+            .find(|(s, _)| s == suffix)
+            .map(|(_, b)| Cow::Borrowed(b.as_slice())))
+    })
+}
+
 /// A member's bytes by suffix (`None`: the sample has no such member), borrowed or read.
 type MemberBytes<'a> = dyn Fn(&str) -> Result<Option<Cow<'a, [u8]>>> + 'a;
 

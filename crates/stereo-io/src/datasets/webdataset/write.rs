@@ -25,6 +25,9 @@ use crate::image_io::{Image, Samples, encode_png};
 /// command resumes from.
 pub(crate) const PROGRESS_FILE: &str = ".webdataset-progress.json";
 
+/// The dataset card `stereogen export` writes beside the shards (replaced with them by `--force`).
+pub const CARD_FILE: &str = "README.md";
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct WebDatasetOptions {
     /// A shard is closed once it holds at least this many bytes.
@@ -211,6 +214,7 @@ fn prepare_output(out: &Path, plan: &Plan, force: bool) -> Result<Vec<(String, S
         name.ends_with(".tar")
             || name.ends_with(INDEX_SUFFIX)
             || name == "dataset.json"
+            || name == CARD_FILE
             || name == PROGRESS_FILE
     };
     let existing: Vec<PathBuf> = fs::read_dir(out)

@@ -1,0 +1,250 @@
+//! The Python package as its users get it: the wheel built by the guide's one command
+//! (`maturin build --release -m crates/stereogen-py/Cargo.toml --out dist`), installed into a fresh
+//! venv; `stereogen.torch`'s datasets through a real `DataLoader` with two workers, on a rendered
+//! dataset's WebDataset shards and on its folder, every tensor equal to the Rust reader's; and the
+//! shards read by the `datasets` package's WebDataset builder and by `webdataset` + a `DataLoader`
+//! with nothing but the code the dataset card shows.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+use std::time::Instant;
+
+use stereo_io::{NpyArray, open_dataset, write_npy};
+use stereogen_e2e::export_cmd;
+
+#[path = "support/python_envs.rs"]
+mod python_envs;
+use python_envs::{base_venvs, fresh_venv, pinned_venv::run, python_home, repo_root, target_dir};
+
+/// The wheel, built once per test run with the guide's command into `<target>/python-wheel`
+/// (by the maturin and for the Python of tests/io_python.rs, in its cargo folder: one build of
+/// the module serves both).
+fn wheel() -> &'static PathBuf {
+    static WHEEL: OnceLock<PathBuf> = OnceLock::new();
+    WHEEL.get_or_init(|| {
+        let maturin = python_envs::pinned_venv::ensure_venv("venv-test", python_envs::MATURIN_PINS);
+        let dist = target_dir().join("python-wheel");
+        let _ = std::fs::remove_dir_all(&dist);
+        let t = Instant::now();
+        run(
+            Command::new(maturin.join("bin/maturin"))
+                .args(["build", "--release", "-m", "crates/stereogen-py/Cargo.toml"])
+                .arg("--out")
+                .arg(&dist)
+                .arg("--interpreter")
+                .arg(maturin.join("bin/python"))
+                .current_dir(repo_root())
+                .env("CARGO_TARGET_DIR", target_dir().join("python-ext")),
+            "maturin build --release",
+        );
+        let wheel = std::fs::read_dir(&dist)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.extension().is_some_and(|x| x == "whl"))
+            .expect("maturin wrote a wheel");
+        let bytes = std::fs::metadata(&wheel).unwrap().len();
+        println!(
+            "wheel {} ({:.2} MB) built in {:.1} s",
+            wheel.file_name().unwrap().to_string_lossy(),
+            bytes as f64 / 1e6,
+            t.elapsed().as_secs_f64()
+        );
+        wheel
+    })
+}
+
+fn python(venv: &Path, code: &str) -> std::process::Output {
+    Command::new(venv.join("bin/python"))
+        .args(["-c", code])
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn the_wheel_installs_into_a_fresh_venv_and_torch_is_an_extra() {
+    let wheel = wheel();
+    // A venv with nothing in it: the wheel and its one dependency, NumPy.
+    let bare = fresh_venv(&python_home().join("wheel-test-bare"), &[]);
+    let t = Instant::now();
+    run(
+        pinned_venv_pip(&bare).arg(wheel).arg("numpy==2.4.6"),
+        "pip install the wheel",
+    );
+    println!(
+        "pip install wheel + numpy: {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
+    let ok = python(
+        &bare,
+        "import stereogen; print(stereogen.__version__, stereogen.open_dataset, stereogen.decode_sample)",
+    );
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    let no_torch = python(&bare, "import stereogen.torch");
+    let err = String::from_utf8_lossy(&no_torch.stderr);
+    assert!(
+        !no_torch.status.success()
+            && err.contains("ImportError")
+            && err.contains("stereogen[torch]"),
+        "without torch, `import stereogen.torch` must say which extra is missing:\n{err}"
+    );
+    // With the `torch` extra: pip resolves it against the PyTorch a venv already sees.
+    let (torch, _) = base_venvs();
+    let with_torch = fresh_venv(&python_home().join("wheel-test-torch"), &[&torch]);
+    let spec = format!("{}[torch]", wheel.display());
+    let t = Instant::now();
+    run(
+        pinned_venv_pip(&with_torch).arg(&spec),
+        "pip install wheel[torch]",
+    );
+    println!(
+        "pip install wheel[torch] on torch: {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
+    let ok = python(
+        &with_torch,
+        "import stereogen.torch as st; print(st.StereoDataset, st.StereoWebDataset, st.to_tensors)",
+    );
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+}
+
+fn pinned_venv_pip(venv: &Path) -> Command {
+    python_envs::pinned_venv::pip_install(venv)
+}
+
+/// A rendered dataset, its WebDataset export (one sample per shard, so two workers each get
+/// shards of their own; a train and a val split) and the Rust reader's arrays of every sample as
+/// `.npy` files (`<id>_<array>.npy`, float32), made once for both tests below.
+struct Fixture {
+    _dir: tempfile::TempDir,
+    folder: PathBuf,
+    shards: PathBuf,
+    refs: PathBuf,
+}
+
+fn fixture() -> &'static Fixture {
+    static FIXTURE: OnceLock<Fixture> = OnceLock::new();
+    FIXTURE.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let folder = stereogen_e2e::generate_tiny_dataset(dir.path(), "ours", 6, 11);
+        let shards = dir.path().join("shards");
+        let out = export_cmd(&folder, "webdataset", &shards)
+            .args(["--shard-size", "1B", "--splits", "train=0.67,val=0.33"])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let refs = dir.path().join("refs");
+        std::fs::create_dir_all(&refs).unwrap();
+        let ds = open_dataset(&folder, None).unwrap();
+        for i in 0..ds.len() {
+            let s = ds.sample(i).unwrap();
+            let id = s.meta.id.clone();
+            let (w, h) = (s.left.width, s.left.height);
+            let f = |v: &[u8]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+            let b = |v: &[bool]| v.iter().map(|&x| x as u8 as f32).collect::<Vec<f32>>();
+            let right = s
+                .disp_right
+                .as_ref()
+                .expect("ours have a right-view disparity");
+            let valid = s.valid_mask().to_vec();
+            for (name, shape, data) in [
+                ("left", vec![h, w, 3], f(&s.left.data)),
+                ("right", vec![h, w, 3], f(&s.right.data)),
+                ("disp", vec![h, w], s.disp_left.data.clone()),
+                ("valid", vec![h, w], b(&valid)),
+                ("disp_right", vec![h, w], right.data.clone()),
+                ("valid_right", vec![h, w], b(&right.valid)),
+            ] {
+                write_npy(
+                    &refs.join(format!("{id}_{name}.npy")),
+                    &NpyArray { shape, data },
+                )
+                .unwrap();
+            }
+        }
+        Fixture {
+            _dir: dir,
+            folder,
+            shards,
+            refs,
+        }
+    })
+}
+
+/// Runs crates/stereogen-py/pytests/loaders_check.py `mode` in a fresh venv with the wheel (and
+/// its torch extra) on the base venvs; returns its stdout.
+fn check(mode: &str, venv_name: &str) -> String {
+    let wheel = wheel();
+    let fx = fixture();
+    let (torch, hub) = base_venvs();
+    let venv = fresh_venv(&python_home().join(venv_name), &[&hub, &torch]);
+    run(
+        pinned_venv_pip(&venv).arg(format!("{}[torch]", wheel.display())),
+        "pip install wheel[torch]",
+    );
+    let out = run(
+        Command::new(venv.join("bin/python"))
+            .arg(repo_root().join("crates/stereogen-py/pytests/loaders_check.py"))
+            .arg(mode)
+            .arg(&fx.folder)
+            .arg(&fx.shards)
+            .arg(&fx.refs)
+            .env("HF_HUB_OFFLINE", "1")
+            .env("HF_DATASETS_OFFLINE", "1")
+            .env("HF_HOME", fx.refs.join(format!("hf-{mode}"))),
+        &format!("loaders_check.py {mode}"),
+    );
+    println!("{out}");
+    out
+}
+
+#[test]
+fn torch_datasets_through_two_workers_equal_the_rust_reader() {
+    let said = check("torch", "wheel-test-loaders");
+    for line in [
+        "StereoWebDataset: 6 samples, bit-equal, workers [0, 1]",
+        "StereoDataset: 6 samples, bit-equal, workers [0, 1]",
+        "trained 3 steps on StereoWebDataset",
+        "trained 3 steps on StereoDataset",
+    ] {
+        assert!(said.contains(line), "missing {line:?} in\n{said}");
+    }
+}
+
+#[test]
+fn datasets_and_webdataset_read_the_shards_as_the_card_shows() {
+    let fx = fixture();
+    let card = std::fs::read_to_string(fx.shards.join("README.md")).unwrap();
+    assert!(card.starts_with("---\nlicense:"), "{card}");
+    for needle in [
+        "task_categories:\n- depth-estimation",
+        "configs:\n- config_name: default",
+        "  - split: train\n    path: \"train-*.tar\"",
+        "  - split: val\n    path: \"val-*.tar\"",
+        "| train | 4 | 4 |",
+        "| val | 2 | 2 |",
+        "it has no decoder for EXR",
+        "disp, valid = stereogen.decode_disparity(row[\"disp_left.exr\"])",
+    ] {
+        assert!(card.contains(needle), "the card lacks {needle:?}:\n{card}");
+    }
+    let said = check("hub", "wheel-test-hub");
+    for line in [
+        "datasets: 6 rows, images and disparities equal the Rust reader's",
+        "webdataset: 4 samples through 2 workers, equal the Rust reader's",
+    ] {
+        assert!(said.contains(line), "missing {line:?} in\n{said}");
+    }
+}

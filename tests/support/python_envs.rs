@@ -1,0 +1,103 @@
+//! The Python environments of the tests that use the `stereogen` wheel as its users do (with
+//! PyTorch, `datasets` and `webdataset`): one base venv with those packages, pinned and installed
+//! without their dependencies on top of the PyTorch venv the other PyTorch tests share (so there
+//! is one copy of PyTorch), and venvs made anew for each run on top of it, so the wheel under test
+//! is installed into a fresh environment every time.
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+#[path = "../../crates/stereo-io/tests/support/pinned_venv.rs"]
+pub mod pinned_venv;
+
+/// The PyTorch venv of the `.pth` export and torchvision tests.
+pub const TORCH_PINS: &[&str] = &["torch==2.15.0", "numpy==2.4.6"];
+
+/// `datasets` and `webdataset` with everything they import (pip's own resolution of
+/// `datasets==5.2.0 webdataset==1.0.2` beside torch 2.15, written out so nothing floats).
+pub const HUB_PINS: &[&str] = &[
+    "datasets==5.2.0",
+    "webdataset==1.0.2",
+    "anyio==4.16.0",
+    "braceexpand==0.1.7",
+    "click==8.5.1",
+    "dill==0.4.1",
+    "filelock==4.3.1",
+    "fsspec==2026.9.0",
+    "h11==0.16.0",
+    "hf-xet==1.8.0",
+    "httpcore2==2.16.2",
+    "httpx2==2.16.2",
+    "huggingface_hub==2.4.0",
+    "idna==3.20",
+    "multiprocess==0.70.19",
+    "packaging==26.4",
+    "pandas==3.1.1",
+    "pillow==13.0.0",
+    "pyarrow==26.0.1",
+    "python-dateutil==4.0.0",
+    "PyYAML==6.0.4",
+    "tqdm==4.70.1",
+    "truststore==0.10.5",
+    "typing_extensions==4.16.0",
+    "tzdata==2026.6",
+    "xxhash==4.1.0",
+];
+
+/// The venv with maturin that builds the module for the other Python tests (tests/io_python.rs).
+pub const MATURIN_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
+
+/// The base venvs: PyTorch's, and the one with `datasets`, `webdataset` and maturin on it.
+pub fn base_venvs() -> (PathBuf, PathBuf) {
+    let torch = pinned_venv::ensure_venv("venv-torch", TORCH_PINS);
+    let hub = pinned_venv::ensure_venv_on(&torch, "venv-hub-on-torch", HUB_PINS);
+    (torch, hub)
+}
+
+/// The directory of a venv's own packages.
+pub fn site_packages(venv: &Path) -> PathBuf {
+    let code = "import sysconfig; print(sysconfig.get_paths()['purelib'])";
+    let out = pinned_venv::run(
+        Command::new(venv.join("bin/python")).args(["-c", code]),
+        "python -c sysconfig",
+    );
+    PathBuf::from(out.trim())
+}
+
+/// A venv made anew at `dir` (whatever was there is removed), seeing the packages of the venvs
+/// `on` (a `.pth` file naming their site-packages, in that order) and nothing else. The same
+/// path every run keeps the interpreter's path stable, so maturin's builds stay incremental.
+pub fn fresh_venv(dir: &Path, on: &[&Path]) -> PathBuf {
+    let _ = std::fs::remove_dir_all(dir);
+    let python = std::env::var("STEREOGEN_BOOTSTRAP_PYTHON").unwrap_or_else(|_| "python3".into());
+    pinned_venv::run(
+        Command::new(python).args(["-m", "venv"]).arg(dir),
+        "python3 -m venv",
+    );
+    if !on.is_empty() {
+        let lines: String = on
+            .iter()
+            .map(|v| format!("{}\n", site_packages(v).display()))
+            .collect();
+        std::fs::write(site_packages(dir).join("base-venvs.pth"), lines).unwrap();
+    }
+    dir.to_path_buf()
+}
+
+pub use pinned_venv::python_home;
+
+/// The target directory of this test build (`<target>/<profile>/deps/<test>` → `<target>`).
+pub fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    exe.ancestors()
+        .nth(3)
+        .expect("<target>/<profile>/deps/<test>")
+        .to_path_buf()
+}
+
+/// The repository's root.
+pub fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
