@@ -20,6 +20,7 @@ pub mod exr_io;
 pub mod formats;
 pub mod image_io;
 pub mod jpeg;
+pub mod limits;
 pub mod npy;
 pub mod pfm;
 pub mod pixel_coords;

@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 use super::SamplePaths;
 use super::json_lines::read_finished_lines;
 use crate::error::{Error, Result};
+use crate::limits::relative_path_buf_problem;
 
 /// Statistics of the valid pixels of one view's disparity.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -106,9 +107,20 @@ fn unmerged_farm_error(path: &Path) -> Option<Error> {
 fn read_from(reader: impl BufRead, path: &Path) -> Result<ManifestContents> {
     let mut entries = Vec::new();
     let unfinished_bytes = read_finished_lines(reader, path, |number, text| {
-        let entry = serde_json::from_str(text).map_err(|e| {
+        let entry: ManifestEntry = serde_json::from_str(text).map_err(|e| {
             Error::format(path, format!("line {number} is not a manifest entry: {e}"))
         })?;
+        // Readers open these paths under the dataset's root: none may lead out of it.
+        for (key, rel) in entry.files.all() {
+            if let Some(problem) = relative_path_buf_problem(rel) {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "line {number}: the path of `files.{key}` {problem}; a manifest names files inside its dataset only"
+                    ),
+                ));
+            }
+        }
         entries.push(entry);
         Ok(())
     })?;
