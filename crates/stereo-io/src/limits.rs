@@ -113,7 +113,15 @@ pub fn read_to_end_capped(reader: impl Read, path: &Path, max: u64, what: &str) 
 }
 
 /// Reads the file at `path` whole, refusing one of more than `max` bytes before reading it.
+/// Devices, pipes and folders are refused before they are opened (a FIFO would block, a device
+/// never end).
 pub fn read_file_capped(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
+    if !std::fs::metadata(path).map_err(|e| Error::io(path, e))?.is_file() {
+        return Err(Error::format(
+            path,
+            format!("{what} that is not a regular file (a folder, device or pipe): not read"),
+        ));
+    }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     if len > max {
@@ -219,13 +227,20 @@ pub fn open_inside(root: &Path, name: &str) -> Result<(std::fs::File, u64)> {
             ));
         }
     }
+    let not_file = || {
+        Error::format(
+            &path,
+            "not a regular file (a folder, device or pipe): not read",
+        )
+    };
+    // Checked before opening too: opening a FIFO for reading blocks until a writer comes.
+    if !std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?.is_file() {
+        return Err(not_file());
+    }
     let file = std::fs::File::open(&path).map_err(|e| Error::io(&path, e))?;
     let meta = file.metadata().map_err(|e| Error::io(&path, e))?;
     if !meta.is_file() {
-        return Err(Error::format(
-            &path,
-            "not a regular file (a folder, device or pipe): not read",
-        ));
+        return Err(not_file());
     }
     Ok((file, meta.len()))
 }

@@ -1,0 +1,243 @@
+//! A WebDataset export changed by hand, as a hostile or broken copy would be: tar headers that lie
+//! about their size (GNU base-256 and octal), an index naming files outside its folder, shard
+//! files that are links or pipes, member names that climb out of a folder, headers that are no
+//! tar at all. Each must be one error naming the shard (and member and offset where there is
+//! one), never an abort, a read outside the folder or an echo of the file's bytes.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+use stereo_io::datasets::webdataset::{ShardIndex, scan_shard};
+use stereo_io::*;
+
+mod fixtures;
+
+use fixtures::*;
+
+/// Our 9-sample dataset exported as one `train` shard; returns the export folder.
+fn export(dir: &Path) -> PathBuf {
+    let source = mkdir(&dir.join("source"));
+    our_dataset(&source);
+    let out = dir.join("wds");
+    let opts = WebDatasetOptions {
+        shard_bytes: 1 << 30,
+        ..Default::default()
+    };
+    export_webdataset(&source, &out, None, &ReadOptions::default(), &opts).unwrap();
+    out
+}
+
+fn shard(out: &Path) -> PathBuf {
+    out.join("train-000000.tar")
+}
+
+/// Rewrites the checksum of the tar header at `at` after a change.
+fn fix_checksum(bytes: &mut [u8], at: usize) {
+    let header = &mut bytes[at..at + 512];
+    header[148..156].fill(b' ');
+    let sum: u32 = header.iter().map(|&b| u32::from(b)).sum();
+    header[148..156].copy_from_slice(format!("{sum:06o}\0 ").as_bytes());
+}
+
+/// Sets the size field of the header at `at` in GNU base-256 (0x80, then big-endian bytes).
+fn set_size_base256(bytes: &mut [u8], at: usize, size: u64) {
+    let field = &mut bytes[at + 124..at + 136];
+    field.fill(0);
+    field[0] = 0x80;
+    field[4..].copy_from_slice(&size.to_be_bytes());
+    fix_checksum(bytes, at);
+}
+
+/// Sets the size field of the header at `at` in octal (11 digits and a NUL: up to 8 GiB).
+fn set_size_octal(bytes: &mut [u8], at: usize, size: u64) {
+    bytes[at + 124..at + 136].copy_from_slice(format!("{size:011o}\0").as_bytes());
+    fix_checksum(bytes, at);
+}
+
+fn set_name(bytes: &mut [u8], at: usize, name: &str) {
+    let field = &mut bytes[at..at + 100];
+    field.fill(0);
+    field[..name.len()].copy_from_slice(name.as_bytes());
+    fix_checksum(bytes, at);
+}
+
+/// The header offsets of the first and last members (our writer uses no extension headers).
+fn first_and_last_header(shard: &Path) -> (usize, usize) {
+    let members = scan_shard(shard).unwrap();
+    let at = |m: &datasets::webdataset::ListedMember| m.offset as usize - 512;
+    (at(&members[0]), at(members.last().unwrap()))
+}
+
+fn edit_index(out: &Path, edit: impl FnOnce(&mut Value)) {
+    let path = out.join("train.index.json");
+    let mut index: Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
+    edit(&mut index);
+    fs::write(&path, serde_json::to_vec(&index).unwrap()).unwrap();
+}
+
+/// The error of opening the export, checked to be one line.
+fn open_error(out: &Path) -> String {
+    let e = WebDataset::open(out)
+        .err()
+        .expect("a hostile export must not open")
+        .to_string();
+    assert!(!e.contains('\n'), "one line: {e}");
+    e
+}
+
+#[test]
+fn a_member_claiming_4_tib_is_refused_at_open_naming_member_and_offset() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    let mut bytes = fs::read(shard(&out)).unwrap();
+    let (_, last) = first_and_last_header(&shard(&out));
+    set_size_base256(&mut bytes, last, 4 << 40);
+    // The file keeps its length, so the index's byte count still agrees.
+    fs::write(shard(&out), &bytes).unwrap();
+    let e = open_error(&out);
+    assert!(e.contains("train-000000.tar"), "{e}");
+    assert!(e.contains(&format!("header at byte offset {last}")), "{e}");
+    assert!(e.contains("claims 4096 GiB of data"), "{e}");
+    // The streaming listing says the same.
+    assert!(scan_shard(&shard(&out)).is_err());
+
+    // 8 GiB less a byte in the ordinary octal field: the same refusal.
+    set_size_octal(&mut bytes, last, (8 << 30) - 1);
+    fs::write(shard(&out), &bytes).unwrap();
+    let e = open_error(&out);
+    assert!(e.contains("claims 8589934591 bytes of data"), "{e}");
+}
+
+#[test]
+fn a_member_running_past_the_end_is_refused_even_when_the_index_agrees() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    let bytes = fs::read(shard(&out)).unwrap();
+    let members = scan_shard(&shard(&out)).unwrap();
+    let last = members.last().unwrap();
+    // Cut inside the last member's data and make the index agree with the cut.
+    let cut = (last.offset + last.size / 2) as usize;
+    fs::write(shard(&out), &bytes[..cut]).unwrap();
+    edit_index(&out, |i| i["shards"][0]["bytes"] = (cut as u64).into());
+    let e = open_error(&out);
+    assert!(e.contains("the shard holds"), "{e}");
+}
+
+#[test]
+fn an_index_naming_a_file_outside_its_folder_is_refused_without_reading_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    // A valid shard beside the export, and a text file of "secrets": neither may be read.
+    fs::copy(shard(&out), dir.path().join("outside.tar")).unwrap();
+    let secret = dir.path().join("secret.txt");
+    fs::write(&secret, "root:x:0:0:root:/root:/bin/bash\n").unwrap();
+    let secret_abs = secret.to_str().unwrap().to_string();
+    for name in [
+        "/etc/passwd".to_string(),
+        secret_abs.clone(),
+        "../outside.tar".to_string(),
+        "..".to_string(),
+        "sub/../../outside.tar".to_string(),
+    ] {
+        let bytes = fs::metadata(dir.path().join("outside.tar")).unwrap().len();
+        edit_index(&out, |i| {
+            i["shards"][0]["name"] = name.clone().into();
+            i["shards"][0]["bytes"] = bytes.into();
+        });
+        let e = open_error(&out);
+        assert!(e.contains("train.index.json"), "{name}: {e}");
+        assert!(e.contains("only name files in its own folder"), "{name}: {e}");
+        assert!(!e.contains("root:x"), "{name}: {e}");
+    }
+}
+
+#[test]
+fn shard_files_that_are_links_out_of_the_folder_or_pipes_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    let moved = dir.path().join("elsewhere.tar");
+    fs::rename(shard(&out), &moved).unwrap();
+    std::os::unix::fs::symlink(&moved, shard(&out)).unwrap();
+    let e = open_error(&out);
+    assert!(e.contains("symbolic link to a file outside"), "{e}");
+
+    // A link that stays inside the folder is followed.
+    fs::remove_file(shard(&out)).unwrap();
+    fs::rename(&moved, out.join("real.tar")).unwrap();
+    std::os::unix::fs::symlink("real.tar", shard(&out)).unwrap();
+    assert_eq!(WebDataset::open(&out).unwrap().len(), IDS);
+
+    // A named pipe would block a reader for ever: refused without opening it for data.
+    fs::remove_file(shard(&out)).unwrap();
+    let status = std::process::Command::new("mkfifo")
+        .arg(shard(&out))
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let e = open_error(&out);
+    assert!(e.contains("not a regular file"), "{e}");
+}
+
+#[test]
+fn member_names_climbing_out_of_a_folder_are_refused_naming_member_and_shard() {
+    for (name, why) in [
+        ("../../../0000000.left.png", "`..` component"),
+        ("/tmp/0000000.left.png", "is absolute"),
+        ("tree/\u{1b}[2J0000000.left.png", "control character"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = export(dir.path());
+        let mut bytes = fs::read(shard(&out)).unwrap();
+        let (first, _) = first_and_last_header(&shard(&out));
+        set_name(&mut bytes, first, name);
+        fs::write(shard(&out), &bytes).unwrap();
+        let e = open_error(&out);
+        assert!(e.contains("train-000000.tar"), "{e}");
+        assert!(e.contains(why), "{name:?}: {e}");
+        assert!(e.contains(&format!("header at byte offset {first}")), "{e}");
+        // The control character is shown escaped, never sent to the terminal.
+        assert!(!e.contains('\u{1b}'), "{e}");
+    }
+}
+
+#[test]
+fn a_file_that_is_not_tar_is_named_without_quoting_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    let mut bytes = fs::read(shard(&out)).unwrap();
+    let (first, _) = first_and_last_header(&shard(&out));
+    // Text where the size digits are: the `tar` crate's own message would quote it.
+    bytes[first + 124..first + 136].copy_from_slice(b"root:x:0:0:r");
+    fix_checksum(&mut bytes, first);
+    fs::write(shard(&out), &bytes).unwrap();
+    let e = open_error(&out);
+    assert!(e.contains("not a readable tar shard"), "{e}");
+    assert!(!e.contains("root:x"), "{e}");
+
+    // A shard that is wholly text, its size in the index.
+    let text = b"root:x:0:0:root:/root:/bin/bash\n".repeat(40);
+    fs::write(shard(&out), &text).unwrap();
+    edit_index(&out, |i| i["shards"][0]["bytes"] = text.len().into());
+    let e = open_error(&out);
+    assert!(!e.contains("root:x"), "{e}");
+}
+
+#[test]
+fn non_file_members_and_unreadable_indexes_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    let mut bytes = fs::read(shard(&out)).unwrap();
+    let (first, _) = first_and_last_header(&shard(&out));
+    bytes[first + 156] = b'2'; // a symbolic link
+    fix_checksum(&mut bytes, first);
+    fs::write(shard(&out), &bytes).unwrap();
+    let e = open_error(&out);
+    assert!(e.contains("not a regular file"), "{e}");
+
+    fs::write(out.join("train.index.json"), "root:x:0:0:root").unwrap();
+    let e = open_error(&out);
+    assert!(e.contains("unreadable index") && !e.contains("root"), "{e}");
+    // The index parser on its own says the same.
+    assert!(ShardIndex::parse(b"{", Path::new("i.json")).is_err());
+}
