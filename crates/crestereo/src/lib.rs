@@ -52,7 +52,6 @@ pub mod threads;
 pub mod update;
 pub mod upsample;
 pub mod weights;
-pub mod weights_pth;
 
 pub use attention::{
     LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig,

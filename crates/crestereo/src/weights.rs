@@ -70,6 +70,10 @@ pub fn load_pytorch<B: Backend>(
     if !path.exists() {
         bail!("weights file {} does not exist", path.display());
     }
+    // Burn's reader takes the file on trust (a deflated record may expand without end, a size
+    // field or a shape may ask for terabytes, the pickle may name any class): it only sees files
+    // that passed the state dict check.
+    stereo_io::pth::check_state_dict(path)?;
     let mut store = PytorchStore::from_file(path)
         .map_indices_contiguous(false)
         .allow_partial(true)
@@ -225,13 +229,9 @@ pub fn reference_key(burn_path: &str) -> String {
     out.join(".")
 }
 
-/// A named float tensor in the reference layout (Linear weights as (out, in)).
-#[derive(Debug, Clone)]
-pub struct NamedArray {
-    pub name: String,
-    pub shape: Vec<usize>,
-    pub data: Vec<f32>,
-}
+/// A named float tensor in the reference layout (Linear weights as (out, in)); the PyTorch
+/// state dict writer ([`stereo_io::pth::write_state_dict`]) takes these.
+pub use stereo_io::pth::NamedArray;
 
 fn tensor_to_reference_layout<B: Backend, const D: usize>(
     t: Tensor<B, D>,

@@ -65,9 +65,7 @@ pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<DynamicImage> {
         return Err(image_err(path, "unknown image format (not PNG or JPEG)"));
     }
     reader.limits(crate::limits::image_limits());
-    let (width, height) = reader
-        .into_dimensions()
-        .map_err(|e| image_err(path, e))?;
+    let (width, height) = reader.into_dimensions().map_err(|e| image_err(path, e))?;
     crate::limits::check_image_size(path, width.into(), height.into())?;
     let mut reader = ImageReader::with_format(Cursor::new(bytes), ImageFormat::Png);
     reader.limits(crate::limits::image_limits());

@@ -25,6 +25,7 @@ pub mod npy;
 pub mod pfm;
 pub mod pixel_coords;
 pub mod png_disp;
+pub mod pth;
 
 pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomically};
 pub use datasets::export::{ExportOptions, export_dataset};

@@ -116,7 +116,10 @@ pub fn read_to_end_capped(reader: impl Read, path: &Path, max: u64, what: &str) 
 /// Devices, pipes and folders are refused before they are opened (a FIFO would block, a device
 /// never end).
 pub fn read_file_capped(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
-    if !std::fs::metadata(path).map_err(|e| Error::io(path, e))?.is_file() {
+    if !std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .is_file()
+    {
         return Err(Error::format(
             path,
             format!("{what} that is not a regular file (a folder, device or pipe): not read"),
@@ -211,7 +214,9 @@ pub fn open_inside(root: &Path, name: &str) -> Result<(std::fs::File, u64)> {
     if let Some(problem) = plain_file_name_problem(name) {
         return Err(Error::format(
             root,
-            format!("the file name {name:?} {problem}: only plain file names inside this folder are read"),
+            format!(
+                "the file name {name:?} {problem}: only plain file names inside this folder are read"
+            ),
         ));
     }
     let link = std::fs::symlink_metadata(&path).map_err(|e| Error::io(&path, e))?;
@@ -234,7 +239,10 @@ pub fn open_inside(root: &Path, name: &str) -> Result<(std::fs::File, u64)> {
         )
     };
     // Checked before opening too: opening a FIFO for reading blocks until a writer comes.
-    if !std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?.is_file() {
+    if !std::fs::metadata(&path)
+        .map_err(|e| Error::io(&path, e))?
+        .is_file()
+    {
         return Err(not_file());
     }
     let file = std::fs::File::open(&path).map_err(|e| Error::io(&path, e))?;
@@ -255,10 +263,22 @@ mod tests {
             assert!(plain_file_name_problem(bad).is_some(), "{bad:?}");
         }
         assert_eq!(plain_file_name_problem("train-000000.tar"), None);
-        for bad in ["", "/etc/passwd", "../x", "a/../../b", "a//b", "./a", "a\u{1b}[2J", "a\\b"] {
+        for bad in [
+            "",
+            "/etc/passwd",
+            "../x",
+            "a/../../b",
+            "a//b",
+            "./a",
+            "a\u{1b}[2J",
+            "a\\b",
+        ] {
             assert!(relative_path_problem(bad).is_some(), "{bad:?}");
         }
-        assert_eq!(relative_path_problem("shards/0000-of-0002/tree/0000001_left.png"), None);
+        assert_eq!(
+            relative_path_problem("shards/0000-of-0002/tree/0000001_left.png"),
+            None
+        );
         assert_eq!(relative_path_problem("tree/0000003"), None);
     }
 

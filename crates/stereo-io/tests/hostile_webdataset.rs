@@ -147,7 +147,10 @@ fn an_index_naming_a_file_outside_its_folder_is_refused_without_reading_it() {
         });
         let e = open_error(&out);
         assert!(e.contains("train.index.json"), "{name}: {e}");
-        assert!(e.contains("only name files in its own folder"), "{name}: {e}");
+        assert!(
+            e.contains("only name files in its own folder"),
+            "{name}: {e}"
+        );
         assert!(!e.contains("root:x"), "{name}: {e}");
     }
 }

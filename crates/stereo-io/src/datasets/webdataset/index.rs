@@ -34,9 +34,8 @@ impl ShardIndex {
     /// Parses an index's bytes (`path` names them in errors, which never quote them) and checks
     /// its format, version and shard names.
     pub fn parse(bytes: &[u8], path: &Path) -> Result<Self> {
-        let index: ShardIndex = serde_json::from_slice(bytes).map_err(|e| {
-            Error::format(path, format!("unreadable index: {}", json_problem(&e)))
-        })?;
+        let index: ShardIndex = serde_json::from_slice(bytes)
+            .map_err(|e| Error::format(path, format!("unreadable index: {}", json_problem(&e))))?;
         if index.format != INDEX_FORMAT || index.version != INDEX_VERSION {
             let format = if index.format == INDEX_FORMAT {
                 "this format"
@@ -79,7 +78,12 @@ mod tests {
     fn index(names: &[&str]) -> Vec<u8> {
         let shards: Vec<String> = names
             .iter()
-            .map(|n| format!(r#"{{"name":{},"samples":1,"bytes":10}}"#, serde_json::to_string(n).unwrap()))
+            .map(|n| {
+                format!(
+                    r#"{{"name":{},"samples":1,"bytes":10}}"#,
+                    serde_json::to_string(n).unwrap()
+                )
+            })
             .collect();
         format!(
             r#"{{"format":"{INDEX_FORMAT}","version":{INDEX_VERSION},"split":"train","samples":1,"shards":[{}]}}"#,
@@ -99,8 +103,13 @@ mod tests {
             ("", "empty"),
             ("a\0b", "control"),
         ] {
-            let e = ShardIndex::parse(&index(&[bad]), p).unwrap_err().to_string();
-            assert!(e.contains(why) && e.contains("train.index.json"), "{bad:?}: {e}");
+            let e = ShardIndex::parse(&index(&[bad]), p)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(why) && e.contains("train.index.json"),
+                "{bad:?}: {e}"
+            );
         }
         let e = ShardIndex::parse(&index(&["a.tar", "a.tar"]), p).unwrap_err();
         assert!(e.to_string().contains("repeats"), "{e}");

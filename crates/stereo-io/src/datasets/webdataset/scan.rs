@@ -49,7 +49,9 @@ pub fn scan_tar<R: Read + Seek>(reader: R, len: u64, path: &Path) -> Result<Vec<
         } else {
             Error::format(
                 path,
-                format!("not a readable tar shard: the header at byte offset {at} or an extension header after it is damaged"),
+                format!(
+                    "not a readable tar shard: the header at byte offset {at} or an extension header after it is damaged"
+                ),
             )
         }
     };
