@@ -244,3 +244,21 @@ fn non_file_members_and_unreadable_indexes_are_refused() {
     // The index parser on its own says the same.
     assert!(ShardIndex::parse(b"{", Path::new("i.json")).is_err());
 }
+
+/// Found by the `tar_shard` fuzzer: a sample holding `left.png` twice was read with its first
+/// copy twice by seeking and with both copies by streaming.
+#[test]
+fn a_sample_repeating_a_member_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    let mut bytes = fs::read(shard(&out)).unwrap();
+    let members = scan_shard(&shard(&out)).unwrap();
+    let (first, second) = (&members[0], &members[1]);
+    assert_eq!(first.key, second.key);
+    let name = format!("{}.{}", first.key, first.suffix);
+    set_name(&mut bytes, second.offset as usize - 512, &name);
+    fs::write(shard(&out), &bytes).unwrap();
+    let e = open_error(&out);
+    assert!(e.contains("repeats a member of its sample"), "{e}");
+    assert!(e.contains(&format!("{name:?}")), "{e}");
+}

@@ -31,10 +31,14 @@ use serde::{Deserialize, Serialize};
 pub use farm::{
     ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
 };
-pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
+pub use manifest::{
+    DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest,
+    read_manifest_from,
+};
 pub use sidecar::{
     FailureRecord, SIDECAR_RECORD_VERSION, SidecarContents, SidecarRecord, SkippedAssetRecord,
-    append_sidecar, read_failures, read_sidecar, read_skipped_assets, retain_sidecar,
+    append_sidecar, read_failures, read_sidecar, read_sidecar_from, read_skipped_assets,
+    retain_sidecar,
 };
 
 use super::{DispKind, SampleFiles, SampleMeta};

@@ -145,7 +145,7 @@ impl WebDataset {
                 }
                 let before = out.samples.len();
                 let members = scan_tar(BufReader::new(file), size, &path)?;
-                out.add_shard(path.clone(), members);
+                out.add_shard(path.clone(), members)?;
                 let found = out.samples.len() - before;
                 if found != shard.samples {
                     return Err(Error::format(
@@ -167,10 +167,10 @@ impl WebDataset {
     }
 
     /// Adds the samples of a shard listed by [`scan_tar`]: a sample is a run of members with
-    /// the same key.
-    fn add_shard(&mut self, path: PathBuf, members: Vec<ListedMember>) {
+    /// the same key, each suffix once (a second `left.png` would be read by some loaders and
+    /// passed over by others).
+    fn add_shard(&mut self, path: PathBuf, members: Vec<ListedMember>) -> Result<()> {
         let shard = self.shards.len();
-        self.shards.push(path);
         for listed in members {
             let m = Member {
                 suffix: listed.suffix,
@@ -178,7 +178,19 @@ impl WebDataset {
                 size: listed.size,
             };
             match self.samples.last_mut() {
-                Some(s) if s.shard == shard && s.key == listed.key => s.members.push(m),
+                Some(s) if s.shard == shard && s.key == listed.key => {
+                    if s.members.iter().any(|old| old.suffix == m.suffix) {
+                        return Err(Error::format(
+                            &path,
+                            format!(
+                                "member {:?} (data at byte offset {}) repeats a member of its sample",
+                                format!("{}.{}", listed.key, m.suffix),
+                                m.offset
+                            ),
+                        ));
+                    }
+                    s.members.push(m)
+                }
                 _ => self.samples.push(SampleEntry {
                     key: listed.key,
                     shard,
@@ -186,6 +198,8 @@ impl WebDataset {
                 }),
             }
         }
+        self.shards.push(path);
+        Ok(())
     }
 
     /// The shard files opened, in index order: each a plain file name inside [`Self::root`].
