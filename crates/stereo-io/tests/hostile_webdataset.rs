@@ -32,23 +32,6 @@ fn shard(out: &Path) -> PathBuf {
     out.join("train-000000.tar")
 }
 
-/// Rewrites the checksum of the tar header at `at` after a change.
-fn fix_checksum(bytes: &mut [u8], at: usize) {
-    let header = &mut bytes[at..at + 512];
-    header[148..156].fill(b' ');
-    let sum: u32 = header.iter().map(|&b| u32::from(b)).sum();
-    header[148..156].copy_from_slice(format!("{sum:06o}\0 ").as_bytes());
-}
-
-/// Sets the size field of the header at `at` in GNU base-256 (0x80, then big-endian bytes).
-fn set_size_base256(bytes: &mut [u8], at: usize, size: u64) {
-    let field = &mut bytes[at + 124..at + 136];
-    field.fill(0);
-    field[0] = 0x80;
-    field[4..].copy_from_slice(&size.to_be_bytes());
-    fix_checksum(bytes, at);
-}
-
 /// Sets the size field of the header at `at` in octal (11 digits and a NUL: up to 8 GiB).
 fn set_size_octal(bytes: &mut [u8], at: usize, size: u64) {
     bytes[at + 124..at + 136].copy_from_slice(format!("{size:011o}\0").as_bytes());

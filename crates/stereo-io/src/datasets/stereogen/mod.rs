@@ -151,8 +151,12 @@ impl DatasetLayout {
     /// Reads `dataset.json`, with the recipe as `R`.
     pub fn read_info<R: DeserializeOwned>(&self) -> Result<DatasetInfo<R>> {
         let path = self.info();
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| self.unmerged_error(&path).unwrap_or(Error::io(&path, e)))?;
+        let text = crate::limits::read_document(&path, "a dataset description").map_err(|e| {
+            match e.io_kind() {
+                Some(_) => self.unmerged_error(&path).unwrap_or(e),
+                None => e,
+            }
+        })?;
         serde_json::from_str(&text)
             .map_err(|e| Error::format(&path, format!("not a stereogen dataset description: {e}")))
     }
