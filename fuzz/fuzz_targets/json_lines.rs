@@ -27,5 +27,8 @@ libfuzzer_sys::fuzz_target!(|bytes: &[u8]| {
         }
     }
     check(read_sidecar_from::<FailureRecord>(bytes, path), "f.jsonl");
-    check(read_sidecar_from::<SkippedAssetRecord>(bytes, path), "f.jsonl");
+    check(
+        read_sidecar_from::<SkippedAssetRecord>(bytes, path),
+        "f.jsonl",
+    );
 });

@@ -29,7 +29,10 @@ libfuzzer_sys::fuzz_target!(|bytes: &[u8]| {
         return;
     };
     for m in &members {
-        assert!(m.offset + m.size <= len, "a member past the end listed: {m:?}");
+        assert!(
+            m.offset + m.size <= len,
+            "a member past the end listed: {m:?}"
+        );
         assert!(
             !m.key.starts_with('/') && !m.key.split('/').any(|c| c == ".." || c.is_empty()),
             "a key leaving its folder listed: {m:?}"
@@ -48,12 +51,19 @@ libfuzzer_sys::fuzz_target!(|bytes: &[u8]| {
     let Some(ds) = check(WebDataset::open(dir()), SHARD) else {
         return;
     };
-    assert_eq!(ds.len(), samples, "the export lists other samples than the scan");
+    assert_eq!(
+        ds.len(),
+        samples,
+        "the export lists other samples than the scan"
+    );
     let mut stream = ds.shard_reader(0).unwrap();
     for i in 0..ds.len() {
         let seeked = check(ds.read_raw(i), SHARD);
         let streamed = check(stream.read(&ds, i), SHARD);
-        assert_eq!(seeked, streamed, "seeking and streaming read sample {i} differently");
+        assert_eq!(
+            seeked, streamed,
+            "seeking and streaming read sample {i} differently"
+        );
         check(ds.sample(i), SHARD);
     }
 });

@@ -34,7 +34,11 @@ libfuzzer_sys::fuzz_target!(|bytes: &[u8]| {
                 && s.name != ".."
                 && !s.name.contains(['/', '\\'])
                 && !s.name.chars().any(char::is_control);
-            assert!(plain, "a shard name that is not a plain file name: {:?}", s.name);
+            assert!(
+                plain,
+                "a shard name that is not a plain file name: {:?}",
+                s.name
+            );
         }
     }
     std::fs::write(dir().join(name), bytes).unwrap();

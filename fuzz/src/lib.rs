@@ -65,8 +65,14 @@ unsafe impl GlobalAlloc for Limited {
 /// An error as the user sees it: one line that names `name` (the file it is about).
 pub fn check_error(e: &stereo_io::Error, name: &str) {
     let text = e.to_string();
-    assert!(!text.contains('\n'), "an error of more than one line: {text}");
-    assert!(text.contains(name), "an error that does not name {name}: {text}");
+    assert!(
+        !text.contains('\n'),
+        "an error of more than one line: {text}"
+    );
+    assert!(
+        text.contains(name),
+        "an error that does not name {name}: {text}"
+    );
 }
 
 /// [`check_error`] on the error of `r`, if it is one.

@@ -202,7 +202,9 @@ fn read_record(file: &Path) -> Result<(Vec<u8>, Vec<crate::weights_mpk::RecordTe
 }
 
 /// Every parameter's shape by the path a record nests it under (`item.<module path>.param`).
-fn record_parameter_shapes<B: Backend>(model: &CREStereo<B>) -> std::collections::BTreeMap<String, Vec<u64>> {
+fn record_parameter_shapes<B: Backend>(
+    model: &CREStereo<B>,
+) -> std::collections::BTreeMap<String, Vec<u64>> {
     struct V {
         path: Vec<String>,
         out: std::collections::BTreeMap<String, Vec<u64>>,

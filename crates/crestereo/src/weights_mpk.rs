@@ -124,8 +124,12 @@ impl<'a> Walk<'a> {
         Ok(match m {
             Marker::FixPos(v) => Seen::Ints(vec![v.into()]),
             Marker::U8 => Seen::Ints(vec![self.skip(1)?[0].into()]),
-            Marker::U16 => Seen::Ints(vec![u16::from_be_bytes(self.skip(2)?.try_into().unwrap()).into()]),
-            Marker::U32 => Seen::Ints(vec![u32::from_be_bytes(self.skip(4)?.try_into().unwrap()).into()]),
+            Marker::U16 => Seen::Ints(vec![
+                u16::from_be_bytes(self.skip(2)?.try_into().unwrap()).into(),
+            ]),
+            Marker::U32 => Seen::Ints(vec![
+                u32::from_be_bytes(self.skip(4)?.try_into().unwrap()).into(),
+            ]),
             Marker::U64 => Seen::Ints(vec![u64::from_be_bytes(self.skip(8)?.try_into().unwrap())]),
             Marker::Null | Marker::True | Marker::False | Marker::FixNeg(_) => Seen::Other,
             Marker::I8 | Marker::I16 | Marker::I32 | Marker::I64 => {
@@ -216,7 +220,13 @@ impl<'a> Walk<'a> {
         })
     }
 
-    fn tensor(&mut self, path: &str, bytes: usize, shape: Vec<u64>, size: u64) -> Result<(), String> {
+    fn tensor(
+        &mut self,
+        path: &str,
+        bytes: usize,
+        shape: Vec<u64>,
+        size: u64,
+    ) -> Result<(), String> {
         let need = shape
             .iter()
             .try_fold(size, |n, &d| n.checked_mul(d))
@@ -246,6 +256,10 @@ fn dtype_size(seen: Seen<'_>) -> Result<u64, String> {
         "F32" | "Flex32" | "I32" | "U32" => 4,
         "F16" | "BF16" | "I16" | "U16" => 2,
         "I8" | "U8" => 1,
-        _ => return Err(format!("a tensor of dtype {name:?}, which this network does not store")),
+        _ => {
+            return Err(format!(
+                "a tensor of dtype {name:?}, which this network does not store"
+            ));
+        }
     })
 }

@@ -93,8 +93,8 @@ fn deflated(stored: &[u8]) -> Vec<u8> {
     use std::io::{Read, Write};
     let mut from = zip::ZipArchive::new(Cursor::new(stored)).unwrap();
     let mut to = zip::ZipWriter::new(Cursor::new(Vec::new()));
-    let options = zip::write::SimpleFileOptions::DEFAULT
-        .compression_method(zip::CompressionMethod::Deflated);
+    let options =
+        zip::write::SimpleFileOptions::DEFAULT.compression_method(zip::CompressionMethod::Deflated);
     for i in 0..from.len() {
         let mut e = from.by_index(i).unwrap();
         let mut data = Vec::new();
@@ -110,7 +110,10 @@ fn seeds(target: &str) -> Vec<(String, Vec<u8>)> {
         .unwrap()
         .map(|e| {
             let p = e.unwrap().path();
-            (p.file_name().unwrap().to_string_lossy().into_owned(), fs::read(&p).unwrap())
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                fs::read(&p).unwrap(),
+            )
         })
         .collect();
     out.sort();

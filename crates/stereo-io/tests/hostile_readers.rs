@@ -28,7 +28,10 @@ fn image_bombs_are_refused_before_decoding() {
     let png = dir.path().join("bomb.png");
     write_png_claiming(&png, 30000, 30000);
     let e = error_of(read_rgb(&png), "bomb.png");
-    assert!(e.contains("30000x30000") && e.contains("refused before decoding"), "{e}");
+    assert!(
+        e.contains("30000x30000") && e.contains("refused before decoding"),
+        "{e}"
+    );
     let e = error_of(read_disparity_png16(&png, 256.0), "bomb.png");
     assert!(e.contains("30000x30000"), "{e}");
 
@@ -53,7 +56,10 @@ fn disparity_headers_asking_for_gigabytes_are_refused() {
     assert!(e.contains("outside 1..=32768"), "{e}");
     fs::write(&pfm, "PF\n20000 20000\n-1.0\n").unwrap();
     let e = error_of(read_disparity_pfm(&pfm), "big.pfm");
-    assert!(e.contains("20000x20000") && e.contains("over the readers' limits"), "{e}");
+    assert!(
+        e.contains("20000x20000") && e.contains("over the readers' limits"),
+        "{e}"
+    );
 
     // An .npy of 2^31 bytes in its header and 10 in its body.
     let npy = dir.path().join("big.npy");
@@ -72,10 +78,7 @@ fn disparity_headers_asking_for_gigabytes_are_refused() {
     let small = fs::read(&exr).unwrap();
     let side = (MAX_IMAGE_PIXELS as f64).sqrt() as i32 + 1;
     let mut bytes = small.clone();
-    let window = bytes
-        .windows(10)
-        .position(|w| w == b"dataWindow")
-        .unwrap();
+    let window = bytes.windows(10).position(|w| w == b"dataWindow").unwrap();
     // name\0 type\0 size(4) then xMin yMin xMax yMax.
     let at = window + b"dataWindow\0box2i\0".len() + 4;
     bytes[at + 8..at + 12].copy_from_slice(&(side - 1).to_le_bytes());
@@ -121,7 +124,10 @@ fn json_lines_logs_refuse_a_giant_line_and_paths_out_of_the_dataset() {
     for text in [format!("{long}\n"), long.clone()] {
         fs::write(&manifest, &text).unwrap();
         let e = error_of(read_manifest(&manifest), "manifest.jsonl");
-        assert!(e.contains("line 1 is longer than the limit of 16 MiB"), "{e}");
+        assert!(
+            e.contains("line 1 is longer than the limit of 16 MiB"),
+            "{e}"
+        );
     }
     let failures = root.join("failures.jsonl");
     fs::write(&failures, format!("{long}\n")).unwrap();
@@ -149,7 +155,10 @@ fn json_lines_logs_refuse_a_giant_line_and_paths_out_of_the_dataset() {
 fn pipes_and_folders_where_files_belong_are_refused_without_blocking() {
     let dir = tempfile::tempdir().unwrap();
     let fifo = dir.path().join("pipe.png");
-    let status = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+    let status = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
     assert!(status.success());
     for e in [
         error_of(read_rgb(&fifo), "pipe.png"),

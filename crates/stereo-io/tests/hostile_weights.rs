@@ -10,6 +10,11 @@ use std::path::{Path, PathBuf};
 
 use stereo_io::pth::{Dtype, NamedArray, check_state_dict, encode_state_dict};
 
+#[path = "support/zip_edit.rs"]
+mod zip_edit;
+
+use zip_edit::set_stated_size;
+
 fn tensor(name: &str, shape: &[usize]) -> NamedArray {
     let n: usize = shape.iter().product();
     NamedArray {
@@ -74,25 +79,6 @@ fn with_pickle(bytes: &[u8], from: &[u8], to: &[u8]) -> Vec<u8> {
         .unwrap()
         .1;
     with_entry(bytes, "archive/data.pkl", replace(&pickle, from, to), false)
-}
-
-/// Sets the uncompressed size of entry `name` in its local and central headers.
-fn set_stated_size(bytes: &mut [u8], name: &str, size: u32) {
-    let mut found = 0;
-    for at in 0..bytes.len().saturating_sub(46) {
-        let (field, name_len_at) = match &bytes[at..at + 4] {
-            [0x50, 0x4b, 0x03, 0x04] => (at + 22, at + 26),
-            [0x50, 0x4b, 0x01, 0x02] => (at + 24, at + 28),
-            _ => continue,
-        };
-        let len = u16::from_le_bytes([bytes[name_len_at], bytes[name_len_at + 1]]) as usize;
-        let name_at = if bytes[at + 2] == 3 { at + 30 } else { at + 46 };
-        if bytes.get(name_at..name_at + len) == Some(name.as_bytes()) {
-            bytes[field..field + 4].copy_from_slice(&size.to_le_bytes());
-            found += 1;
-        }
-    }
-    assert_eq!(found, 2, "local and central header of {name}");
 }
 
 /// The error of checking `bytes` as a file, checked to be one line naming the file.

@@ -16,7 +16,11 @@ fn planned_specs_pass_and_impossible_values_are_named() {
     }
     let good = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 0);
     let cases: [Case; 13] = [
-        ("id", |s| s.id = "../../../tmp/x".into(), "got \"../../../tmp/x\""),
+        (
+            "id",
+            |s| s.id = "../../../tmp/x".into(),
+            "got \"../../../tmp/x\"",
+        ),
         ("category", |s| s.category = "/etc".into(), "need letters"),
         (
             "objects[0].shape",

@@ -95,34 +95,35 @@ pub fn read_renderable_spec(path: &Path) -> anyhow::Result<SceneSpec> {
 /// for a planned spec whose assets moved.
 pub fn check_spec_files(spec: &SceneSpec) -> anyhow::Result<()> {
     use crate::assets::{meshes::MESH_EXTENSIONS, textures::TEXTURE_EXTENSIONS};
-    let check = |key: String, path: &Path, extensions: &[&str], photo: bool| -> anyhow::Result<()> {
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase);
-        if !ext.as_deref().is_some_and(|e| extensions.contains(&e)) {
-            anyhow::bail!(
-                "key `{key}` is invalid: {} is not a {} file ({})",
-                path.display(),
-                if photo { "photo" } else { "mesh" },
-                extensions.join(", ")
-            );
-        }
-        let Ok(meta) = std::fs::metadata(path) else {
-            return Ok(());
+    let check =
+        |key: String, path: &Path, extensions: &[&str], photo: bool| -> anyhow::Result<()> {
+            let ext = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_ascii_lowercase);
+            if !ext.as_deref().is_some_and(|e| extensions.contains(&e)) {
+                anyhow::bail!(
+                    "key `{key}` is invalid: {} is not a {} file ({})",
+                    path.display(),
+                    if photo { "photo" } else { "mesh" },
+                    extensions.join(", ")
+                );
+            }
+            let Ok(meta) = std::fs::metadata(path) else {
+                return Ok(());
+            };
+            if !meta.is_file() {
+                anyhow::bail!(
+                    "key `{key}` is invalid: {} is not a regular file (a folder, device or pipe)",
+                    path.display()
+                );
+            }
+            if photo && let Some((w, h)) = image_header_size(path) {
+                stereo_io::limits::check_image_size(path, w.into(), h.into())
+                    .with_context(|| format!("key `{key}` is invalid"))?;
+            }
+            Ok(())
         };
-        if !meta.is_file() {
-            anyhow::bail!(
-                "key `{key}` is invalid: {} is not a regular file (a folder, device or pipe)",
-                path.display()
-            );
-        }
-        if photo && let Some((w, h)) = image_header_size(path) {
-            stereo_io::limits::check_image_size(path, w.into(), h.into())
-                .with_context(|| format!("key `{key}` is invalid"))?;
-        }
-        Ok(())
-    };
     for (i, o) in spec.objects.iter().enumerate() {
         if let Shape::MeshFile { candidates, .. } = &o.shape {
             for (j, p) in candidates.iter().enumerate() {
@@ -130,7 +131,10 @@ pub fn check_spec_files(spec: &SceneSpec) -> anyhow::Result<()> {
                 check(key, p, MESH_EXTENSIONS, false)?;
             }
         }
-        for (m, role) in [(Some(&o.material), "material"), (leaf_material(o), "shape.leaf_material")] {
+        for (m, role) in [
+            (Some(&o.material), "material"),
+            (leaf_material(o), "shape.leaf_material"),
+        ] {
             if let Some(BaseColor::Image { path, .. }) = m.map(|m| &m.base) {
                 let key = format!("objects[{i}].{role}.base.path");
                 check(key, path, TEXTURE_EXTENSIONS, true)?;

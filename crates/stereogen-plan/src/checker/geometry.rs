@@ -29,7 +29,14 @@ pub const MAX_MESH_FILE_TRIANGLES: u64 = 100_000_000;
 /// The rows of the geometry check: counts, then each object's shape, then the scene's total.
 pub fn geometry_checks(spec: &SceneSpec) -> Vec<Check<'static>> {
     let count = |key: &'static str, n: usize, hi: u64| {
-        Check::new(key, Rule::Int { value: n as u64, lo: 0, hi })
+        Check::new(
+            key,
+            Rule::Int {
+                value: n as u64,
+                lo: 0,
+                hi,
+            },
+        )
     };
     let mut rows = vec![
         count("objects", spec.objects.len(), MAX_OBJECTS),
@@ -44,11 +51,16 @@ pub fn geometry_checks(spec: &SceneSpec) -> Vec<Check<'static>> {
             }
             Ok(t) => (
                 false,
-                format!("need at most {MAX_OBJECT_TRIANGLES:e} triangles an object, this shape makes {t:e}"),
+                format!(
+                    "need at most {MAX_OBJECT_TRIANGLES:e} triangles an object, this shape makes {t:e}"
+                ),
             ),
             Err(why) => (false, why),
         };
-        rows.push(Check::new(format!("objects[{i}].shape"), Rule::Holds { holds, need }));
+        rows.push(Check::new(
+            format!("objects[{i}].shape"),
+            Rule::Holds { holds, need },
+        ));
     }
     rows.push(Check::new(
         "objects",
@@ -94,7 +106,10 @@ fn object_triangles(o: &ObjectSpec) -> Result<f64, String> {
             major_segments,
             minor_segments,
             ..
-        } => 2.0 * count("major_segments", *major_segments)? * count("minor_segments", *minor_segments)?,
+        } => {
+            2.0 * count("major_segments", *major_segments)?
+                * count("minor_segments", *minor_segments)?
+        }
         Shape::Grid {
             x_segments,
             y_segments,
@@ -104,7 +119,10 @@ fn object_triangles(o: &ObjectSpec) -> Result<f64, String> {
             triangles,
         } => {
             let n = vertices.len();
-            if let Some(t) = triangles.iter().find(|t| t.iter().any(|&v| v as usize >= n)) {
+            if let Some(t) = triangles
+                .iter()
+                .find(|t| t.iter().any(|&v| v as usize >= n))
+            {
                 return Err(format!(
                     "a triangle {t:?} names a vertex the mesh lacks (it has {n})"
                 ));
@@ -115,7 +133,10 @@ fn object_triangles(o: &ObjectSpec) -> Result<f64, String> {
             candidates,
             max_triangles,
         } => {
-            if candidates.is_empty() || *max_triangles == 0 || *max_triangles > MAX_MESH_FILE_TRIANGLES {
+            if candidates.is_empty()
+                || *max_triangles == 0
+                || *max_triangles > MAX_MESH_FILE_TRIANGLES
+            {
                 return Err(format!(
                     "need one candidate or more and max_triangles in 1..={MAX_MESH_FILE_TRIANGLES}, got {} and {max_triangles}",
                     candidates.len()

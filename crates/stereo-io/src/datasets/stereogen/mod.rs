@@ -32,8 +32,7 @@ pub use farm::{
     ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
 };
 pub use manifest::{
-    DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest,
-    read_manifest_from,
+    DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest, read_manifest_from,
 };
 pub use sidecar::{
     FailureRecord, SIDECAR_RECORD_VERSION, SidecarContents, SidecarRecord, SkippedAssetRecord,
@@ -151,12 +150,13 @@ impl DatasetLayout {
     /// Reads `dataset.json`, with the recipe as `R`.
     pub fn read_info<R: DeserializeOwned>(&self) -> Result<DatasetInfo<R>> {
         let path = self.info();
-        let text = crate::limits::read_document(&path, "a dataset description").map_err(|e| {
-            match e.io_kind() {
-                Some(_) => self.unmerged_error(&path).unwrap_or(e),
-                None => e,
-            }
-        })?;
+        let text =
+            crate::limits::read_document(&path, "a dataset description").map_err(|e| {
+                match e.io_kind() {
+                    Some(_) => self.unmerged_error(&path).unwrap_or(e),
+                    None => e,
+                }
+            })?;
         serde_json::from_str(&text)
             .map_err(|e| Error::format(&path, format!("not a stereogen dataset description: {e}")))
     }
