@@ -201,33 +201,19 @@ fn read_record(file: &Path) -> Result<(Vec<u8>, Vec<crate::weights_mpk::RecordTe
     Ok((bytes, tensors))
 }
 
-/// Every parameter's shape by the path a record nests it under (`item.<module path>.param`).
+/// Every parameter's shape by the path a record nests it under (`item.<module path>.param`),
+/// from Burn's own listing of the module's tensors (no data is read).
 fn record_parameter_shapes<B: Backend>(
     model: &CREStereo<B>,
 ) -> std::collections::BTreeMap<String, Vec<u64>> {
-    struct V {
-        path: Vec<String>,
-        out: std::collections::BTreeMap<String, Vec<u64>>,
-    }
-    impl<B: Backend> burn::module::ModuleVisitor<B> for V {
-        fn enter_module(&mut self, name: &str, _c: &str) {
-            self.path.push(name.to_string());
-        }
-        fn exit_module(&mut self, _name: &str, _c: &str) {
-            self.path.pop();
-        }
-        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<B, D>>) {
-            let shape = param.shape().iter().map(|&d| d as u64).collect();
-            self.out
-                .insert(format!("item.{}.param", self.path.join(".")), shape);
-        }
-    }
-    let mut v = V {
-        path: Vec::new(),
-        out: Default::default(),
-    };
-    model.visit(&mut v);
-    v.out
+    model
+        .collect(None, None, false)
+        .into_iter()
+        .map(|t| {
+            let shape = t.shape.iter().map(|&d| d as u64).collect();
+            (format!("item.{}.param", t.full_path()), shape)
+        })
+        .collect()
 }
 
 /// Saves the model as a Burn named-MessagePack record (full precision) at [`record_file`]`(path)`.

@@ -71,13 +71,18 @@ pub fn image_size_problem(width: u64, height: u64) -> Option<String> {
 /// Refuses a buffer of `bytes` that a file asks for (`what`: "a tar member", "a tensor") above
 /// [`MAX_ALLOC`].
 pub fn check_alloc(path: &Path, what: &str, bytes: u64) -> Result<()> {
-    if bytes > MAX_ALLOC {
+    check_length(path, what, bytes, MAX_ALLOC)
+}
+
+/// Refuses `what` of `bytes` above `limit` (one of the limits above), saying both.
+pub fn check_length(path: &Path, what: &str, bytes: u64, limit: u64) -> Result<()> {
+    if bytes > limit {
         return Err(Error::format(
             path,
             format!(
-                "{what} of {} is over the readers' limit of {} for one buffer",
+                "{what} of {} is over the readers' limit of {}",
                 bytes_text(bytes),
-                bytes_text(MAX_ALLOC)
+                bytes_text(limit)
             ),
         ));
     }
@@ -127,16 +132,7 @@ pub fn read_file_capped(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
     }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-    if len > max {
-        return Err(Error::format(
-            path,
-            format!(
-                "{what} of {} is over the limit of {}",
-                bytes_text(len),
-                bytes_text(max)
-            ),
-        ));
-    }
+    check_length(path, what, len, max)?;
     read_to_end_capped(file, path, max, what)
 }
 
@@ -293,7 +289,10 @@ mod tests {
         assert!(check_image_size(p, 0, 5).is_err());
         assert!(check_alloc(p, "a member", MAX_ALLOC).is_ok());
         let e = check_alloc(p, "a member", 4 << 40).unwrap_err().to_string();
-        assert!(e.contains("4096 GiB") && e.contains("1 GiB"), "{e}");
+        assert!(
+            e.contains("4096 GiB") && e.contains("limit of 1 GiB"),
+            "{e}"
+        );
         assert_eq!(bytes_text(16 << 20), "16 MiB");
         assert_eq!(bytes_text(1000), "1000 bytes");
     }

@@ -45,11 +45,29 @@ fn set_name(bytes: &mut [u8], at: usize, name: &str) {
     fix_checksum(bytes, at);
 }
 
-/// The header offsets of the first and last members (our writer uses no extension headers).
-fn first_and_last_header(shard: &Path) -> (usize, usize) {
-    let members = scan_shard(shard).unwrap();
+/// An export to change by hand: its folder, its shard's bytes and the header offsets of the
+/// shard's first and last members (our writer uses no extension headers).
+struct Exported {
+    _dir: tempfile::TempDir,
+    out: PathBuf,
+    bytes: Vec<u8>,
+    first: usize,
+    last: usize,
+}
+
+fn exported() -> Exported {
+    let dir = tempfile::tempdir().unwrap();
+    let out = export(dir.path());
+    let members = scan_shard(&shard(&out)).unwrap();
     let at = |m: &datasets::webdataset::ListedMember| m.offset as usize - 512;
-    (at(&members[0]), at(members.last().unwrap()))
+    let (first, last) = (at(&members[0]), at(members.last().unwrap()));
+    Exported {
+        bytes: fs::read(shard(&out)).unwrap(),
+        _dir: dir,
+        out,
+        first,
+        last,
+    }
 }
 
 fn edit_index(out: &Path, edit: impl FnOnce(&mut Value)) {
@@ -71,10 +89,13 @@ fn open_error(out: &Path) -> String {
 
 #[test]
 fn a_member_claiming_4_tib_is_refused_at_open_naming_member_and_offset() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = export(dir.path());
-    let mut bytes = fs::read(shard(&out)).unwrap();
-    let (_, last) = first_and_last_header(&shard(&out));
+    let Exported {
+        _dir,
+        out,
+        mut bytes,
+        last,
+        ..
+    } = exported();
     set_size_base256(&mut bytes, last, 4 << 40);
     // The file keeps its length, so the index's byte count still agrees.
     fs::write(shard(&out), &bytes).unwrap();
@@ -172,10 +193,13 @@ fn member_names_climbing_out_of_a_folder_are_refused_naming_member_and_shard() {
         ("/tmp/0000000.left.png", "is absolute"),
         ("tree/\u{1b}[2J0000000.left.png", "control character"),
     ] {
-        let dir = tempfile::tempdir().unwrap();
-        let out = export(dir.path());
-        let mut bytes = fs::read(shard(&out)).unwrap();
-        let (first, _) = first_and_last_header(&shard(&out));
+        let Exported {
+            _dir,
+            out,
+            mut bytes,
+            first,
+            ..
+        } = exported();
         set_name(&mut bytes, first, name);
         fs::write(shard(&out), &bytes).unwrap();
         let e = open_error(&out);
@@ -189,10 +213,13 @@ fn member_names_climbing_out_of_a_folder_are_refused_naming_member_and_shard() {
 
 #[test]
 fn a_file_that_is_not_tar_is_named_without_quoting_it() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = export(dir.path());
-    let mut bytes = fs::read(shard(&out)).unwrap();
-    let (first, _) = first_and_last_header(&shard(&out));
+    let Exported {
+        _dir,
+        out,
+        mut bytes,
+        first,
+        ..
+    } = exported();
     // Text where the size digits are: the `tar` crate's own message would quote it.
     bytes[first + 124..first + 136].copy_from_slice(b"root:x:0:0:r");
     fix_checksum(&mut bytes, first);
@@ -211,10 +238,13 @@ fn a_file_that_is_not_tar_is_named_without_quoting_it() {
 
 #[test]
 fn non_file_members_and_unreadable_indexes_are_refused() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = export(dir.path());
-    let mut bytes = fs::read(shard(&out)).unwrap();
-    let (first, _) = first_and_last_header(&shard(&out));
+    let Exported {
+        _dir,
+        out,
+        mut bytes,
+        first,
+        ..
+    } = exported();
     bytes[first + 156] = b'2'; // a symbolic link
     fix_checksum(&mut bytes, first);
     fs::write(shard(&out), &bytes).unwrap();

@@ -7,7 +7,7 @@ use std::path::Path;
 use super::{INDEX_FORMAT, INDEX_SUFFIX, INDEX_VERSION, ShardIndex};
 use crate::error::{Error, Result, json_problem};
 use crate::limits::{
-    MAX_DOCUMENT_BYTES, bytes_text, open_inside, plain_file_name_problem, read_to_end_capped,
+    MAX_DOCUMENT_BYTES, check_length, open_inside, plain_file_name_problem, read_to_end_capped,
 };
 
 impl ShardIndex {
@@ -17,16 +17,7 @@ impl ShardIndex {
         let name = format!("{split}{INDEX_SUFFIX}");
         let path = root.join(&name);
         let (file, len) = open_inside(root, &name)?;
-        if len > MAX_DOCUMENT_BYTES {
-            return Err(Error::format(
-                &path,
-                format!(
-                    "an index of {} is over the limit of {}",
-                    bytes_text(len),
-                    bytes_text(MAX_DOCUMENT_BYTES)
-                ),
-            ));
-        }
+        check_length(&path, "an index", len, MAX_DOCUMENT_BYTES)?;
         let bytes = read_to_end_capped(file, &path, MAX_DOCUMENT_BYTES, "the index")?;
         Self::parse(&bytes, &path)
     }
