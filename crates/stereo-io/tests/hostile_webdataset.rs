@@ -70,6 +70,16 @@ fn exported() -> Exported {
     }
 }
 
+impl Exported {
+    /// Writes the shard with `edit` applied to its bytes (given the first and last header
+    /// offsets) and returns the error of opening the export.
+    fn refused_after(&mut self, edit: impl FnOnce(&mut [u8], usize, usize)) -> String {
+        edit(&mut self.bytes, self.first, self.last);
+        fs::write(shard(&self.out), &self.bytes).unwrap();
+        open_error(&self.out)
+    }
+}
+
 fn edit_index(out: &Path, edit: impl FnOnce(&mut Value)) {
     let path = out.join("train.index.json");
     let mut index: Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
@@ -89,27 +99,20 @@ fn open_error(out: &Path) -> String {
 
 #[test]
 fn a_member_claiming_4_tib_is_refused_at_open_naming_member_and_offset() {
-    let Exported {
-        _dir,
-        out,
-        mut bytes,
-        last,
-        ..
-    } = exported();
-    set_size_base256(&mut bytes, last, 4 << 40);
+    let mut x = exported();
     // The file keeps its length, so the index's byte count still agrees.
-    fs::write(shard(&out), &bytes).unwrap();
-    let e = open_error(&out);
+    let e = x.refused_after(|b, _, last| set_size_base256(b, last, 4 << 40));
     assert!(e.contains("train-000000.tar"), "{e}");
-    assert!(e.contains(&format!("header at byte offset {last}")), "{e}");
+    assert!(
+        e.contains(&format!("header at byte offset {}", x.last)),
+        "{e}"
+    );
     assert!(e.contains("claims 4096 GiB of data"), "{e}");
     // The streaming listing says the same.
-    assert!(scan_shard(&shard(&out)).is_err());
+    assert!(scan_shard(&shard(&x.out)).is_err());
 
     // 8 GiB less a byte in the ordinary octal field: the same refusal.
-    set_size_octal(&mut bytes, last, (8 << 30) - 1);
-    fs::write(shard(&out), &bytes).unwrap();
-    let e = open_error(&out);
+    let e = x.refused_after(|b, _, last| set_size_octal(b, last, (8 << 30) - 1));
     assert!(e.contains("claims 8589934591 bytes of data"), "{e}");
 }
 
@@ -193,19 +196,14 @@ fn member_names_climbing_out_of_a_folder_are_refused_naming_member_and_shard() {
         ("/tmp/0000000.left.png", "is absolute"),
         ("tree/\u{1b}[2J0000000.left.png", "control character"),
     ] {
-        let Exported {
-            _dir,
-            out,
-            mut bytes,
-            first,
-            ..
-        } = exported();
-        set_name(&mut bytes, first, name);
-        fs::write(shard(&out), &bytes).unwrap();
-        let e = open_error(&out);
+        let mut x = exported();
+        let e = x.refused_after(|b, first, _| set_name(b, first, name));
         assert!(e.contains("train-000000.tar"), "{e}");
         assert!(e.contains(why), "{name:?}: {e}");
-        assert!(e.contains(&format!("header at byte offset {first}")), "{e}");
+        assert!(
+            e.contains(&format!("header at byte offset {}", x.first)),
+            "{e}"
+        );
         // The control character is shown escaped, never sent to the terminal.
         assert!(!e.contains('\u{1b}'), "{e}");
     }
@@ -213,18 +211,13 @@ fn member_names_climbing_out_of_a_folder_are_refused_naming_member_and_shard() {
 
 #[test]
 fn a_file_that_is_not_tar_is_named_without_quoting_it() {
-    let Exported {
-        _dir,
-        out,
-        mut bytes,
-        first,
-        ..
-    } = exported();
+    let mut x = exported();
     // Text where the size digits are: the `tar` crate's own message would quote it.
-    bytes[first + 124..first + 136].copy_from_slice(b"root:x:0:0:r");
-    fix_checksum(&mut bytes, first);
-    fs::write(shard(&out), &bytes).unwrap();
-    let e = open_error(&out);
+    let e = x.refused_after(|b, first, _| {
+        b[first + 124..first + 136].copy_from_slice(b"root:x:0:0:r");
+        fix_checksum(b, first);
+    });
+    let out = &x.out;
     assert!(e.contains("not a readable tar shard"), "{e}");
     assert!(!e.contains("root:x"), "{e}");
 
@@ -238,17 +231,12 @@ fn a_file_that_is_not_tar_is_named_without_quoting_it() {
 
 #[test]
 fn non_file_members_and_unreadable_indexes_are_refused() {
-    let Exported {
-        _dir,
-        out,
-        mut bytes,
-        first,
-        ..
-    } = exported();
-    bytes[first + 156] = b'2'; // a symbolic link
-    fix_checksum(&mut bytes, first);
-    fs::write(shard(&out), &bytes).unwrap();
-    let e = open_error(&out);
+    let mut x = exported();
+    let e = x.refused_after(|b, first, _| {
+        b[first + 156] = b'2'; // a symbolic link
+        fix_checksum(b, first);
+    });
+    let out = &x.out;
     assert!(e.contains("not a regular file"), "{e}");
 
     fs::write(out.join("train.index.json"), "root:x:0:0:root").unwrap();
