@@ -10,7 +10,7 @@ use std::path::Path;
 
 use anyhow::{Result, bail};
 use rmp::Marker;
-use rmp::decode::{marker_to_len, read_marker};
+use rmp::decode::read_marker;
 
 /// A tensor found in a record: its path of map keys and array indices, and its shape.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -107,11 +107,22 @@ impl<'a> Walk<'a> {
         Ok(head)
     }
 
+    /// The length a marker states: in the marker itself (the fix kinds), or in the 1, 2 or 4
+    /// big-endian bytes after it.
     fn len_of(&mut self, m: Marker) -> Result<usize, String> {
-        let at = self.at();
-        marker_to_len(&mut self.rd, m)
-            .map(|n| n as usize)
-            .map_err(|_| format!("a length at byte {at} is cut short"))
+        let width = match m {
+            Marker::FixMap(n) | Marker::FixArray(n) | Marker::FixStr(n) => return Ok(n.into()),
+            Marker::FixExt1 => return Ok(1),
+            Marker::FixExt2 => return Ok(2),
+            Marker::FixExt4 => return Ok(4),
+            Marker::FixExt8 => return Ok(8),
+            Marker::FixExt16 => return Ok(16),
+            Marker::Str8 | Marker::Bin8 | Marker::Ext8 => 1,
+            Marker::Str16 | Marker::Bin16 | Marker::Ext16 | Marker::Array16 | Marker::Map16 => 2,
+            _ => 4,
+        };
+        let bytes = self.skip(width)?;
+        Ok(bytes.iter().fold(0usize, |n, &b| n << 8 | usize::from(b)))
     }
 
     /// Reads one value; records it when it is a tensor (a map with `bytes`, `shape`, `dtype`).

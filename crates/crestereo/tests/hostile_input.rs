@@ -5,7 +5,6 @@
 
 mod common;
 
-use burn::prelude::*;
 use common::*;
 use crestereo::infer::{InferenceOptions, MAX_INPUT_SIDE, check_input_size, infer_disparity};
 use crestereo::weights::{load_pytorch, load_record, save_record};
