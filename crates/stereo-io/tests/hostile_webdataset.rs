@@ -223,9 +223,9 @@ fn a_file_that_is_not_tar_is_named_without_quoting_it() {
 
     // A shard that is wholly text, its size in the index.
     let text = b"root:x:0:0:root:/root:/bin/bash\n".repeat(40);
-    fs::write(shard(&out), &text).unwrap();
-    edit_index(&out, |i| i["shards"][0]["bytes"] = text.len().into());
-    let e = open_error(&out);
+    fs::write(shard(out), &text).unwrap();
+    edit_index(out, |i| i["shards"][0]["bytes"] = text.len().into());
+    let e = open_error(out);
     assert!(!e.contains("root:x"), "{e}");
 }
 
@@ -240,7 +240,7 @@ fn non_file_members_and_unreadable_indexes_are_refused() {
     assert!(e.contains("not a regular file"), "{e}");
 
     fs::write(out.join("train.index.json"), "root:x:0:0:root").unwrap();
-    let e = open_error(&out);
+    let e = open_error(out);
     assert!(e.contains("unreadable index") && !e.contains("root"), "{e}");
     // The index parser on its own says the same.
     assert!(ShardIndex::parse(b"{", Path::new("i.json")).is_err());

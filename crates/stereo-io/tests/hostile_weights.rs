@@ -87,8 +87,7 @@ fn refused(bytes: &[u8]) -> String {
     let path = dir.path().join("hostile.pth");
     std::fs::write(&path, bytes).unwrap();
     let e = check_state_dict(&path)
-        .err()
-        .expect("a hostile state dict must be refused")
+        .expect_err("a hostile state dict must be refused")
         .to_string();
     assert!(e.contains("hostile.pth") && !e.contains('\n'), "{e}");
     e
