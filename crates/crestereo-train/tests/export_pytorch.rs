@@ -434,7 +434,7 @@ fn bad_input_gets_one_clear_line_and_no_file() {
         shape: shape.to_vec(),
         data: vec![0.5; shape.iter().product()],
     };
-    crestereo::weights_pth::write_state_dict(&[tensor("encoder.weight", &[4, 3])], &other).unwrap();
+    stereo_io::pth::write_state_dict(&[tensor("encoder.weight", &[4, 3])], &other).unwrap();
     fails(
         &export(Some(&other), &out),
         d,
@@ -443,7 +443,7 @@ fn bad_input_gets_one_clear_line_and_no_file() {
     let mut shapes = named_parameters(&load(&weights));
     shapes[0] = tensor(&shapes[0].name.clone(), &[64, 3, 5, 5]);
     let misfit = d.join("misfit.pth");
-    crestereo::weights_pth::write_state_dict(&shapes, &misfit).unwrap();
+    stereo_io::pth::write_state_dict(&shapes, &misfit).unwrap();
     fails(
         &export(Some(&misfit), &out),
         d,

@@ -28,6 +28,27 @@ impl Default for InferenceOptions {
     }
 }
 
+/// The longest side of an image the network takes (after padding to its multiple).
+pub const MAX_INPUT_SIDE: usize = 8192;
+/// The most pixels of an image the network takes (after padding): 2^24, e.g. 4096×4096 or
+/// 5472×3072. The network's memory grows with the pixels: `crestereo infer` (two stages, CPU
+/// backend) peaked at 186 MB for 512×256 and 470 MB for 1024×512, about 0.72 KB a pixel, so this
+/// bounds one inference to about 12 GiB. The ONNX graph grows by about 11 bytes a pixel (23.7 MB
+/// at 256×512, 45.3 MB at 1024×2048), so at this limit it is about 0.2 GB, far inside protobuf's
+/// 2 GiB.
+pub const MAX_INPUT_PIXELS: usize = 1 << 24;
+
+/// Refuses, before anything is allocated for it, an image of `width` × `height` (padded) that
+/// the network does not take.
+pub fn check_input_size(width: usize, height: usize) -> Result<()> {
+    if width > MAX_INPUT_SIDE || height > MAX_INPUT_SIDE || width * height > MAX_INPUT_PIXELS {
+        bail!(
+            "an image of {width}x{height} pixels is over the network's limit ({MAX_INPUT_SIDE} px a side, {MAX_INPUT_PIXELS} pixels after padding): scale it down or crop it"
+        );
+    }
+    Ok(())
+}
+
 /// The stacked-cascade procedure on (N, 3, H, W) BGR tensors whose size is a multiple of
 /// `16 · 2^(stages−1)`. Stage `s` (of `stages`) runs on the pair resized (bilinear,
 /// align_corners) to `H / 2^(stages−1−s)`; the first stage has no initialisation, each later one
@@ -112,6 +133,7 @@ pub fn infer_disparity<B: Backend>(
     let m = 16usize << (opts.stages - 1);
     let (w, h) = (left.width, left.height);
     let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
+    check_input_size(pw, ph)?;
     let pad = |t: Tensor<B, 4>| {
         if (pw, ph) == (w, h) {
             t

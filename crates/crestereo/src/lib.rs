@@ -52,7 +52,7 @@ pub mod threads;
 pub mod update;
 pub mod upsample;
 pub mod weights;
-pub mod weights_pth;
+mod weights_mpk;
 
 pub use attention::{
     LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig,

@@ -70,6 +70,10 @@ pub fn load_pytorch<B: Backend>(
     if !path.exists() {
         bail!("weights file {} does not exist", path.display());
     }
+    // Burn's reader takes the file on trust (a deflated record may expand without end, a size
+    // field or a shape may ask for terabytes, the pickle may name any class): it only sees files
+    // that passed the state dict check.
+    stereo_io::pth::check_state_dict(path)?;
     let mut store = PytorchStore::from_file(path)
         .map_indices_contiguous(false)
         .allow_partial(true)
@@ -159,20 +163,57 @@ pub fn load_any_record<B: Backend, R: burn::record::Record<B>>(
     path: impl AsRef<Path>,
     device: &B::Device,
 ) -> Result<R> {
-    let path = path.as_ref();
-    let file = if path.is_file() {
+    let file = record_path(path.as_ref());
+    let (bytes, _) = read_record(&file)?;
+    decode_record(bytes, &file, device)
+}
+
+/// `path` itself when it is a file, else [`record_file`]`(path)`.
+fn record_path(path: &Path) -> PathBuf {
+    if path.is_file() {
         path.to_path_buf()
     } else {
         record_file(path)
-    };
-    let bytes =
-        std::fs::read(&file).with_context(|| format!("cannot read weights {}", file.display()))?;
+    }
+}
+
+fn decode_record<B: Backend, R: burn::record::Record<B>>(
+    bytes: Vec<u8>,
+    file: &Path,
+    device: &B::Device,
+) -> Result<R> {
     Recorder::<B>::load(&recorder(), bytes, device).map_err(|e| {
         anyhow::anyhow!(
             "{} is not a Burn record (.mpk) of this network, nor PyTorch weights (.pt/.pth): {e}",
             file.display()
         )
     })
+}
+
+/// The bytes of the record file at `file`, within the limits policy's one buffer, and its
+/// tensors, each checked to hold exactly its shape's bytes ([`crate::weights_mpk`]): Burn would
+/// end the process in an assertion on one that does not.
+fn read_record(file: &Path) -> Result<(Vec<u8>, Vec<crate::weights_mpk::RecordTensor>)> {
+    let limit = stereo_io::limits::MAX_ALLOC;
+    let bytes = stereo_io::limits::read_file_capped(file, limit, "a Burn record")
+        .with_context(|| format!("cannot read weights {}", file.display()))?;
+    let tensors = crate::weights_mpk::record_tensors(&bytes, file)?;
+    Ok((bytes, tensors))
+}
+
+/// Every parameter's shape by the path a record nests it under (`item.<module path>.param`),
+/// from Burn's own listing of the module's tensors (no data is read).
+fn record_parameter_shapes<B: Backend>(
+    model: &CREStereo<B>,
+) -> std::collections::BTreeMap<String, Vec<u64>> {
+    model
+        .collect(None, None, false)
+        .into_iter()
+        .map(|t| {
+            let shape = t.shape.iter().map(|&d| d as u64).collect();
+            (format!("item.{}.param", t.full_path()), shape)
+        })
+        .collect()
 }
 
 /// Saves the model as a Burn named-MessagePack record (full precision) at [`record_file`]`(path)`.
@@ -186,8 +227,12 @@ pub fn load_record<B: Backend>(
     path: impl AsRef<Path>,
     device: &B::Device,
 ) -> Result<CREStereo<B>> {
-    let record = load_any_record::<B, _>(path, device)?;
-    Ok(model.load_record(record))
+    let file = record_path(path.as_ref());
+    let (bytes, tensors) = read_record(&file)?;
+    // Each tensor at a parameter of this network with its shape: Burn would load one of another
+    // shape and fail later, inside the forward pass.
+    crate::weights_mpk::check_against(&tensors, &record_parameter_shapes(&model), &file)?;
+    Ok(model.load_record(decode_record(bytes, &file, device)?))
 }
 
 /// The reference (PyTorch) key of a Burn parameter path (inverse of the import remapping).
@@ -225,13 +270,9 @@ pub fn reference_key(burn_path: &str) -> String {
     out.join(".")
 }
 
-/// A named float tensor in the reference layout (Linear weights as (out, in)).
-#[derive(Debug, Clone)]
-pub struct NamedArray {
-    pub name: String,
-    pub shape: Vec<usize>,
-    pub data: Vec<f32>,
-}
+/// A named float tensor in the reference layout (Linear weights as (out, in)); the PyTorch
+/// state dict writer ([`stereo_io::pth::write_state_dict`]) takes these.
+pub use stereo_io::pth::NamedArray;
 
 fn tensor_to_reference_layout<B: Backend, const D: usize>(
     t: Tensor<B, D>,

@@ -42,3 +42,31 @@ impl Error {
         }
     }
 }
+
+/// What is wrong with a JSON document, where, without quoting it: `serde_json`'s messages for a
+/// value of the wrong type quote the value, and a file that is not what it claims to be (a
+/// shard index that is really some other file) must not have its bytes echoed. Syntax errors
+/// and missing fields name only the grammar and our own field names, so they are kept.
+pub fn json_problem(e: &serde_json::Error) -> String {
+    use serde_json::error::Category;
+    let at = format!("line {} column {}", e.line(), e.column());
+    match e.classify() {
+        Category::Io => format!("read error at {at}"),
+        Category::Eof => format!("ends too early, at {at}"),
+        Category::Syntax => {
+            let text = e.to_string();
+            let what = text.split(" at line ").next().unwrap_or("syntax error");
+            format!("not JSON: {what} at {at}")
+        }
+        Category::Data => {
+            let text = e.to_string();
+            match text.strip_prefix("missing field ") {
+                Some(rest) => format!(
+                    "missing field {}",
+                    rest.split(" at line ").next().unwrap_or(rest)
+                ),
+                None => format!("a value of the wrong type or out of range at {at}"),
+            }
+        }
+    }
+}

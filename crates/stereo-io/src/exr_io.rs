@@ -8,6 +8,7 @@ use exr::prelude::*;
 
 use crate::disparity::{DisparityMap, DisparityMeta};
 use crate::error::{Error, Result as IoResult};
+use crate::limits::{MAX_ALLOC, check_image_size, read_file_capped};
 
 const DISPARITY_CHANNEL: &str = "Y";
 const VALID_CHANNEL: &str = "valid";
@@ -135,32 +136,33 @@ fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
 }
 
 fn read_flat(path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = read_file_capped(path, MAX_ALLOC, "an EXR file")?;
     decode_flat(&bytes, path)
 }
 
-/// Refuses headers whose pixels would need far more memory than the file could hold: ZIP, the
-/// best-compressing EXR codec, stays near 1:1000, so a small file claiming gigapixels is corrupt
-/// and must not make the decoder allocate (and abort the process).
+/// Refuses headers whose pixels the limits policy ([`crate::limits`]) does not allow, or that
+/// would need far more memory than the file could hold: ZIP, the best-compressing EXR codec,
+/// stays near 1:1000, so a small file claiming gigapixels is corrupt and must not make the
+/// decoder allocate (and abort the process).
 fn check_decoded_size(bytes: &[u8], path: &Path) -> IoResult<()> {
     let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
         .map_err(|e| exr_err(path, e))?;
-    let budget = (bytes.len() as u128 * 4096 + (1 << 20)).min(1 << 33);
+    let budget = (bytes.len() as u128 * 4096 + (1 << 20)).min(u128::from(MAX_ALLOC));
     for header in &meta.headers {
+        let (width, height) = (header.layer_size.x(), header.layer_size.y());
+        check_image_size(path, width as u64, height as u64)?;
         let per_pixel: u128 = header
             .channels
             .list
             .iter()
             .map(|c| c.sample_type.bytes_per_sample() as u128)
             .sum();
-        let need = header.layer_size.x() as u128 * header.layer_size.y() as u128 * per_pixel;
+        let need = width as u128 * height as u128 * per_pixel;
         if need > budget {
             return Err(exr_err(
                 path,
                 format!(
-                    "header claims {}x{} pixels ({need} bytes decoded) from a {}-byte file: corrupt or truncated",
-                    header.layer_size.x(),
-                    header.layer_size.y(),
+                    "header claims {width}x{height} pixels ({need} bytes decoded) from a {}-byte file: corrupt or truncated",
                     bytes.len()
                 ),
             ));
@@ -202,7 +204,7 @@ fn attr_f64(layer: &Layer<AnyChannels<FlatSamples>>, name: &str) -> Option<f64> 
 /// Reads a disparity EXR written by [`write_disparity_exr`], or any single-channel float EXR
 /// (then every finite positive pixel counts as valid).
 pub fn read_disparity_exr(path: &Path) -> IoResult<(DisparityMap, DisparityMeta)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = read_file_capped(path, MAX_ALLOC, "an EXR file")?;
     decode_disparity_exr(&bytes, path)
 }
 

@@ -40,22 +40,35 @@ pub(crate) fn image_err(path: &Path, e: impl std::fmt::Display) -> Error {
     }
 }
 
+/// The bytes of an image file, refusing one larger than any image within the limits could
+/// need ([`crate::limits::MAX_ALLOC`]) before reading it.
+pub(crate) fn read_image_file(path: &Path) -> Result<Vec<u8>> {
+    crate::limits::read_file_capped(path, crate::limits::MAX_ALLOC, "an image file")
+}
+
 /// Decodes an image file, recognising the format from its content.
 pub(crate) fn decode(path: &Path) -> Result<DynamicImage> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = read_image_file(path)?;
     decode_bytes(&bytes, path)
 }
 
+/// Decodes PNG or JPEG bytes within the limits policy ([`crate::limits`]): the size the header
+/// states is checked before any pixel is decoded.
 pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<DynamicImage> {
     if crate::jpeg::is_jpeg(bytes) {
         return jpeg_to_dynamic(crate::jpeg::decode_jpeg(bytes, path)?, path);
     }
-    let reader = ImageReader::new(Cursor::new(bytes))
+    let mut reader = ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| image_err(path, e))?;
-    if reader.format().is_none() {
+    if reader.format() != Some(ImageFormat::Png) {
         return Err(image_err(path, "unknown image format (not PNG or JPEG)"));
     }
+    reader.limits(crate::limits::image_limits());
+    let (width, height) = reader.into_dimensions().map_err(|e| image_err(path, e))?;
+    crate::limits::check_image_size(path, width.into(), height.into())?;
+    let mut reader = ImageReader::with_format(Cursor::new(bytes), ImageFormat::Png);
+    reader.limits(crate::limits::image_limits());
     reader.decode().map_err(|e| image_err(path, e))
 }
 

@@ -152,6 +152,10 @@ pub fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<Image> {
     guarded(|| {
         let dec = Decompress::with_err(error_manager()).from_mem(bytes)?;
         let (width, height) = dec.size();
+        // The header's size, checked before libjpeg allocates its buffers for it.
+        if let Some(problem) = crate::limits::image_size_problem(width as u64, height as u64) {
+            return Err(std::io::Error::other(problem));
+        }
         let (channels, mut started) = match dec.color_space() {
             ColorSpace::JCS_GRAYSCALE => (1, dec.grayscale()?),
             ColorSpace::JCS_YCbCr | ColorSpace::JCS_RGB => (3, dec.rgb()?),

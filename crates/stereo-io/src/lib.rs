@@ -20,10 +20,12 @@ pub mod exr_io;
 pub mod formats;
 pub mod image_io;
 pub mod jpeg;
+pub mod limits;
 pub mod npy;
 pub mod pfm;
 pub mod pixel_coords;
 pub mod png_disp;
+pub mod pth;
 
 pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomically};
 pub use datasets::export::{ExportOptions, export_dataset};

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use crate::disparity::DisparityMap;
 use crate::error::{Error, Result};
+use crate::limits::{MAX_ALLOC, bytes_text, read_file_capped, read_to_end_capped};
 
 const MAGIC: &[u8] = b"\x93NUMPY";
 
@@ -19,28 +20,29 @@ pub struct NpyArray {
 /// Reads every array of a NumPy `.npz` archive (stored or deflated), names without `.npy`,
 /// in archive order.
 pub fn read_npz(path: &Path) -> Result<Vec<(String, NpyArray)>> {
-    use std::io::Read;
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let bad = |m: String| Error::format(path, format!("not a valid .npz archive: {m}"));
     let mut archive =
         zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| bad(e.to_string()))?;
-    let mut out = Vec::with_capacity(archive.len());
+    let mut out = Vec::new();
+    // Every array of the archive is held at once: they share one buffer's limit, so a zip bomb
+    // (gigabytes of zeros deflated to a few megabytes) is refused before it is decompressed.
+    let mut left = MAX_ALLOC;
     for i in 0..archive.len() {
-        let mut entry = archive.by_index(i).map_err(|e| bad(e.to_string()))?;
+        let entry = archive.by_index(i).map_err(|e| bad(e.to_string()))?;
         let name = entry.name().trim_end_matches(".npy").to_string();
-        let mut bytes = Vec::with_capacity(entry.size() as usize);
-        entry
-            .read_to_end(&mut bytes)
+        let bytes = read_to_end_capped(entry, &path.join(&name), left, "the arrays of the archive")
             .map_err(|e| bad(format!("{name}: {e}")))?;
         let array =
             decode_npy(&bytes, &path.join(&name)).map_err(|e| bad(format!("{name}: {e}")))?;
+        left = left.saturating_sub((array.data.len() * 4).max(bytes.len()) as u64);
         out.push((name, array));
     }
     Ok(out)
 }
 
 pub fn read_npy(path: &Path) -> Result<NpyArray> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = read_file_capped(path, MAX_ALLOC, "an .npy file")?;
     decode_npy(&bytes, path)
 }
 
@@ -103,8 +105,13 @@ pub fn decode_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
     let count = shape
         .iter()
         .try_fold(1usize, |a, &d| a.checked_mul(d))
-        .filter(|&n| n <= 1 << 31)
-        .ok_or_else(|| bad(format!("shape {shape_text} is too large")))?;
+        .filter(|&n| n as u64 <= MAX_ALLOC / 4)
+        .ok_or_else(|| {
+            bad(format!(
+                "shape {shape_text} is over the readers' limit of {} for one array",
+                bytes_text(MAX_ALLOC)
+            ))
+        })?;
     let (order, kind, size) = {
         let mut c = descr.chars();
         let order = c.next().ok_or_else(|| bad("empty 'descr'".into()))?;
@@ -250,6 +257,7 @@ pub fn read_disparity_npy(path: &Path) -> Result<DisparityMap> {
             ));
         }
     };
+    crate::limits::check_image_size(path, w as u64, h as u64)?;
     crate::pfm::floats_to_disparity(path, w, h, arr.data)
 }
 

@@ -18,8 +18,8 @@ pub struct FloatImage {
     pub data: Vec<f32>,
 }
 
-/// Largest side accepted by the readers: bounds the memory a hostile header can ask for.
-pub const MAX_SIDE: usize = 1 << 16;
+/// Largest side accepted by the readers: the limits policy's ([`crate::limits`]).
+pub const MAX_SIDE: usize = crate::limits::MAX_IMAGE_SIDE as usize;
 
 /// Byte order of a written PFM.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -29,7 +29,7 @@ pub enum Endian {
 }
 
 pub fn read_pfm(path: &Path) -> Result<FloatImage> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::limits::read_file_capped(path, crate::limits::MAX_ALLOC, "a PFM file")?;
     decode_pfm(&bytes, path)
 }
 
@@ -87,8 +87,10 @@ pub fn decode_pfm(bytes: &[u8], path: &Path) -> Result<FloatImage> {
     let little = scale < 0.0;
     // Exactly one whitespace byte separates the header from the raster.
     pos += 1;
+    crate::limits::check_image_size(path, width as u64, height as u64)?;
     let n = width * height * channels;
     let need = n * 4;
+    crate::limits::check_alloc(path, "a PFM raster", need as u64)?;
     let have = bytes.len().saturating_sub(pos);
     if have < need {
         return Err(bad(format!(

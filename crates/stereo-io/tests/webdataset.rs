@@ -22,42 +22,6 @@ const PYTHON_PINS: &[&str] = &[
     "numpy==2.4.6",
 ];
 
-const IDS: usize = 9;
-
-/// Our layout with `IDS` samples over two categories: manifest, PNGs and EXRs with camera facts.
-fn our_dataset(root: &Path) {
-    let mut lines = String::new();
-    for k in 0..IDS {
-        let (category, id) = (["tree", "hole"][k % 2], format!("{k:07}"));
-        let dir = mkdir(&root.join(category));
-        write_png_rgb(&dir.join(format!("{id}_left.png")), &rgb(k as u8)).unwrap();
-        write_png_rgb(&dir.join(format!("{id}_right.png")), &rgb(k as u8 + 50)).unwrap();
-        let meta = DisparityMeta {
-            f_px: Some(64.0),
-            baseline_m: Some(0.1),
-            view: Some("left".into()),
-        };
-        write_disparity_exr(
-            &dir.join(format!("{id}_left.disp.exr")),
-            &disp(k as f32),
-            &meta,
-        )
-        .unwrap();
-        write_disparity_exr(
-            &dir.join(format!("{id}_right.disp.exr")),
-            &disp(k as f32 + 0.5),
-            &meta,
-        )
-        .unwrap();
-        fs::write(dir.join(format!("{id}.scene.json")), "{}").unwrap();
-        lines += &format!(
-            r#"{{"id":"{id}","category":"{category}","seed":5,"index":{k},"files":{{"left":"{category}/{id}_left.png","right":"{category}/{id}_right.png","disp_left":"{category}/{id}_left.disp.exr","disp_right":"{category}/{id}_right.disp.exr","scene":"{category}/{id}.scene.json"}},"width":{W},"height":{H},"f_px":64.0,"baseline_m":0.1,"cx":2.0,"cy":1.5}}"#
-        );
-        lines.push('\n');
-    }
-    fs::write(root.join("manifest.jsonl"), lines).unwrap();
-}
-
 fn opts(force: bool) -> WebDatasetOptions {
     WebDatasetOptions {
         // About two samples per shard.

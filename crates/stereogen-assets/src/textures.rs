@@ -26,6 +26,11 @@ fn probe(path: &Path) -> Result<(u32, u32), String> {
     if w == 0 || h == 0 {
         return Err("image has no pixels".into());
     }
+    // Blender decodes a photo whole before the worker scales it down: one over the readers'
+    // limits (a small PNG may claim 30000×30000 pixels) is left out like a broken one.
+    if let Some(problem) = stereo_io::limits::image_size_problem(w.into(), h.into()) {
+        return Err(problem);
+    }
     Ok((w, h))
 }
 

@@ -1,6 +1,8 @@
 //! The check of a scene spec before it is rendered: specs the planner writes pass, and each
-//! impossible value is refused with its key and value named.
+//! impossible or hostile value (a file name climbing out of the output, geometry without bound)
+//! is refused with its key and value named.
 
+use stereogen_plan::spec::{Modifier, Shape};
 use stereogen_plan::{AssetIndex, Recipe, SceneSpec, check_scene_spec, plan_scene};
 
 /// A key, how to spoil its value, and what the message must say.
@@ -13,7 +15,54 @@ fn planned_specs_pass_and_impossible_values_are_named() {
         check_scene_spec(&spec).unwrap_or_else(|e| panic!("{name}: {e}"));
     }
     let good = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 0);
-    let cases: [Case; 6] = [
+    let cases: [Case; 13] = [
+        (
+            "id",
+            |s| s.id = "../../../tmp/x".into(),
+            "got \"../../../tmp/x\"",
+        ),
+        ("category", |s| s.category = "/etc".into(), "need letters"),
+        (
+            "objects[0].shape",
+            |s| {
+                s.objects[0].shape = Shape::UvSphere {
+                    segments: u32::MAX,
+                    rings: 16,
+                }
+            },
+            "need segments in 1..=1024, got 4294967295",
+        ),
+        (
+            "objects[0].shape",
+            |s| s.objects[0].modifiers = vec![Modifier::Subdivide { levels: 12 }],
+            "need subdivision levels in 0..=4, got 12",
+        ),
+        (
+            "objects[0].shape",
+            |s| {
+                s.objects[0].shape = Shape::Mesh {
+                    vertices: vec![[0.0; 3]; 3],
+                    triangles: vec![[0, 1, 7]],
+                }
+            },
+            "names a vertex the mesh lacks",
+        ),
+        (
+            "objects[0].shape",
+            |s| {
+                s.objects[0].shape = Shape::Grid {
+                    x_segments: 1024,
+                    y_segments: 1024,
+                };
+                s.objects[0].modifiers = vec![Modifier::Subdivide { levels: 4 }];
+            },
+            "need at most 1.6e7 triangles an object",
+        ),
+        (
+            "objects",
+            |s| s.objects = vec![s.objects[0].clone(); 5000],
+            "need 0..=4096, got 5000",
+        ),
         ("rig.width", |s| s.rig.width = 0, "need 16..=16384, got 0"),
         // The recipe's image-size limit, the same for specs.
         (

@@ -210,9 +210,23 @@ fn already_skipped(layout: &DatasetLayout) -> anyhow::Result<BTreeSet<PathBuf>> 
         .collect())
 }
 
+/// The most samples one `generate` run (or one farm task) takes on: its indices are listed in
+/// memory (8 bytes each, within the limits policy's one buffer), and at a minute a sample a run
+/// of this many would take centuries on one machine; a farm splits a larger set into shards.
+pub const MAX_RUN_SAMPLES: u64 = 100_000_000;
+
 fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
     if opts.workers == 0 {
         bail!("--workers must be at least 1");
+    }
+    let shards = opts.shard.map_or(1, |s| s.count);
+    // With `only` (what `estimate` renders) the run lists just those indices.
+    if opts.only.is_none() && opts.count.div_ceil(shards) > MAX_RUN_SAMPLES {
+        bail!(
+            "--count {}: more than {MAX_RUN_SAMPLES} samples for one run; split it over a farm (--shard K/N with N of at least {})",
+            opts.count,
+            opts.count.div_ceil(MAX_RUN_SAMPLES)
+        );
     }
     if opts.start.checked_add(opts.count).is_none() {
         bail!(

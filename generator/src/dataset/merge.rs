@@ -9,7 +9,7 @@
 //! over its sample files (the merge's checks read their sizes and a sample of their checksums;
 //! the shard writer reads each file once). A merge with problems writes no shard folder.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -136,12 +136,7 @@ pub fn merge(opts: &MergeOptions) -> anyhow::Result<MergeReport> {
         .map(|(id, layout)| load_shard(id, layout, &mut report))
         .collect();
     report.shards = count;
-    for k in (0..count).filter(|k| !shards.iter().any(|s| s.id.index == *k)) {
-        report.problems.push(format!(
-            "shards/{} is missing: none of its samples were rendered",
-            ShardId { index: k, count }.dir_name()
-        ));
-    }
+    report_missing_shards(&shards, count, &mut report);
     let reference = check_provenance(&shards, &mut report);
     let range = check_ranges(&shards, &mut report);
     if let Some((start, n)) = range {
@@ -197,6 +192,31 @@ fn write_shards(
 }
 
 /// The number of shards: what most directories say (the largest on a tie); the others are problems.
+/// The shards of a farm of `count` that have no directory: the first few by name, then how many
+/// more. The count comes from directory names (`0000-of-99999999999` is one), so the report is
+/// bounded, never one line per shard.
+fn report_missing_shards(shards: &[Shard], count: u64, report: &mut MergeReport) {
+    const LISTED: usize = 20;
+    let present: BTreeSet<u64> = shards.iter().map(|s| s.id.index).collect();
+    let missing = count - present.len() as u64;
+    let first: Vec<u64> = (0..count)
+        .filter(|k| !present.contains(k))
+        .take(LISTED)
+        .collect();
+    for &k in &first {
+        report.problems.push(format!(
+            "shards/{} is missing: none of its samples were rendered",
+            ShardId { index: k, count }.dir_name()
+        ));
+    }
+    if missing > first.len() as u64 {
+        report.problems.push(format!(
+            "{} more of the {count} shards are missing",
+            missing - first.len() as u64
+        ));
+    }
+}
+
 fn farm_size(found: &[(ShardId, DatasetLayout)], report: &mut MergeReport) -> u64 {
     let mut votes: BTreeMap<u64, usize> = BTreeMap::new();
     for (id, _) in found {

@@ -11,7 +11,7 @@
 //! **Reading** goes by the content, not the name: gzip's magic bytes, else plain JSON — so the
 //! plain `<id>.scene.json` of datasets made before still reads, and so does a hand-written spec.
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::Path;
 
 use anyhow::Context;
@@ -19,7 +19,9 @@ use flate2::Compression;
 use flate2::read::GzDecoder;
 use flate2::write::GzEncoder;
 
-use crate::plan::{SceneSpec, check_scene_spec};
+use stereo_io::limits::{MAX_DOCUMENT_BYTES, read_file_capped, read_to_end_capped};
+
+use crate::plan::{BaseColor, SceneSpec, Shape, check_scene_spec};
 
 /// The first two bytes of every gzip stream.
 const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
@@ -49,30 +51,114 @@ pub fn write_scene_spec(path: &Path, spec: &SceneSpec) -> anyhow::Result<()> {
 
 /// Reads the SceneSpec stored at `path` (gzip'd or plain JSON); the error names the file and the
 /// problem.
+/// The file and its decompressed JSON are each held to the limits policy's
+/// [`MAX_DOCUMENT_BYTES`] (a tree scene is ~3 MB), so a gzip bomb stops at the limit.
 pub fn read_scene_spec(path: &Path) -> anyhow::Result<SceneSpec> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let bytes = read_file_capped(path, MAX_DOCUMENT_BYTES, "a scene spec")?;
     decode_scene_spec(&bytes).with_context(|| format!("{}: not a SceneSpec", path.display()))
 }
 
 /// The spec in `bytes`, gzip'd or plain JSON.
 pub fn decode_scene_spec(bytes: &[u8]) -> anyhow::Result<SceneSpec> {
     let text = if bytes.starts_with(&GZIP_MAGIC) {
-        let mut text = String::new();
-        GzDecoder::new(bytes)
-            .read_to_string(&mut text)
-            .context("damaged gzip data")?;
-        text
+        let json = read_to_end_capped(
+            GzDecoder::new(bytes),
+            Path::new("gzip data"),
+            MAX_DOCUMENT_BYTES,
+            "the decompressed spec",
+        )
+        .map_err(|e| match e.io_kind() {
+            Some(_) => anyhow::anyhow!("damaged gzip data"),
+            None => anyhow::anyhow!("{e}"),
+        })?;
+        String::from_utf8(json).context("gzip data that is not UTF-8 JSON")?
     } else {
         String::from_utf8(bytes.to_vec()).context("neither gzip nor UTF-8 JSON")?
     };
     Ok(SceneSpec::from_json(&text)?)
 }
 
-/// [`read_scene_spec`], then the plan's [`check_scene_spec`]: a spec that is about to be rendered.
+/// [`read_scene_spec`], then the plan's [`check_scene_spec`] and the files it names
+/// ([`check_spec_files`]): a spec that is about to be rendered.
 pub fn read_renderable_spec(path: &Path) -> anyhow::Result<SceneSpec> {
     let spec = read_scene_spec(path)?;
     check_scene_spec(&spec).with_context(|| format!("{}: cannot be rendered", path.display()))?;
+    check_spec_files(&spec).with_context(|| format!("{}: cannot be rendered", path.display()))?;
     Ok(spec)
+}
+
+/// The files a spec hands to Blender: each mesh candidate and photo texture that exists must be a
+/// regular file (a pipe or device would hang or flood the worker's importer) with an extension
+/// the asset folders take, and a photo whose header can be read must be within the image limits
+/// (a small PNG can claim 30000×30000 pixels, which Blender would decode whole). A missing file
+/// is left to the worker, which skips a mesh candidate or paints a photo's fallback colour, as
+/// for a planned spec whose assets moved.
+pub fn check_spec_files(spec: &SceneSpec) -> anyhow::Result<()> {
+    use crate::assets::{meshes::MESH_EXTENSIONS, textures::TEXTURE_EXTENSIONS};
+    let check =
+        |key: String, path: &Path, extensions: &[&str], photo: bool| -> anyhow::Result<()> {
+            let ext = path
+                .extension()
+                .and_then(|e| e.to_str())
+                .map(str::to_ascii_lowercase);
+            if !ext.as_deref().is_some_and(|e| extensions.contains(&e)) {
+                anyhow::bail!(
+                    "key `{key}` is invalid: {} is not a {} file ({})",
+                    path.display(),
+                    if photo { "photo" } else { "mesh" },
+                    extensions.join(", ")
+                );
+            }
+            let Ok(meta) = std::fs::metadata(path) else {
+                return Ok(());
+            };
+            if !meta.is_file() {
+                anyhow::bail!(
+                    "key `{key}` is invalid: {} is not a regular file (a folder, device or pipe)",
+                    path.display()
+                );
+            }
+            if photo && let Some((w, h)) = image_header_size(path) {
+                stereo_io::limits::check_image_size(path, w.into(), h.into())
+                    .with_context(|| format!("key `{key}` is invalid"))?;
+            }
+            Ok(())
+        };
+    for (i, o) in spec.objects.iter().enumerate() {
+        if let Shape::MeshFile { candidates, .. } = &o.shape {
+            for (j, p) in candidates.iter().enumerate() {
+                let key = format!("objects[{i}].shape.candidates[{j}]");
+                check(key, p, MESH_EXTENSIONS, false)?;
+            }
+        }
+        for (m, role) in [
+            (Some(&o.material), "material"),
+            (leaf_material(o), "shape.leaf_material"),
+        ] {
+            if let Some(BaseColor::Image { path, .. }) = m.map(|m| &m.base) {
+                let key = format!("objects[{i}].{role}.base.path");
+                check(key, path, TEXTURE_EXTENSIONS, true)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+fn leaf_material(o: &crate::plan::ObjectSpec) -> Option<&crate::plan::MaterialSpec> {
+    match &o.shape {
+        Shape::Skeleton { leaf_material, .. } => leaf_material.as_deref(),
+        _ => None,
+    }
+}
+
+/// A PNG's or JPEG's size from its header, where the `image` crate can read one.
+fn image_header_size(path: &Path) -> Option<(u32, u32)> {
+    image::ImageReader::open(path)
+        .ok()?
+        .with_guessed_format()
+        .ok()?
+        .into_dimensions()
+        .ok()
 }
 
 #[cfg(test)]

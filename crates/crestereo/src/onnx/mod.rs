@@ -48,6 +48,14 @@ pub fn check_size(size: [usize; 2], opts: InferenceOptions) -> Result<()> {
     }
     let (multiple, minimum) = size_rule(opts.stages);
     let [h, w] = size;
+    // The network's input limit; the graph's constant tables (pixel grids, resize matrices)
+    // grow with the size, so it is refused here, before any is built.
+    use crate::infer::{MAX_INPUT_PIXELS, MAX_INPUT_SIDE};
+    if h > MAX_INPUT_SIDE || w > MAX_INPUT_SIDE || h * w > MAX_INPUT_PIXELS {
+        bail!(
+            "size {h}x{w} is over the network's limit ({MAX_INPUT_SIDE} px a side, {MAX_INPUT_PIXELS} pixels)"
+        );
+    }
     if h % multiple != 0 || w % multiple != 0 {
         let up = |v: usize| v.div_ceil(multiple) * multiple;
         bail!(

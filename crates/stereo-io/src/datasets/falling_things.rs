@@ -14,7 +14,7 @@ pub const CAMERA_SETTINGS: &str = "_camera_settings.json";
 pub const FALLING_THINGS_BASELINE_M: f64 = 0.06;
 
 fn fat_fx(path: &Path) -> Result<(f64, Option<f64>, Option<f64>)> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::limits::read_document(path, "a camera settings file")?;
     let v: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| Error::format(path, format!("not JSON: {e}")))?;
     let intr = &v["camera_settings"][0]["intrinsic_settings"];

@@ -124,7 +124,7 @@ fn variant_wanted(dir: &Path, want: MiddleburyVariant) -> bool {
 /// Parses a `calib.txt` into `meta`: `cam0` gives `f_px`, `cx`, `cy`; `baseline` (mm) gives
 /// `baseline_m`; `ndisp`; every other key goes to `meta.extra` as text.
 pub(crate) fn parse_calib(path: &Path, meta: &mut SampleMeta) -> Result<()> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::limits::read_document(path, "a calib.txt")?;
     for line in text.lines() {
         let Some((k, v)) = line.split_once('=') else {
             continue;

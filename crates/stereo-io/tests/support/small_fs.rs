@@ -1,6 +1,7 @@
 //! A small filesystem of its own for disk-full tests: a size-limited tmpfs mounted on a fresh
 //! temporary directory (as root, or through `sudo -n` where that needs no password), unmounted
-//! when dropped. Where nothing can be mounted, [`SmallFs::mount`] says why and the caller skips.
+//! when dropped. Where nothing can be mounted, [`SmallFs::mount`] says why and the caller skips,
+//! or fails when `STEREOGEN_REQUIRE_SMALL_FS=1` (as CI sets it).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -92,14 +93,24 @@ impl Drop for SmallFs {
     }
 }
 
-/// Skips the calling test, saying why, when `fs` could not be mounted.
+/// Whether the disk-full tests must run: `STEREOGEN_REQUIRE_SMALL_FS=1` (set by CI) turns a file
+/// system that cannot be mounted into a failure instead of a skip.
+pub fn small_fs_required() -> bool {
+    std::env::var("STEREOGEN_REQUIRE_SMALL_FS").is_ok_and(|v| v == "1")
+}
+
+/// Skips the calling test, saying why, when `fs` could not be mounted; fails it instead when
+/// [`small_fs_required`].
 #[macro_export]
 macro_rules! small_fs_or_skip {
     ($bytes:expr) => {
         match $crate::small_fs::SmallFs::mount($bytes) {
             Ok(fs) => fs,
+            Err(why) if $crate::small_fs::small_fs_required() => {
+                panic!("STEREOGEN_REQUIRE_SMALL_FS=1 but no small file system could be mounted: {why}")
+            }
             Err(why) => {
-                eprintln!("SKIPPED (no small filesystem): {why}");
+                eprintln!("SKIPPED (no small filesystem; STEREOGEN_REQUIRE_SMALL_FS=1 makes this fail): {why}");
                 return;
             }
         }

@@ -8,6 +8,7 @@ use std::collections::BTreeMap;
 
 use crate::dist::{CountRange, Dist, UniformRange};
 
+pub mod geometry;
 pub mod scene_spec;
 
 /// A value that breaks its rule: the key path and what the key allows, with the value found.

@@ -1,6 +1,7 @@
 //! The check of a scene spec before Blender renders it (`stereogen render --spec` reads specs a
-//! person may have written): an image size it can make, and a rig and clipping range whose
-//! numbers stay finite through every derived quantity. Specs the planner writes always pass: the
+//! person may have written): an id and category that make file names inside the output folder,
+//! an image size it can make, a rig and clipping range whose numbers stay finite through every
+//! derived quantity, and geometry of a bounded size ([`super::geometry`]). Specs the planner writes always pass: the
 //! recipe's own bounds are the same or narrower.
 
 use super::{Check, Rule, Violation, first_violation, int};
@@ -16,7 +17,11 @@ pub fn scene_spec_checks(spec: &SceneSpec) -> Vec<Check<'_>> {
     let (rig, render) = (&spec.rig, &spec.render);
     let (side_min, side_max) = IMAGE_SIDE_PX;
     let positive = |key, value, max| Check::new(key, Rule::Positive { value, max });
-    vec![
+    let mut rows = vec![
+        // The sample's files are named `<category>/<id>_left.png`: neither may climb out of the
+        // output folder.
+        Check::new("id", Rule::folder_name(&spec.id)),
+        Check::new("category", Rule::folder_name(&spec.category)),
         int("rig.width", rig.width, side_min, side_max),
         int("rig.height", rig.height, side_min, side_max),
         positive("rig.focal_mm", rig.focal_mm, 1e4),
@@ -43,7 +48,9 @@ pub fn scene_spec_checks(spec: &SceneSpec) -> Vec<Check<'_>> {
                 None => Rule::AnyValue,
             },
         ),
-    ]
+    ];
+    rows.extend(super::geometry::geometry_checks(spec));
+    rows
 }
 
 /// Checks what Blender would otherwise be asked to render; the error names the key and the value.

@@ -85,6 +85,11 @@ pub const PRESETS: &[(&str, &str)] = &[
 /// The preset used when the user names none.
 pub const DEFAULT_PRESET: &str = "crestereo";
 
+/// The largest recipe file read: the limits policy's largest document
+/// (`stereo_io::limits::MAX_DOCUMENT_BYTES`, which this crate does not link; a test in the
+/// generator holds the two equal). A real recipe is a few kilobytes.
+pub const MAX_RECIPE_BYTES: u64 = 64 << 20;
+
 #[derive(Debug, thiserror::Error)]
 pub enum RecipeError {
     #[error(
@@ -541,11 +546,26 @@ impl Recipe {
         Self::load(Path::new(name_or_path))
     }
 
+    /// Reads a recipe file of at most [`MAX_RECIPE_BYTES`], refusing a larger one before
+    /// reading it.
     pub fn load(path: &Path) -> Result<Self, RecipeError> {
-        let text = std::fs::read_to_string(path).map_err(|source| RecipeError::Read {
+        use std::io::Read;
+        let read_err = |source| RecipeError::Read {
             path: path.display().to_string(),
             source,
-        })?;
+        };
+        let file = std::fs::File::open(path).map_err(read_err)?;
+        let meta = file.metadata().map_err(read_err)?;
+        if !meta.is_file() || meta.len() > MAX_RECIPE_BYTES {
+            return Err(read_err(std::io::Error::other(format!(
+                "not a regular file of at most {} MiB",
+                MAX_RECIPE_BYTES >> 20
+            ))));
+        }
+        let mut text = String::new();
+        file.take(MAX_RECIPE_BYTES)
+            .read_to_string(&mut text)
+            .map_err(read_err)?;
         Self::from_toml_str(&text, &path.display().to_string())
     }
 

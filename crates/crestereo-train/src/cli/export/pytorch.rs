@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use crestereo::weights::named_parameters;
-use crestereo::weights_pth::write_state_dict;
+use stereo_io::pth::write_state_dict;
 
 use super::{check_output, load_model, weights_arg};
 

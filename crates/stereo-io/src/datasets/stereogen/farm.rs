@@ -203,7 +203,7 @@ impl DatasetLayout {
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::limits::read_document(path, what)?;
     serde_json::from_str(&text)
         .map_err(|e| Error::format(path, format!("not a stereogen {what}: {e}")))
 }

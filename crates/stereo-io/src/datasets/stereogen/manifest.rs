@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 use super::SamplePaths;
 use super::json_lines::read_finished_lines;
 use crate::error::{Error, Result};
+use crate::limits::relative_path_buf_problem;
 
 /// Statistics of the valid pixels of one view's disparity.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -95,7 +96,7 @@ impl ManifestContents {
 pub fn read_manifest(path: &Path) -> Result<ManifestContents> {
     let file =
         File::open(path).map_err(|e| unmerged_farm_error(path).unwrap_or(Error::io(path, e)))?;
-    read_from(BufReader::new(file), path)
+    read_manifest_from(BufReader::new(file), path)
 }
 
 /// A missing manifest in a farm's output directory means its shards are not merged yet.
@@ -103,12 +104,24 @@ fn unmerged_farm_error(path: &Path) -> Option<Error> {
     super::DatasetLayout::new(path.parent()?).unmerged_error(path)
 }
 
-fn read_from(reader: impl BufRead, path: &Path) -> Result<ManifestContents> {
+/// [`read_manifest`] of the bytes of `reader` (`path` names them in errors).
+pub fn read_manifest_from(reader: impl BufRead, path: &Path) -> Result<ManifestContents> {
     let mut entries = Vec::new();
     let unfinished_bytes = read_finished_lines(reader, path, |number, text| {
-        let entry = serde_json::from_str(text).map_err(|e| {
+        let entry: ManifestEntry = serde_json::from_str(text).map_err(|e| {
             Error::format(path, format!("line {number} is not a manifest entry: {e}"))
         })?;
+        // Readers open these paths under the dataset's root: none may lead out of it.
+        for (key, rel) in entry.files.all() {
+            if let Some(problem) = relative_path_buf_problem(rel) {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "line {number}: the path of `files.{key}` {problem}; a manifest names files inside its dataset only"
+                    ),
+                ));
+            }
+        }
         entries.push(entry);
         Ok(())
     })?;
@@ -135,7 +148,7 @@ impl Manifest {
             .append(true)
             .open(path)
             .map_err(|e| Error::io(path, e))?;
-        let contents = read_from(BufReader::new(&file), path)?;
+        let contents = read_manifest_from(BufReader::new(&file), path)?;
         if contents.has_unfinished_line() {
             let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
             file.set_len(len - contents.unfinished_bytes)

@@ -31,10 +31,13 @@ use serde::{Deserialize, Serialize};
 pub use farm::{
     ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
 };
-pub use manifest::{DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest};
+pub use manifest::{
+    DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest, read_manifest_from,
+};
 pub use sidecar::{
     FailureRecord, SIDECAR_RECORD_VERSION, SidecarContents, SidecarRecord, SkippedAssetRecord,
-    append_sidecar, read_failures, read_sidecar, read_skipped_assets, retain_sidecar,
+    append_sidecar, read_failures, read_sidecar, read_sidecar_from, read_skipped_assets,
+    retain_sidecar,
 };
 
 use super::{DispKind, SampleFiles, SampleMeta};
@@ -147,8 +150,13 @@ impl DatasetLayout {
     /// Reads `dataset.json`, with the recipe as `R`.
     pub fn read_info<R: DeserializeOwned>(&self) -> Result<DatasetInfo<R>> {
         let path = self.info();
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| self.unmerged_error(&path).unwrap_or(Error::io(&path, e)))?;
+        let text =
+            crate::limits::read_document(&path, "a dataset description").map_err(|e| {
+                match e.io_kind() {
+                    Some(_) => self.unmerged_error(&path).unwrap_or(e),
+                    None => e,
+                }
+            })?;
         serde_json::from_str(&text)
             .map_err(|e| Error::format(&path, format!("not a stereogen dataset description: {e}")))
     }

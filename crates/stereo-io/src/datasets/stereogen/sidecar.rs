@@ -8,7 +8,7 @@
 //! file and line. Both logs are small and written by the dataset's lock holder only: each change
 //! rewrites the whole file atomically, so a kill never leaves half a line.
 
-use std::io::BufReader;
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 use serde::de::DeserializeOwned;
@@ -127,8 +127,15 @@ fn read_lines<R: SidecarRecord>(path: &Path) -> Result<(Vec<(String, R)>, u64)> 
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((Vec::new(), 0)),
         Err(e) => return Err(Error::io(path, e)),
     };
+    read_lines_from(BufReader::new(file), path)
+}
+
+fn read_lines_from<R: SidecarRecord>(
+    reader: impl BufRead,
+    path: &Path,
+) -> Result<(Vec<(String, R)>, u64)> {
     let mut lines = Vec::new();
-    let unfinished = read_finished_lines(BufReader::new(file), path, |number, text| {
+    let unfinished = read_finished_lines(reader, path, |number, text| {
         lines.push((text.to_string(), parse_record(path, number, text)?));
         Ok(())
     })?;
@@ -148,10 +155,25 @@ fn rewrite(path: &Path, lines: impl Iterator<Item = String>) -> Result<()> {
 /// Reads the finished records of a sidecar log (see the module docs for the rules).
 pub fn read_sidecar<R: SidecarRecord>(path: &Path) -> Result<SidecarContents<R>> {
     let (lines, unfinished_bytes) = read_lines(path)?;
-    Ok(SidecarContents {
-        records: lines.into_iter().map(|(_, r)| r).collect(),
-        unfinished_bytes,
-    })
+    Ok(SidecarContents::of_lines(lines, unfinished_bytes))
+}
+
+/// [`read_sidecar`] of the bytes of `reader` (`path` names them in errors).
+pub fn read_sidecar_from<R: SidecarRecord>(
+    reader: impl BufRead,
+    path: &Path,
+) -> Result<SidecarContents<R>> {
+    let (lines, unfinished_bytes) = read_lines_from(reader, path)?;
+    Ok(SidecarContents::of_lines(lines, unfinished_bytes))
+}
+
+impl<R> SidecarContents<R> {
+    fn of_lines(lines: Vec<(String, R)>, unfinished_bytes: u64) -> Self {
+        Self {
+            records: lines.into_iter().map(|(_, r)| r).collect(),
+            unfinished_bytes,
+        }
+    }
 }
 
 /// Appends `records` to a sidecar log (an unfinished last line is dropped); the caller holds the

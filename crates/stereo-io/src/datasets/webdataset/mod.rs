@@ -13,14 +13,21 @@
 //! The index is written last, so a folder without one is an export that did not finish; a shard
 //! whose size differs from the index (a copy or export cut short) is named as such when the
 //! folder is opened, never read as a smaller dataset.
+//!
+//! Nothing read is trusted (`index.rs`, `scan.rs`): an index names only files of its own folder,
+//! every member's header is checked against the shard's real length, and a key that could name
+//! a path outside a folder is refused.
 
+mod index;
 pub mod members;
 mod read;
+mod scan;
 mod write;
 
 use serde::{Deserialize, Serialize};
 
 pub use read::{RawSample, ShardReader, WebDataset, decode_members};
+pub use scan::{ListedMember, scan_shard, scan_tar};
 pub use write::{CARD_FILE, WebDatasetOptions, WebDatasetSummary, export_webdataset, parse_splits};
 
 /// The index of one split: `<root>/<split>.index.json`.

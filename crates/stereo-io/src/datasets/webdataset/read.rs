@@ -9,11 +9,13 @@ use std::fs::{self, File};
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use super::{INDEX_FORMAT, INDEX_SUFFIX, INDEX_VERSION, ShardIndex, member};
+use super::scan::{ListedMember, scan_tar};
+use super::{INDEX_SUFFIX, ShardIndex, member};
 use crate::datasets::{DatasetFormat, SampleMeta, StereoDataset, StereoSample};
 use crate::error::{Error, Result};
 use crate::exr_io::decode_disparity_exr;
 use crate::image_io::{decode_bytes, to_rgb};
+use crate::limits::open_inside;
 
 /// A member of a sample: its name after `<key>.` and where its data lies in the shard.
 #[derive(Debug, Clone)]
@@ -121,32 +123,17 @@ impl WebDataset {
             .into_iter()
             .filter(|a| splits.iter().any(|w| w.as_ref() == a))
             .collect();
-        let indices: Vec<PathBuf> = chosen
-            .iter()
-            .map(|split| root.join(format!("{split}{INDEX_SUFFIX}")))
-            .collect();
         let mut out = Self {
             root: root.to_path_buf(),
             splits: chosen,
             shards: vec![],
             samples: vec![],
         };
-        for index_path in indices {
-            let text = fs::read_to_string(&index_path).map_err(|e| Error::io(&index_path, e))?;
-            let index: ShardIndex = serde_json::from_str(&text)
-                .map_err(|e| Error::format(&index_path, format!("unreadable index: {e}")))?;
-            if index.format != INDEX_FORMAT || index.version != INDEX_VERSION {
-                return Err(Error::format(
-                    &index_path,
-                    format!(
-                        "index of format {:?} version {}; this build reads {INDEX_FORMAT:?} version {INDEX_VERSION}",
-                        index.format, index.version
-                    ),
-                ));
-            }
+        for split in out.splits.clone() {
+            let index = ShardIndex::read(root, &split)?;
             for shard in &index.shards {
                 let path = root.join(&shard.name);
-                let size = fs::metadata(&path).map_err(|e| Error::io(&path, e))?.len();
+                let (file, size) = open_inside(root, &shard.name)?;
                 if size != shard.bytes {
                     return Err(Error::format(
                         &path,
@@ -157,7 +144,8 @@ impl WebDataset {
                     ));
                 }
                 let before = out.samples.len();
-                out.scan_shard(&path)?;
+                let members = scan_tar(BufReader::new(file), size, &path)?;
+                out.add_shard(path.clone(), members)?;
                 let found = out.samples.len() - before;
                 if found != shard.samples {
                     return Err(Error::format(
@@ -178,46 +166,45 @@ impl WebDataset {
         &self.splits
     }
 
-    /// Lists the members of the shard at `path`, reading tar headers only.
-    fn scan_shard(&mut self, path: &Path) -> Result<()> {
+    /// Adds the samples of a shard listed by [`scan_tar`]: a sample is a run of members with
+    /// the same key, each suffix once (a second `left.png` would be read by some loaders and
+    /// passed over by others).
+    fn add_shard(&mut self, path: PathBuf, members: Vec<ListedMember>) -> Result<()> {
         let shard = self.shards.len();
-        self.shards.push(path.to_path_buf());
-        let file = File::open(path).map_err(|e| Error::io(path, e))?;
-        let mut archive = tar::Archive::new(file);
-        let entries = archive
-            .entries_with_seek()
-            .map_err(|e| Error::io(path, e))?;
-        for entry in entries {
-            let entry = entry.map_err(|e| Error::io(path, e))?;
-            let name = entry
-                .path()
-                .map_err(|e| Error::io(path, e))?
-                .to_string_lossy()
-                .into_owned();
-            // WebDataset's rule: the key ends at the first dot after the last `/`.
-            let dir_end = name.rfind('/').map_or(0, |i| i + 1);
-            let Some(dot) = name[dir_end..].find('.').map(|i| dir_end + i) else {
-                return Err(Error::format(
-                    path,
-                    format!("member {name:?} has no extension"),
-                ));
-            };
-            let (key, suffix) = (&name[..dot], &name[dot + 1..]);
+        for listed in members {
             let m = Member {
-                suffix: suffix.to_string(),
-                offset: entry.raw_file_position(),
-                size: entry.size(),
+                suffix: listed.suffix,
+                offset: listed.offset,
+                size: listed.size,
             };
             match self.samples.last_mut() {
-                Some(s) if s.shard == shard && s.key == key => s.members.push(m),
+                Some(s) if s.shard == shard && s.key == listed.key => {
+                    if s.members.iter().any(|old| old.suffix == m.suffix) {
+                        return Err(Error::format(
+                            &path,
+                            format!(
+                                "member {:?} (data at byte offset {}) repeats a member of its sample",
+                                format!("{}.{}", listed.key, m.suffix),
+                                m.offset
+                            ),
+                        ));
+                    }
+                    s.members.push(m)
+                }
                 _ => self.samples.push(SampleEntry {
-                    key: key.to_string(),
+                    key: listed.key,
                     shard,
                     members: vec![m],
                 }),
             }
         }
+        self.shards.push(path);
         Ok(())
+    }
+
+    /// The shard files opened, in index order: each a plain file name inside [`Self::root`].
+    pub fn shard_paths(&self) -> &[PathBuf] {
+        &self.shards
     }
 
     pub(super) fn read_member(&self, s: &SampleEntry, suffix: &str) -> Result<Option<Vec<u8>>> {

@@ -328,7 +328,7 @@ fn sample_members(
                 .unwrap_or("")
                 .to_ascii_lowercase();
             if path.is_file() && matches!(ext.as_str(), "png" | "jpg" | "jpeg") {
-                let bytes = fs::read(path).map_err(|e| Error::io(path, e))?;
+                let bytes = crate::image_io::read_image_file(path)?;
                 return Ok((
                     format!("{view}.{}", if ext == "jpeg" { "jpg" } else { &ext }),
                     bytes,
@@ -393,7 +393,11 @@ fn sample_members(
         "manifest": ours.get(&m.id).map(|o| &o.manifest_line),
     });
     if let Some(o) = ours.get(&m.id) {
-        let bytes = fs::read(&o.scene).map_err(|e| Error::io(&o.scene, e))?;
+        let bytes = crate::limits::read_file_capped(
+            &o.scene,
+            crate::limits::MAX_DOCUMENT_BYTES,
+            "a scene spec",
+        )?;
         out.push((scene_member(&o.scene), bytes));
     }
     out.push((

@@ -1,5 +1,6 @@
-//! Weight export as a PyTorch state dict: the file `torch.save(model.state_dict(), path)` of the
-//! reference network would be, under the reference key names ([`crate::weights::reference_key`]).
+//! Writing a PyTorch state dict: the file `torch.save(model.state_dict(), path)` would be, for
+//! named float32 tensors (the trainer's `crestereo export pytorch` passes the reference network's
+//! key names).
 //!
 //! The format is PyTorch's zip serialization (the default of `torch.save` since 1.6), written
 //! here without PyTorch:
@@ -16,16 +17,18 @@
 //!   (`64`), `byteorder` (`little`), `version` (`3`) and `.data/serialization_id`.
 //!
 //! The pickle uses only plain opcodes (no `_metadata` attribute of a module's state dict, which
-//! `load_state_dict` does not need), so `torch.load(path, weights_only=True)` reads it, and so does
-//! Burn's PyTorch reader ([`crate::weights::load_weights`]). The bytes depend only on the tensors:
-//! the same model gives the same file.
+//! `load_state_dict` does not need), so `torch.load(path, weights_only=True)` reads it, and so do
+//! the checks of [`super::check_state_dict`] and Burn's PyTorch reader. The bytes depend only on
+//! the tensors: the same model gives the same file.
 
 use std::io::Write;
 use std::path::Path;
 
-use anyhow::{Context, Result, ensure};
+use super::NamedArray;
+use crate::error::{Error, Result};
 
-use crate::weights::NamedArray;
+/// A problem with the tensors given, or of the zip writer (in memory: never an I/O error).
+type EncodeResult<T> = std::result::Result<T, String>;
 
 /// The folder inside the archive (PyTorch's name when it saves to a buffer).
 const ARCHIVE: &str = "archive";
@@ -35,30 +38,30 @@ const ALIGNMENT: u16 = 64;
 /// Writes `tensors` (reference keys and layout) to `path` as a PyTorch state dict, durably;
 /// returns the file's size in bytes.
 pub fn write_state_dict(tensors: &[NamedArray], path: &Path) -> Result<u64> {
-    let bytes = encode_state_dict(tensors)?;
-    // The error names the path and the OS error.
-    stereo_io::write_bytes_atomically(path, &bytes).context("writing a PyTorch state dict")?;
+    let bytes = encode_state_dict(tensors).map_err(|m| Error::format(path, m))?;
+    crate::atomic::write_bytes_atomically(path, &bytes)?;
     Ok(bytes.len() as u64)
 }
 
 /// The bytes of a `torch.save` zip file holding `tensors` as an ordered state dict, in order.
-pub fn encode_state_dict(tensors: &[NamedArray]) -> Result<Vec<u8>> {
+pub fn encode_state_dict(tensors: &[NamedArray]) -> EncodeResult<Vec<u8>> {
     let mut seen = std::collections::HashSet::new();
     for t in tensors {
-        ensure!(!t.name.is_empty(), "a tensor has an empty name");
-        ensure!(
-            seen.insert(t.name.as_str()),
-            "tensor {} appears twice",
-            t.name
-        );
+        if t.name.is_empty() {
+            return Err("a tensor has an empty name".into());
+        }
+        if !seen.insert(t.name.as_str()) {
+            return Err(format!("tensor {} appears twice", t.name));
+        }
         let numel: usize = t.shape.iter().product();
-        ensure!(
-            numel == t.data.len(),
-            "tensor {}: shape {:?} holds {numel} values, but {} were given",
-            t.name,
-            t.shape,
-            t.data.len()
-        );
+        if numel != t.data.len() {
+            return Err(format!(
+                "tensor {}: shape {:?} holds {numel} values, but {} were given",
+                t.name,
+                t.shape,
+                t.data.len()
+            ));
+        }
     }
     let pickle = state_dict_pickle(tensors);
     let data_bytes: usize = tensors.iter().map(|t| 4 * t.data.len()).sum();
@@ -92,7 +95,7 @@ pub fn encode_state_dict(tensors: &[NamedArray]) -> Result<Vec<u8>> {
     )?;
     Ok(zip
         .finish()
-        .context("finishing the zip archive")?
+        .map_err(|e| format!("finishing the zip archive: {e}"))?
         .into_inner())
 }
 
@@ -102,16 +105,16 @@ fn add_record<W: std::io::Write + std::io::Seek>(
     id: &mut SerializationId,
     name: &str,
     data: &[u8],
-) -> Result<()> {
+) -> EncodeResult<()> {
     let options = zip::write::SimpleFileOptions::DEFAULT
         .compression_method(zip::CompressionMethod::Stored)
         .with_alignment(ALIGNMENT)
         .unix_permissions(0o644)
         .large_file(data.len() as u64 >= u64::from(u32::MAX));
     zip.start_file(format!("{ARCHIVE}/{name}"), options)
-        .with_context(|| format!("writing the zip entry {name}"))?;
+        .map_err(|e| format!("writing the zip entry {name}: {e}"))?;
     zip.write_all(data)
-        .with_context(|| format!("writing the zip entry {name}"))?;
+        .map_err(|e| format!("writing the zip entry {name}: {e}"))?;
     id.add(data);
     Ok(())
 }
@@ -448,9 +451,9 @@ mod tests {
     #[test]
     fn inconsistent_tensors_are_refused() {
         let e = encode_state_dict(&[named("x", &[2, 2], vec![0.0; 3])]).unwrap_err();
-        assert!(e.to_string().contains("holds 4 values"), "{e}");
+        assert!(e.contains("holds 4 values"), "{e}");
         let twice = [named("x", &[1], vec![0.0]), named("x", &[1], vec![1.0])];
         let e = encode_state_dict(&twice).unwrap_err();
-        assert!(e.to_string().contains("twice"), "{e}");
+        assert!(e.contains("twice"), "{e}");
     }
 }

@@ -1,0 +1,16 @@
+//! Disparity EXR bytes: decoded within the limits, or one error line naming the file.
+#![no_main]
+
+use std::path::Path;
+
+use stereogen_fuzz::{Limited, check};
+
+#[global_allocator]
+static ALLOC: Limited = Limited;
+
+libfuzzer_sys::fuzz_target!(|bytes: &[u8]| {
+    check(
+        stereo_io::decode_disparity_exr(bytes, Path::new("f.exr")),
+        "f.exr",
+    );
+});
