@@ -30,6 +30,7 @@ const PAGES: &[(&str, &str)] = &[
     ("docs/guide/export-and-share.md", "export"),
     ("docs/guide/python.md", "python"),
     ("docs/guide/train.md", "train"),
+    ("docs/guide/train-distributed.md", "train-distributed"),
     ("docs/guide/evaluate.md", "evaluate"),
     ("docs/guide/deploy.md", "deploy"),
 ];
@@ -571,7 +572,21 @@ fn guide_commands_run_as_written() {
         "crestereo.onnx",
         "crestereo.pth",
         "mixed-run/loss.png",
+        "job/train.sbatch",
     ] {
         assert!(work.path().join(made).is_file(), "{made} was not made");
+    }
+    // Two replicas in one process and two ranks over the loopback train on the same samples.
+    let losses = |run: &str| {
+        crestereo_train::parallel::compare::logged_losses(&work.path().join(run))
+            .unwrap_or_else(|e| panic!("{run}: {e:#}"))
+    };
+    let (replicas, ranks) = (losses("two-replicas"), losses("two-ranks"));
+    assert_eq!(replicas.len(), ranks.len(), "{replicas:?} vs {ranks:?}");
+    for ((sa, a), (sb, b)) in replicas.iter().zip(&ranks) {
+        assert!(
+            sa == sb && (a - b).abs() <= 1e-5 * a.abs().max(1e-3),
+            "two replicas {replicas:?} vs two ranks {ranks:?}"
+        );
     }
 }
