@@ -89,4 +89,64 @@ mod tests {
         assert_eq!(c.len(), 2000);
         assert_ne!(c.as_ptr(), b.as_ptr());
     }
+
+    /// What a pooled buffer held before never reaches a result: a training step's gradients
+    /// are the same bits after every pool thread's buffers were filled with NaN. (Contents left
+    /// by another run at other sizes once made runs in one process differ.)
+    #[test]
+    fn leftover_contents_never_reach_a_result() {
+        use crate::{CREStereoConfig, CpuAutodiffBackend, sequence_loss};
+        use burn::prelude::*;
+        type B = CpuAutodiffBackend;
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .expect("a thread pool");
+        let step = || {
+            pool.install(|| {
+                let device = Default::default();
+                <B as Backend>::seed(&device, 7);
+                let model = CREStereoConfig::new().init::<B>(&device);
+                let (n, h, w) = (1, 32, 64);
+                let v = |salt: usize| -> Vec<f32> {
+                    (0..n * 3 * h * w)
+                        .map(|i| (((i * 7919 + salt * 104_729) % 2003) as f32) * 0.1)
+                        .collect()
+                };
+                let image = |salt| {
+                    Tensor::<B, 1>::from_floats(v(salt).as_slice(), &device).reshape([n, 3, h, w])
+                };
+                let d: Vec<f32> = (0..n * h * w).map(|i| (i % 37) as f32 * 0.5).collect();
+                let disp = Tensor::<B, 1>::from_floats(d.as_slice(), &device).reshape([n, h, w]);
+                let valid = Tensor::<B, 3>::ones([n, h, w], &device);
+                let preds = model.forward(image(1), image(2), 2, None);
+                let loss = sequence_loss(&preds, disp, valid, 0.9);
+                let grads = loss.backward();
+                crate::weights::named_gradients(&model, &grads)
+            })
+        };
+        let clean = step();
+        pool.broadcast(|_| {
+            let mut held: Vec<Scratch> = (8..24).map(|b| Scratch::new(1 << b)).collect();
+            for s in &mut held {
+                s.fill(f32::NAN);
+            }
+        });
+        let poisoned = step();
+        let differ: Vec<&str> = clean
+            .iter()
+            .zip(&poisoned)
+            .filter(|(a, b)| {
+                !a.data
+                    .iter()
+                    .zip(&b.data)
+                    .all(|(x, y)| x.to_bits() == y.to_bits())
+            })
+            .map(|(a, _)| a.name.as_str())
+            .collect();
+        assert!(
+            differ.is_empty(),
+            "gradients that read leftovers: {differ:?}"
+        );
+    }
 }
