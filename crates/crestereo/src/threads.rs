@@ -87,18 +87,24 @@ pub(crate) fn first_round_that_differs_under_load(
     let quiet = pool.install(&run);
     let stop = AtomicBool::new(false);
     let mut changed_at = None;
+    // A busy job is short and queues its successor: a worker that steals one while it waits on
+    // a join of the measured run gets back to that run, where a job looping until the end of
+    // the test would hold the worker and deadlock it.
+    fn keep_busy<'s>(scope: &rayon::Scope<'s>, stop: &'s AtomicBool) {
+        if stop.load(Ordering::Relaxed) {
+            return;
+        }
+        let v: f64 = (0..20_000u32)
+            .into_par_iter()
+            .map(|i| f64::from(i).sqrt())
+            .sum();
+        std::hint::black_box(v);
+        scope.spawn(move |s| keep_busy(s, stop));
+    }
     pool.in_place_scope(|scope| {
         let _stop = StopOnDrop(&stop);
         for _ in 0..3 {
-            scope.spawn(|_| {
-                while !stop.load(Ordering::Relaxed) {
-                    let v: f64 = (0..20_000u32)
-                        .into_par_iter()
-                        .map(|i| f64::from(i).sqrt())
-                        .sum();
-                    std::hint::black_box(v);
-                }
-            });
+            scope.spawn(|s| keep_busy(s, &stop));
         }
         for round in 0..rounds {
             let busy = pool.install(&run);

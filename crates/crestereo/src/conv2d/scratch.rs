@@ -102,11 +102,14 @@ mod tests {
             .num_threads(2)
             .build()
             .expect("a thread pool");
+        // One model for both steps: Burn draws initial weights from one process-wide RNG that
+        // the crate's other tests draw from at the same time.
+        let device = Default::default();
+        let model = CREStereoConfig::new().init::<B>(&device);
+        let _ = crate::weights::named_parameters(&model);
         let step = || {
             pool.install(|| {
-                let device = Default::default();
-                <B as Backend>::seed(&device, 7);
-                let model = CREStereoConfig::new().init::<B>(&device);
+                let model = model.clone();
                 let (n, h, w) = (1, 32, 64);
                 let v = |salt: usize| -> Vec<f32> {
                     (0..n * 3 * h * w)
