@@ -63,7 +63,7 @@ pub fn sum_in_order(parts: Vec<Vec<f32>>) -> Vec<f32> {
 }
 
 /// Test support: runs `run` once on a quiet pool of `threads` threads, then `rounds` more times
-/// while three jobs keep that pool busy with parallel work of their own (so jobs are stolen and
+/// while `threads - 1` chains of jobs keep that pool busy with parallel work of their own (so jobs are stolen and
 /// split differently each time), and returns the first round whose outputs' bits differ from
 /// the quiet run's. The busy jobs stop on every exit, a panic included, so a failure reports
 /// instead of hanging the pool.
@@ -103,7 +103,9 @@ pub(crate) fn first_round_that_differs_under_load(
     }
     pool.in_place_scope(|scope| {
         let _stop = StopOnDrop(&stop);
-        for _ in 0..3 {
+        // One worker fewer than the pool has: busy chains refill their workers' own queues
+        // first, and a pool they all occupied would never take the measured run's job.
+        for _ in 0..threads.saturating_sub(1).max(1) {
             scope.spawn(|s| keep_busy(s, &stop));
         }
         for round in 0..rounds {

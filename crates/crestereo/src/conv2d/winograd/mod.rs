@@ -487,7 +487,7 @@ mod tests {
     /// adaptive splitting once made the partial sums, and so the bits, follow the load).
     #[test]
     fn weight_gradient_bits_do_not_depend_on_the_load() {
-        // 24 blocks of tiles: more than rayon's splitter makes without stealing (4 with 2
+        // 24 blocks of tiles: more than rayon's splitter makes without stealing (8 with 4
         // threads), so a stolen job would split the sums differently.
         let g = geometry(4, 64, 96, 3);
         let x: Vec<f32> = (0..g.n * g.cin * g.h * g.w)
@@ -496,7 +496,7 @@ mod tests {
         let dy: Vec<f32> = (0..g.n * g.cout * g.ho * g.wo)
             .map(|i| ((i * 104_729 % 2003) as f32 - 1001.0) * 1e-2)
             .collect();
-        let changed = crate::threads::first_round_that_differs_under_load(2, 20, || {
+        let changed = crate::threads::first_round_that_differs_under_load(4, 20, || {
             vec![weight_grad(&x, &dy, &g)]
         });
         assert_eq!(
