@@ -9,6 +9,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crestereo_train::parallel::compare::{compare_runs, logged_losses};
+use crestereo_train::tiny_run::{free_master_port, output_text, write_tiny_run};
 use stereogen_e2e::crestereo_bin;
 use stereogen_e2e::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
 
@@ -23,44 +24,9 @@ fn crestereo(args: &[&str]) -> String {
         .stdin(Stdio::null())
         .output()
         .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let text = output_text(&o);
     assert!(o.status.success(), "crestereo {args:?}:\n{text}");
     text
-}
-
-/// Eight synthetic pairs (made once) and a tiny config (32×64 crops, 2 iterations, global batch
-/// 2), logged and checkpointed every step.
-fn setup(dir: &Path, steps: u64) -> std::path::PathBuf {
-    let data = dir.join("data");
-    if !data.exists() {
-        crestereo(&[
-            "synth",
-            "--out",
-            s(&data),
-            "--count",
-            "8",
-            "--size",
-            "64x128",
-        ]);
-    }
-    let cfg = dir.join(format!("train-{steps}.toml"));
-    std::fs::write(
-        &cfg,
-        format!(
-            "steps = {steps}\nbatch_size = 2\naccumulate = 1\niters = 2\nseed = 5\n\
-             [[datasets]]\npath = \"{}\"\n[augment]\ncrop = [32, 64]\n\
-             [schedule]\nwarmup_steps = 2\ndecay_start = {}\n[loader]\nworkers = 1\nprefetch = 2\n\
-             [log]\nevery = 1\n[checkpoint]\nevery = 1\nkeep = 2\n",
-            data.display(),
-            steps / 2
-        ),
-    )
-    .unwrap();
-    cfg
 }
 
 /// `crestereo farm slurm` for two CPU ranks on the one node, then `sbatch`; returns the job id.
@@ -112,7 +78,7 @@ fn two_slurm_tasks_train_as_one_process_and_survive_a_requeue() {
     let Some(cluster) = cluster_or_skip(&dir.path().join("slurm")) else {
         return;
     };
-    let cfg = setup(dir.path(), 6);
+    let cfg = write_tiny_run(dir.path(), 6).unwrap();
     let one = dir.path().join("one");
     crestereo(&[
         "train",
@@ -145,7 +111,7 @@ fn two_slurm_tasks_train_as_one_process_and_survive_a_requeue() {
 
     // Preemption: SIGTERM to the job's tasks mid-run; every rank stops after one common step
     // with a checkpoint, exits 75, and the job requeues itself and finishes.
-    let long = setup(dir.path(), 12);
+    let long = write_tiny_run(dir.path(), 12).unwrap();
     let straight = dir.path().join("straight");
     two_ranks_on_the_loopback(&long, &straight);
     let (job_dir, run) = (dir.path().join("job-requeue"), dir.path().join("requeued"));
@@ -186,16 +152,7 @@ fn two_slurm_tasks_train_as_one_process_and_survive_a_requeue() {
 
 /// Two ranks of `cfg` on the loopback, outside Slurm (one CPU thread each).
 fn two_ranks_on_the_loopback(cfg: &Path, run: &Path) {
-    let port = loop {
-        let p = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        if p < 60_000 && (p..p + 4).all(|q| std::net::TcpListener::bind(("0.0.0.0", q)).is_ok()) {
-            break p;
-        }
-    };
+    let port = free_master_port();
     let ranks: Vec<_> = (0..2)
         .map(|r| {
             Command::new(crestereo_bin())
@@ -231,6 +188,6 @@ fn two_ranks_on_the_loopback(cfg: &Path, run: &Path) {
         .collect();
     for r in ranks {
         let o = r.wait_with_output().unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(o.status.success(), "{}", output_text(&o));
     }
 }

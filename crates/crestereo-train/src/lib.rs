@@ -26,4 +26,5 @@ pub mod plot;
 pub mod schedule;
 pub mod synthetic;
 pub mod tensorboard;
+pub mod tiny_run;
 pub mod train;

@@ -9,6 +9,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use crestereo_train::parallel::compare::{checkpoint_weights, compare_runs, logged_losses};
+use crestereo_train::tiny_run::{free_master_port, output_text, write_tiny_run};
 
 /// The equality bound of the targets: losses and weights within 1e-5 relative.
 const TOLERANCE: f64 = 1e-5;
@@ -20,72 +21,17 @@ fn crestereo() -> Command {
 }
 
 fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
+    output_text(o)
 }
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// Eight synthetic 64×128 pairs and a config of 32×64 crops, 2 iterations, global batch 2,
-/// logged and checkpointed every step, at the learning rate of the paper's first steps (its
-/// warm-up starts at 5% of 4e-4).
+/// The tiny run of [`write_tiny_run`]: eight synthetic pairs, global batch 2, at the paper's
+/// first-step learning rate.
 fn setup(dir: &Path, steps: u64) -> PathBuf {
-    let data = dir.join("data");
-    let o = crestereo()
-        .args([
-            "synth",
-            "--out",
-            s(&data),
-            "--count",
-            "8",
-            "--size",
-            "64x128",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", text(&o));
-    let cfg = dir.join("train.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            r#"steps = {steps}
-batch_size = 2
-accumulate = 1
-iters = 2
-seed = 5
-
-[[datasets]]
-path = "{}"
-
-[augment]
-crop = [32, 64]
-
-[schedule]
-lr = 2e-5
-warmup_steps = 1
-decay_start = {steps}
-
-[loader]
-workers = 1
-prefetch = 2
-
-[log]
-every = 1
-
-[checkpoint]
-every = 1
-keep = 3
-"#,
-            data.display(),
-        ),
-    )
-    .unwrap();
-    cfg
+    write_tiny_run(dir, steps).unwrap()
 }
 
 /// `crestereo train` of one process with `extra` flags (one CPU thread unless told).
@@ -104,21 +50,6 @@ fn train(cfg: &Path, run: &Path, extra: &[&str]) -> Command {
     }
     c.args(extra);
     c
-}
-
-/// A master port whose next three ports are free too (orchestrator, liveness, two data
-/// services).
-fn free_ports() -> u16 {
-    loop {
-        let p = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        if p < 60_000 && (p..p + 4).all(|q| std::net::TcpListener::bind(("0.0.0.0", q)).is_ok()) {
-            return p;
-        }
-    }
 }
 
 /// Rank `rank` of two processes on the loopback.
@@ -175,7 +106,7 @@ fn two_processes_train_as_one_with_the_whole_batch() {
     let (one, two) = (dir.path().join("one"), dir.path().join("two"));
     let o = train(&cfg, &one, &["--threads", "2"]).output().unwrap();
     assert!(o.status.success(), "{}", text(&o));
-    let port = free_ports();
+    let port = free_master_port();
     let t0 = Instant::now();
     wait_ok(vec![
         rank(&cfg, &two, 0, port, &[]),
@@ -241,13 +172,13 @@ fn a_killed_rank_stops_the_other_and_resume_continues_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = setup(dir.path(), 8);
     let (straight, broken) = (dir.path().join("straight"), dir.path().join("broken"));
-    let port = free_ports();
+    let port = free_master_port();
     wait_ok(vec![
         rank(&cfg, &straight, 0, port, &[]),
         rank(&cfg, &straight, 1, port, &[]),
     ]);
 
-    let port = free_ports();
+    let port = free_master_port();
     let r0 = rank(&cfg, &broken, 0, port, &[]);
     let mut r1 = rank(&cfg, &broken, 1, port, &[]);
     wait_for(
@@ -275,7 +206,7 @@ fn a_killed_rank_stops_the_other_and_resume_continues_exactly() {
 
     // Resume: the two ranks continue from the newest whole checkpoint and end as the
     // straight run did.
-    let port = free_ports();
+    let port = free_master_port();
     wait_ok(vec![
         rank(&cfg, &broken, 0, port, &["--resume"]),
         rank(&cfg, &broken, 1, port, &["--resume"]),
@@ -289,7 +220,7 @@ fn sigterm_stops_every_rank_after_a_common_step() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = setup(dir.path(), 12);
     let run = dir.path().join("run");
-    let port = free_ports();
+    let port = free_master_port();
     let r0 = rank(&cfg, &run, 0, port, &[]);
     let r1 = rank(&cfg, &run, 1, port, &[]);
     wait_for(
@@ -320,7 +251,7 @@ fn sigterm_stops_every_rank_after_a_common_step() {
         text(&o0)
     );
     // Requeued: the same command with --resume finishes the run.
-    let port = free_ports();
+    let port = free_master_port();
     wait_ok(vec![
         rank(&cfg, &run, 0, port, &["--resume"]),
         rank(&cfg, &run, 1, port, &["--resume"]),
@@ -333,7 +264,7 @@ fn mismatched_ranks_are_refused_before_any_step() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = setup(dir.path(), 2);
     let run = dir.path().join("run");
-    let port = free_ports();
+    let port = free_master_port();
     let r0 = rank(&cfg, &run, 0, port, &[]);
     // Rank 1 with another seed: another run.
     let r1 = rank(&cfg, &run, 1, port, &["--seed", "6"]);
