@@ -32,6 +32,17 @@ pub struct EvalOptions {
     pub lr_tolerance_px: f32,
 }
 
+impl EvalOptions {
+    /// How many samples of a dataset of `len` are evaluated (`limit`, 0 = all).
+    pub fn count(&self, len: usize) -> usize {
+        if self.limit > 0 {
+            len.min(self.limit)
+        } else {
+            len
+        }
+    }
+}
+
 impl Default for EvalOptions {
     fn default() -> Self {
         Self {
@@ -226,11 +237,7 @@ pub fn evaluate<B: Backend>(
     device: &B::Device,
     mut progress: impl FnMut(usize, usize, &ImageResult),
 ) -> Result<EvalReport> {
-    let n = if opts.limit > 0 {
-        dataset.len().min(opts.limit)
-    } else {
-        dataset.len()
-    };
+    let n = opts.count(dataset.len());
     let mut per_image = Vec::new();
     let mut failed = Vec::new();
     for i in 0..n {

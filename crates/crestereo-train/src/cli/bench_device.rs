@@ -14,7 +14,7 @@ use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use burn::tensor::backend::AutodiffBackend;
 use burn::tensor::ops::PadMode;
-use crestereo::{CREStereoConfig, InferenceOptions, sequence_loss};
+use crestereo::{CREStereo, CREStereoConfig, InferenceOptions, sequence_loss};
 use crestereo_train::host_reads;
 
 fn sync<B: Backend>(device: &B::Device) {
@@ -26,14 +26,43 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-fn random_images<B: Backend>(
+/// Random inputs of a training step: images in 0–255, disparities in 0–64, every pixel valid.
+pub(super) struct RandomBatch<B: Backend> {
+    pub left: Tensor<B, 4>,
+    pub right: Tensor<B, 4>,
+    pub disp: Tensor<B, 3>,
+    pub valid: Tensor<B, 3>,
+}
+
+pub(super) fn random_batch<B: Backend>(
     n: usize,
     h: usize,
     w: usize,
     device: &B::Device,
-) -> [Tensor<B, 4>; 2] {
+) -> RandomBatch<B> {
     use burn::tensor::Distribution::Uniform;
-    [0, 1].map(|_| Tensor::random([n, 3, h, w], Uniform(0.0, 255.0), device))
+    let [left, right] = [0, 1].map(|_| Tensor::random([n, 3, h, w], Uniform(0.0, 255.0), device));
+    RandomBatch {
+        left,
+        right,
+        disp: Tensor::random([n, h, w], Uniform(0.0, 64.0), device),
+        valid: Tensor::ones([n, h, w], device),
+    }
+}
+
+/// The reference inference of `model` on an `h`×`w` pair: padded (edge) to multiples of 32, then
+/// cropped back; read to the host, so the device has finished.
+pub(super) fn infer_padded<B: Backend>(
+    model: &CREStereo<B>,
+    left: Tensor<B, 4>,
+    right: Tensor<B, 4>,
+    opts: InferenceOptions,
+) {
+    let [_, _, h, w] = left.dims();
+    let (ph, pw) = (h.div_ceil(32) * 32, w.div_ceil(32) * 32);
+    let pad = |t: Tensor<B, 4>| t.pad((0, pw - w, 0, ph - h), PadMode::Edge);
+    let pred = crestereo::infer::cascade(model, pad(left), pad(right), opts);
+    let _ = pred.slice([0..1, 0..1, 0..h, 0..w]).into_data();
 }
 
 pub fn bench_train<B: AutodiffBackend>(
@@ -46,13 +75,12 @@ pub fn bench_train<B: AutodiffBackend>(
 ) -> Result<()> {
     let mut model = CREStereoConfig::new().init::<B>(device);
     let mut optim = AdamConfig::new().init();
-    let [l, r] = random_images::<B>(n, h, w, device);
-    let disp = Tensor::<B, 3>::random(
-        [n, h, w],
-        burn::tensor::Distribution::Uniform(0.0, 64.0),
-        device,
-    );
-    let valid = Tensor::<B, 3>::ones([n, h, w], device);
+    let RandomBatch {
+        left: l,
+        right: r,
+        disp,
+        valid,
+    } = random_batch::<B>(n, h, w, device);
     let (mut fwd, mut bwd, mut total) = (Vec::new(), Vec::new(), Vec::new());
     // Host reads inside forward and inside backward + Adam, summed over the timed steps. The
     // syncs around the clock readings wait for the device but read nothing back.
@@ -110,19 +138,16 @@ pub fn bench_infer<B: Backend>(
     device: &B::Device,
 ) -> Result<()> {
     let model = CREStereoConfig::new().init::<B>(device);
-    let [l, r] = random_images::<B>(1, h, w, device);
-    let (ph, pw) = (h.div_ceil(32) * 32, w.div_ceil(32) * 32);
+    let batch = random_batch::<B>(1, h, w, device);
+    let opts = InferenceOptions {
+        iters: 20,
+        stages: 2,
+    };
     let mut times = Vec::new();
     for rep in 0..=repeats {
         sync::<B>(device);
         let t0 = Instant::now();
-        let pad = |t: Tensor<B, 4>| t.pad((0, pw - w, 0, ph - h), PadMode::Edge);
-        let opts = InferenceOptions {
-            iters: 20,
-            stages: 2,
-        };
-        let pred = crestereo::infer::cascade(&model, pad(l.clone()), pad(r.clone()), opts);
-        let _ = pred.slice([0..1, 0..1, 0..h, 0..w]).into_data();
+        infer_padded(&model, batch.left.clone(), batch.right.clone(), opts);
         if rep > 0 {
             times.push(t0.elapsed().as_secs_f64());
         }

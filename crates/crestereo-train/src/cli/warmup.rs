@@ -11,9 +11,10 @@ use anyhow::{Context, Result};
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use burn::tensor::backend::AutodiffBackend;
-use burn::tensor::ops::PadMode;
 use crestereo::{CREStereoConfig, InferenceOptions, sequence_loss};
 use crestereo_train::config::TrainConfig;
+
+use super::bench_device::{infer_padded, random_batch};
 
 #[derive(Debug, clap::Args)]
 pub struct WarmupArgs {
@@ -107,25 +108,16 @@ pub fn run<B: AutodiffBackend>(
         t0.elapsed().as_secs_f64()
     );
     let mut sizes: Vec<(usize, usize, InferenceOptions)> = Vec::new();
-    if let Some(v) = &cfg.validation {
-        let data = crestereo_train::data::open_data(
-            &v.path,
-            v.format,
-            v.splits.as_deref(),
-            crestereo_train::data::SplitUse::Eval,
-            "validation",
-        )?;
-        let count = if v.limit == 0 {
-            data.len()
-        } else {
-            v.limit.min(data.len())
-        };
+    // The validation images' sizes (decoded: a dataset states no sizes of its own).
+    if let Some(v) = crestereo_train::train::Validation::open(&cfg)? {
+        let eval = v.options();
         let opts = InferenceOptions {
-            iters: v.iters,
-            stages: v.stages,
+            iters: eval.iters,
+            stages: eval.stages,
         };
-        for i in 0..count {
-            let s = data
+        for i in 0..eval.count(v.data.len()) {
+            let s = v
+                .data
                 .sample(i)
                 .with_context(|| format!("validation sample {i}"))?;
             let (sh, sw) = (s.left.height, s.left.width);
@@ -179,14 +171,11 @@ fn training_step<B: AutodiffBackend>(
     iters: usize,
     device: &B::Device,
 ) -> Result<()> {
-    use burn::tensor::Distribution::Uniform;
     let model = CREStereoConfig::new().init::<B>(device);
     let mut optim = AdamConfig::new().init();
-    let [l, r] = [0, 1].map(|_| Tensor::<B, 4>::random([n, 3, h, w], Uniform(0.0, 255.0), device));
-    let disp = Tensor::<B, 3>::random([n, h, w], Uniform(0.0, 64.0), device);
-    let valid = Tensor::<B, 3>::ones([n, h, w], device);
-    let preds = model.forward(l, r, iters, None);
-    let loss = sequence_loss(&preds, disp, valid, 0.9);
+    let b = random_batch::<B>(n, h, w, device);
+    let preds = model.forward(b.left, b.right, iters, None);
+    let loss = sequence_loss(&preds, b.disp, b.valid, 0.9);
     let grads = GradientsParams::from_grads(loss.backward(), &model);
     let model = optim.step(1e-4, model, grads);
     // Waits for the device: the step's kernels have run (and been compiled and tuned).
@@ -202,12 +191,8 @@ fn inference<B: Backend>(
     opts: InferenceOptions,
     device: &B::Device,
 ) -> Result<()> {
-    use burn::tensor::Distribution::Uniform;
     let model = CREStereoConfig::new().init::<B>(device);
-    let [l, r] = [0, 1].map(|_| Tensor::<B, 4>::random([1, 3, h, w], Uniform(0.0, 255.0), device));
-    let (ph, pw) = (h.div_ceil(32) * 32, w.div_ceil(32) * 32);
-    let pad = |t: Tensor<B, 4>| t.pad((0, pw - w, 0, ph - h), PadMode::Edge);
-    let pred = crestereo::infer::cascade(&model, pad(l), pad(r), opts);
-    let _ = pred.slice([0..1, 0..1, 0..h, 0..w]).into_data();
+    let b = random_batch::<B>(1, h, w, device);
+    infer_padded(&model, b.left, b.right, opts);
     Ok(())
 }

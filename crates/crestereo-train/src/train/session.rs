@@ -15,13 +15,14 @@ use crate::data::open_data;
 use crate::eval::EvalOptions;
 
 /// Held-out data evaluated during training.
-pub(super) struct Validation {
+pub struct Validation {
     settings: ValidationSettings,
-    pub(super) data: Box<dyn StereoDataset>,
+    pub data: Box<dyn StereoDataset>,
 }
 
 impl Validation {
-    pub(super) fn open(cfg: &TrainConfig) -> Result<Option<Self>> {
+    /// The config's validation data, opened (none when the config has no `[validation]`).
+    pub fn open(cfg: &TrainConfig) -> Result<Option<Self>> {
         let Some(settings) = &cfg.validation else {
             return Ok(None);
         };
@@ -43,7 +44,8 @@ impl Validation {
         step.is_multiple_of(self.settings.every) || step == end
     }
 
-    pub(super) fn options(&self) -> EvalOptions {
+    /// How the validation evaluates: iterations, stages and how many images.
+    pub fn options(&self) -> EvalOptions {
         let s = &self.settings;
         EvalOptions {
             iters: s.iters,
