@@ -66,23 +66,13 @@ fn the_wheel_installs_into_a_fresh_venv_and_torch_is_an_extra() {
     let wheel = wheel();
     // A venv with nothing in it: the wheel and its one dependency, NumPy.
     let bare = fresh_venv(&python_home().join("wheel-test-bare"), &[]);
-    let t = Instant::now();
-    run(
+    install(
         pinned_venv_pip(&bare).arg(wheel).arg("numpy==2.4.6"),
-        "pip install the wheel",
+        "pip install wheel + numpy",
     );
-    println!(
-        "pip install wheel + numpy: {:.1} s",
-        t.elapsed().as_secs_f64()
-    );
-    let ok = python(
+    imports(
         &bare,
         "import stereogen; print(stereogen.__version__, stereogen.open_dataset, stereogen.decode_sample)",
-    );
-    assert!(
-        ok.status.success(),
-        "{}",
-        String::from_utf8_lossy(&ok.stderr)
     );
     let no_torch = python(&bare, "import stereogen.torch");
     let err = String::from_utf8_lossy(&no_torch.stderr);
@@ -96,22 +86,29 @@ fn the_wheel_installs_into_a_fresh_venv_and_torch_is_an_extra() {
     let (torch, _) = base_venvs();
     let with_torch = fresh_venv(&python_home().join("wheel-test-torch"), &[&torch]);
     let spec = format!("{}[torch]", wheel.display());
-    let t = Instant::now();
-    run(
+    install(
         pinned_venv_pip(&with_torch).arg(&spec),
-        "pip install wheel[torch]",
+        "pip install wheel[torch] on torch",
     );
-    println!(
-        "pip install wheel[torch] on torch: {:.1} s",
-        t.elapsed().as_secs_f64()
-    );
-    let ok = python(
+    imports(
         &with_torch,
         "import stereogen.torch as st; print(st.StereoDataset, st.StereoWebDataset, st.to_tensors)",
     );
+}
+
+/// Runs a `pip install` and says how long it took.
+fn install(pip: &mut Command, what: &str) {
+    let t = Instant::now();
+    run(pip, what);
+    println!("{what}: {:.1} s", t.elapsed().as_secs_f64());
+}
+
+/// Runs `code` in the venv's Python, which must succeed.
+fn imports(venv: &Path, code: &str) {
+    let ok = python(venv, code);
     assert!(
         ok.status.success(),
-        "{}",
+        "{code}:\n{}",
         String::from_utf8_lossy(&ok.stderr)
     );
 }
