@@ -129,27 +129,30 @@ mod tests {
             })
         };
         let clean = step();
-        pool.broadcast(|_| {
-            let mut held: Vec<Scratch> = (8..24).map(|b| Scratch::new(1 << b)).collect();
-            for s in &mut held {
-                s.fill(f32::NAN);
-            }
-        });
-        let poisoned = step();
-        let differ: Vec<&str> = clean
-            .iter()
-            .zip(&poisoned)
-            .filter(|(a, b)| {
-                !a.data
-                    .iter()
-                    .zip(&b.data)
-                    .all(|(x, y)| x.to_bits() == y.to_bits())
-            })
-            .map(|(a, _)| a.name.as_str())
-            .collect();
-        assert!(
-            differ.is_empty(),
-            "gradients that read leftovers: {differ:?}"
-        );
+        // NaN, and a finite value too: a NaN read through a ReLU (`f32::max`) would vanish.
+        for poison in [f32::NAN, 1.0e4] {
+            pool.broadcast(|_| {
+                let mut held: Vec<Scratch> = (8..24).map(|b| Scratch::new(1 << b)).collect();
+                for s in &mut held {
+                    s.fill(poison);
+                }
+            });
+            let poisoned = step();
+            let differ: Vec<&str> = clean
+                .iter()
+                .zip(&poisoned)
+                .filter(|(a, b)| {
+                    !a.data
+                        .iter()
+                        .zip(&b.data)
+                        .all(|(x, y)| x.to_bits() == y.to_bits())
+                })
+                .map(|(a, _)| a.name.as_str())
+                .collect();
+            assert!(
+                differ.is_empty(),
+                "gradients that read leftovers ({poison}): {differ:?}"
+            );
+        }
     }
 }
