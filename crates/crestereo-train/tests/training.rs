@@ -246,31 +246,13 @@ fn resumed_run_matches_a_straight_run_exactly() {
 /// the network's kernels run on (partial sums are combined in a fixed order, never in the order
 /// work-stealing happened to produce).
 ///
-/// The test runs in a process of its own (this binary, filtered to it): the other tests of this
-/// file train at the same time in this process, and a training beside another training in one
-/// process has been seen to start from a different first loss, a separate defect this test
-/// must not hide or be failed by.
+/// It runs beside the other tests of this file, which build and train networks of their own in
+/// this process at the same time: the initial weights must not depend on them either. Each run
+/// goes to a pool shared only with the busy work, not to the global pool the other tests' kernels
+/// use (see [`crestereo::threads::on_pool`] for the deadlock that would risk).
 #[test]
 fn a_run_repeats_bit_for_bit_while_the_pool_is_busy() {
     use rayon::prelude::*;
-    const NAME: &str = "a_run_repeats_bit_for_bit_while_the_pool_is_busy";
-    if std::env::var_os("CRESTEREO_TEST_ALONE").is_none() {
-        let out = std::process::Command::new(std::env::current_exe().unwrap())
-            .args(["--exact", NAME, "--test-threads", "1"])
-            .env("CRESTEREO_TEST_ALONE", "1")
-            .output()
-            .unwrap();
-        let said = format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        assert!(
-            out.status.success() && said.contains("1 passed"),
-            "the test alone in its process:\n{said}"
-        );
-        return;
-    }
     let data = tempfile::tempdir().unwrap();
     dataset(data.path(), 4);
     let cfg = tiny_config(data.path(), 8);
@@ -280,27 +262,34 @@ fn a_run_repeats_bit_for_bit_while_the_pool_is_busy() {
         stop_at: Some(3),
         ..TrainOptions::default()
     };
+    let pool = || {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap()
+    };
     let calm = tempfile::tempdir().unwrap();
-    let a = crestereo::threads::on_pool(|| {
-        train::<CpuAutodiffBackend>(&cfg, calm.path(), &quiet, &device).unwrap()
-    });
+    let a =
+        pool().install(|| train::<CpuAutodiffBackend>(&cfg, calm.path(), &quiet, &device).unwrap());
     let busy = tempfile::tempdir().unwrap();
+    let busy_pool = pool();
     let stop = std::sync::atomic::AtomicBool::new(false);
     let b = std::thread::scope(|scope| {
         for _ in 0..2 {
             scope.spawn(|| {
                 while !stop.load(std::sync::atomic::Ordering::Relaxed) {
-                    let v: f64 = (0..50_000u32)
-                        .into_par_iter()
-                        .map(|i| f64::from(i).sqrt())
-                        .sum();
+                    let v: f64 = busy_pool.install(|| {
+                        (0..50_000u32)
+                            .into_par_iter()
+                            .map(|i| f64::from(i).sqrt())
+                            .sum()
+                    });
                     std::hint::black_box(v);
                 }
             });
         }
-        let b = crestereo::threads::on_pool(|| {
-            train::<CpuAutodiffBackend>(&cfg, busy.path(), &quiet, &device).unwrap()
-        });
+        let b = busy_pool
+            .install(|| train::<CpuAutodiffBackend>(&cfg, busy.path(), &quiet, &device).unwrap());
         stop.store(true, std::sync::atomic::Ordering::Relaxed);
         b
     });

@@ -63,8 +63,43 @@ pub struct CREStereo<B: Backend> {
     pub offset_range: f64,
 }
 
+/// Held while a network draws its initial weights. Burn's backends draw them from one
+/// process-wide RNG, and lazily, when a parameter is first read: a network built in another
+/// thread at the same time (a checkpoint being loaded, a test) would take draws from the
+/// middle of a seeded initialisation and change its weights.
+static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 impl CREStereoConfig {
+    /// A network with freshly drawn weights (all drawn before this returns).
     pub fn init<B: Backend>(&self, device: &B::Device) -> CREStereo<B> {
+        let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
+        self.draw(device)
+    }
+
+    /// A network whose initial weights depend only on `seed` (and this config), whatever
+    /// other threads of the process do meanwhile — as long as they build networks through
+    /// this config and draw no random tensors of their own.
+    pub fn init_seeded<B: Backend>(&self, seed: u64, device: &B::Device) -> CREStereo<B> {
+        let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
+        B::seed(device, seed);
+        self.draw(device)
+    }
+
+    /// Builds the network and reads every parameter once, so that all its random draws
+    /// happen now (under the caller's lock) rather than on first use.
+    fn draw<B: Backend>(&self, device: &B::Device) -> CREStereo<B> {
+        struct Materialise;
+        impl<B: Backend> burn::module::ModuleVisitor<B> for Materialise {
+            fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<B, D>>) {
+                let _ = param.val();
+            }
+        }
+        let model = self.build(device);
+        model.visit(&mut Materialise);
+        model
+    }
+
+    fn build<B: Backend>(&self, device: &B::Device) -> CREStereo<B> {
         assert_eq!(self.hidden_dim + self.context_dim, self.feature_dim);
         let att = LoFTREncoderLayerConfig::new()
             .with_d_model(self.feature_dim)

@@ -15,6 +15,12 @@ use rayon::prelude::*;
 
 /// Runs `work` on a thread of rayon's global pool (building the pool if it does not exist yet)
 /// and returns its result; already on a pool thread, it simply calls it.
+///
+/// Meant for a program's one long job (a training, an evaluation), started before other threads
+/// use the pool. Queued while they do, it may be picked up by a worker waiting inside one of
+/// their joins, and that join cannot return until `work` ends: should `work` wait for something
+/// the joining thread holds (Burn's autodiff makes each backward pass lock every graph in the
+/// process), both wait for ever. Two trainings in one process started this way hung so.
 pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| work())
 }

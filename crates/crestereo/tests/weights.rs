@@ -125,3 +125,38 @@ fn a_file_that_is_not_weights_is_named() {
         "{msg}"
     );
 }
+
+/// A seeded network's weights depend on its seed only, while another thread builds and reads
+/// networks of its own at the same time (all of Burn's initial draws come from one process-wide
+/// RNG; a training loading a checkpoint beside another one starting from its seed once changed
+/// the latter's first loss).
+#[test]
+fn seeded_weights_do_not_depend_on_other_threads() {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let device = Default::default();
+    let bits = |m: &crestereo::CREStereo<B>| -> Vec<u32> {
+        crestereo::weights::named_parameters(m)
+            .iter()
+            .flat_map(|p| p.data.iter().map(|v| v.to_bits()))
+            .collect()
+    };
+    let alone = bits(&CREStereoConfig::new().init_seeded::<B>(7, &device));
+    let (stop, built) = (AtomicBool::new(false), AtomicUsize::new(0));
+    std::thread::scope(|scope| {
+        let other = scope.spawn(|| {
+            while !stop.load(Ordering::Relaxed) {
+                let other = CREStereoConfig::new().init::<B>(&device);
+                std::hint::black_box(crestereo::weights::named_parameters(&other));
+                built.fetch_add(1, Ordering::Relaxed);
+            }
+        });
+        while built.load(Ordering::Relaxed) == 0 && !other.is_finished() {
+            std::thread::yield_now();
+        }
+        for round in 0..4 {
+            let beside = bits(&CREStereoConfig::new().init_seeded::<B>(7, &device));
+            assert!(beside == alone, "round {round}: the seeded weights changed");
+        }
+        stop.store(true, Ordering::Relaxed);
+    });
+}

@@ -7,6 +7,8 @@
 
 mod logs;
 mod session;
+
+pub use session::Validation;
 mod trainer;
 
 use std::path::{Path, PathBuf};
@@ -146,18 +148,10 @@ fn existing_checkpoint(run: &Path, resume: bool) -> Result<Option<Checkpoint>> {
     Ok(if resume { latest } else { None })
 }
 
-/// A freshly initialised network whose weights depend only on `seed`. Burn's backends draw
-/// initial weights from one process-wide RNG, so two threads initialising at once (tests, or a
-/// tool running several evaluations) would interleave their draws; the lock keeps seed → weights
-/// a function. (Found by the accumulation test: in-process runs started from different weights.)
+/// A freshly initialised network whose weights depend only on `seed`, whatever else the
+/// process does meanwhile (see [`CREStereoConfig::init_seeded`]).
 pub fn seeded_model<B: Backend>(seed: u64, device: &B::Device) -> CREStereo<B> {
-    static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
-    B::seed(device, seed);
-    let model = CREStereoConfig::new().init(device);
-    // Burn creates parameters lazily, on first use: read them all now, inside the lock.
-    let _ = crestereo::weights::named_parameters(&model);
-    model
+    CREStereoConfig::new().init_seeded(seed, device)
 }
 
 /// The training datasets, opened (and announced with their shares when `announce`).
