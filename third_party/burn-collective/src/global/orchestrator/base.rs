@@ -7,7 +7,7 @@ use crate::global::{
     shared::{CollectiveMessage, GlobalCollectiveError},
 };
 use burn_communication::{
-    CommunicationChannel, Message, ProtocolServer, util::os_shutdown_signal, websocket::WsServer,
+    CommunicationChannel, Message, ProtocolServer, websocket::WsServer,
 };
 
 /// The global collective state manages collective operations on the global level
@@ -131,7 +131,11 @@ impl GlobalOrchestrator {
 /// Start a global orchestrator with WebSocket on the given port
 pub async fn start_global_orchestrator(port: u16) {
     let server = WsServer::new(port);
-    let res = GlobalOrchestrator::start(os_shutdown_signal(), server).await;
+    // stereogen patch: the orchestrator lives as long as its process. Upstream stops it on
+    // SIGTERM/Ctrl-C, but a job scheduler sends SIGTERM to every rank before a time limit, and the
+    // ranks still need the orchestrator to agree on a common step to stop after: with it gone,
+    // their next all-reduce hung.
+    let res = GlobalOrchestrator::start(core::future::pending::<()>(), server).await;
     if let Err(err) = res {
         log::error!("Global Collective Orchestrator error: {err:?}");
     }
