@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# CREStereo on a CUDA machine without Rust or network: parity against the fixtures, then Burn
-# (CUDA) and PyTorch (CUDA) timed on the same GPU, with peak GPU memory.
+# CREStereo on a CUDA machine without Rust or network: the kernel warm-up (cold, then warm),
+# parity against the fixtures, one-GPU training through the collective against the plain run,
+# then Burn (CUDA) and PyTorch (CUDA) timed on the same GPU, with peak GPU memory.
 #
 #   gpu_run.sh BIN FIXTURES_DIR TORCH_REFERENCE_PY [OUT_DIR] [DATA_DIR]
 #
@@ -12,8 +13,15 @@
 #   `crestereo synth --out D --count 64 --size 384x512`): 200 training steps on CUDA with their loss.
 # SIZES (env, default "paper8 paper hd small", most wanted first): which sizes to time (hd =
 #   1088x1920 inference, paper8 = the paper crop at batch 8). REPEATS (env, default 3).
+# DEV (env, default cuda): the device of every part (`cpu` runs the script's logic on a machine
+#   without a GPU; its figures then mean nothing).
 # DEADLINE_S (env, default 480): the script's budget in seconds; a part that cannot start in
 #   time is skipped and said so, a running one is stopped at the deadline (what it wrote stays).
+# KERNELS_IN (env, optional): the OUT_DIR/kernels.tgz of an earlier run of the same binary.
+#   A cold start compiles for many minutes (on an H100 a first training step's warm-up had not
+#   finished after 506 s), more than one device call may have: every run leaves the kernels it
+#   compiled, and the autotune results, in OUT_DIR/kernels.tgz, and the next run starts from
+#   them, so runs in separate calls (or sessions) go on where the last one stopped.
 # The whole script is made to fit one device call of at most 8 minutes on an H100/H200.
 set -uo pipefail
 BIN=$1
@@ -36,9 +44,39 @@ in_time() {
     timeout --kill-after=5 "$l" "$@"
 }
 chmod +x "$BIN" 2>/dev/null || true
+DEV=${DEV:-cuda}
+WORK=$(mktemp -d)
+# The kernel cache: CRESTEREO_KERNEL_CACHE's folder holds one folder per build of the binary,
+# named by its size and modification time, which the carried cache restores.
+export CRESTEREO_KERNEL_CACHE=${CRESTEREO_KERNEL_CACHE:-$HOME/.cache/stereogen/kernels}
+KC=$CRESTEREO_KERNEL_CACHE
+SHA=$(sha256sum "$BIN" | cut -d' ' -f1)
+# Compiled kernels (lines of the `toc` files) and autotune results (lines under `autotune`).
+census() {
+    local k t
+    k=$(find "$KC" -type f -name 'toc*' -not -path '*autotune*' -exec cat {} + 2>/dev/null | wc -l)
+    t=$(find "$KC" -type f -path '*autotune*' -exec cat {} + 2>/dev/null | wc -l)
+    echo "$k compiled kernels, $t autotune results"
+}
+# On every exit, the deadline's included: the cache as it stands, for the next run.
+finish() {
+    if [ -d "$KC" ]; then
+        echo "$SHA" >"$WORK/BINARY_SHA256"
+        stat -c %Y "$BIN" >"$WORK/BINARY_MTIME"
+        tar czf "$OUT/kernels.tgz" -C "$WORK" BINARY_SHA256 BINARY_MTIME -C "$(dirname "$KC")" \
+            "$(basename "$KC")" && say "kernel cache left in $OUT/kernels.tgz: $(census)"
+    fi
+    rm -rf "$WORK"
+}
+trap finish EXIT
+trap 'exit 143' TERM INT
 
 say "== machine"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$SUMMARY"
+if command -v nvidia-smi >/dev/null; then
+    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$SUMMARY"
+else
+    say "no nvidia-smi: GPU memory is not read"
+fi
 # PyTorch's defaults are timed as they are: TF32 in cuDNN convolutions, fp32 matrix products.
 python3 -c 'import torch; b = torch.backends; print("torch", torch.__version__, "cuda", torch.version.cuda,
     "cudnn.allow_tf32", b.cudnn.allow_tf32, "matmul.allow_tf32", b.cuda.matmul.allow_tf32)' | tee -a "$SUMMARY"
@@ -57,16 +95,63 @@ for lib in libnvrtc.so libcuda.so.1; do
     fi
 done
 say "CUDA_PATH=${CUDA_PATH:-unset} LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-unset}"
+if [ -n "${KERNELS_IN:-}" ]; then
+    mkdir -p "$WORK/in"
+    if tar xzf "$KERNELS_IN" -C "$WORK/in" && [ "$(cat "$WORK/in/BINARY_SHA256")" = "$SHA" ]; then
+        touch -d "@$(cat "$WORK/in/BINARY_MTIME")" "$BIN"
+        mkdir -p "$KC" && cp -r "$WORK/in/$(basename "$KC")/." "$KC/"
+        say "kernel cache from $KERNELS_IN: $(census)"
+    else
+        say "KERNELS_IN ($KERNELS_IN) is not from this binary: ignored, the start is cold"
+    fi
+    rm -rf "$WORK/in"
+fi
 
-# --- 1. parity: the CLI's two-pass inference on the fixture PNGs, CUDA and CPU, vs pred_full.npy
+# --- 1. warm-up: every kernel of the small training config and of the inference sizes below,
+# compiled and autotuned into the (empty) kernel cache, then the same command again from it.
+# The later parts find their kernels there.
+say "== warm-up (crestereo warmup), cold then warm"
+SYN=$WORK/synth
+in_time "$BIN" synth --out "$SYN" --count 8 --size 256x320 >"$OUT/synth.log" 2>&1 || say "synth FAILED"
+CFG=$WORK/small.toml
+cat >"$CFG" <<EOF
+seed = 0
+steps = 5
+batch_size = 1
+accumulate = 1
+iters = 4
+[schedule]
+lr = 0.00002
+warmup_steps = 0
+decay_start = 5
+[augment]
+crop = [192, 256]
+[checkpoint]
+every = 5
+keep = 1
+[log]
+tensorboard = false
+[[datasets]]
+path = "$SYN"
+EOF
+for pass in cold warm; do
+    start=$(date +%s.%N)
+    in_time "$BIN" warmup --device "$DEV" --config "$CFG" --infer-size 128x192 --infer-size 256x320 \
+        >"$OUT/warmup_$pass.log" 2>&1 || say "warmup ($pass) FAILED (see warmup_$pass.log)"
+    say "-- $pass: wall $(python3 -c "import time; print(f'{time.time() - $start:.1f}')") s; cache: $(census)"
+    grep -E "^(warm-up|  )" "$OUT/warmup_$pass.log" | sed 's/^/   /' | tee -a "$SUMMARY"
+done
+
+# --- 2. parity: the CLI's two-pass inference on the fixture PNGs, CUDA and CPU, vs pred_full.npy
 say "== parity (eval_cascade_1x128x192, two-pass, 20 iters) vs pred_full.npy"
 E=$FIX/eval_cascade_1x128x192
-for dev in cuda cpu; do
+for dev in $DEV cpu; do
+    [ "$dev" = cpu ] && [ -s "$OUT/pred_cpu.pfm" ] && continue
     in_time "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$dev.exr" --pfm "$OUT/pred_$dev.pfm" \
         --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device "$dev" \
         >"$OUT/infer_$dev.log" 2>&1 || say "infer --device $dev FAILED (see infer_$dev.log)"
 done
-python3 - "$OUT" "$E/pred_full.npy" <<'EOF' | tee -a "$SUMMARY"
+python3 - "$OUT" "$E/pred_full.npy" "$DEV" <<'EOF' | tee -a "$SUMMARY"
 import sys, numpy as np
 out, ref = sys.argv[1], np.load(sys.argv[2])[0, 0]  # (1, 2, H, W) -> disparity channel
 def pfm(path):
@@ -76,7 +161,7 @@ def pfm(path):
         scale = float(f.readline())
         data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
     return data.reshape(h, w)[::-1]  # PFM rows run bottom to top
-for dev in ("cuda", "cpu"):
+for dev in dict.fromkeys((sys.argv[3], "cpu")):
     try:
         d = pfm(f"{out}/pred_{dev}.pfm")
     except Exception as e:
@@ -85,18 +170,60 @@ for dev in ("cuda", "cpu"):
     print(f"{dev}: max |pred - pred_full| = {err:.3e} ({'PASS' if err <= 1e-3 else 'FAIL'} at 1e-3)")
 EOF
 
-if [ ! -s "$OUT/pred_cuda.pfm" ]; then
-    # Nothing below can run without a working CUDA backend: stop early, with the reason.
-    say "== CUDA inference failed; its log ends:"
-    tail -25 "$OUT/infer_cuda.log" | tee -a "$SUMMARY"
+if [ ! -s "$OUT/pred_$DEV.pfm" ]; then
+    # Nothing below can run without a working backend: stop early, with the reason.
+    say "== $DEV inference failed; its log ends:"
+    tail -25 "$OUT/infer_$DEV.log" | tee -a "$SUMMARY"
     exit 1
 fi
 
-# --- 2. timing and peak GPU memory, each run in its own process while nvidia-smi polls
-poll_start() { nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 50 >"$1" & POLL=$!; }
-poll_stop() { kill "$POLL" 2>/dev/null; wait "$POLL" 2>/dev/null; }
-peak() { sort -n "$1" | tail -1; }
-BASE=$(nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits | head -1)
+# --- 3. one replica through the collective (`--devices DEV:0`) against the plain run, and the
+# plain run twice (whether the backend itself repeats its bits): 5 steps of the small config.
+say "== one device through the collective vs the plain run (5 steps, batch 1, 192x256, 4 iterations)"
+for run in plain plain_again collective; do
+    extra=""
+    [ $run = collective ] && extra="--devices $DEV:0"
+    in_time "$BIN" train --device "$DEV" --config "$CFG" --out "$WORK/$run" --no-progress $extra \
+        >"$OUT/train_$run.log" 2>&1 || say "train $run FAILED (see train_$run.log)"
+    in_time "$BIN" export pytorch --weights "$WORK/$run" -o "$WORK/$run.pth" >>"$OUT/train_$run.log" 2>&1
+    cp "$WORK/$run/train_log.csv" "$OUT/train_log_$run.csv" 2>/dev/null
+done
+python3 - "$WORK" <<'EOF' | tee -a "$SUMMARY"
+import csv, sys, torch
+work = sys.argv[1]
+def losses(run):
+    with open(f"{work}/{run}/train_log.csv") as f:
+        return [float(r["loss"]) for r in csv.DictReader(f)]
+def weights(run):
+    return torch.load(f"{work}/{run}.pth", map_location="cpu", weights_only=True)
+try:
+    base_l, base_w = losses("plain"), weights("plain")
+except Exception as e:
+    print(f"   no plain run to compare with ({e})"); sys.exit()
+print(f"   plain losses: {' '.join(f'{x:.6f}' for x in base_l)}")
+for run in ("plain_again", "collective"):
+    try:
+        l, w = losses(run), weights(run)
+    except Exception as e:
+        print(f"   {run}: missing ({e})"); continue
+    dl = max((abs(a - b) / abs(a) for a, b in zip(base_l, l)), default=float("nan"))
+    num = sum(float((base_w[k].double() - w[k].double()).pow(2).sum()) for k in base_w)
+    den = sum(float(base_w[k].double().pow(2).sum()) for k in base_w)
+    same = l == base_l and all(torch.equal(base_w[k], w[k]) for k in base_w)
+    print(f"   {run} vs plain: {len(l)} steps, losses {dl:.3e}, weights {(num / den) ** 0.5:.3e} "
+          f"(relative){' - bit-identical' if same else ''}")
+EOF
+
+# --- 4. timing and peak GPU memory, each run in its own process while nvidia-smi polls
+poll_start() {
+    if command -v nvidia-smi >/dev/null; then
+        nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 50 >"$1" & POLL=$!
+    else echo 0 >"$1"; POLL=; fi
+}
+poll_stop() { [ -n "$POLL" ] && { kill "$POLL" 2>/dev/null; wait "$POLL" 2>/dev/null; }; }
+peak() { sort -n "$1" | tail -1 | grep . || echo 0; }
+BASE=$(nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits 2>/dev/null | head -1)
+BASE=${BASE:-0}
 say "== timing (device sync around every clock reading; warm-up then median of $REPEATS)"
 say "   GPU memory in use before the runs: $BASE MiB (subtracted from the nvidia-smi peaks)"
 echo "[" >"$OUT/results.json"
@@ -113,12 +240,12 @@ for size in $SIZES; do
         if [ $what = train ]; then S=$TS; else S=$IS; fi
         csv=$(echo $S | tr ' ' ',')
         poll_start "$OUT/mem_burn_${what}_$size.txt"
-        in_time "$BIN" bench --device cuda --what $what --repeats "$REPEATS" \
+        in_time "$BIN" bench --device "$DEV" --what $what --repeats "$REPEATS" \
             $([ $what = train ] && echo --train-size || echo --infer-size) "$csv" \
             >"$OUT/burn_${what}_$size.log" 2>&1 || say "burn $what $size FAILED"
         poll_stop
         poll_start "$OUT/mem_torch_${what}_$size.txt"
-        CRESTEREO_TORCH_DEVICE=cuda CRESTEREO_TORCH_REPEATS=$REPEATS \
+        CRESTEREO_TORCH_DEVICE=$DEV CRESTEREO_TORCH_REPEATS=$REPEATS \
             in_time python3 "$REF" bench 8 $what $S >"$OUT/torch_${what}_$size.log" 2>&1 || say "torch $what $size FAILED"
         poll_stop
         b=$(grep -E "^(train step|inference)" "$OUT/burn_${what}_$size.log" | tail -1)
@@ -154,13 +281,13 @@ EOF
 done
 echo "]" >>"$OUT/results.json"
 
-# --- 3. 200 training steps on the carried data (paper crop, batch 8) with their loss
+# --- 5. 200 training steps on the carried data (paper crop, batch 8) with their loss
 if [ -n "$DATA" ]; then
-    say "== 200 training steps on $DATA (CUDA, batch 8, 384x512, 10 iters)"
+    say "== 200 training steps on $DATA ($DEV, batch 8, 384x512, 10 iters)"
     poll_start "$OUT/mem_train200.txt"
     start=$(date +%s)
     # --accumulate 1: one optimizer step per batch of 8 (the default accumulates 8 batches).
-    in_time "$BIN" train --device cuda --data "$DATA" --out "$OUT/run200" --steps 200 --batch-size 8 \
+    in_time "$BIN" train --device "$DEV" --data "$DATA" --out "$OUT/run200" --steps 200 --batch-size 8 \
         --accumulate 1 --crop 384x512 --iters 10 --checkpoint-every 200 --no-progress \
         >"$OUT/train200.log" 2>&1 || say "train 200 steps FAILED (see train200.log)"
     poll_stop
