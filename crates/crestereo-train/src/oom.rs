@@ -2,16 +2,42 @@
 //! when an allocation fails (CubeCL's memory management has no error path to the caller); the
 //! panic is caught here, its report kept off the terminal, and the user told what ran out and
 //! what to lower.
+//!
+//! CubeCL runs a device's work on a thread of its own, and that is where a failed allocation
+//! panics (wgpu: "can't allocate buffer of size …"). The caller then sees only what follows:
+//! on lavapipe with the process's memory limited, thousands of follow-on panics ("Ordering is
+//! bigger than operations", "CallError") and an abort (SIGABRT). So a memory panic on *any*
+//! thread while [`on_device`] work runs ends the process at once, with the same one line and
+//! [`EXIT_OUT_OF_MEMORY`]. Files are written whole or not at all (temp name, rename), so the
+//! last whole checkpoint stays.
 
 use std::cell::RefCell;
 use std::panic::AssertUnwindSafe;
-use std::sync::Once;
+use std::sync::{Mutex, Once};
 
 use anyhow::{Result, anyhow};
 
 thread_local! {
     /// While set, panics on this thread are recorded here instead of printed.
     static CAUGHT: RefCell<Option<Option<String>>> = const { RefCell::new(None) };
+}
+
+/// The exit status of a process stopped because a device thread ran out of memory: 71
+/// (sysexits.h's EX_OSERR, a system resource failed), apart from 1 so that a job script can tell
+/// it from other errors.
+pub const EXIT_OUT_OF_MEMORY: u8 = 71;
+
+/// The [`on_device`] work running in the process (what, what to lower), newest last, with the
+/// id that removes it.
+static ACTIVE: Mutex<Vec<(u64, String, String)>> = Mutex::new(Vec::new());
+
+fn oom_error(what: &str, advice: &str, message: &str) -> String {
+    let said = message.lines().next().unwrap_or("");
+    // CubeCL's wgpu server unwraps the allocation's error: keep the error, not the unwrap.
+    let said = said
+        .strip_prefix("called `Result::unwrap()` on an `Err` value: ")
+        .unwrap_or(said);
+    format!("the device ran out of memory during {what}: {advice} (the backend said: {said})")
 }
 
 fn install_hook() {
@@ -29,13 +55,24 @@ fn install_hook() {
                 let mut c = c.borrow_mut();
                 match c.as_mut() {
                     Some(slot) => {
-                        *slot = Some(message);
+                        *slot = Some(message.clone());
                         true
                     }
                     None => false,
                 }
             });
             if !caught {
+                if is_out_of_memory(&message) {
+                    let active = ACTIVE
+                        .lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .last()
+                        .cloned();
+                    if let Some((_, what, advice)) = active {
+                        eprintln!("error: {}", oom_error(&what, &advice, &message));
+                        std::process::exit(i32::from(EXIT_OUT_OF_MEMORY));
+                    }
+                }
                 default(info);
             }
         }));
@@ -57,6 +94,7 @@ pub fn is_out_of_memory(message: &str) -> bool {
         "memory allocation",
         "allocation failed",
         "failed to allocate",
+        "can't allocate",
     ]
     .iter()
     .any(|k| m.contains(k))
@@ -67,6 +105,20 @@ pub fn is_out_of_memory(message: &str) -> bool {
 /// message.
 pub fn on_device<T>(work: impl FnOnce() -> Result<T>, what: &str, advice: &str) -> Result<T> {
     install_hook();
+    struct Active(u64);
+    impl Drop for Active {
+        fn drop(&mut self) {
+            let mut a = ACTIVE.lock().unwrap_or_else(|e| e.into_inner());
+            a.retain(|(id, ..)| *id != self.0);
+        }
+    }
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let id = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    ACTIVE
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .push((id, what.to_owned(), advice.to_owned()));
+    let _active = Active(id);
     CAUGHT.with(|c| *c.borrow_mut() = Some(None));
     let result = std::panic::catch_unwind(AssertUnwindSafe(work));
     let message = CAUGHT.with(|c| c.borrow_mut().take()).flatten();
@@ -75,10 +127,7 @@ pub fn on_device<T>(work: impl FnOnce() -> Result<T>, what: &str, advice: &str) 
         Err(_) => {
             let message = message.unwrap_or_else(|| "a panic".into());
             if is_out_of_memory(&message) {
-                Err(anyhow!(
-                    "the device ran out of memory during {what}: {advice} (the backend said: {})",
-                    message.lines().next().unwrap_or("")
-                ))
+                Err(anyhow!(oom_error(what, advice, &message)))
             } else {
                 Err(anyhow!("{what} failed: {message}"))
             }

@@ -285,3 +285,56 @@ fn cli_infer_on_vulkan_matches_the_cpu() {
     );
     assert!(err <= 1e-3, "{err}");
 }
+
+/// Running out of device memory is one line naming what to lower and exit status 71, not a
+/// backend panic. Shown on lavapipe, whose device memory is the process's own: the training runs
+/// with its address space limited to 6 GB (`ulimit -v`) at a batch of 32 paper crops, so the
+/// first large buffer fails (wgpu: "can't allocate buffer of size …", on CubeCL's device thread).
+/// Before, that gave thousands of follow-on panics and an abort (SIGABRT).
+#[test]
+fn training_out_of_device_memory_is_one_line() {
+    if !lavapipe() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    crestereo_train::synthetic::write_crestereo_dataset(&data, 4, 512, 384, 0).unwrap();
+    let t0 = std::time::Instant::now();
+    let out = Command::new("sh")
+        .args(["-c", "ulimit -v 6000000 && exec \"$0\" \"$@\""])
+        .arg(env!("CARGO_BIN_EXE_crestereo"))
+        .args(["train", "--device", "vulkan", "--data"])
+        .arg(&data)
+        .arg("--out")
+        .arg(dir.path().join("run"))
+        .args(["--steps", "1", "--batch-size", "32", "--accumulate", "1"])
+        .args(["--crop", "384x512", "--iters", "4", "--no-progress"])
+        .env("CUBECL_WGPU_DEFAULT_DEVICE", "Cpu")
+        .env("CRESTEREO_KERNEL_CACHE", dir.path().join("kernels"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!(
+        "out of memory on lavapipe: exit {:?} after {:.1} s",
+        out.status.code(),
+        t0.elapsed().as_secs_f64()
+    );
+    assert_eq!(
+        out.status.code(),
+        Some(i32::from(crestereo_train::oom::EXIT_OUT_OF_MEMORY)),
+        "{stderr}"
+    );
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("error: the device ran out of memory during training"))
+        .unwrap_or_else(|| panic!("no out-of-memory line in:\n{stderr}"));
+    assert!(line.contains("lower --batch-size"), "{line}");
+    assert!(
+        line.contains("--crop") && line.contains("--iters"),
+        "{line}"
+    );
+    assert!(
+        !stderr.contains("panicked"),
+        "a panic reached the terminal:\n{stderr}"
+    );
+}

@@ -233,10 +233,14 @@ fn run(cli: Cli, cache: Option<std::path::PathBuf>) -> Result<()> {
             ))
         }
         Command::Warmup { args, backend } => {
+            // The CPU backend compiles nothing: no cache to speak of.
+            let cache = cache
+                .as_deref()
+                .filter(|_| backend.device != DeviceKind::Cpu);
             with_backend!(backend.device, true, |B| warmup::run::<B>(
                 &args,
                 &Default::default(),
-                cache.as_deref()
+                cache
             ))
         }
         Command::Farm(command) => farm::run(&command),

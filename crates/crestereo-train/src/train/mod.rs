@@ -7,9 +7,9 @@
 
 mod logs;
 mod session;
+mod trainer;
 
 pub use session::Validation;
-mod trainer;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
