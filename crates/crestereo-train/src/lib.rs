@@ -24,6 +24,7 @@ pub mod oom;
 pub mod parallel;
 pub mod plot;
 pub mod schedule;
+pub mod score;
 pub mod synthetic;
 pub mod tensorboard;
 pub mod tiny_run;

@@ -300,3 +300,84 @@ fn kernel_instruction_set_is_named_and_checked() {
         "{stderr}"
     );
 }
+
+/// `crestereo score` writes, per sample, exactly the metrics `crestereo eval` reports for it (one
+/// function computes both), continues a file a kill left behind (the samples it holds are kept,
+/// a torn last line is cut off), and refuses to mix in scores of other options.
+#[test]
+fn score_equals_eval_per_image_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    crestereo_train::synthetic::write_crestereo_dataset(&data, 4, 128, 64, 0).unwrap();
+    let weights = fixtures().join("weights_seed0.pt");
+    let opts = ["--iters", "2", "--stages", "1"];
+    let eval_json = dir.path().join("eval.json");
+    let o = bin()
+        .arg("eval")
+        .arg("--data")
+        .arg(&data)
+        .arg("--weights")
+        .arg(&weights)
+        .args(opts)
+        .arg("--json")
+        .arg(&eval_json)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&eval_json).unwrap()).unwrap();
+    let scores = dir.path().join("scores.jsonl");
+    let score = |extra: &[&str]| {
+        bin()
+            .arg("score")
+            .arg(&data)
+            .arg("--weights")
+            .arg(&weights)
+            .arg("--out")
+            .arg(&scores)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    // Two samples, then a kill in the middle of the third one's line.
+    let o = score(&["--iters", "2", "--stages", "1", "--limit", "2"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut f = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&scores)
+        .unwrap();
+    std::io::Write::write_all(&mut f, br#"{"index":2,"id":"torn"#).unwrap();
+    drop(f);
+    let o = score(&opts);
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{said}");
+    assert!(
+        said.contains("scored 2 sample(s)") && said.contains("(2 already in"),
+        "{said}"
+    );
+    let text = std::fs::read_to_string(&scores).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines[0]["scores"], "crestereo-scores");
+    assert_eq!(lines.len(), 5, "{text}");
+    let per_image = report["per_image"].as_array().unwrap();
+    assert_eq!(per_image.len(), 4);
+    for (i, line) in lines[1..].iter().enumerate() {
+        assert_eq!(line["index"], i, "{text}");
+        let evaluated = per_image.iter().find(|r| r["id"] == line["id"]).unwrap();
+        for key in ["width", "height", "all", "nonocc", "nonocc_source"] {
+            assert_eq!(line[key], evaluated[key], "sample {i}, {key}");
+        }
+        assert!(line["all"]["epe"].as_f64().unwrap() > 0.0);
+    }
+    // Other options are not mixed into the same file.
+    let o = score(&["--iters", "3", "--stages", "1"]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("holds scores made otherwise"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

@@ -1,6 +1,6 @@
 //! `crestereo eval`: weights × dataset → printed table, JSON report, per-image CSV.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use burn::prelude::*;
@@ -47,13 +47,20 @@ pub struct EvalArgs {
 }
 
 /// The network to evaluate and how the report names its weights.
-struct Evaluated<B: Backend> {
-    model: CREStereo<B>,
-    weights: String,
+pub(super) struct Evaluated<B: Backend> {
+    pub model: CREStereo<B>,
+    pub weights: String,
+    /// The weights file's CRC-32C, or `untrained-seed-N`.
+    pub fingerprint: String,
 }
 
-fn load_model<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<Evaluated<B>> {
-    Ok(match (&a.weights, a.untrained_seed) {
+/// The network of `--weights` (a file, checkpoint or run) or of `--untrained-seed`.
+pub(super) fn load_model<B: Backend>(
+    weights: Option<&Path>,
+    untrained_seed: Option<u64>,
+    device: &B::Device,
+) -> Result<Evaluated<B>> {
+    Ok(match (weights, untrained_seed) {
         (Some(w), _) => {
             let file = weights_file(w)?;
             let model = crestereo::weights::load_weights(
@@ -64,11 +71,13 @@ fn load_model<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<Evaluated<
             Evaluated {
                 model,
                 weights: file.display().to_string(),
+                fingerprint: crestereo_train::score::weights_fingerprint(&file)?,
             }
         }
         (None, Some(seed)) => Evaluated {
             model: crestereo_train::train::seeded_model::<B>(seed, device),
             weights: format!("untrained (seed {seed})"),
+            fingerprint: format!("untrained-seed-{seed}"),
         },
         (None, None) => bail!(
             "no weights: pass --weights FILE|CHECKPOINT|RUN (or --untrained-seed N for a baseline)"
@@ -92,30 +101,44 @@ fn options(a: &EvalArgs) -> Result<EvalOptions> {
     })
 }
 
-pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
-    let at = super::train::parse_location(&a.data, "--data")?;
-    let format = match (at.format, a.format) {
+/// The dataset of `--data DIR[:FORMAT[:SPLITS]]` and `--format`, as evaluation reads it.
+pub(super) fn open_dataset(
+    data: &str,
+    format: Option<stereo_io::DatasetFormat>,
+) -> Result<Box<dyn stereo_io::StereoDataset>> {
+    let at = super::train::parse_location(data, "--data")?;
+    let format = match (at.format, format) {
         (Some(x), Some(y)) if x != y => {
-            bail!("--data {} says {x}, --format says {y}", a.data)
+            bail!("--data {data} says {x}, --format says {y}")
         }
         (x, y) => x.or(y),
     };
-    let dataset = crestereo_train::data::open_data(
+    crestereo_train::data::open_data(
         &at.path,
         format,
         at.splits.as_deref(),
         crestereo_train::data::SplitUse::Eval,
         "--data",
-    )?;
-    let evaluated = load_model::<B>(a, device)?;
-    let opts = options(a)?;
+    )
+}
+
+/// The progress bar of a pass over a dataset.
+pub(super) fn progress_bar() -> ProgressBar {
     let bar = ProgressBar::new(0);
     bar.set_style(
         ProgressStyle::with_template(
-            "{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}",
+            "{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {per_sec} {msg}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
+    bar
+}
+
+pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
+    let dataset = open_dataset(&a.data, a.format)?;
+    let evaluated = load_model::<B>(a.weights.as_deref(), a.untrained_seed, device)?;
+    let opts = options(a)?;
+    let bar = progress_bar();
     let report = evaluate(
         &evaluated.model,
         dataset.as_ref(),

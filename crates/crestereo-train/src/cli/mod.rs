@@ -10,6 +10,7 @@ mod farm;
 mod infer;
 #[cfg(feature = "kernel-cache")]
 mod kernel_cache;
+mod score;
 mod train;
 mod warmup;
 
@@ -52,6 +53,14 @@ enum Command {
     Eval {
         #[command(flatten)]
         args: eval::EvalArgs,
+        #[command(flatten)]
+        backend: BackendArgs,
+    },
+    /// Score every sample of a dataset with a model: the per-image metrics of `eval` (EPE,
+    /// Bad-τ, D1, ... on all and non-occluded pixels), one JSON line each, resumable.
+    Score {
+        #[command(flatten)]
+        args: score::ScoreArgs,
         #[command(flatten)]
         backend: BackendArgs,
     },
@@ -158,7 +167,8 @@ impl Command {
             Command::Infer { backend, .. }
             | Command::Train { backend, .. }
             | Command::Warmup { backend, .. }
-            | Command::Eval { backend, .. } => backend.threads,
+            | Command::Eval { backend, .. }
+            | Command::Score { backend, .. } => backend.threads,
             Command::Bench { threads, .. } => *threads,
             _ => 0,
         }
@@ -228,6 +238,12 @@ fn run(cli: Cli, cache: Option<std::path::PathBuf>) -> Result<()> {
         }
         Command::Eval { args, backend } => {
             with_backend!(backend.device, false, |B| eval::run::<B>(
+                &args,
+                &Default::default()
+            ))
+        }
+        Command::Score { args, backend } => {
+            with_backend!(backend.device, false, |B| score::run::<B>(
                 &args,
                 &Default::default()
             ))

@@ -1,0 +1,76 @@
+//! `crestereo score`: weights × dataset → one line of scores per sample (`crestereo_train::score`).
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use burn::prelude::*;
+
+use crestereo_train::eval::EvalOptions;
+use crestereo_train::score::{ScoreHeader, score};
+
+use super::eval::{load_model, open_dataset, progress_bar};
+
+#[derive(Debug, clap::Args)]
+pub struct ScoreArgs {
+    /// Dataset root (any layout stereo-io reads): DIR, DIR:FORMAT, or a WebDataset export's
+    /// splits as DIR:webdataset:SPLIT[,SPLIT].
+    #[arg(value_name = "DIR[:FORMAT[:SPLITS]]")]
+    pub data: String,
+    /// Force the dataset layout instead of detecting it.
+    #[arg(long)]
+    pub format: Option<stereo_io::DatasetFormat>,
+    /// Weights: .pt/.pth (reference), .mpk, a checkpoint directory, or a run (newest checkpoint).
+    #[arg(long, env = "CRESTEREO_WEIGHTS")]
+    pub weights: Option<PathBuf>,
+    /// Score with an untrained network initialised with this seed instead of weights.
+    #[arg(long, conflicts_with = "weights")]
+    pub untrained_seed: Option<u64>,
+    #[arg(long, default_value_t = 20)]
+    pub iters: usize,
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
+    pub stages: u8,
+    /// Score the first N samples only (0 = all); a later run with a larger N goes on.
+    #[arg(long, default_value_t = 0)]
+    pub limit: usize,
+    /// The scores (JSON lines; an existing file of the same weights and options is continued).
+    #[arg(long, default_value = "scores.jsonl")]
+    pub out: PathBuf,
+}
+
+pub fn run<B: Backend>(a: &ScoreArgs, device: &B::Device) -> Result<()> {
+    let dataset = open_dataset(&a.data, a.format)?;
+    let model = load_model::<B>(a.weights.as_deref(), a.untrained_seed, device)?;
+    let opts = EvalOptions {
+        iters: a.iters,
+        stages: usize::from(a.stages),
+        limit: a.limit,
+        ..EvalOptions::default()
+    };
+    let header = ScoreHeader::new(dataset.as_ref(), &model.weights, model.fingerprint, &opts);
+    let bar = progress_bar();
+    let outcome = score(
+        &model.model,
+        dataset.as_ref(),
+        &header,
+        &opts,
+        &a.out,
+        device,
+        |i, n, r| {
+            bar.set_length(n as u64);
+            bar.set_position(i as u64);
+            if let Some(m) = r.all {
+                bar.set_message(format!("{}: EPE {:.3}", r.id, m.epe));
+            }
+        },
+    )?;
+    bar.finish_and_clear();
+    eprintln!(
+        "scored {} sample(s) at {:.3} samples/s ({} already in {}, {} unreadable)",
+        outcome.scored,
+        outcome.rate,
+        outcome.resumed,
+        a.out.display(),
+        outcome.failed
+    );
+    Ok(())
+}
