@@ -30,7 +30,7 @@ pub struct ScoreHeader {
     pub scores: &'static str,
     pub dataset: String,
     pub weights: String,
-    /// CRC-32C of the weights file's bytes (`untrained-seed-N` for a seeded start).
+    /// CRC-32C of the weights file's bytes (`untrained (seed N)` for a seeded start).
     pub weights_crc32c: String,
     pub iters: usize,
     pub stages: usize,

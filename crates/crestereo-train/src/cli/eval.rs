@@ -1,6 +1,6 @@
 //! `crestereo eval`: weights × dataset → printed table, JSON report, per-image CSV.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use burn::prelude::*;
@@ -9,6 +9,21 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crestereo_train::checkpoint::weights_file;
 use crestereo_train::eval::{EvalOptions, evaluate};
+
+/// The network and how it runs, as `eval` and `score` take them.
+#[derive(Debug, clap::Args)]
+pub struct ModelArgs {
+    /// Weights: .pt/.pth (reference), .mpk, a checkpoint directory, or a run (newest checkpoint).
+    #[arg(long, env = "CRESTEREO_WEIGHTS")]
+    pub weights: Option<PathBuf>,
+    /// Use an untrained network initialised with this seed (a baseline) instead of weights.
+    #[arg(long, conflicts_with = "weights")]
+    pub untrained_seed: Option<u64>,
+    #[arg(long, default_value_t = 20)]
+    pub iters: usize,
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
+    pub stages: u8,
+}
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
@@ -19,16 +34,8 @@ pub struct EvalArgs {
     /// Force the dataset layout instead of detecting it.
     #[arg(long)]
     pub format: Option<stereo_io::DatasetFormat>,
-    /// Weights: .pt/.pth (reference), .mpk, a checkpoint directory, or a run (newest checkpoint).
-    #[arg(long, env = "CRESTEREO_WEIGHTS")]
-    pub weights: Option<PathBuf>,
-    /// Evaluate an untrained network initialised with this seed (a baseline) instead of weights.
-    #[arg(long, conflicts_with = "weights")]
-    pub untrained_seed: Option<u64>,
-    #[arg(long, default_value_t = 20)]
-    pub iters: usize,
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
-    pub stages: u8,
+    #[command(flatten)]
+    pub model: ModelArgs,
     /// Evaluate at most N samples (0 = all).
     #[arg(long, default_value_t = 0)]
     pub limit: usize,
@@ -50,17 +57,13 @@ pub struct EvalArgs {
 pub(super) struct Evaluated<B: Backend> {
     pub model: CREStereo<B>,
     pub weights: String,
-    /// The weights file's CRC-32C, or `untrained-seed-N`.
-    pub fingerprint: String,
+    /// The weights file read (none for an untrained network).
+    pub file: Option<PathBuf>,
 }
 
 /// The network of `--weights` (a file, checkpoint or run) or of `--untrained-seed`.
-pub(super) fn load_model<B: Backend>(
-    weights: Option<&Path>,
-    untrained_seed: Option<u64>,
-    device: &B::Device,
-) -> Result<Evaluated<B>> {
-    Ok(match (weights, untrained_seed) {
+pub(super) fn load_model<B: Backend>(a: &ModelArgs, device: &B::Device) -> Result<Evaluated<B>> {
+    Ok(match (&a.weights, a.untrained_seed) {
         (Some(w), _) => {
             let file = weights_file(w)?;
             let model = crestereo::weights::load_weights(
@@ -71,13 +74,13 @@ pub(super) fn load_model<B: Backend>(
             Evaluated {
                 model,
                 weights: file.display().to_string(),
-                fingerprint: crestereo_train::score::weights_fingerprint(&file)?,
+                file: Some(file),
             }
         }
         (None, Some(seed)) => Evaluated {
             model: crestereo_train::train::seeded_model::<B>(seed, device),
             weights: format!("untrained (seed {seed})"),
-            fingerprint: format!("untrained-seed-{seed}"),
+            file: None,
         },
         (None, None) => bail!(
             "no weights: pass --weights FILE|CHECKPOINT|RUN (or --untrained-seed N for a baseline)"
@@ -92,8 +95,8 @@ fn options(a: &EvalArgs) -> Result<EvalOptions> {
         bail!("--fg-masks {}: not a directory", dir.display());
     }
     Ok(EvalOptions {
-        iters: a.iters,
-        stages: usize::from(a.stages),
+        iters: a.model.iters,
+        stages: usize::from(a.model.stages),
         limit: a.limit,
         fg_masks: a.fg_masks.clone(),
         boundary_px: a.boundary,
@@ -136,7 +139,7 @@ pub(super) fn progress_bar() -> ProgressBar {
 
 pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
     let dataset = open_dataset(&a.data, a.format)?;
-    let evaluated = load_model::<B>(a.weights.as_deref(), a.untrained_seed, device)?;
+    let evaluated = load_model::<B>(&a.model, device)?;
     let opts = options(a)?;
     let bar = progress_bar();
     let report = evaluate(

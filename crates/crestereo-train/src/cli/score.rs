@@ -6,9 +6,9 @@ use anyhow::Result;
 use burn::prelude::*;
 
 use crestereo_train::eval::EvalOptions;
-use crestereo_train::score::{ScoreHeader, score};
+use crestereo_train::score::{ScoreHeader, score, weights_fingerprint};
 
-use super::eval::{load_model, open_dataset, progress_bar};
+use super::eval::{ModelArgs, load_model, open_dataset, progress_bar};
 
 #[derive(Debug, clap::Args)]
 pub struct ScoreArgs {
@@ -19,16 +19,8 @@ pub struct ScoreArgs {
     /// Force the dataset layout instead of detecting it.
     #[arg(long)]
     pub format: Option<stereo_io::DatasetFormat>,
-    /// Weights: .pt/.pth (reference), .mpk, a checkpoint directory, or a run (newest checkpoint).
-    #[arg(long, env = "CRESTEREO_WEIGHTS")]
-    pub weights: Option<PathBuf>,
-    /// Score with an untrained network initialised with this seed instead of weights.
-    #[arg(long, conflicts_with = "weights")]
-    pub untrained_seed: Option<u64>,
-    #[arg(long, default_value_t = 20)]
-    pub iters: usize,
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
-    pub stages: u8,
+    #[command(flatten)]
+    pub model: ModelArgs,
     /// Score the first N samples only (0 = all); a later run with a larger N goes on.
     #[arg(long, default_value_t = 0)]
     pub limit: usize,
@@ -39,14 +31,19 @@ pub struct ScoreArgs {
 
 pub fn run<B: Backend>(a: &ScoreArgs, device: &B::Device) -> Result<()> {
     let dataset = open_dataset(&a.data, a.format)?;
-    let model = load_model::<B>(a.weights.as_deref(), a.untrained_seed, device)?;
+    let model = load_model::<B>(&a.model, device)?;
+    // The header's fingerprint: the file's CRC-32C, or "untrained (seed N)".
+    let fingerprint = match &model.file {
+        Some(file) => weights_fingerprint(file)?,
+        None => model.weights.clone(),
+    };
     let opts = EvalOptions {
-        iters: a.iters,
-        stages: usize::from(a.stages),
+        iters: a.model.iters,
+        stages: usize::from(a.model.stages),
         limit: a.limit,
         ..EvalOptions::default()
     };
-    let header = ScoreHeader::new(dataset.as_ref(), &model.weights, model.fingerprint, &opts);
+    let header = ScoreHeader::new(dataset.as_ref(), &model.weights, fingerprint, &opts);
     let bar = progress_bar();
     let outcome = score(
         &model.model,
