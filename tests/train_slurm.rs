@@ -72,7 +72,7 @@ fn job_log(job_dir: &Path, id: &str) -> String {
 }
 
 #[test]
-fn two_slurm_tasks_train_as_one_process() {
+fn two_slurm_tasks_train_as_one_process_then_survive_a_requeue() {
     let dir = tempfile::tempdir().unwrap();
     let Some(cluster) = cluster_or_skip(&dir.path().join("slurm")) else {
         return;
