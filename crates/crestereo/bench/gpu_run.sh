@@ -17,11 +17,15 @@
 #   without a GPU; its figures then mean nothing).
 # DEADLINE_S (env, default 480): the script's budget in seconds; a part that cannot start in
 #   time is skipped and said so, a running one is stopped at the deadline (what it wrote stays).
-# KERNELS_IN (env, optional): the OUT_DIR/kernels.tgz of an earlier run of the same binary.
+# KERNELS_IN (env, optional): the OUT_DIR/kernels.tgz of an earlier run of the same binary (or,
+#   when it was cut in parts, the path without the .00, .01, ... suffix).
 #   A cold start compiles for many minutes (on an H100 a first training step's warm-up had not
 #   finished after 506 s), more than one device call may have: every run leaves the kernels it
 #   compiled, and the autotune results, in OUT_DIR/kernels.tgz, and the next run starts from
 #   them, so runs in separate calls (or sessions) go on where the last one stopped.
+# COMPILE_S (env, default: all but the last 90 s): how long part 1's parallel cold compile may run.
+# COMPILE_LOG (env, optional): CubeCL's log of the parity part in OUT_DIR/cubecl_parity.log
+#   (every kernel's source as compiled, and the autotune results).
 # The whole script is made to fit one device call of at most 8 minutes on an H100/H200.
 set -uo pipefail
 BIN=$1
@@ -58,13 +62,20 @@ census() {
     t=$(find "$KC" -type f -path '*autotune*' -exec cat {} + 2>/dev/null | wc -l)
     echo "$k compiled kernels, $t autotune results"
 }
-# On every exit, the deadline's included: the cache as it stands, for the next run.
+# On every exit, the deadline's included: the cache as it stands, for the next run. Over 15 MiB
+# it is cut into kernels.tgz.00, .01, ... (a device call returns files of at most 16 MiB).
 finish() {
     if [ -d "$KC" ]; then
         echo "$SHA" >"$WORK/BINARY_SHA256"
         stat -c %Y "$BIN" >"$WORK/BINARY_MTIME"
-        tar czf "$OUT/kernels.tgz" -C "$WORK" BINARY_SHA256 BINARY_MTIME -C "$(dirname "$KC")" \
-            "$(basename "$KC")" && say "kernel cache left in $OUT/kernels.tgz: $(census)"
+        rm -f "$OUT"/kernels.tgz*
+        if tar czf "$OUT/kernels.tgz" -C "$WORK" BINARY_SHA256 BINARY_MTIME -C "$(dirname "$KC")" \
+            "$(basename "$KC")"; then
+            if [ "$(stat -c %s "$OUT/kernels.tgz")" -gt $(( 15 << 20 )) ]; then
+                split -b 15m -d "$OUT/kernels.tgz" "$OUT/kernels.tgz." && rm "$OUT/kernels.tgz"
+            fi
+            say "kernel cache left in $OUT/kernels.tgz*: $(census), $(du -sh "$KC" | cut -f1) unpacked"
+        fi
     fi
     rm -rf "$WORK"
 }
@@ -97,7 +108,10 @@ done
 say "CUDA_PATH=${CUDA_PATH:-unset} LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-unset}"
 if [ -n "${KERNELS_IN:-}" ]; then
     mkdir -p "$WORK/in"
-    if tar xzf "$KERNELS_IN" -C "$WORK/in" && [ "$(cat "$WORK/in/BINARY_SHA256")" = "$SHA" ]; then
+    # One file, or the parts KERNELS_IN.00, .01, ... in order.
+    parts=("$KERNELS_IN")
+    [ -f "$KERNELS_IN" ] || parts=("$KERNELS_IN".[0-9][0-9])
+    if cat "${parts[@]}" | tar xz -C "$WORK/in" && [ "$(cat "$WORK/in/BINARY_SHA256")" = "$SHA" ]; then
         touch -d "@$(cat "$WORK/in/BINARY_MTIME")" "$BIN"
         mkdir -p "$KC" && cp -r "$WORK/in/$(basename "$KC")/." "$KC/"
         say "kernel cache from $KERNELS_IN: $(census)"
@@ -107,14 +121,18 @@ if [ -n "${KERNELS_IN:-}" ]; then
     rm -rf "$WORK/in"
 fi
 
-# --- 1. warm-up: every kernel of the small training config and of the inference sizes below,
-# compiled and autotuned into the (empty) kernel cache, then the same command again from it.
-# The later parts find their kernels there.
-say "== warm-up (crestereo warmup), cold then warm"
+# --- 1. the cold compile, in parallel. CubeCL compiles a process's kernels one after another
+# (about a second each from cold on an H100), so every part below that needs kernels starts at
+# once, each from its own copy of the cache; when they end (or at COMPILE_S), the entries each
+# one added are appended to the cache (CubeCL's cache files are append-only: JSON lines and CBOR
+# records). The driver's cache of the kernels' machine code (CUDA_CACHE_PATH) is kept in the same
+# folder and travels with it. These parts' own figures are taken while the others compile: the
+# warm-up is repeated warm and the timing (part 4) runs alone, from the merged cache.
+say "== cold compile: these parts at once, each from a copy of the cache ($(census))"
 SYN=$WORK/synth
 in_time "$BIN" synth --out "$SYN" --count 8 --size 256x320 >"$OUT/synth.log" 2>&1 || say "synth FAILED"
 CFG=$WORK/small.toml
-cat >"$CFG" <<EOF
+cat >"$CFG" <<TOML
 seed = 0
 steps = 5
 batch_size = 1
@@ -133,24 +151,83 @@ keep = 1
 tensorboard = false
 [[datasets]]
 path = "$SYN"
-EOF
-for pass in cold warm; do
-    start=$(date +%s.%N)
-    in_time "$BIN" warmup --device "$DEV" --config "$CFG" --infer-size 128x192 --infer-size 256x320 \
-        >"$OUT/warmup_$pass.log" 2>&1 || say "warmup ($pass) FAILED (see warmup_$pass.log)"
-    say "-- $pass: wall $(python3 -c "import time; print(f'{time.time() - $start:.1f}')") s; cache: $(census)"
-    grep -E "^(warm-up|  )" "$OUT/warmup_$pass.log" | sed 's/^/   /' | tee -a "$SUMMARY"
-done
-
-# --- 2. parity: the CLI's two-pass inference on the fixture PNGs, CUDA and CPU, vs pred_full.npy
-say "== parity (eval_cascade_1x128x192, two-pass, 20 iters) vs pred_full.npy"
+TOML
 E=$FIX/eval_cascade_1x128x192
-for dev in $DEV cpu; do
-    [ "$dev" = cpu ] && [ -s "$OUT/pred_cpu.pfm" ] && continue
-    in_time "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$dev.exr" --pfm "$OUT/pred_$dev.pfm" \
-        --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device "$dev" \
-        >"$OUT/infer_$dev.log" 2>&1 || say "infer --device $dev FAILED (see infer_$dev.log)"
+mkdir -p "${KC:?}"
+export CUDA_CACHE_PATH=$KC/nv CUDA_CACHE_MAXSIZE=4294967296
+COMPILE_END=$(( $(date +%s) + ${COMPILE_S:-$(( $(left) - 90 ))} ))
+[ "$COMPILE_END" -gt "$DEADLINE" ] && COMPILE_END=$DEADLINE
+JOBS=() PIDS=() STARTS=()
+# job NAME CMD...: CMD in the background on its own copy of the cache, stopped at COMPILE_END.
+job() {
+    local name=$1; shift
+    local kc=${WORK:?}/kc_$name
+    mkdir -p "$kc" && cp -r "${KC:?}/." "$kc/" && rm -rf "${kc:?}/nv"
+    (
+        export CRESTEREO_KERNEL_CACHE=$kc
+        # COMPILE_LOG=1: CubeCL's own log of the parity part (each kernel's source, the autotune).
+        if [ "$name" = parity ] && [ -n "${COMPILE_LOG:-}" ]; then
+            export CUBECL_DEBUG_LOG=$OUT/cubecl_parity.log
+        fi
+        l=$(( COMPILE_END - $(date +%s) ))
+        [ "$l" -lt 15 ] && exit 124
+        exec timeout --kill-after=5 "$l" "$@"
+    ) >"$OUT/$name.log" 2>&1 &
+    JOBS+=("$name") PIDS+=($!) STARTS+=("$(date +%s.%N)")
+}
+job parity "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$DEV.exr" --pfm "$OUT/pred_$DEV.pfm" \
+    --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device "$DEV"
+job plain bash -c '"$1" train --device "$2" --config "$3" --out "$4" --no-progress &&
+    "$1" export pytorch --weights "$4" -o "$4.pth"' _ "$BIN" "$DEV" "$CFG" "$WORK/plain"
+job warmup "$BIN" warmup --device "$DEV" --config "$CFG" --infer-size 128x192 --infer-size 256x320
+# The shapes part 4 times, a bench each (their kernels overlap, their autotune results do not).
+for size in $SIZES; do
+    case $size in
+        small) job bench_train_small "$BIN" bench --device "$DEV" --what train --repeats 1 --train-size 1,192,256,4
+               job bench_infer_small "$BIN" bench --device "$DEV" --what infer --repeats 1 --infer-size 256,320 ;;
+        paper) job bench_train_paper "$BIN" bench --device "$DEV" --what train --repeats 1 --train-size 2,384,512,10
+               job bench_infer_paper "$BIN" bench --device "$DEV" --what infer --repeats 1 --infer-size 480,640 ;;
+        hd) job bench_infer_hd "$BIN" bench --device "$DEV" --what infer --repeats 1 --infer-size 1088,1920 ;;
+    esac
 done
+# The CPU's prediction for the parity check, at low priority beside the compiling parts.
+CPU_PID=
+if [ "$DEV" != cpu ]; then
+    nice -n 15 "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_cpu.exr" --pfm "$OUT/pred_cpu.pfm" \
+        --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device cpu >"$OUT/infer_cpu.log" 2>&1 &
+    CPU_PID=$!
+fi
+for i in "${!JOBS[@]}"; do
+    wait "${PIDS[$i]}"; rc=$?
+    wall=$(python3 -c "import time; print(f'{time.time() - ${STARTS[$i]}:.1f}')")
+    case $rc in 0) st=finished ;; 124|137) st="stopped at the compile deadline" ;; *) st="FAILED (exit $rc)" ;; esac
+    say "-- ${JOBS[$i]}: $st after $wall s; its cache: $(KC=$WORK/kc_${JOBS[$i]} census)"
+    grep -E "^(warm-up|  |train step|inference)" "$OUT/${JOBS[$i]}.log" | sed 's/^/   /' | tee -a "$SUMMARY"
+    case $rc in 0|124|137) ;; *) tail -5 "$OUT/${JOBS[$i]}.log" | sed 's/^/   | /' | tee -a "$SUMMARY" ;; esac
+done
+[ -n "$CPU_PID" ] && wait "$CPU_PID"
+# The merge: what each copy holds beyond the cache it started from, appended file by file.
+(cd "$KC" && find . -type f -not -path './nv/*' -printf '%P %s\n') >"$WORK/seed_sizes"
+for name in "${JOBS[@]}"; do
+    kc=$WORK/kc_$name
+    [ -d "$kc" ] || continue
+    (cd "$kc" && find . -type f -printf '%P\n') | while read -r rel; do
+        seed=$(awk -v p="$rel" '$1 == p { print $2 }' "$WORK/seed_sizes")
+        mkdir -p "$(dirname "$KC/$rel")"
+        tail -c +$(( ${seed:-0} + 1 )) "$kc/$rel" >>"$KC/$rel"
+    done
+done
+say "-- merged cache: $(census)"
+# The warm-up again, from the merged cache: what a later process pays.
+start=$(date +%s.%N)
+in_time "$BIN" warmup --device "$DEV" --config "$CFG" --infer-size 128x192 --infer-size 256x320 \
+    >"$OUT/warmup_warm.log" 2>&1 || say "warmup (warm) FAILED or unfinished (see warmup_warm.log)"
+say "-- warm-up from the merged cache: wall $(python3 -c "import time; print(f'{time.time() - $start:.1f}')") s; cache: $(census)"
+grep -E "^(warm-up|  )" "$OUT/warmup_warm.log" | sed 's/^/   /' | tee -a "$SUMMARY"
+
+# --- 2. parity: the CLI's two-pass inference on the fixture PNGs (part 1), CUDA and CPU, vs
+# pred_full.npy
+say "== parity (eval_cascade_1x128x192, two-pass, 20 iters) vs pred_full.npy"
 python3 - "$OUT" "$E/pred_full.npy" "$DEV" <<'EOF' | tee -a "$SUMMARY"
 import sys, numpy as np
 out, ref = sys.argv[1], np.load(sys.argv[2])[0, 0]  # (1, 2, H, W) -> disparity channel
@@ -173,14 +250,16 @@ EOF
 if [ ! -s "$OUT/pred_$DEV.pfm" ]; then
     # Nothing below can run without a working backend: stop early, with the reason.
     say "== $DEV inference failed; its log ends:"
-    tail -25 "$OUT/infer_$DEV.log" | tee -a "$SUMMARY"
+    tail -25 "$OUT/parity.log" | tee -a "$SUMMARY"
     exit 1
 fi
 
 # --- 3. one replica through the collective (`--devices DEV:0`) against the plain run, and the
 # plain run twice (whether the backend itself repeats its bits): 5 steps of the small config.
 say "== one device through the collective vs the plain run (5 steps, batch 1, 192x256, 4 iterations)"
-for run in plain plain_again collective; do
+# The plain run itself was part 1's (cold); these two start from the merged cache.
+cp "$WORK/plain/train_log.csv" "$OUT/train_log_plain.csv" 2>/dev/null
+for run in plain_again collective; do
     extra=""
     [ $run = collective ] && extra="--devices $DEV:0"
     in_time "$BIN" train --device "$DEV" --config "$CFG" --out "$WORK/$run" --no-progress $extra \
