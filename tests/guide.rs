@@ -565,6 +565,8 @@ fn guide_commands_run_as_written() {
     for made in [
         "tour/report.html",
         "tour-run/eval.json",
+        "eval-disturbed.disturb.csv",
+        "eval-disturbed.disturb.png",
         "disparity.exr",
         "disparity.png",
         "farm/manifest.jsonl",

@@ -13,6 +13,7 @@ use crestereo::{CREStereo, InferenceOptions, infer_disparity};
 use serde::Serialize;
 use stereo_io::{StereoDataset, StereoSample};
 
+use crate::disturb::{Disturbance, DisturbedResult};
 use crate::metrics::{DisparityMetrics, boundary_band, disparity_metrics, max_iou};
 
 #[derive(Debug, Clone, Serialize)]
@@ -30,6 +31,9 @@ pub struct EvalOptions {
     /// Left-right consistency tolerance (px) that defines non-occluded pixels on datasets that
     /// ship both disparity maps but no occlusion mask (ours, CREStereo's release, SceneFlow).
     pub lr_tolerance_px: f32,
+    /// A disturbance of the right view (`crestereo eval --disturb`); none for a plain evaluation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub disturbance: Option<Disturbance>,
 }
 
 impl EvalOptions {
@@ -52,6 +56,7 @@ impl Default for EvalOptions {
             fg_masks: None,
             boundary_px: 4,
             lr_tolerance_px: stereo_io::LEFT_RIGHT_TOLERANCE_PX,
+            disturbance: None,
         }
     }
 }
@@ -100,6 +105,9 @@ pub struct EvalReport {
     pub seconds_per_image: f64,
     pub failed: Vec<FailedImage>,
     pub per_image: Vec<ImageResult>,
+    /// `--disturb`: the same evaluation with the right view disturbed, per kind and level.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub disturbed: Vec<DisturbedResult>,
 }
 
 /// The non-occluded pixels of a sample's left view and where that mask came from.
@@ -156,10 +164,14 @@ pub fn evaluate_sample<B: Backend>(
     device: &B::Device,
 ) -> Result<ImageResult> {
     let t0 = Instant::now();
+    let mut right = BgrImage::from_rgb(&sample.right);
+    if let Some(d) = &opts.disturbance {
+        right = d.apply(&right, id);
+    }
     let pred = infer_disparity(
         model,
         &BgrImage::from_rgb(&sample.left),
-        &BgrImage::from_rgb(&sample.right),
+        &right,
         InferenceOptions {
             iters: opts.iters,
             stages: opts.stages,
@@ -303,7 +315,24 @@ impl EvalReport {
             seconds_per_image: mean(per_image.iter().map(|r| r.seconds)).unwrap_or(0.0),
             failed,
             per_image,
+            disturbed: Vec::new(),
         }
+    }
+
+    /// This (disturbed) evaluation as one row of a robustness report.
+    pub fn disturbed_row(&self) -> Option<DisturbedResult> {
+        let d = self.options.disturbance?;
+        Some(DisturbedResult {
+            kind: d.kind,
+            level: d.level,
+            unit: d.kind.unit(),
+            seed: d.seed,
+            images: self.images,
+            failed: self.failed.len(),
+            mean_all: self.mean_all,
+            mean_nonocc: self.mean_nonocc,
+            seconds_per_image: self.seconds_per_image,
+        })
     }
 
     /// One row per image: id, size, seconds, the metrics on all pixels, on non-occluded pixels
@@ -508,6 +537,7 @@ mod tests {
             seconds_per_image: 0.1,
             failed: vec![],
             per_image: vec![r("a,1", a), r("b", b)],
+            disturbed: vec![],
         };
         let csv = report.per_image_csv();
         let lines: Vec<&str> = csv.lines().collect();

@@ -16,6 +16,7 @@ pub mod augment;
 pub mod checkpoint;
 pub mod config;
 pub mod data;
+pub mod disturb;
 pub mod eval;
 pub mod host_reads;
 pub mod interrupt;

@@ -1,5 +1,6 @@
 //! The loss curve of a run as a PNG (`crestereo plot`): training loss per step with a moving
-//! average on a log axis, and the training / validation EPE beside it.
+//! average on a log axis, and the training / validation EPE beside it; and the error of
+//! `crestereo eval --disturb` against each disturbance's level.
 
 use std::path::Path;
 use std::sync::Once;
@@ -218,6 +219,82 @@ pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
         let (left, right) = root.split_horizontally(w / 2);
         draw_loss(&left, &curves, smooth)?;
         draw_epe(&right, &curves, smooth)?;
+        root.present().map_err(err)?;
+    }
+    let img = stereo_io::Image {
+        width: w as usize,
+        height: h as usize,
+        channels: 3,
+        samples: stereo_io::Samples::U8(buf),
+    };
+    stereo_io::write_png(out, &img)?;
+    Ok(())
+}
+
+/// EPE against the disturbance level, one panel per kind (`crestereo eval --disturb`); level 0
+/// is the undisturbed evaluation, `baseline_epe`.
+pub fn plot_disturbance(
+    rows: &[crate::disturb::DisturbedResult],
+    baseline_epe: Option<f64>,
+    out: &Path,
+) -> Result<()> {
+    let mut kinds: Vec<crate::disturb::DisturbKind> = Vec::new();
+    for r in rows {
+        if !kinds.contains(&r.kind) {
+            kinds.push(r.kind);
+        }
+    }
+    if kinds.is_empty() {
+        bail!("no disturbance was evaluated");
+    }
+    register();
+    let columns = kinds.len().min(3);
+    let lines = kinds.len().div_ceil(columns);
+    let (w, h) = (420 * columns as u32, 340 * lines as u32);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(err)?;
+        let panels = root.split_evenly((lines, columns));
+        let pixels = rows
+            .iter()
+            .find_map(|r| r.headline().map(|h| h.0))
+            .unwrap_or("all");
+        for (kind, area) in kinds.iter().zip(&panels) {
+            let mut points: Vec<(f64, f64)> = baseline_epe.map(|e| (0.0, e)).into_iter().collect();
+            points.extend(
+                rows.iter()
+                    .filter(|r| r.kind == *kind && (r.level > 0.0 || baseline_epe.is_none()))
+                    .filter_map(|r| r.headline().map(|(_, m)| (r.level, m.epe))),
+            );
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let x_hi = points.iter().fold(0.0f64, |a, p| a.max(p.0)).max(1e-3);
+            let y_hi = points.iter().fold(0.0f64, |a, p| a.max(p.1)).max(1e-3);
+            let unit = rows.iter().find(|r| r.kind == *kind).map_or("", |r| r.unit);
+            let mut chart = ChartBuilder::on(area)
+                .caption(kind.name(), ("sans-serif", 20))
+                .margin(10)
+                .x_label_area_size(36)
+                .y_label_area_size(50)
+                .build_cartesian_2d(0.0..x_hi * 1.05, 0.0..y_hi * 1.1)
+                .map_err(err)?;
+            chart
+                .configure_mesh()
+                .x_desc(format!("level ({unit})"))
+                .y_desc(format!("EPE, {pixels} (px)"))
+                .draw()
+                .map_err(err)?;
+            let colour = RGBColor(31, 119, 180);
+            chart
+                .draw_series(LineSeries::new(
+                    points.iter().copied(),
+                    colour.stroke_width(2),
+                ))
+                .map_err(err)?;
+            chart
+                .draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled())))
+                .map_err(err)?;
+        }
         root.present().map_err(err)?;
     }
     let img = stereo_io::Image {

@@ -381,3 +381,111 @@ fn score_equals_eval_per_image_and_resumes() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+#[test]
+fn eval_disturb_level_zero_equals_plain_eval_and_levels_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    crestereo_train::synthetic::write_crestereo_dataset(&data, 2, 128, 64, 0).unwrap();
+    let weights = fixtures().join("weights_seed0.pt");
+    let eval = |json: &std::path::Path, extra: &[&str]| {
+        bin()
+            .arg("eval")
+            .arg("--data")
+            .arg(&data)
+            .arg("--weights")
+            .arg(&weights)
+            .args(["--iters", "2", "--stages", "1", "--json"])
+            .arg(json)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let read = |p: &std::path::Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+    };
+    let plain_json = dir.path().join("plain.json");
+    let o = eval(&plain_json, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plain = read(&plain_json);
+    assert!(plain.get("disturbed").is_none());
+
+    let json = dir.path().join("d.json");
+    let o = eval(
+        &json,
+        &[
+            "--disturb",
+            "blur:0",
+            "--disturb",
+            "vshift:0,2",
+            "--disturb",
+            "noise:5",
+            "--disturb-seed",
+            "4",
+        ],
+    );
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("right view disturbed"), "{stdout}");
+    let d = read(&json);
+    // The undisturbed pass of a --disturb run is the plain evaluation.
+    assert_eq!(d["mean_all"], plain["mean_all"]);
+    assert_eq!(d["mean_nonocc"], plain["mean_nonocc"]);
+    let rows = d["disturbed"].as_array().unwrap();
+    let kinds: Vec<(String, f64)> = rows
+        .iter()
+        .map(|r| {
+            (
+                r["kind"].as_str().unwrap().to_string(),
+                r["level"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        kinds,
+        [
+            ("blur".to_string(), 0.0),
+            ("vshift".to_string(), 0.0),
+            ("vshift".to_string(), 2.0),
+            ("noise".to_string(), 5.0)
+        ]
+    );
+    // Level 0 goes through the disturbance path and equals the plain evaluation exactly.
+    for r in &rows[..2] {
+        assert_eq!(r["mean_all"], plain["mean_all"], "{r}");
+        assert_eq!(r["mean_nonocc"], plain["mean_nonocc"], "{r}");
+        assert_eq!(r["images"], 2);
+    }
+    assert_ne!(rows[2]["mean_all"], plain["mean_all"]);
+    assert_ne!(rows[3]["mean_all"], plain["mean_all"]);
+    let csv = std::fs::read_to_string(dir.path().join("d.disturb.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 5, "{csv}");
+    assert!(lines[0].starts_with("kind,level,unit,seed,images,failed,epe,"));
+    assert!(lines[3].starts_with("vshift,2,px,4,2,0,"), "{csv}");
+    let png = stereo_io::read_image(&dir.path().join("d.disturb.png")).unwrap();
+    assert_eq!((png.width, png.height), (3 * 420, 340));
+
+    // The same seed repeats the noise exactly; another seed draws other noise.
+    let again = dir.path().join("again.json");
+    let o = eval(&again, &["--disturb", "noise:5", "--disturb-seed", "4"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        read(&again)["disturbed"][0]["mean_all"],
+        rows[3]["mean_all"]
+    );
+    let o = eval(&again, &["--disturb", "noise:5", "--disturb-seed", "5"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_ne!(
+        read(&again)["disturbed"][0]["mean_all"],
+        rows[3]["mean_all"]
+    );
+
+    // A wrong kind is refused before any image is read.
+    let bad = dir.path().join("bad.json");
+    let o = eval(&bad, &["--disturb", "fog:1"]);
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(said.contains("`fog` is not a disturbance"), "{said}");
+    assert!(!bad.exists());
+}

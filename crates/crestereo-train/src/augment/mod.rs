@@ -54,7 +54,7 @@ pub use photometric::{Photometric, photometric};
 pub use rescale::{rescale_disparity, rescale_image, scaled_size};
 pub use streams::SampleStreams;
 pub use swap::{Swapped, mirror_disparity, mirror_image, swap_and_mirror};
-pub use warp::{RightWarp, warp_right};
+pub use warp::{RightWarp, remap, warp_right};
 
 /// A sample ready for the network: planar CHW, **BGR** channel order (the model's input
 /// convention), f32 in 0..255; `disp` and `valid` (0/1 as f32) are H×W. Invalid pixels hold

@@ -37,20 +37,28 @@ fn bilinear_taps(width: usize, height: usize, x: f64, y: f64) -> [(Option<usize>
 /// where nothing maps. Only the right image is warped, so the left-view ground truth stays
 /// exact while the pair stops being perfectly rectified.
 pub fn warp_right(img: &BgrImage, warp: &RightWarp) -> BgrImage {
+    let (sin, cos) = warp.angle_deg.to_radians().sin_cos();
+    let centre_y = warp.centre_frac[0] * img.height as f64;
+    let centre_x = warp.centre_frac[1] * img.width as f64;
+    remap(img, |x, y| {
+        // The forward map rotates by +angle (on screen) and then shifts; undo both to find
+        // where an output pixel comes from.
+        let u = x - centre_x;
+        let v = y - warp.shift_y - centre_y;
+        (cos * u - sin * v + centre_x, sin * u + cos * v + centre_y)
+    })
+}
+
+/// The image resampled through `source`, which gives for an output pixel's (x, y) the
+/// continuous input position it shows; bilinear, black where that falls outside the image.
+pub fn remap(img: &BgrImage, source: impl Fn(f64, f64) -> (f64, f64)) -> BgrImage {
     let (width, height) = (img.width, img.height);
     let plane_len = width * height;
-    let (sin, cos) = warp.angle_deg.to_radians().sin_cos();
-    let centre_y = warp.centre_frac[0] * height as f64;
-    let centre_x = warp.centre_frac[1] * width as f64;
     let mut out = BgrImage::zeros(width, height);
     for y in 0..height {
         for x in 0..width {
-            // The forward map rotates by +angle (on screen) and then shifts; undo both to find
-            // where an output pixel comes from. The taps serve all three channels.
-            let u = x as f64 - centre_x;
-            let v = y as f64 - warp.shift_y - centre_y;
-            let sx = cos * u - sin * v + centre_x;
-            let sy = sin * u + cos * v + centre_y;
+            let (sx, sy) = source(x as f64, y as f64);
+            // The taps serve all three channels.
             let taps = bilinear_taps(width, height, sx, sy);
             for channel in 0..3 {
                 let src = &img.data[channel * plane_len..(channel + 1) * plane_len];

@@ -2,13 +2,14 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use burn::prelude::*;
 use crestereo::{CREStereo, CREStereoConfig};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crestereo_train::checkpoint::weights_file;
-use crestereo_train::eval::{EvalOptions, evaluate};
+use crestereo_train::disturb::{self, Disturbance};
+use crestereo_train::eval::{EvalOptions, EvalReport, evaluate};
 
 /// The network and how it runs, as `eval` and `score` take them.
 #[derive(Debug, clap::Args)]
@@ -51,6 +52,19 @@ pub struct EvalArgs {
     /// The per-image CSV (default: beside the JSON, `<name>.per_image.csv`).
     #[arg(long)]
     pub csv: Option<PathBuf>,
+    /// The paper's robustness test: evaluate again with the right view disturbed, for each
+    /// level of KIND: blur (Gaussian sigma, px), colour (gain/gamma strength s: per-channel gains
+    /// in [1-s, 1+s]), noise (sigma of 255, per pixel and channel), perspective (corner
+    /// displacement, px), vshift (px, down), distortion (radial, corner displacement, px), or
+    /// `all`. LEVELS is a comma list (default 3 levels per kind, e.g. blur:1,2,4); level 0 is the
+    /// undisturbed pair. The left view and the ground truth are never changed. Repeatable.
+    /// Adds the rows to the JSON and writes `<name>.disturb.csv` and `<name>.disturb.png`.
+    #[arg(long = "disturb", value_name = "KIND[:LEVELS]")]
+    pub disturb: Vec<String>,
+    /// Seed of the disturbances' random parts (colour gains, noise, corner directions); each
+    /// sample draws its own from (seed, kind, sample id).
+    #[arg(long, default_value_t = 0, requires = "disturb")]
+    pub disturb_seed: u64,
 }
 
 /// The network to evaluate and how the report names its weights.
@@ -138,24 +152,48 @@ pub(super) fn progress_bar() -> ProgressBar {
 }
 
 pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
+    // A wrong --disturb fails before any image is read.
+    let disturb = disturb::parse_specs(&a.disturb).map_err(anyhow::Error::msg)?;
     let dataset = open_dataset(&a.data, a.format)?;
     let evaluated = load_model::<B>(&a.model, device)?;
     let opts = options(a)?;
     let bar = progress_bar();
-    let report = evaluate(
-        &evaluated.model,
-        dataset.as_ref(),
-        &evaluated.weights,
-        &opts,
-        device,
-        |i, n, r| {
-            bar.set_length(n as u64);
-            bar.set_position(i as u64);
-            if let Some(m) = r.all {
-                bar.set_message(format!("{}: EPE {:.3}", r.id, m.epe));
-            }
-        },
-    )?;
+    let pass = |opts: &EvalOptions, label: &str| -> Result<EvalReport> {
+        bar.reset();
+        let report = evaluate(
+            &evaluated.model,
+            dataset.as_ref(),
+            &evaluated.weights,
+            opts,
+            device,
+            |i, n, r| {
+                bar.set_length(n as u64);
+                bar.set_position(i as u64);
+                if let Some(m) = r.all {
+                    bar.set_message(format!("{label}{}: EPE {:.3}", r.id, m.epe));
+                }
+            },
+        )?;
+        Ok(report)
+    };
+    let mut report = pass(&opts, "")?;
+    for (kind, levels) in &disturb {
+        for &level in levels {
+            let d = Disturbance {
+                kind: *kind,
+                level,
+                seed: a.disturb_seed,
+            };
+            let disturbed = pass(
+                &EvalOptions {
+                    disturbance: Some(d),
+                    ..opts.clone()
+                },
+                &format!("{} {level}: ", kind.name()),
+            )?;
+            report.disturbed.extend(disturbed.disturbed_row());
+        }
+    }
     bar.finish_and_clear();
     let csv = a
         .csv
@@ -164,6 +202,17 @@ pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
     report.write(&a.json, &csv)?;
     print!("{}", report.table());
     eprintln!("wrote {} and {}", a.json.display(), csv.display());
+    if !report.disturbed.is_empty() {
+        let rows = &report.disturbed;
+        let table = a.json.with_extension("disturb.csv");
+        stereo_io::write_bytes_atomically(&table, disturb::disturbance_csv(rows).as_bytes())
+            .with_context(|| format!("cannot write {}", table.display()))?;
+        let plot = a.json.with_extension("disturb.png");
+        let baseline = report.mean_nonocc.or(report.mean_all).map(|m| m.epe);
+        crestereo_train::plot::plot_disturbance(rows, baseline, &plot)?;
+        print!("{}", disturb::disturbance_table(rows));
+        eprintln!("wrote {} and {}", table.display(), plot.display());
+    }
     if report.images == 0 {
         bail!(
             "no image could be evaluated ({} failed)",
