@@ -103,9 +103,18 @@ _DENOISE_PASSES = {"rgb": "RGB", "albedo": "RGB_ALBEDO", "albedo_normal": "RGB_A
 _DENOISE_QUALITY = {"high": "HIGH", "balanced": "BALANCED", "fast": "FAST"}
 
 
-def _colour_pass(scene, render):
+def view_seed(render, view):
+    """The Cycles seed of a view's colour pass: the right view has its own where the spec says
+    (independent sensor noise); specs without `cycles_seed_right` render both with one seed."""
+    if view == "right":
+        return render.get("cycles_seed_right", render["cycles_seed"])
+    return render["cycles_seed"]
+
+
+def _colour_pass(scene, render, view="left"):
     # Keys added after spec format 3 may be absent: their defaults are what Cycles did before.
     c = scene.cycles
+    c.seed = view_seed(render, view)
     c.samples = render["samples"]
     c.use_denoising = bool(render["denoise"])
     c.denoiser = "OPENIMAGEDENOISE"
@@ -188,7 +197,7 @@ def render_both(scene, spec, out_dir, timings):
     for view in ("left", "right"):
         camera(view)
         png = os.path.join(out_dir, view + ".png")
-        _colour_pass(scene, spec["render"])
+        _colour_pass(scene, spec["render"], view)
         _timed(timings, "colour_%s_s" % view, lambda: bpy.ops.render.render(write_still=False))
         _timed(timings, "save_s", lambda: _save(result(), scene, png, "PNG", color_mode="RGB", color_depth="8", compression=0))
         files[view + "_png"] = png

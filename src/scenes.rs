@@ -79,6 +79,7 @@ pub fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
             denoise_passes: Default::default(),
             denoise_quality: Default::default(),
             light_tree: true,
+            cycles_seed_right: None,
         },
         world: WorldSpec {
             color: [0.8, 0.8, 0.8],

@@ -28,7 +28,7 @@ fn the_study_renders_reference_and_candidates_and_reports_per_category() {
                 "--reference-samples",
                 "32",
                 "--candidates",
-                "s4,s8,s32,s8-dn,s32-dn",
+                "s4,s8,s32,s8-dn,s32-dn,s32-shared",
             ])
             .arg("--stereogen")
             .arg(stereogen_bin())
@@ -52,7 +52,7 @@ fn the_study_renders_reference_and_candidates_and_reports_per_category() {
     let cats = ["hole", "reflective", "shapenet", "tree"];
     assert_eq!(
         rows.len(),
-        5 * cats.len(),
+        6 * cats.len(),
         "every candidate in every category"
     );
     let row = |setting: &str, cat: &str| {
@@ -70,7 +70,32 @@ fn the_study_renders_reference_and_candidates_and_reports_per_category() {
         assert!(ssim > 0.0 && ssim <= 1.0, "{r}");
         assert!((0.0..100.0).contains(&lr), "{r}");
         assert!(r["cpu_s_per_view"].as_f64().unwrap() > 0.0, "{r}");
+        for key in [
+            "noise_correlation_same_pixel",
+            "noise_correlation_stereo_match",
+        ] {
+            let v = r[key].as_f64().unwrap_or_else(|| panic!("{key}: {r}"));
+            assert!((-1.0..=1.0).contains(&v), "{r}");
+        }
     }
+    // One Cycles seed for both views puts the same sampling noise at the same pixel of each; the
+    // views' own seeds (what a plan now holds) do not: pooled over the categories, the residual
+    // noise of the shared-seed render correlates between the views where the other does not.
+    let same_pixel = |setting: &str| {
+        cats.iter()
+            .map(|c| {
+                row(setting, c)["noise_correlation_same_pixel"]
+                    .as_f64()
+                    .unwrap()
+            })
+            .sum::<f64>()
+            / cats.len() as f64
+    };
+    let (shared, own) = (same_pixel("s32-shared"), same_pixel("s32"));
+    assert!(
+        shared > own + 0.03,
+        "shared seed r = {shared}, own seeds r = {own}"
+    );
     // Noise falls with samples: without the denoiser, 32 samples are closer to the reference
     // than 4 (expected 9 dB apart at equal reference noise), and they cost more.
     for cat in cats {

@@ -94,6 +94,11 @@ CANDIDATES = {
     "s16-dn-b4": setting(samples=16, max_bounces=4),
     "s16-dn-b6": setting(samples=16, max_bounces=6),
     "s16-dn-b12": setting(samples=16, max_bounces=12),
+    # Both views with the left view's Cycles seed, as specs without `cycles_seed_right` render:
+    # against s16 / s32-dn, how much of the views' noise is shared.
+    "s16-shared": setting(samples=16, denoise=False, shared_seed=True),
+    "s32-shared": setting(samples=32, denoise=False, shared_seed=True),
+    "s32-dn-shared": setting(samples=32, shared_seed=True),
 }
 OLD_DEFAULT = "s32-dn"
 # What a plain run renders (about 25 min on 2 cores at 480x270 for 8 scenes); the rest of
@@ -199,14 +204,15 @@ def prepare(args):
 # render (inside Blender's Python)
 
 
-def apply(scene, spec, st):
+def apply(scene, spec, st, view):
     import render_views
 
     render = dict(spec["render"])
-    render.update((k, v) for k, v in st.items() if k not in ("seed_offset", "max_bounces"))
-    render_views._colour_pass(scene, render)
+    render.update((k, v) for k, v in st.items() if k not in ("seed_offset", "max_bounces", "shared_seed"))
+    render_views._colour_pass(scene, render, view)
     c = scene.cycles
-    c.seed = (spec["render"]["cycles_seed"] + st.get("seed_offset", 0)) % (2**31)
+    seed = render_views.view_seed(spec["render"], "left" if st.get("shared_seed") else view)
+    c.seed = (seed + st.get("seed_offset", 0)) % (2**31)
     c.max_bounces = st["max_bounces"] if st["max_bounces"] is not None else spec["render"]["max_bounces"]
 
 
@@ -235,12 +241,12 @@ def render_phase(args, settings):
         scene.render.image_settings.color_depth = "16"
         # Warm-up: BVH and shader compilation, so that no candidate pays for them.
         scene.camera = bpy.data.objects["camera_left"]
-        apply(scene, spec, setting(samples=1, denoise=False))
+        apply(scene, spec, setting(samples=1, denoise=False), "left")
         bpy.ops.render.render(write_still=False)
         for name, view in todo:
             st = settings[name]
             scene.camera = bpy.data.objects["camera_" + view]
-            apply(scene, spec, st)
+            apply(scene, spec, st, view)
             c0, w0 = time.process_time(), time.perf_counter()
             bpy.ops.render.render(write_still=False)
             cpu, wall = time.process_time() - c0, time.perf_counter() - w0

@@ -12,6 +12,10 @@ Standard, as the dataset's 8-bit PNGs), compared in [0, 1].
   bilinearly at x - d, over pixels whose match is visible (left/right disparities agree within
   0.5 px). View-dependent shading (gloss, glass) makes even the reference disagree; what matters
   is how much a setting adds to the reference's figure.
+- Noise correlation: Pearson's r between the two views' residual noise (a render minus the
+  reference of its view, every channel), at the same pixel position (where one Cycles seed for
+  both views puts the same sampling pattern) and at the stereo match (x - d, nearest pixel, over
+  pixels whose match is visible). Pooled over a category's scenes.
 """
 
 import json
@@ -56,6 +60,37 @@ def lr_disagreement(left, right, d_left, v_left, d_right, v_right):
     sampled = right[ys, xi] * (1 - t)[..., None] + right[ys, xi + 1] * t[..., None]
     diff = np.abs(left - sampled).mean(axis=2)[ok]
     return float(diff.mean() * 255.0), int(ok.sum())
+
+
+def matched(d_left, v_left, d_right, v_right):
+    """Rows, left columns and right columns (nearest pixel) of the visible stereo matches."""
+    h, w = d_left.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    xr = xs - d_left
+    ok = v_left & np.isfinite(xr) & (xr >= 0) & (xr <= w - 1)
+    near = np.clip(np.rint(np.where(ok, xr, 0)), 0, w - 1).astype(int)
+    ok &= v_right[ys, near] & (np.abs(d_right[ys, near] - d_left) < 0.5)
+    return ys[ok], xs[ok], near[ok]
+
+
+def noise_pairs(res_left, res_right, gt):
+    """The residuals paired at the same pixel and at the stereo match, flattened over channels."""
+    ys, xl, xr = matched(*gt)
+    same = (res_left.reshape(-1), res_right.reshape(-1))
+    match = (res_left[ys, xl].reshape(-1), res_right[ys, xr].reshape(-1))
+    return same, match
+
+
+def pearson(pairs):
+    a = np.concatenate([p[0] for p in pairs])
+    b = np.concatenate([p[1] for p in pairs])
+    if a.size < 2 or a.std() == 0 or b.std() == 0:
+        return None  # JSON null: no noise to correlate
+    return float(np.corrcoef(a, b)[0, 1])
+
+
+def fmt_r(r):
+    return "-" if r is None else "%.3f" % r
 
 
 def psnr(mse):
@@ -118,6 +153,7 @@ def report(args, names, refs, candidates, old_default):
         for cat in cats:
             sc = [s for s in scenes if s["category"] == cat]
             mses, noise, ssims, lrs, rlrs, cpu, wall = [], [], [], [], [], [], []
+            same_pairs, match_pairs = [], []
             for s in sc:
                 views = {}
                 for view in ("left", "right"):
@@ -131,6 +167,9 @@ def report(args, names, refs, candidates, old_default):
                     cpu.append(t["cpu_s"])
                     wall.append(t["wall_s"])
                 lrs.append(lr_disagreement(views["left"], views["right"], *gt[s["id"]])[0])
+                same, match = noise_pairs(views["left"] - ref[(s["id"], "left")], views["right"] - ref[(s["id"], "right")], gt[s["id"]])
+                same_pairs.append(same)
+                match_pairs.append(match)
                 rlrs.append(ref_lr[s["id"]])
             mse, nse = float(np.mean(mses)), float(np.mean(noise))
             rows.append({
@@ -143,6 +182,8 @@ def report(args, names, refs, candidates, old_default):
                 "ssim": float(np.mean(ssims)),
                 "lr_disagreement": float(np.mean(lrs)),
                 "lr_disagreement_reference": float(np.mean(rlrs)),
+                "noise_correlation_same_pixel": pearson(same_pairs),
+                "noise_correlation_stereo_match": pearson(match_pairs),
                 "settings": candidates[name],
             })
 
@@ -159,10 +200,12 @@ def report(args, names, refs, candidates, old_default):
                     and r["lr_disagreement"] <= d["lr_disagreement"] + LR_MARGIN)
 
         cost = lambda name: sum(by[(name, c)]["cpu_s_per_view"] for c in cats)
-        passing = [n for n in names if all(ok(n, c) for c in cats)]
+        # A default renders each view with its own seed: the shared-seed settings are comparisons.
+        eligible = [n for n in names if not candidates[n].get("shared_seed")]
+        passing = [n for n in eligible if all(ok(n, c) for c in cats)]
         recommended = min(passing, key=cost) if passing else None
         for c in cats:
-            p = [n for n in names if ok(n, c)]
+            p = [n for n in eligible if ok(n, c)]
             per_category[c] = min(p, key=lambda n: by[(n, c)]["cpu_s_per_view"]) if p else None
 
     fronts = {}
@@ -194,13 +237,14 @@ def report(args, names, refs, candidates, old_default):
     for c in cats:
         lines.append("## %s" % c)
         lines.append("")
-        lines.append("| setting | CPU s/view | wall s/view | PSNR dB | PSNR* dB | SSIM | L/R (ref) | front |")
-        lines.append("|---|---|---|---|---|---|---|---|")
+        lines.append("| setting | CPU s/view | wall s/view | PSNR dB | PSNR* dB | SSIM | L/R (ref) | noise r: pixel, match | front |")
+        lines.append("|---|---|---|---|---|---|---|---|---|")
         for n in sorted(names, key=lambda n: by[(n, c)]["cpu_s_per_view"]):
             r = by[(n, c)]
-            lines.append("| %s%s | %.2f | %.2f | %.2f | %.2f | %.4f | %.2f (%.2f) | %s |" % (
+            lines.append("| %s%s | %.2f | %.2f | %.2f | %.2f | %.4f | %.2f (%.2f) | %s, %s | %s |" % (
                 n, " (old default)" if n == old_default else "", r["cpu_s_per_view"], r["wall_s_per_view"], r["psnr_db"],
-                r["psnr_corrected_db"], r["ssim"], r["lr_disagreement"], r["lr_disagreement_reference"], "*" if n in fronts[c] else ""))
+                r["psnr_corrected_db"], r["ssim"], r["lr_disagreement"], r["lr_disagreement_reference"],
+                fmt_r(r["noise_correlation_same_pixel"]), fmt_r(r["noise_correlation_stereo_match"]), "*" if n in fronts[c] else ""))
         lines.append("")
     lines.append("Within %.1f dB PSNR, %.3f SSIM and %.2f levels L/R of the old default (%s) in every category, cheapest: **%s**" % (
         PSNR_MARGIN_DB, SSIM_MARGIN, LR_MARGIN, old_default, recommended))

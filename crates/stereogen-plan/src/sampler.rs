@@ -163,6 +163,7 @@ fn render_settings(
         denoise_passes: r.denoise_passes,
         denoise_quality: r.denoise_quality,
         light_tree: r.light_tree,
+        cycles_seed_right: Some(root.child("cycles-right").small_seed()),
     }
 }
 

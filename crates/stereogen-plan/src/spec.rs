@@ -39,7 +39,8 @@ pub struct RenderSettings {
     /// Cycles path-tracing samples per pixel of the colour pass (the depth pass uses one).
     pub samples: u32,
     pub denoise: bool,
-    /// Cycles noise seed.
+    /// Cycles noise seed (of the left view's colour pass, and of the right one's when
+    /// `cycles_seed_right` is absent).
     pub cycles_seed: u32,
     pub max_bounces: u32,
     /// Anti-aliasing filter of the colour pass (the depth pass always samples pixel centres).
@@ -67,6 +68,12 @@ pub struct RenderSettings {
     /// Cycles' light tree (many-light sampling).
     #[serde(default = "yes", skip_serializing_if = "is_true")]
     pub light_tree: bool,
+    /// The right view's Cycles noise seed: a real pair's two sensors have independent noise,
+    /// and one seed for both views draws the same sampling noise at the same pixel of each, a
+    /// pattern a network can learn to match. Absent (specs planned before it existed): both
+    /// views use `cycles_seed`, as those specs were rendered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cycles_seed_right: Option<u32>,
 }
 
 fn is_default<T: Default + PartialEq>(v: &T) -> bool {
@@ -532,6 +539,45 @@ mod tests {
         assert_eq!(v["cameras"]["image_coordinates"], "pixel_corner_origin");
         assert_eq!(v["cameras"]["blender"]["sensor_fit"], "HORIZONTAL");
         assert_eq!(SceneSpec::from_json(&spec.to_json()).unwrap(), spec);
+    }
+
+    #[test]
+    fn each_view_gets_its_own_cycles_seed_and_old_specs_keep_one() {
+        let recipe = Recipe::builtin_default();
+        let assets = AssetIndex::default();
+        let seeds: Vec<(u32, Option<u32>)> = (0..20)
+            .map(|i| {
+                let r = plan_scene(&recipe, &assets, 3, i).render;
+                (r.cycles_seed, r.cycles_seed_right)
+            })
+            .collect();
+        for &(left, right) in &seeds {
+            let right = right.expect("a new plan has a right-view seed");
+            assert_ne!(left, right);
+        }
+        // The right seeds are their own stream, not the left one shifted.
+        let mut rights: Vec<u32> = seeds.iter().filter_map(|s| s.1).collect();
+        rights.dedup();
+        assert_eq!(rights.len(), seeds.len());
+        // Planning stays a pure function of (seed, index).
+        assert_eq!(
+            plan_scene(&recipe, &assets, 3, 7).render.cycles_seed_right,
+            seeds[7].1
+        );
+        // A spec written before the key existed reads without it and writes none back: both views
+        // render with `cycles_seed`, as they were rendered.
+        let mut v = json_value(&plan_scene(&recipe, &assets, 3, 0));
+        v["render"]
+            .as_object_mut()
+            .unwrap()
+            .remove("cycles_seed_right");
+        let old = SceneSpec::from_json(&v.to_string()).unwrap();
+        assert_eq!(old.render.cycles_seed_right, None);
+        assert!(
+            json_value(&old)["render"]
+                .get("cycles_seed_right")
+                .is_none()
+        );
     }
 
     #[test]
