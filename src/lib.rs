@@ -202,6 +202,9 @@ pub fn tiny_recipe(preset: &str) -> Recipe {
     r.placement.background_disparity_px = Dist::uniform(0.5, 1.5);
     r.trees.branches = CountRange { min: 3, max: 4 };
     for c in &mut r.categories {
+        // The categories' own render keys (the presets' per-category picks) would undo the
+        // 2 samples above.
+        c.render = None;
         c.objects = CountRange { min: 2, max: 3 };
     }
     r

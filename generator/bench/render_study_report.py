@@ -226,8 +226,6 @@ def report(args, names, refs, candidates, old_default):
         "pareto_front": fronts,
         "rows": rows,
     }
-    with open(os.path.join(work, "results.json"), "w") as f:
-        json.dump(out, f, indent=1)
 
     lines = ["# Render settings study (%s, %d scenes, reference %d samples in two halves)" % (args.size, len(scenes), args.reference_samples), ""]
     lines.append("Reference convergence (the two halves against each other; noise of their mean):")
@@ -249,6 +247,16 @@ def report(args, names, refs, candidates, old_default):
     lines.append("Within %.1f dB PSNR, %.3f SSIM and %.2f levels L/R of the old default (%s) in every category, cheapest: **%s**" % (
         PSNR_MARGIN_DB, SSIM_MARGIN, LR_MARGIN, old_default, recommended))
     lines.append("Per category: " + ", ".join("%s %s" % kv for kv in per_category.items()))
+    if per_category and all(per_category.values()):
+        # What a recipe with each category's pick (`render = {...}` in its [[categories]] table)
+        # spends on a mix of the categories in equal shares, against the old default everywhere.
+        picked = sum(by[(n, c)]["cpu_s_per_view"] for c, n in per_category.items()) / len(cats)
+        old = sum(by[(old_default, c)]["cpu_s_per_view"] for c in cats) / len(cats)
+        out["per_category_mix_cpu_s_per_view"] = {"picks": picked, "old_default": old}
+        lines.append("Each category with its pick, equal shares: %.2f CPU s per view against %.2f with %s everywhere (%+.1f%%)" % (
+            picked, old, old_default, 100.0 * (picked / old - 1.0)))
+    with open(os.path.join(work, "results.json"), "w") as f:
+        json.dump(out, f, indent=1)
     text = "\n".join(lines) + "\n"
     with open(os.path.join(work, "results.md"), "w") as f:
         f.write(text)

@@ -78,7 +78,7 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
     let background_depth =
         rig.depth_for_disparity(recipe.placement.background_disparity_px.sample(&mut bg_rng));
     let nearest_depth = rig.depth_for_disparity(recipe.placement.disparity_px.support().1);
-    let render = render_settings(recipe, root, nearest_depth, background_depth);
+    let render = render_settings(recipe, category, root, nearest_depth, background_depth);
 
     let mut objects = vec![background_wall(
         recipe,
@@ -143,11 +143,12 @@ fn draw_rig(recipe: &Recipe, root: SeedTree) -> StereoRig {
 
 fn render_settings(
     recipe: &Recipe,
+    category: &CategoryRecipe,
     root: SeedTree,
     nearest_depth: f64,
     background_depth: f64,
 ) -> RenderSettings {
-    let (r, cam) = (&recipe.render, &recipe.camera);
+    let (r, cam) = (&recipe.render_for(category), &recipe.camera);
     RenderSettings {
         samples: r.samples,
         denoise: r.denoise,

@@ -514,6 +514,60 @@ pub struct CategoryRecipe {
     pub objects: CountRange,
     pub shapes: BTreeMap<ShapeSource, f64>,
     pub materials: BTreeMap<MaterialClass, f64>,
+    /// This category's own render keys (`render = { samples = 24 }`): what the scenes of one
+    /// category need differs (the render study's per-category picks); absent: `[render]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub render: Option<RenderOverride>,
+}
+
+/// Render keys a category sets for itself; each set key replaces the recipe's `[render]` one.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderOverride {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub samples: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoise: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_bounces: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_filter: Option<PixelFilter>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filter_width_px: Option<f64>,
+    /// Turns adaptive sampling on for this category (with this threshold).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adaptive_threshold: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adaptive_min_samples: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoise_prefilter: Option<DenoisePrefilter>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoise_passes: Option<DenoisePasses>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoise_quality: Option<DenoiseQuality>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light_tree: Option<bool>,
+}
+
+impl RenderOverride {
+    /// `base` with this category's keys in place of its own.
+    pub fn apply(&self, base: &RenderRecipe) -> RenderRecipe {
+        RenderRecipe {
+            samples: self.samples.unwrap_or(base.samples),
+            denoise: self.denoise.unwrap_or(base.denoise),
+            max_bounces: self.max_bounces.unwrap_or(base.max_bounces),
+            pixel_filter: self.pixel_filter.unwrap_or(base.pixel_filter),
+            filter_width_px: self.filter_width_px.unwrap_or(base.filter_width_px),
+            adaptive_threshold: self.adaptive_threshold.or(base.adaptive_threshold),
+            adaptive_min_samples: self
+                .adaptive_min_samples
+                .unwrap_or(base.adaptive_min_samples),
+            denoise_prefilter: self.denoise_prefilter.unwrap_or(base.denoise_prefilter),
+            denoise_passes: self.denoise_passes.unwrap_or(base.denoise_passes),
+            denoise_quality: self.denoise_quality.unwrap_or(base.denoise_quality),
+            light_tree: self.light_tree.unwrap_or(base.light_tree),
+        }
+    }
 }
 
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
@@ -524,6 +578,14 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
 }
 
 impl Recipe {
+    /// The render settings of a category's scenes: `[render]` with the category's own keys.
+    pub fn render_for(&self, category: &CategoryRecipe) -> RenderRecipe {
+        match &category.render {
+            Some(o) => o.apply(&self.render),
+            None => self.render.clone(),
+        }
+    }
+
     pub fn builtin_default() -> Self {
         Self::preset(DEFAULT_PRESET).expect("the default preset exists")
     }
@@ -606,6 +668,59 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_category_render_key_replaces_the_recipe_one_and_is_checked() {
+        let recipe = Recipe::builtin_default();
+        let assets = crate::AssetIndex::default();
+        let mut seen = BTreeMap::new();
+        for index in 0..40 {
+            let spec = crate::plan_scene(&recipe, &assets, 5, index);
+            let r = spec.render;
+            let expected = match spec.category.as_str() {
+                "reflective" => (24, None, DenoisePrefilter::Accurate),
+                "shapenet" => (32, Some(0.02), DenoisePrefilter::Accurate),
+                "tree" | "hole" => (32, None, DenoisePrefilter::Fast),
+                other => panic!("category {other}"),
+            };
+            assert_eq!(
+                (r.samples, r.adaptive_threshold, r.denoise_prefilter),
+                expected,
+                "{}",
+                spec.category
+            );
+            // Keys the category leaves alone come from [render].
+            assert!(r.denoise && r.max_bounces == recipe.render.max_bounces);
+            *seen.entry(spec.category).or_insert(0) += 1;
+        }
+        assert_eq!(seen.len(), 4, "{seen:?}");
+
+        let text = PRESETS[0].1;
+        let with = |line: &str| text.replacen("render = { samples = 24 }", line, 1);
+        let e = Recipe::from_toml_str(&with("render = { samples = 0 }"), "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("categories[3].render.samples"), "{e}");
+        let e = Recipe::from_toml_str(&with("render = { adaptive_min_samples = 40 }"), "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("categories[3].render.adaptive_min_samples"),
+            "{e}"
+        );
+        let e = Recipe::from_toml_str(&with("render = { spp = 8 }"), "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("spp"), "{e}");
+        // A recipe without them (every recipe written before) renders every category with [render].
+        let old = Recipe::from_toml_str(&with(""), "x.toml").unwrap();
+        let reflective = old
+            .categories
+            .iter()
+            .find(|c| c.name == "reflective")
+            .unwrap();
+        assert_eq!(old.render_for(reflective), old.render);
+    }
+
+    #[test]
     fn every_preset_parses_and_round_trips() {
         for (name, _) in PRESETS {
             let r = Recipe::preset(name).unwrap();
@@ -636,7 +751,9 @@ mod tests {
 
     #[test]
     fn missing_key_is_named() {
-        let text = default_text().replace("samples = ", "# samples = ");
+        // The first `samples =` is `[render]`'s (a category's inline `render = { samples = .. }`
+        // stays).
+        let text = default_text().replacen("samples = ", "# samples = ", 1);
         let err = Recipe::from_toml_str(&text, "x.toml")
             .unwrap_err()
             .to_string();

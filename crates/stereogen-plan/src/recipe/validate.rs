@@ -5,7 +5,7 @@
 use std::borrow::Cow;
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use super::{Recipe, RecipeError};
+use super::{Recipe, RecipeError, RenderRecipe};
 use crate::checker::scene_spec::IMAGE_SIDE_PX;
 use crate::checker::{Check, Rule, count, dist, first_violation, int, number, probability, range};
 
@@ -46,13 +46,40 @@ fn camera(r: &Recipe) -> Vec<Check<'_>> {
 }
 
 fn render(r: &Recipe) -> Vec<Check<'_>> {
-    let x = &r.render;
+    render_rows("render.", &r.render)
+}
+
+/// The rows of one set of render settings, keys under `prefix` (`render.`, or a category's
+/// `categories[i].render.` for its settings with its own keys in place).
+fn render_rows(prefix: &str, x: &RenderRecipe) -> Vec<Check<'static>> {
+    let key = |k: &str| -> Cow<'static, str> { format!("{prefix}{k}").into() };
     vec![
-        int("render.samples", x.samples, 1, 65536),
-        int("render.max_bounces", x.max_bounces, 0, 128),
-        number("render.filter_width_px", x.filter_width_px, 0.01, 10.0),
         Check::new(
-            "render.adaptive_threshold",
+            key("samples"),
+            Rule::Int {
+                value: x.samples.into(),
+                lo: 1,
+                hi: 65536,
+            },
+        ),
+        Check::new(
+            key("max_bounces"),
+            Rule::Int {
+                value: x.max_bounces.into(),
+                lo: 0,
+                hi: 128,
+            },
+        ),
+        Check::new(
+            key("filter_width_px"),
+            Rule::Number {
+                value: x.filter_width_px,
+                lo: 0.01,
+                hi: 10.0,
+            },
+        ),
+        Check::new(
+            key("adaptive_threshold"),
             match x.adaptive_threshold {
                 // Cycles reads 0 as "choose from the sample count": say it explicitly instead.
                 Some(t) => Rule::Holds {
@@ -64,7 +91,7 @@ fn render(r: &Recipe) -> Vec<Check<'_>> {
         )
         .with_default(),
         Check::new(
-            "render.adaptive_min_samples",
+            key("adaptive_min_samples"),
             Rule::Holds {
                 holds: x.adaptive_min_samples <= x.samples,
                 need: format!(
@@ -74,10 +101,10 @@ fn render(r: &Recipe) -> Vec<Check<'_>> {
             },
         )
         .with_default(),
-        Check::new("render.denoise_prefilter", Rule::AnyValue).with_default(),
-        Check::new("render.denoise_passes", Rule::AnyValue).with_default(),
-        Check::new("render.denoise_quality", Rule::AnyValue).with_default(),
-        Check::new("render.light_tree", Rule::AnyValue).with_default(),
+        Check::new(key("denoise_prefilter"), Rule::AnyValue).with_default(),
+        Check::new(key("denoise_passes"), Rule::AnyValue).with_default(),
+        Check::new(key("denoise_quality"), Rule::AnyValue).with_default(),
+        Check::new(key("light_tree"), Rule::AnyValue).with_default(),
     ]
 }
 
@@ -317,6 +344,12 @@ fn categories(r: &Recipe) -> Vec<Check<'_>> {
             Check::new(key("shapes"), Rule::weights(&cat.shapes)),
             Check::new(key("materials"), Rule::weights(&cat.materials)),
         ]);
+        if cat.render.is_some() {
+            rows.extend(render_rows(
+                &format!("categories[{i}].render."),
+                &r.render_for(cat),
+            ));
+        }
     }
     rows.push(Check::new(
         "categories",

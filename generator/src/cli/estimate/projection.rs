@@ -74,6 +74,10 @@ pub struct Estimate {
     pub width: u32,
     pub height: u32,
     pub samples_per_pixel: u32,
+    /// The render keys categories set for themselves (measured like the rest: the sampled
+    /// scenes render with them), by category.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub category_render: Vec<(String, String)>,
     pub seed: u64,
     pub start: u64,
     pub count: u64,
@@ -256,6 +260,14 @@ pub fn project(
         width: recipe.camera.width,
         height: recipe.camera.height,
         samples_per_pixel: recipe.render.samples,
+        category_render: recipe
+            .categories
+            .iter()
+            .filter_map(|c| {
+                let keys = serde_json::to_string(c.render.as_ref()?).ok()?;
+                Some((c.name.clone(), keys))
+            })
+            .collect(),
         seed,
         start,
         count,
@@ -317,6 +329,17 @@ impl Estimate {
             self.seed,
             self.device
         ));
+        if !self.category_render.is_empty() {
+            let own: Vec<String> = self
+                .category_render
+                .iter()
+                .map(|(name, keys)| format!("{name} {keys}"))
+                .collect();
+            out.push(format!(
+                "categories with their own render keys: {}",
+                own.join(", ")
+            ));
+        }
         out.push(format!(
             "measured here: {} sample(s) with {} worker(s) × {} thread(s) on {}{}{}",
             m.samples.len(),
