@@ -48,36 +48,34 @@ def read_disp(path):
         return ch["Y"].pixels.astype(np.float64), ch["valid"].pixels.astype(np.float64) > 0.5
 
 
-def lr_disagreement(left, right, d_left, v_left, d_right, v_right):
-    h, w = d_left.shape
-    ys, xs = np.mgrid[0:h, 0:w]
-    xr = xs - d_left
-    ok = v_left & np.isfinite(xr) & (xr >= 0) & (xr <= w - 1)
-    xi = np.clip(np.floor(xr), 0, w - 2).astype(int)
-    t = np.clip(xr - xi, 0, 1)
-    near = np.clip(np.rint(xr), 0, w - 1).astype(int)
-    ok &= v_right[ys, near] & (np.abs(d_right[ys, near] - d_left) < 0.5)
-    sampled = right[ys, xi] * (1 - t)[..., None] + right[ys, xi + 1] * t[..., None]
-    diff = np.abs(left - sampled).mean(axis=2)[ok]
-    return float(diff.mean() * 255.0), int(ok.sum())
-
-
-def matched(d_left, v_left, d_right, v_right):
-    """Rows, left columns and right columns (nearest pixel) of the visible stereo matches."""
+def visible_matches(d_left, v_left, d_right, v_right):
+    """Per left pixel: its row, the continuous right column x - d, the nearest right column, and
+    whether the match is visible (inside the right view, left/right disparities within 0.5 px)."""
     h, w = d_left.shape
     ys, xs = np.mgrid[0:h, 0:w]
     xr = xs - d_left
     ok = v_left & np.isfinite(xr) & (xr >= 0) & (xr <= w - 1)
     near = np.clip(np.rint(np.where(ok, xr, 0)), 0, w - 1).astype(int)
     ok &= v_right[ys, near] & (np.abs(d_right[ys, near] - d_left) < 0.5)
-    return ys[ok], xs[ok], near[ok]
+    return ys, np.where(ok, xr, 0), near, ok
+
+
+def lr_disagreement(left, right, d_left, v_left, d_right, v_right):
+    ys, xr, _, ok = visible_matches(d_left, v_left, d_right, v_right)
+    w = d_left.shape[1]
+    xi = np.clip(np.floor(xr), 0, w - 2).astype(int)
+    t = np.clip(xr - xi, 0, 1)
+    sampled = right[ys, xi] * (1 - t)[..., None] + right[ys, xi + 1] * t[..., None]
+    diff = np.abs(left - sampled).mean(axis=2)[ok]
+    return float(diff.mean() * 255.0), int(ok.sum())
 
 
 def noise_pairs(res_left, res_right, gt):
     """The residuals paired at the same pixel and at the stereo match, flattened over channels."""
-    ys, xl, xr = matched(*gt)
+    ys, _, near, ok = visible_matches(*gt)
+    xs = np.nonzero(ok)[1]
     same = (res_left.reshape(-1), res_right.reshape(-1))
-    match = (res_left[ys, xl].reshape(-1), res_right[ys, xr].reshape(-1))
+    match = (res_left[ys[ok], xs].reshape(-1), res_right[ys[ok], near[ok]].reshape(-1))
     return same, match
 
 

@@ -14,7 +14,9 @@ use serde::Serialize;
 use stereo_io::{StereoDataset, StereoSample};
 
 use crate::disturb::{Disturbance, DisturbedResult};
-use crate::metrics::{DisparityMetrics, boundary_band, disparity_metrics, max_iou};
+use crate::metrics::{
+    CSV_METRICS, DisparityMetrics, boundary_band, disparity_metrics, max_iou, metric_values,
+};
 
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalOptions {
@@ -275,16 +277,6 @@ pub fn evaluate<B: Backend>(
     Ok(EvalReport::summarise(
         dataset, weights, opts, per_image, failed,
     ))
-}
-
-const CSV_METRICS: [&str; 11] = [
-    "epe", "rms", "bad_0_5", "bad_1", "bad_2", "bad_3", "d1", "a50", "a90", "a95", "a99",
-];
-
-fn metric_values(m: &DisparityMetrics) -> [f64; 11] {
-    [
-        m.epe, m.rms, m.bad_0_5, m.bad_1, m.bad_2, m.bad_3, m.d1, m.a50, m.a90, m.a95, m.a99,
-    ]
 }
 
 fn opt(v: Option<f64>) -> String {

@@ -29,6 +29,18 @@ pub struct DisparityMetrics {
     pub a99: f64,
 }
 
+/// The metric columns of the CSVs (`eval`'s per-image report, `eval --disturb`'s rows), in the
+/// order of [`metric_values`].
+pub const CSV_METRICS: [&str; 11] = [
+    "epe", "rms", "bad_0_5", "bad_1", "bad_2", "bad_3", "d1", "a50", "a90", "a95", "a99",
+];
+
+pub fn metric_values(m: &DisparityMetrics) -> [f64; 11] {
+    [
+        m.epe, m.rms, m.bad_0_5, m.bad_1, m.bad_2, m.bad_3, m.d1, m.a50, m.a90, m.a95, m.a99,
+    ]
+}
+
 /// The q-quantile of sorted values, interpolating linearly between the closest ranks.
 pub fn quantile(sorted: &[f64], q: f64) -> f64 {
     let pos = q.clamp(0.0, 1.0) * (sorted.len() - 1) as f64;

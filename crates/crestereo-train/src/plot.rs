@@ -207,6 +207,18 @@ fn draw_epe(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
         .map_err(err)
 }
 
+/// Writes a drawn RGB buffer as a PNG.
+fn write_rgb_png(out: &Path, buf: Vec<u8>, w: u32, h: u32) -> Result<()> {
+    let img = stereo_io::Image {
+        width: w as usize,
+        height: h as usize,
+        channels: 3,
+        samples: stereo_io::Samples::U8(buf),
+    };
+    stereo_io::write_png(out, &img)?;
+    Ok(())
+}
+
 /// Draws a run's loss and EPE curves side by side into a PNG.
 pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
     let curves = RunCurves::read(run)?;
@@ -221,14 +233,7 @@ pub fn plot_run(run: &Path, out: &Path, smooth: usize) -> Result<()> {
         draw_epe(&right, &curves, smooth)?;
         root.present().map_err(err)?;
     }
-    let img = stereo_io::Image {
-        width: w as usize,
-        height: h as usize,
-        channels: 3,
-        samples: stereo_io::Samples::U8(buf),
-    };
-    stereo_io::write_png(out, &img)?;
-    Ok(())
+    write_rgb_png(out, buf, w, h)
 }
 
 /// EPE against the disturbance level, one panel per kind (`crestereo eval --disturb`); level 0
@@ -256,10 +261,7 @@ pub fn plot_disturbance(
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(err)?;
         let panels = root.split_evenly((lines, columns));
-        let pixels = rows
-            .iter()
-            .find_map(|r| r.headline().map(|h| h.0))
-            .unwrap_or("all");
+        let pixels = crate::disturb::headline_pixels(rows);
         for (kind, area) in kinds.iter().zip(&panels) {
             let mut points: Vec<(f64, f64)> = baseline_epe.map(|e| (0.0, e)).into_iter().collect();
             points.extend(
@@ -297,14 +299,7 @@ pub fn plot_disturbance(
         }
         root.present().map_err(err)?;
     }
-    let img = stereo_io::Image {
-        width: w as usize,
-        height: h as usize,
-        channels: 3,
-        samples: stereo_io::Samples::U8(buf),
-    };
-    stereo_io::write_png(out, &img)?;
-    Ok(())
+    write_rgb_png(out, buf, w, h)
 }
 
 #[cfg(test)]

@@ -555,10 +555,16 @@ mod tests {
             let right = right.expect("a new plan has a right-view seed");
             assert_ne!(left, right);
         }
-        // The right seeds are their own stream, not the left one shifted.
+        // The right seeds differ from sample to sample, and are not the left ones shifted.
         let mut rights: Vec<u32> = seeds.iter().filter_map(|s| s.1).collect();
+        rights.sort_unstable();
         rights.dedup();
         assert_eq!(rights.len(), seeds.len());
+        let offsets: std::collections::BTreeSet<u32> = seeds
+            .iter()
+            .map(|&(l, r)| r.unwrap().wrapping_sub(l))
+            .collect();
+        assert!(offsets.len() > 1, "{seeds:?}");
         // Planning stays a pure function of (seed, index).
         assert_eq!(
             plan_scene(&recipe, &assets, 3, 7).render.cycles_seed_right,

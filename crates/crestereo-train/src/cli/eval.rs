@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crestereo_train::checkpoint::weights_file;
 use crestereo_train::disturb::{self, Disturbance};
-use crestereo_train::eval::{EvalOptions, EvalReport, evaluate};
+use crestereo_train::eval::{EvalOptions, EvalReport, ImageResult, evaluate};
 
 /// The network and how it runs, as `eval` and `score` take them.
 #[derive(Debug, clap::Args)]
@@ -139,6 +139,20 @@ pub(super) fn open_dataset(
     )
 }
 
+/// The progress callback of a pass: position, and the last sample's EPE after `label`.
+pub(super) fn show_progress<'a>(
+    bar: &'a ProgressBar,
+    label: &'a str,
+) -> impl FnMut(usize, usize, &ImageResult) + 'a {
+    move |i, n, r| {
+        bar.set_length(n as u64);
+        bar.set_position(i as u64);
+        if let Some(m) = r.all {
+            bar.set_message(format!("{label}{}: EPE {:.3}", r.id, m.epe));
+        }
+    }
+}
+
 /// The progress bar of a pass over a dataset.
 pub(super) fn progress_bar() -> ProgressBar {
     let bar = ProgressBar::new(0);
@@ -166,13 +180,7 @@ pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
             &evaluated.weights,
             opts,
             device,
-            |i, n, r| {
-                bar.set_length(n as u64);
-                bar.set_position(i as u64);
-                if let Some(m) = r.all {
-                    bar.set_message(format!("{label}{}: EPE {:.3}", r.id, m.epe));
-                }
-            },
+            show_progress(&bar, label),
         )?;
         Ok(report)
     };
@@ -208,7 +216,7 @@ pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
         stereo_io::write_bytes_atomically(&table, disturb::disturbance_csv(rows).as_bytes())
             .with_context(|| format!("cannot write {}", table.display()))?;
         let plot = a.json.with_extension("disturb.png");
-        let baseline = report.mean_nonocc.or(report.mean_all).map(|m| m.epe);
+        let baseline = disturb::headline(report.mean_nonocc, report.mean_all).map(|h| h.1.epe);
         crestereo_train::plot::plot_disturbance(rows, baseline, &plot)?;
         print!("{}", disturb::disturbance_table(rows));
         eprintln!("wrote {} and {}", table.display(), plot.display());

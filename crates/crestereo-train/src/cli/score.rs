@@ -8,7 +8,7 @@ use burn::prelude::*;
 use crestereo_train::eval::EvalOptions;
 use crestereo_train::score::{ScoreHeader, score, weights_fingerprint};
 
-use super::eval::{ModelArgs, load_model, open_dataset, progress_bar};
+use super::eval::{ModelArgs, load_model, open_dataset, progress_bar, show_progress};
 
 #[derive(Debug, clap::Args)]
 pub struct ScoreArgs {
@@ -52,13 +52,7 @@ pub fn run<B: Backend>(a: &ScoreArgs, device: &B::Device) -> Result<()> {
         &opts,
         &a.out,
         device,
-        |i, n, r| {
-            bar.set_length(n as u64);
-            bar.set_position(i as u64);
-            if let Some(m) = r.all {
-                bar.set_message(format!("{}: EPE {:.3}", r.id, m.epe));
-            }
-        },
+        show_progress(&bar, ""),
     )?;
     bar.finish_and_clear();
     eprintln!(

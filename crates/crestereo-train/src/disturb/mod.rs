@@ -11,14 +11,14 @@
 
 mod report;
 
-pub use report::{DisturbedResult, disturbance_csv, disturbance_table};
+pub use report::{DisturbedResult, disturbance_csv, disturbance_table, headline, headline_pixels};
 
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::augment::{BgrImage, remap};
+use crate::augment::{BgrImage, SampleStreams, remap};
 
 /// What disturbs the right view.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -148,7 +148,9 @@ impl Disturbance {
         if self.level == 0.0 {
             return img.clone();
         }
-        let mut rng = ChaCha8Rng::seed_from_u64(stream_key(self.seed, self.kind, sample_id));
+        // The augmentation's named streams: one per (seed, kind, sample).
+        let mut rng = SampleStreams::for_sample(self.seed)
+            .stream(&format!("disturb/{}/{sample_id}", self.kind.name()));
         let level = self.level;
         match self.kind {
             DisturbKind::Blur => gaussian_blur(img, level),
@@ -161,22 +163,6 @@ impl Disturbance {
     }
 }
 
-/// FNV-1a over the seed, the kind and the sample id: one random stream per (seed, kind, sample).
-fn stream_key(seed: u64, kind: DisturbKind, sample_id: &str) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let bytes = seed
-        .to_le_bytes()
-        .into_iter()
-        .chain(kind.name().bytes())
-        .chain([0])
-        .chain(sample_id.bytes());
-    for b in bytes {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
-    h
-}
-
 /// Separable Gaussian of standard deviation `sigma` (radius 3σ), edges clamped.
 fn gaussian_blur(img: &BgrImage, sigma: f64) -> BgrImage {
     let radius = (3.0 * sigma).ceil() as isize;
@@ -185,39 +171,38 @@ fn gaussian_blur(img: &BgrImage, sigma: f64) -> BgrImage {
         .collect();
     let total: f64 = weights.iter().sum();
     let kernel: Vec<f32> = weights.iter().map(|w| (w / total) as f32).collect();
-    let (w, h) = (img.width as isize, img.height as isize);
-    let plane = img.width * img.height;
-    let mut out = BgrImage::zeros(img.width, img.height);
-    let mut row_pass = vec![0.0f32; plane];
-    for c in 0..3 {
-        let src = &img.data[c * plane..(c + 1) * plane];
-        for y in 0..h {
-            for x in 0..w {
-                row_pass[(y * w + x) as usize] = kernel
-                    .iter()
-                    .enumerate()
-                    .map(|(k, kw)| {
-                        let sx = (x + k as isize - radius).clamp(0, w - 1);
-                        src[(y * w + sx) as usize] * kw
-                    })
-                    .sum();
-            }
-        }
-        let dst = &mut out.data[c * plane..(c + 1) * plane];
-        for y in 0..h {
-            for x in 0..w {
-                dst[(y * w + x) as usize] = kernel
-                    .iter()
-                    .enumerate()
-                    .map(|(k, kw)| {
-                        let sy = (y + k as isize - radius).clamp(0, h - 1);
-                        row_pass[(sy * w + x) as usize] * kw
-                    })
-                    .sum();
-            }
-        }
+    let (w, h) = (img.width, img.height);
+    let mut out = BgrImage::zeros(w, h);
+    let mut row_pass = vec![0.0f32; w * h];
+    for (src, dst) in img.data.chunks(w * h).zip(out.data.chunks_mut(w * h)) {
+        // Along each row (neighbours 1 apart), then along each column (w apart).
+        convolve_1d(src, &mut row_pass, &kernel, (w, h), (1, w));
+        convolve_1d(&row_pass, dst, &kernel, (w, h), (w, 1));
     }
     out
+}
+
+/// One pass of a centred 1-D kernel over a `size.0 × size.1` plane along the axis whose
+/// neighbours are `strides.0` apart (`strides.1` between lines), positions clamped to the plane.
+fn convolve_1d(
+    src: &[f32],
+    dst: &mut [f32],
+    kernel: &[f32],
+    (w, h): (usize, usize),
+    (step, line): (usize, usize),
+) {
+    let radius = (kernel.len() / 2) as isize;
+    let (len, lines) = if step == 1 { (w, h) } else { (h, w) };
+    for l in 0..lines {
+        for i in 0..len as isize {
+            let at = |j: isize| src[l * line + j.clamp(0, len as isize - 1) as usize * step];
+            dst[l * line + i as usize * step] = kernel
+                .iter()
+                .enumerate()
+                .map(|(k, kw)| at(i + k as isize - radius) * kw)
+                .sum();
+        }
+    }
 }
 
 /// Per-channel gains in [1 − s, 1 + s] and one gamma in [1/(1 + s), 1 + s], clamped to 0..255.
@@ -297,14 +282,19 @@ fn homography(from: &[(f64, f64); 4], to: &[(f64, f64); 4]) -> Option<[f64; 8]> 
 /// Radial distortion about the centre, `p_in = c + (p − c)(1 + k r²)` with r = 1 at the corners
 /// and k chosen so that the corners move by `shift` pixels.
 fn radial_distortion(img: &BgrImage, shift: f64) -> BgrImage {
-    let (cx, cy) = ((img.width - 1) as f64 / 2.0, (img.height - 1) as f64 / 2.0);
+    remap(img, radial_map(img.width, img.height, shift))
+}
+
+/// The output → input map of [`radial_distortion`].
+fn radial_map(width: usize, height: usize, shift: f64) -> impl Fn(f64, f64) -> (f64, f64) {
+    let (cx, cy) = ((width - 1) as f64 / 2.0, (height - 1) as f64 / 2.0);
     let half_diagonal = (cx * cx + cy * cy).sqrt().max(1.0);
     let k = shift / half_diagonal;
-    remap(img, |x, y| {
+    move |x, y| {
         let (dx, dy) = (x - cx, y - cy);
         let r2 = (dx * dx + dy * dy) / (half_diagonal * half_diagonal);
         (cx + dx * (1.0 + k * r2), cy + dy * (1.0 + k * r2))
-    })
+    }
 }
 
 #[cfg(test)]
@@ -380,11 +370,35 @@ mod tests {
     }
 
     #[test]
-    fn blur_keeps_a_constant_image_and_the_mean() {
+    fn blur_keeps_a_constant_image_and_spreads_an_impulse_as_a_gaussian() {
         let mut flat = BgrImage::zeros(20, 10);
         flat.data.iter_mut().for_each(|v| *v = 100.0);
         let out = gaussian_blur(&flat, 2.0);
         assert!(out.data.iter().all(|v| (v - 100.0).abs() < 1e-3));
+        // An impulse far from the edges: its mass is kept, it spreads symmetrically along both
+        // axes, and the ratio one pixel off the centre is exp(-1/(2σ²)).
+        let (w, h, sigma) = (31, 25, 1.5);
+        let mut impulse = BgrImage::zeros(w, h);
+        let (x0, y0) = (15, 12);
+        impulse.data[w * h + y0 * w + x0] = 1000.0;
+        let out = gaussian_blur(&impulse, sigma);
+        let g = &out.data[w * h..2 * w * h];
+        let at = |x: usize, y: usize| f64::from(g[y * w + x]);
+        assert!((g.iter().map(|&v| f64::from(v)).sum::<f64>() - 1000.0).abs() < 1e-2);
+        assert!(
+            out.data[..w * h].iter().all(|&v| v == 0.0),
+            "channels stay apart"
+        );
+        for d in 1..4 {
+            assert!((at(x0 + d, y0) - at(x0 - d, y0)).abs() < 1e-4);
+            assert!((at(x0, y0 + d) - at(x0, y0 - d)).abs() < 1e-4);
+            assert!((at(x0 + d, y0) - at(x0, y0 + d)).abs() < 1e-4);
+        }
+        let ratio = at(x0 + 1, y0) / at(x0, y0);
+        assert!(
+            (ratio - (-1.0 / (2.0 * sigma * sigma)).exp()).abs() < 1e-5,
+            "{ratio}"
+        );
     }
 
     #[test]
@@ -401,20 +415,37 @@ mod tests {
 
     #[test]
     fn distortion_moves_the_corners_by_the_level_and_keeps_the_centre() {
-        let img = image(33, 21);
+        let (w, h) = (33, 21);
+        let map = radial_map(w, h, 3.0);
+        // Each corner samples the point 3 px further out along its diagonal.
         let (cx, cy) = (16.0, 10.0);
-        let half_diagonal = f64::hypot(cx, cy);
-        let k = 3.0 / half_diagonal;
-        // The corner samples the point 3 px further out along the diagonal.
-        let (dx, dy) = (-cx, -cy);
-        let moved = f64::hypot(dx * (1.0 + k), dy * (1.0 + k)) - half_diagonal;
-        assert!((moved - 3.0).abs() < 1e-9);
+        for (x, y) in [(0.0, 0.0), (32.0, 0.0), (32.0, 20.0), (0.0, 20.0)] {
+            let (sx, sy) = map(x, y);
+            let moved = f64::hypot(sx - cx, sy - cy) - f64::hypot(x - cx, y - cy);
+            assert!(
+                (moved - 3.0).abs() < 1e-9,
+                "corner ({x}, {y}) moved {moved}"
+            );
+            assert!(
+                ((sx - cx) * (y - cy) - (sy - cy) * (x - cx)).abs() < 1e-9,
+                "radially"
+            );
+        }
+        assert_eq!(map(cx, cy), (cx, cy));
+        // The image goes through that map: a linear ramp is sampled exactly by bilinear taps.
+        let ramp = |x: f64, y: f64| 10.0 + 2.0 * x + 3.0 * y;
+        let mut img = BgrImage::zeros(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                img.data[y * w + x] = ramp(x as f64, y as f64) as f32;
+            }
+        }
         let out = radial_distortion(&img, 3.0);
-        let plane = 33 * 21;
-        assert_eq!(
-            out.data[plane + 10 * 33 + 16],
-            img.data[plane + 10 * 33 + 16]
-        );
+        for (x, y) in [(16, 10), (10, 5), (25, 14), (4, 17)] {
+            let (sx, sy) = map(x as f64, y as f64);
+            let got = f64::from(out.data[y * w + x]);
+            assert!((got - ramp(sx, sy)).abs() < 1e-3, "({x}, {y}): {got}");
+        }
     }
 
     #[test]

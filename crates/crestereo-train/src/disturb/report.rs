@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use serde::Serialize;
 
 use super::DisturbKind;
-use crate::metrics::DisparityMetrics;
+use crate::metrics::{CSV_METRICS, DisparityMetrics, metric_values};
 
 /// The evaluation of a dataset under one disturbance of the right view.
 #[derive(Debug, Clone, Serialize)]
@@ -23,25 +23,29 @@ pub struct DisturbedResult {
 }
 
 impl DisturbedResult {
-    /// The metrics a robustness row shows: non-occluded pixels where the dataset tells them,
-    /// else all valid pixels.
     pub fn headline(&self) -> Option<(&'static str, DisparityMetrics)> {
-        match (self.mean_nonocc, self.mean_all) {
-            (Some(m), _) => Some(("non-occ", m)),
-            (None, Some(m)) => Some(("all", m)),
-            (None, None) => None,
-        }
+        headline(self.mean_nonocc, self.mean_all)
     }
 }
 
-const METRICS: [&str; 11] = [
-    "epe", "rms", "bad_0_5", "bad_1", "bad_2", "bad_3", "d1", "a50", "a90", "a95", "a99",
-];
+/// The metrics a robustness row shows: non-occluded pixels where the dataset tells them, else
+/// all valid pixels (with the name of those pixels).
+pub fn headline(
+    nonocc: Option<DisparityMetrics>,
+    all: Option<DisparityMetrics>,
+) -> Option<(&'static str, DisparityMetrics)> {
+    match (nonocc, all) {
+        (Some(m), _) => Some(("non-occ", m)),
+        (None, Some(m)) => Some(("all", m)),
+        (None, None) => None,
+    }
+}
 
-fn values(m: &DisparityMetrics) -> [f64; 11] {
-    [
-        m.epe, m.rms, m.bad_0_5, m.bad_1, m.bad_2, m.bad_3, m.d1, m.a50, m.a90, m.a95, m.a99,
-    ]
+/// Which pixels the rows' headline metrics are on.
+pub fn headline_pixels(rows: &[DisturbedResult]) -> &'static str {
+    rows.iter()
+        .find_map(|r| r.headline().map(|h| h.0))
+        .unwrap_or("all")
 }
 
 /// One line per row: kind, level, unit, seed, images, failed, then every metric on all valid
@@ -49,7 +53,7 @@ fn values(m: &DisparityMetrics) -> [f64; 11] {
 pub fn disturbance_csv(rows: &[DisturbedResult]) -> String {
     let mut s = String::from("kind,level,unit,seed,images,failed");
     for prefix in ["", "nonocc_"] {
-        for m in METRICS {
+        for m in CSV_METRICS {
             write!(s, ",{prefix}{m}").unwrap();
         }
     }
@@ -68,8 +72,10 @@ pub fn disturbance_csv(rows: &[DisturbedResult]) -> String {
         .unwrap();
         for m in [&r.mean_all, &r.mean_nonocc] {
             match m {
-                Some(m) => values(m).iter().for_each(|v| write!(s, ",{v:.6}").unwrap()),
-                None => s.push_str(&",".repeat(METRICS.len())),
+                Some(m) => metric_values(m)
+                    .iter()
+                    .for_each(|v| write!(s, ",{v:.6}").unwrap()),
+                None => s.push_str(&",".repeat(CSV_METRICS.len())),
             }
         }
         s.push('\n');
@@ -80,10 +86,7 @@ pub fn disturbance_csv(rows: &[DisturbedResult]) -> String {
 /// The printed table: one line per kind and level with the headline metrics.
 pub fn disturbance_table(rows: &[DisturbedResult]) -> String {
     let mut s = String::new();
-    let pixels = rows
-        .iter()
-        .find_map(|r| r.headline().map(|h| h.0))
-        .unwrap_or("all");
+    let pixels = headline_pixels(rows);
     writeln!(
         s,
         "right view disturbed ({pixels} pixels)\n{:<12}{:>8}  {:<18}{:>8}{:>9}{:>9}{:>9}{:>9}{:>8}",
