@@ -108,6 +108,7 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
         recipe_fingerprint: recipe.fingerprint(),
         recipe: recipe.clone(),
         assets_fingerprint: None,
+        curation: Vec::new(),
     };
     std::fs::create_dir_all(root).unwrap();
     std::fs::write(layout.info(), serde_json::to_string_pretty(&info).unwrap()).unwrap();

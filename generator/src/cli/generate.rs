@@ -9,7 +9,7 @@ use stereogen::dataset::interrupt::{self, Interrupted};
 use stereogen::dataset::{DatasetLayout, GenerateCommand, generate};
 
 /// Draws the library's progress reports (a hidden bar when `show` is false).
-fn progress_bar(show: bool) -> ProgressBar {
+pub(super) fn progress_bar(show: bool) -> ProgressBar {
     let bar = if show {
         ProgressBar::new(0)
     } else {
@@ -22,7 +22,7 @@ fn progress_bar(show: bool) -> ProgressBar {
     bar
 }
 
-fn draw(bar: &ProgressBar, event: Progress<'_>) {
+pub(super) fn draw(bar: &ProgressBar, event: Progress<'_>) {
     match event {
         Progress::Started { total, done } => {
             bar.set_length(total);

@@ -2,6 +2,7 @@
 
 mod assets;
 mod audit;
+mod curate;
 mod estimate;
 mod farm;
 mod generate;
@@ -179,6 +180,11 @@ pub enum Command {
     /// Progress of a farm (or one dataset) from its files: per shard done, failed, remaining,
     /// samples per hour, ETA.
     Status(status::StatusArgs),
+    /// Self-curation with a trained model: list the samples whose scores (`crestereo score`) are
+    /// over a rule (FoundationStereo's: Bad-2 above 60%) and, with --replace, replace each by a
+    /// newly rendered sample of its category; the round is recorded in curation.jsonl and
+    /// dataset.json, so recipe, seed and log re-make the curated dataset (--from-log).
+    Curate(curate::CurateArgs),
     /// Check the ground truth against the scene geometry by ray casting (see `audit --help`).
     Audit(audit::AuditArgs),
     /// One self-contained HTML page about a dataset (see `report --help`).
@@ -285,6 +291,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             }
         }
         Command::Audit(args) => audit::run(args)?,
+        Command::Curate(args) => curate::run(args)?,
         Command::Report(args) => report::run(args)?,
         Command::Stats {
             dataset,

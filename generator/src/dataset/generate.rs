@@ -247,7 +247,7 @@ fn check_options(opts: &GenerateOptions) -> anyhow::Result<()> {
 struct OpenDataset {
     layout: DatasetLayout,
     manifest: Manifest,
-    /// Indices already in the manifest.
+    /// Indices already in the manifest, or replaced by a finished curation round.
     done: BTreeSet<u64>,
     /// Held until the run ends.
     _lock: DatasetLock,
@@ -308,7 +308,7 @@ fn open_dataset(opts: &GenerateOptions) -> anyhow::Result<OpenDataset> {
     std::fs::create_dir_all(&layout.root)
         .with_context(|| format!("cannot create output directory {}", layout.root.display()))?;
     let lock = DatasetLock::acquire(&layout.lock(), opts.break_lock)?;
-    layout.open_or_create(&opts.recipe, opts.seed)?;
+    let info = layout.open_or_create(&opts.recipe, opts.seed)?;
     if let Some(shard) = opts.shard {
         record_shard(&layout, opts, shard)?;
     }
@@ -325,7 +325,12 @@ fn open_dataset(opts: &GenerateOptions) -> anyhow::Result<OpenDataset> {
             layout.manifest().display()
         );
     }
-    let done = contents.entries.iter().map(|e| e.index).collect();
+    let mut done: BTreeSet<u64> = contents.entries.iter().map(|e| e.index).collect();
+    // A sample `curate` replaced is done for good: rendering it again would undo the curation.
+    done.extend(super::curate::apply::replaced_indices(
+        &layout,
+        &info.curation,
+    )?);
     Ok(OpenDataset {
         layout,
         manifest,

@@ -32,6 +32,7 @@ impl CreateDataset for DatasetLayout {
             recipe_fingerprint: recipe.fingerprint(),
             recipe: recipe.clone(),
             assets_fingerprint: None,
+            curation: Vec::new(),
         };
         if self.info().exists() {
             let existing: DatasetInfo = self.read_info()?;

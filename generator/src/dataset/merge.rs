@@ -19,6 +19,7 @@ use sha2::{Digest, Sha256};
 use stereo_io::DatasetInfo;
 use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardDirs, ShardId, ShardInfo};
 
+use super::curate::apply::{apply_rounds, write_manifest};
 use super::export::{ExportFormat, ExportOptions, ExportSummary, WebDatasetArgs, export};
 use super::layout::DatasetLayout;
 use super::lock::{LockState, inspect, unix_now};
@@ -147,9 +148,14 @@ pub fn merge(opts: &MergeOptions) -> anyhow::Result<MergeReport> {
     if !report.problems.is_empty() {
         return Ok(report);
     }
-    let (Some(info), Some((start, n))) = (reference, range) else {
+    let (Some(mut info), Some((start, n))) = (reference, range) else {
         unreachable!("no problem means a reference shard and a range")
     };
+    // A merge after `curate` keeps its rounds: the shards hold what the farm rendered, the
+    // rounds what curation replaced since.
+    if out.info().is_file() {
+        info.curation = out.read_info::<serde_json::Value>()?.curation;
+    }
     write_merge(
         &out,
         &shards,
@@ -590,14 +596,14 @@ fn write_merge(
         }));
     }
     entries.sort_by_key(|e| e.index);
-    let path = out.manifest();
-    let mut text = String::new();
-    for e in &entries {
-        text.push_str(&serde_json::to_string(e)?);
-        text.push('\n');
-    }
-    stereo_io::write_bytes_atomically(&path, text.as_bytes())?;
-    Ok(())
+    let finished: Vec<_> = info
+        .curation
+        .iter()
+        .filter(|r| r.complete)
+        .cloned()
+        .collect();
+    let entries = apply_rounds(out, entries, &finished)?;
+    write_manifest(out, &entries)
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! The on-disk dataset: layout, manifest, finishing a sample atomically, and resumable generation.
 
 pub mod card;
+pub mod curate;
 pub mod export;
 pub mod generate;
 pub mod generate_command;

@@ -89,6 +89,9 @@ pub struct AuditReport {
     pub cast_seconds_per_megapixel: Option<f64>,
     /// Problems that are not one sample's.
     pub problems: Vec<String>,
+    /// One line per round of curation (`stereogen curate --replace`) and how it checked.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub curation: Vec<String>,
     pub pass: bool,
 }
 
@@ -221,6 +224,7 @@ pub fn summary_lines(report: &AuditReport) -> Vec<String> {
     }
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
+    lines.extend(report.curation.iter().cloned());
     for p in &report.problems {
         lines.push(format!("ERROR {p}"));
     }

@@ -331,13 +331,22 @@ pub fn audit(
         }
         Ok(())
     })?;
-    Ok(assemble(
+    let mut report = assemble(
         opts,
         &entries,
         unfinished,
         samples,
         started.elapsed().as_secs_f64(),
-    ))
+    );
+    // A curated dataset: the replaced samples out of the manifest, their replacements in.
+    if let Ok(info) = layout.read_info::<serde_json::Value>() {
+        let (lines, problems) =
+            crate::dataset::curate::apply::check_curation(&layout, &info.curation, &entries);
+        report.curation = lines;
+        report.pass &= problems.is_empty();
+        report.problems.extend(problems);
+    }
+    Ok(report)
 }
 
 /// Groups the sample audits by category and decides the verdict.
@@ -396,6 +405,7 @@ fn assemble(
         cast_seconds,
         cast_seconds_per_megapixel: (megapixels > 0.0).then(|| cast_seconds / megapixels),
         problems: Vec::new(),
+        curation: Vec::new(),
         pass,
     }
 }

@@ -1,7 +1,8 @@
 //! `stereogen report DATASET`: one self-contained HTML page about a dataset — recipe and
 //! fingerprint, samples per category, failures and skipped assets, render times, the disparity
 //! distribution against the recipe's law (as `stats` computes it), row/column coverage, the
-//! audit's results when `audit.json` exists, a gallery and the samples that stand out.
+//! audit's results when `audit.json` exists, a gallery, the samples that stand out, and the
+//! rounds of curation with the samples they replaced.
 //!
 //! It reads our folder layout or a WebDataset export of it (`export --format webdataset`), whose
 //! members it reads straight from the shards ([`super::dataset_files`]).
@@ -14,6 +15,7 @@
 //! lines. The page states these caps.
 
 pub mod chart;
+pub mod curation;
 pub mod facts;
 pub mod gallery;
 pub mod sections;
@@ -78,6 +80,8 @@ struct Page {
     audit: Option<AuditSection>,
     gallery: Vec<Tile>,
     outliers: Vec<Tile>,
+    curation: Vec<curation::CurationRow>,
+    replaced: Vec<Tile>,
     caps: String,
 }
 
@@ -177,6 +181,8 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
         audit: None,
         gallery: Vec::new(),
         outliers: Vec::new(),
+        curation: Vec::new(),
+        replaced: Vec::new(),
         caps: String::new(),
     };
     describe(&facts, &mut page);
@@ -200,13 +206,23 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
         page.outliers = rayon_map(&odd, |(i, why)| {
             gallery::tile(files, &entries[*i], why.clone())
         });
+        if let Some(info) = &facts.info {
+            page.curation = curation::rows(&info.curation);
+            page.replaced = curation::tiles(files, &info.curation, entries, &mut problems);
+        }
     }
-    for t in page.gallery.iter().chain(&page.outliers) {
+    for t in page
+        .gallery
+        .iter()
+        .chain(&page.outliers)
+        .chain(&page.replaced)
+    {
         problems.extend(t.problems.iter().map(|p| format!("sample {}: {p}", t.id)));
     }
     page.problems.extend(problems);
     page.caps = format!(
-        "Size limits: at most {MAX_THUMBNAILS} gallery samples (chosen deterministically: categories in turn, evenly spaced by index) and {MAX_OUTLIERS} outliers, each as three thumbnails at most {} px wide (JPEG quality {}, disparity PNG); lists stop at {} lines; statistics stream over every map.",
+        "Size limits: at most {MAX_THUMBNAILS} gallery samples (chosen deterministically: categories in turn, evenly spaced by index), {MAX_OUTLIERS} outliers and {} replaced samples with their replacements, each as three thumbnails at most {} px wide (JPEG quality {}, disparity PNG); lists stop at {} lines; statistics stream over every map.",
+        curation::MAX_REPLACED,
         gallery::THUMB_WIDTH,
         gallery::JPEG_QUALITY,
         facts::MAX_LISTED

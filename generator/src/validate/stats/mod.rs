@@ -157,6 +157,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         overall,
         errors,
         notes,
+        curation: loaded.info.curation.clone(),
         pass,
         law,
     })

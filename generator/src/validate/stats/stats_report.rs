@@ -33,6 +33,9 @@ pub struct StatsReport {
     /// What could not be computed from this dataset and why (an export without SceneSpecs).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,
+    /// The rounds of `stereogen curate --replace` the dataset went through.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub curation: Vec<stereo_io::datasets::stereogen::CurationRound>,
     pub pass: bool,
 }
 

@@ -12,6 +12,22 @@ pub fn summary_lines(report: &StatsReport) -> Vec<String> {
         report.dataset, report.samples, report.recipe, report.ks_alpha
     )];
     lines.extend(report.notes.iter().map(|n| format!("NOTE {n}")));
+    lines.extend(report.curation.iter().map(|r| {
+        format!(
+            "curation round {}: {} of {} scored samples replaced ({}; model {} {}){}",
+            r.round,
+            r.replaced,
+            r.scored,
+            r.rule,
+            r.model,
+            r.model_fingerprint,
+            if r.complete {
+                ""
+            } else {
+                " - UNFINISHED: re-run its curate command"
+            }
+        )
+    }));
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
     for e in report.errors.iter().take(10) {

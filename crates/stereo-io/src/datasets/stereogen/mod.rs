@@ -5,6 +5,7 @@
 //! <root>/manifest.jsonl                 one line per finished sample (written last)
 //! <root>/failures.jsonl                 samples that failed, with the reason ([`FailureRecord`])
 //! <root>/skipped_assets.jsonl           asset files that could not be used ([`SkippedAssetRecord`])
+//! <root>/curation.jsonl                 samples `stereogen curate` replaced ([`curation`])
 //! <root>/.stereogen.lock                held by the one process writing the directory
 //! <root>/<category>/<id>_left.png       and _right.png (8-bit sRGB)
 //! <root>/<category>/<id>_left.disp.exr  and _right.disp.exr (float32 disparity + validity)
@@ -18,6 +19,7 @@
 //! The writer is the generator: it names files with [`DatasetLayout::sample_paths`], writes each
 //! atomically, then appends the [`ManifestEntry`] through [`Manifest`].
 
+pub mod curation;
 pub mod farm;
 mod json_lines;
 mod manifest;
@@ -28,6 +30,9 @@ use std::path::{Path, PathBuf};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+pub use curation::{
+    CURATION_DIR, CURATION_FILE, CurationRecord, CurationRound, curation_round_dir,
+};
 pub use farm::{
     ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
 };
@@ -105,6 +110,9 @@ pub struct DatasetInfo<R = serde_json::Value> {
     /// folders); absent for datasets that draw no assets or were made before it was recorded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub assets_fingerprint: Option<String>,
+    /// The rounds of `stereogen curate --replace`, in order; absent before the first.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub curation: Vec<CurationRound>,
 }
 
 /// Where each file of one of our dataset directories lives.
@@ -132,6 +140,11 @@ impl DatasetLayout {
 
     pub fn skipped_assets(&self) -> PathBuf {
         self.root.join(SKIPPED_ASSETS_FILE)
+    }
+
+    /// `curation.jsonl` ([`CurationRecord`]).
+    pub fn curation_log(&self) -> PathBuf {
+        self.root.join(CURATION_FILE)
     }
 
     pub fn lock(&self) -> PathBuf {

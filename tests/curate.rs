@@ -1,0 +1,441 @@
+//! Self-curation end to end, every part real: `stereogen generate` renders a small dataset, one
+//! sample gets another sample's disparity maps (an inconsistent sample, planted), `crestereo
+//! train` fine-tunes briefly on the rest, `crestereo score` scores every sample, and `stereogen
+//! curate` flags the planted one, replaces it (resuming a round a failed render left open), keeps
+//! it out of later `generate` runs, shows the round in `stats`, `audit` and `report`, and re-makes
+//! the same curated dataset from recipe, seed and log on a fresh render.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+use stereogen::dataset::curate::{REPLACEMENT_BASE, replacement_index};
+use stereogen::dataset::{DatasetInfo, DatasetLayout, Manifest, ManifestEntry};
+use stereogen_e2e::{crestereo_bin, generate_cmd, sha256_hex, stereogen_cmd, write_tiny_recipe};
+
+const SEED: u64 = 3;
+const COUNT: u64 = 6;
+/// Fine-tuning steps on the five consistent samples (64×48, batch 2, no augmentation).
+const STEPS: u64 = 100;
+/// The re-render bounds of tests/rerender_exact.rs (README, "How exact is the disparity?").
+const DISPARITY_BOUND_PX: f32 = 5e-4;
+const IMAGE_BOUND_LEVELS: u8 = 4;
+
+fn run(c: &mut Command) -> Output {
+    let o = c.stdin(Stdio::null()).output().expect("run");
+    assert!(
+        o.status.success(),
+        "{c:?} failed:\n{}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
+fn text_of(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn entries(root: &Path) -> Vec<ManifestEntry> {
+    let mut e = Manifest::read(&DatasetLayout::new(root).manifest()).unwrap();
+    e.sort_by_key(|e| e.index);
+    e
+}
+
+fn generate(recipe: &Path, out: &Path) {
+    run(generate_cmd(recipe, out, COUNT).args(["--seed", &SEED.to_string()]));
+}
+
+/// Plants the inconsistency: the sample whose mean disparity is furthest from another sample's
+/// gets that sample's two disparity maps. Returns (planted, donor).
+fn plant(root: &Path) -> (ManifestEntry, ManifestEntry) {
+    let all = entries(root);
+    let mean = |e: &ManifestEntry| e.disparity_left.map_or(0.0, |d| d.mean);
+    let (planted, donor) = all
+        .iter()
+        .flat_map(|p| all.iter().map(move |d| (p, d)))
+        .max_by(|a, b| {
+            let gap = |(p, d): &(&ManifestEntry, &ManifestEntry)| (mean(p) - mean(d)).abs();
+            gap(a).total_cmp(&gap(b))
+        })
+        .unwrap();
+    let layout = DatasetLayout::new(root);
+    for (to, from) in [
+        (&planted.files.disp_left, &donor.files.disp_left),
+        (&planted.files.disp_right, &donor.files.disp_right),
+    ] {
+        std::fs::copy(layout.abs(from), layout.abs(to)).unwrap();
+    }
+    (planted.clone(), donor.clone())
+}
+
+/// A copy of the dataset without the planted sample, for fine-tuning.
+fn the_rest(root: &Path, planted: &ManifestEntry, out: &Path) {
+    let status = Command::new("cp")
+        .arg("-r")
+        .arg(root)
+        .arg(out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let kept: String = std::fs::read_to_string(root.join("manifest.jsonl"))
+        .unwrap()
+        .lines()
+        .filter(|l| serde_json::from_str::<ManifestEntry>(l).unwrap().index != planted.index)
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(out.join("manifest.jsonl"), kept).unwrap();
+}
+
+fn fine_tune(dir: &Path, data: &Path) -> PathBuf {
+    let config = dir.join("train.toml");
+    std::fs::write(
+        &config,
+        format!(
+            r#"steps = {STEPS}
+batch_size = 2
+accumulate = 1
+iters = 2
+[[datasets]]
+path = "{}"
+[augment]
+crop = [48, 64]
+swap_prob = 0.0
+brightness = [1.0, 1.0]
+contrast = [1.0, 1.0]
+gamma = [1.0, 1.0]
+right_warp_prob = 0.0
+rotation_deg = 0.0
+vertical_shift_px = 0.0
+scale = [1.0, 1.0]
+occlusion_prob = 0.0
+[schedule]
+lr = 0.001
+warmup_steps = 0
+decay_start = {STEPS}
+[checkpoint]
+every = 1000
+"#,
+            data.display()
+        ),
+    )
+    .unwrap();
+    let run_dir = dir.join("run");
+    run(Command::new(crestereo_bin())
+        .args(["train", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&run_dir)
+        .args(["--no-progress", "--threads", "2"]));
+    run_dir
+}
+
+/// Each sample's Bad-2 on all valid pixels, from a scores file.
+fn bad2(scores: &Path) -> BTreeMap<String, f64> {
+    std::fs::read_to_string(scores)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            (
+                v["id"].as_str().unwrap().to_string(),
+                v["all"]["bad_2"].as_f64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+fn curate(root: &Path, args: &[&str]) -> Command {
+    let mut c = stereogen_cmd(["curate"]);
+    c.arg(root)
+        .args(args)
+        .args(["--threads", "1", "--no-progress"]);
+    c
+}
+
+fn info(root: &Path) -> DatasetInfo {
+    DatasetLayout::new(root).read_info().unwrap()
+}
+
+/// (pixels that differ, largest difference in levels) between two 8-bit images.
+fn image_difference(a: &Path, b: &Path) -> (usize, u8) {
+    let (p, q) = (
+        stereo_io::read_rgb(a).unwrap(),
+        stereo_io::read_rgb(b).unwrap(),
+    );
+    assert_eq!((p.width, p.height), (q.width, q.height));
+    p.data
+        .chunks(3)
+        .zip(q.data.chunks(3))
+        .fold((0, 0), |(n, m), (x, y)| {
+            let d = x.iter().zip(y).map(|(u, v)| u.abs_diff(*v)).max().unwrap();
+            (n + usize::from(d > 0), m.max(d))
+        })
+}
+
+#[test]
+fn a_planted_inconsistent_sample_is_flagged_replaced_and_the_curation_replays() {
+    let dir = tempfile::tempdir().unwrap();
+    let recipe = write_tiny_recipe(dir.path(), "crestereo");
+    let a = dir.path().join("a");
+    generate(&recipe, &a);
+    let (planted, donor) = plant(&a);
+    let rest = dir.path().join("rest");
+    the_rest(&a, &planted, &rest);
+    let weights = fine_tune(dir.path(), &rest);
+    let scores = dir.path().join("scores.jsonl");
+    run(Command::new(crestereo_bin())
+        .arg("score")
+        .arg(&a)
+        .arg("--weights")
+        .arg(&weights)
+        .args(["--iters", "2", "--out"])
+        .arg(&scores));
+
+    // The planted sample is the one the model gets most wrong, clearly.
+    let bad2 = bad2(&scores);
+    eprintln!(
+        "Bad-2 (%) after {STEPS} steps on the rest: {bad2:?}; planted {} (disparity of {})",
+        planted.id, donor.id
+    );
+    let runner_up = bad2
+        .iter()
+        .filter(|(id, _)| **id != planted.id)
+        .map(|(_, b)| *b)
+        .fold(f64::MIN, f64::max);
+    assert!(
+        bad2[&planted.id] > runner_up + 5.0,
+        "the planted sample {} is not clearly the worst: {bad2:?}",
+        planted.id
+    );
+    let rule = format!("{:.3}", (bad2[&planted.id] + runner_up) / 2.0);
+    let rule = ["--scores", scores.to_str().unwrap(), "--max-bad2", &rule];
+
+    // Listing changes nothing.
+    let before = std::fs::read(a.join("manifest.jsonl")).unwrap();
+    let o = run(&mut curate(&a, &rule));
+    let said = text_of(&o);
+    assert!(
+        said.contains(&format!("1 of {COUNT} scored samples flagged")),
+        "{said}"
+    );
+    assert!(said.contains(&planted.id), "{said}");
+    assert_eq!(std::fs::read(a.join("manifest.jsonl")).unwrap(), before);
+    assert!(!a.join("curation.jsonl").exists());
+
+    // The replacement: fresh, the planted sample's category, a function of (seed, index, round).
+    let taken = entries(&a).iter().map(|e| e.index).collect();
+    let recipe_value = info(&a).recipe;
+    let r = replacement_index(
+        &recipe_value,
+        SEED,
+        planted.index,
+        1,
+        &planted.category,
+        &taken,
+    )
+    .unwrap();
+    assert!(r >= REPLACEMENT_BASE);
+
+    // A round whose render fails stays open, the manifest untouched; re-running finishes it.
+    let mut failing = curate(&a, &rule);
+    failing
+        .arg("--replace")
+        .env("STEREOGEN_FAULT", format!("raise@{r}"));
+    let o = failing.stdin(Stdio::null()).output().unwrap();
+    assert!(!o.status.success(), "{}", text_of(&o));
+    assert!(
+        text_of(&o).contains("the round stays open"),
+        "{}",
+        text_of(&o)
+    );
+    assert_eq!(std::fs::read(a.join("manifest.jsonl")).unwrap(), before);
+    let open = info(&a).curation;
+    assert_eq!(open.len(), 1);
+    assert!(!open[0].complete);
+    let o = run(curate(&a, &rule).arg("--replace"));
+    assert!(
+        text_of(&o).contains("curation round(s) 1 finished"),
+        "{}",
+        text_of(&o)
+    );
+
+    // The dataset keeps its size; the planted sample is out, its replacement in, every file
+    // as its checksum says.
+    let now = entries(&a);
+    assert_eq!(now.len() as u64, COUNT);
+    assert!(now.iter().all(|e| e.index != planted.index));
+    let new = now
+        .iter()
+        .find(|e| e.index == r)
+        .expect("the replacement is in");
+    assert_eq!(new.category, planted.category);
+    assert!(
+        new.notes
+            .iter()
+            .any(|n| n.contains(&format!("replaces {}", planted.id))),
+        "{:?}",
+        new.notes
+    );
+    for (key, rel) in new.files.all() {
+        assert!(rel.starts_with("curation/round-0001"), "{}", rel.display());
+        assert_eq!(sha256_hex(&a.join(rel)), new.sha256[key]);
+    }
+    let round = &info(&a).curation[0];
+    assert!(round.complete);
+    assert_eq!((round.replaced, round.scored), (1, COUNT));
+    // The model is the checkpoint the scores were made with, resolved from the run folder.
+    assert!(
+        Path::new(&round.model).starts_with(&weights) && round.model.ends_with(".mpk"),
+        "{}",
+        round.model
+    );
+    assert_eq!(round.model_fingerprint.len(), 8);
+
+    // A later `generate` of the same range does not bring the planted sample back.
+    let o = run(generate_cmd(&recipe, &a, COUNT).args(["--seed", &SEED.to_string()]));
+    assert!(text_of(&o).contains("0 rendered"), "{}", text_of(&o));
+    assert_eq!(entries(&a), now);
+    // Scores of the dataset before curation are refused now: they name a sample it no longer holds.
+    let o = curate(&a, &rule).stdin(Stdio::null()).output().unwrap();
+    assert!(!o.status.success());
+    assert!(text_of(&o).contains("does not hold"), "{}", text_of(&o));
+
+    // stats, audit and the report show the round.
+    let o = run(stereogen_cmd(["stats"]).arg(&a));
+    assert!(
+        text_of(&o).contains("curation round 1: 1 of 6 scored samples replaced"),
+        "{}",
+        text_of(&o)
+    );
+    let o = run(stereogen_cmd(["audit"]).arg(&a).args([
+        "--samples",
+        "1",
+        "--pixels",
+        "64",
+        "--threads",
+        "2",
+    ]));
+    assert!(
+        text_of(&o).contains("every replacement is"),
+        "{}",
+        text_of(&o)
+    );
+    let page = dir.path().join("report.html");
+    run(stereogen_cmd(["report"]).arg(&a).arg("--out").arg(&page));
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert_eq!(html.matches("class=\"tile curation-tile\"").count(), 2);
+    assert!(html.contains(&format!(
+        "{} · {} · round 1: replaced",
+        planted.id, planted.category
+    )));
+
+    // Recipe + seed + log re-make the curated dataset: the same samples, specs, and pixels
+    // within the re-render bounds.
+    let b = dir.path().join("b");
+    generate(&recipe, &b);
+    let log = a.join("curation.jsonl");
+    run(&mut curate(&b, &["--from-log", log.to_str().unwrap()]));
+    let remade = entries(&b);
+    assert_eq!(
+        remade
+            .iter()
+            .map(|e| (e.index, e.id.clone()))
+            .collect::<Vec<_>>(),
+        now.iter()
+            .map(|e| (e.index, e.id.clone()))
+            .collect::<Vec<_>>()
+    );
+    for (x, y) in now.iter().zip(&remade) {
+        if x.index == planted.index {
+            continue;
+        }
+        assert_eq!(x.sha256["scene"], y.sha256["scene"], "sample {}", x.id);
+        for key in ["disp_left", "disp_right"] {
+            let rel = |e: &ManifestEntry| {
+                if key == "disp_left" {
+                    e.files.disp_left.clone()
+                } else {
+                    e.files.disp_right.clone()
+                }
+            };
+            let (p, _) = stereo_io::read_disparity_exr(&a.join(rel(x))).unwrap();
+            let (q, _) = stereo_io::read_disparity_exr(&b.join(rel(y))).unwrap();
+            assert_eq!(p.valid, q.valid);
+            let worst = p
+                .data
+                .iter()
+                .zip(&q.data)
+                .map(|(u, v)| (u - v).abs())
+                .fold(0f32, f32::max);
+            assert!(
+                worst <= DISPARITY_BOUND_PX,
+                "sample {} {key}: {worst} px",
+                x.id
+            );
+        }
+        for (l, m) in [
+            (&x.files.left, &y.files.left),
+            (&x.files.right, &y.files.right),
+        ] {
+            let (n, worst) = image_difference(&a.join(l), &b.join(m));
+            assert!(
+                worst <= IMAGE_BOUND_LEVELS && n * 100 <= (x.width * x.height) as usize,
+                "sample {}: {n} pixels differ by up to {worst} levels",
+                x.id
+            );
+        }
+    }
+    let replayed = info(&b).curation;
+    assert_eq!(replayed.len(), 1);
+    assert!(replayed[0].complete);
+}
+
+/// A farm's merged output is curated like any dataset, and a later `merge` of its shards keeps
+/// the curation: the finished rounds are applied again over what the shards hold. The scores
+/// file is written here as `crestereo score` writes it (the file is the interface).
+#[test]
+fn a_merge_after_curation_keeps_the_rounds() {
+    let dir = tempfile::tempdir().unwrap();
+    let recipe = write_tiny_recipe(dir.path(), "crestereo");
+    let farm = dir.path().join("farm");
+    for shard in ["0/2", "1/2"] {
+        run(generate_cmd(&recipe, &farm, 4).args(["--seed", "9", "--shard", shard]));
+    }
+    run(&mut stereogen_e2e::merge_cmd(&farm));
+    let merged = entries(&farm);
+    assert_eq!(merged.len(), 4);
+    let scores = dir.path().join("scores.jsonl");
+    let mut text = String::from(
+        "{\"scores\":\"crestereo-scores\",\"dataset\":\"farm\",\"weights\":\"w.mpk\",\"weights_crc32c\":\"00000001\",\"iters\":2,\"stages\":2,\"lr_tolerance_px\":1.0}\n",
+    );
+    for (i, e) in merged.iter().enumerate() {
+        let bad2 = if e.index == 2 { 90.0 } else { 10.0 };
+        text.push_str(&format!(
+            "{{\"id\":\"{}\",\"all\":{{\"bad_2\":{bad2}}},\"nonocc\":{{\"bad_2\":{bad2}}},\"index\":{i}}}\n",
+            e.id
+        ));
+    }
+    std::fs::write(&scores, text).unwrap();
+    let o = run(&mut curate(
+        &farm,
+        &["--scores", scores.to_str().unwrap(), "--replace"],
+    ));
+    assert!(
+        text_of(&o).contains("curation round(s) 1 finished"),
+        "{}",
+        text_of(&o)
+    );
+    let curated = entries(&farm);
+    let indices = |v: &[ManifestEntry]| v.iter().map(|e| e.index).collect::<Vec<_>>();
+    assert_eq!(curated.len(), 4);
+    assert!(!indices(&curated).contains(&2));
+    run(&mut stereogen_e2e::merge_cmd(&farm));
+    assert_eq!(entries(&farm), curated, "merge undid the curation");
+    assert_eq!(info(&farm).curation.len(), 1);
+}
