@@ -396,9 +396,10 @@ fn a_planted_inconsistent_sample_is_flagged_replaced_and_the_curation_replays() 
     assert!(replayed[0].complete);
 }
 
-/// A farm's merged output is curated like any dataset, and a later `merge` of its shards keeps
-/// the curation: the finished rounds are applied again over what the shards hold. The scores
-/// file is written here as `crestereo score` writes it (the file is the interface).
+/// A farm's merged output is curated with the replacements rendered as one more farm round
+/// (`curate --shard K/N` per task, then one commit), and a later `merge` of its shards keeps the
+/// curation: the finished rounds are applied again over what the shards hold. The scores file is
+/// written here as `crestereo score` writes it (the file is the interface).
 #[test]
 fn a_merge_after_curation_keeps_the_rounds() {
     let dir = tempfile::tempdir().unwrap();
@@ -415,26 +416,51 @@ fn a_merge_after_curation_keeps_the_rounds() {
         "{\"scores\":\"crestereo-scores\",\"dataset\":\"farm\",\"weights\":\"w.mpk\",\"weights_crc32c\":\"00000001\",\"iters\":2,\"stages\":2,\"lr_tolerance_px\":1.0}\n",
     );
     for (i, e) in merged.iter().enumerate() {
-        let bad2 = if e.index == 2 { 90.0 } else { 10.0 };
+        let bad2 = if e.index >= 2 { 90.0 } else { 10.0 };
         text.push_str(&format!(
             "{{\"id\":\"{}\",\"all\":{{\"bad_2\":{bad2}}},\"nonocc\":{{\"bad_2\":{bad2}}},\"index\":{i}}}\n",
             e.id
         ));
     }
     std::fs::write(&scores, text).unwrap();
-    let o = run(&mut curate(
-        &farm,
-        &["--scores", scores.to_str().unwrap(), "--replace"],
-    ));
+    // The replacements as one more farm round: each task renders its part (here one after the
+    // other), then the round is committed from the tasks' folders.
+    let replace = ["--scores", scores.to_str().unwrap(), "--replace"];
+    for shard in ["1/2", "0/2"] {
+        let o = run(curate(&farm, &replace).args(["--shard", shard]));
+        assert!(
+            text_of(&o).contains("this task's part of the round"),
+            "{}",
+            text_of(&o)
+        );
+        assert_eq!(entries(&farm), merged, "a task commits nothing");
+    }
+    let o = run(&mut curate(&farm, &replace));
     assert!(
-        text_of(&o).contains("curation round(s) 1 finished"),
+        text_of(&o).contains("curation round(s) 1 finished: 0 replacement(s) rendered"),
         "{}",
         text_of(&o)
     );
     let curated = entries(&farm);
-    let indices = |v: &[ManifestEntry]| v.iter().map(|e| e.index).collect::<Vec<_>>();
     assert_eq!(curated.len(), 4);
-    assert!(!indices(&curated).contains(&2));
+    let records = stereogen::dataset::curate::read_records(&DatasetLayout::new(&farm)).unwrap();
+    assert_eq!(records.len(), 2);
+    for r in &records {
+        let e = curated
+            .iter()
+            .find(|e| e.index == r.replacement_index)
+            .unwrap();
+        let shard = format!(
+            "curation/round-0001/shards/{:04}-of-0002",
+            r.replacement_index % 2
+        );
+        assert!(
+            e.files.left.starts_with(&shard),
+            "{}",
+            e.files.left.display()
+        );
+        assert!(curated.iter().all(|e| e.index != r.index));
+    }
     run(&mut stereogen_e2e::merge_cmd(&farm));
     assert_eq!(entries(&farm), curated, "merge undid the curation");
     assert_eq!(info(&farm).curation.len(), 1);

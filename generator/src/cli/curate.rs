@@ -10,6 +10,7 @@ use stereogen::dataset::curate::{
 };
 use stereogen::dataset::generate_command::FaultPlan;
 use stereogen::dataset::interrupt::{self, Interrupted};
+use stereogen::dataset::shard::{ShardArg, resolve_shard};
 
 use super::RuntimeArgs;
 use super::generate::{draw, progress_bar};
@@ -43,6 +44,12 @@ pub struct CurateArgs {
     /// of its curation.jsonl (the same samples replaced by the same new ones).
     #[arg(long, value_name = "CURATION_JSONL")]
     from_log: Option<PathBuf>,
+    /// With --replace, as one task of a farm: render only the replacements with index % N == K
+    /// into the round's shards/KKKK-of-NNNN/ (`auto`: K and N from the scheduler, as `generate
+    /// --shard auto`). The first task to start plans the round; once every task finished, the
+    /// same command without --shard commits it.
+    #[arg(long, value_name = "K/N|auto", requires = "replace", value_parser = clap::value_parser!(ShardArg))]
+    shard: Option<ShardArg>,
     /// Blender worker processes rendering replacements in parallel.
     #[arg(long, value_name = "K", default_value_t = 1)]
     workers: usize,
@@ -91,6 +98,16 @@ pub fn run(a: CurateArgs) -> anyhow::Result<()> {
         },
         break_lock: a.break_lock,
         faults: a.fault.clone().unwrap_or_default(),
+        shard: match a.shard {
+            Some(arg) => {
+                let detected = resolve_shard(arg, None)?;
+                if arg == ShardArg::Auto {
+                    tracing::info!("shard {} ({})", detected.shard, detected.source);
+                }
+                Some(detected.shard)
+            }
+            None => None,
+        },
     };
     let bar = progress_bar(replace && !a.no_progress);
     let outcome = curate(&opts, &|event| draw(&bar, event));
@@ -139,6 +156,10 @@ fn print_report(a: &CurateArgs, r: &CurateReport, replace: bool) {
     let log = DatasetLayout::new(&a.dataset).curation_log();
     match (r.rounds.as_slice(), &r.render) {
         ([], None) => println!("nothing to replace"),
+        ([], Some(s)) if a.shard.is_some() => println!(
+            "this task's part of the round: {} replacement(s) rendered, {} already there; once every task finished, commit the round with the same command without --shard",
+            s.rendered, s.skipped
+        ),
         ([], Some(_)) => println!("the round is not finished; re-run the same command"),
         (rounds, render) => println!(
             "curation round(s) {} finished: {} replacement(s) rendered, {} kept from an interrupted run; recorded in {}",

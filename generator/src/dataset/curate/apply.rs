@@ -65,7 +65,7 @@ pub fn apply_rounds(
             by_index.remove(&r.index);
             let Some(e) = staged.get(&r.replacement_index) else {
                 bail!(
-                    "curation round {}: the replacement {} of sample {} is not in {}/manifest.jsonl",
+                    "curation round {}: the replacement {} of sample {} has not been rendered into {} (is a farm task of the round unfinished?)",
                     round.round,
                     r.replacement_id,
                     r.id,
@@ -83,22 +83,28 @@ pub fn apply_rounds(
     Ok(by_index.into_values().collect())
 }
 
-/// A round folder's finished samples by index, their paths relative to the dataset's root.
+/// A round folder's finished samples by index, their paths relative to the dataset's root: its
+/// own manifest, or, for a round rendered by a farm's tasks (`curate --shard K/N`), the
+/// manifests of its shard folders.
 pub fn round_entries(
     layout: &DatasetLayout,
     dir: &Path,
 ) -> anyhow::Result<BTreeMap<u64, ManifestEntry>> {
     check_round_dir(layout, dir)?;
     let round = DatasetLayout::new(layout.abs(dir));
-    let path = round.manifest();
-    if !path.is_file() {
-        return Ok(BTreeMap::new());
+    let mut parts = vec![(dir.to_path_buf(), round.manifest())];
+    if round.shards_dir().is_dir() {
+        for (id, _) in round.shard_dirs()?.shards {
+            let rel = dir
+                .join(stereo_io::datasets::stereogen::SHARDS_DIR)
+                .join(id.dir_name());
+            parts.push((rel, round.shard(id).manifest()));
+        }
     }
-    let contents = read_manifest(&path).context("reading a curation round's samples")?;
-    Ok(contents
-        .entries
-        .into_iter()
-        .map(|mut e| {
+    let mut out = BTreeMap::new();
+    for (prefix, path) in parts.into_iter().filter(|(_, p)| p.is_file()) {
+        let contents = read_manifest(&path).context("reading a curation round's samples")?;
+        out.extend(contents.entries.into_iter().map(|mut e| {
             for p in [
                 &mut e.files.left,
                 &mut e.files.right,
@@ -106,11 +112,12 @@ pub fn round_entries(
                 &mut e.files.disp_right,
                 &mut e.files.scene,
             ] {
-                *p = dir.join(&*p);
+                *p = prefix.join(&*p);
             }
             (e.index, e)
-        })
-        .collect())
+        }));
+    }
+    Ok(out)
 }
 
 /// Writes a top-level manifest whole (temp file, fsync, rename), one line per entry.

@@ -21,6 +21,7 @@ pub mod scores;
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use rand::Rng;
@@ -33,6 +34,7 @@ pub use scores::{FlagRule, Pixels, Scores, read_scores};
 
 use super::generate::{GenerateOptions, GenerateSummary, Progress, generate};
 use super::lock::DatasetLock;
+use super::shard::ShardId;
 use super::{DatasetInfo, DatasetLayout, ManifestEntry, read_manifest};
 use crate::plan::{Recipe, SeedTree, scene_category};
 use crate::render::WorkerOptions;
@@ -70,6 +72,10 @@ pub struct CurateOptions {
     pub stop: super::interrupt::StopFlag,
     pub break_lock: bool,
     pub faults: super::generate_command::FaultPlan,
+    /// Render only this shard's part of the round's replacements (`index % N == K`), into the
+    /// round's `shards/KKKK-of-NNNN/`, as one task of a farm; a run without it then commits the
+    /// round from the shards.
+    pub shard: Option<ShardId>,
 }
 
 /// One flagged sample.
@@ -117,7 +123,7 @@ pub fn curate(
             if !opts.replace {
                 return Ok(report);
             }
-            let _lock = DatasetLock::acquire(&layout.lock(), opts.break_lock)?;
+            let lock = lock_root(&layout, opts)?;
             let plan = RoundPlan {
                 rule: rule.to_string(),
                 scores: path.display().to_string(),
@@ -127,7 +133,7 @@ pub fn curate(
                 scored,
                 flagged,
             };
-            let (round, render) = run_round(opts, &layout, info, plan, progress)?;
+            let (round, render) = run_round(opts, &layout, info, plan, lock, progress)?;
             report.rounds.extend(round);
             report.render = render;
             Ok(report)
@@ -204,6 +210,27 @@ pub fn replacement_index(
     )
 }
 
+/// The dataset's lock. A farm's tasks (`shard`) start together and each plans the round under
+/// it for a moment, so they wait their turn (up to [`LOCK_PATIENCE`]) rather than fail.
+fn lock_root(layout: &DatasetLayout, opts: &CurateOptions) -> anyhow::Result<DatasetLock> {
+    let deadline = Instant::now() + LOCK_PATIENCE;
+    loop {
+        match DatasetLock::acquire(&layout.lock(), opts.break_lock) {
+            Err(e)
+                if opts.shard.is_some()
+                    && Instant::now() < deadline
+                    && e.to_string().contains("is being written by") =>
+            {
+                std::thread::sleep(Duration::from_millis(250));
+            }
+            done => return done,
+        }
+    }
+}
+
+/// How long a farm task waits for another task's planning of the round.
+const LOCK_PATIENCE: Duration = Duration::from_secs(300);
+
 /// Runs (or resumes) one round. Returns the round's number when it completed, and the render's
 /// summary when replacements were rendered.
 fn run_round(
@@ -211,6 +238,7 @@ fn run_round(
     layout: &DatasetLayout,
     mut info: DatasetInfo,
     plan: RoundPlan,
+    lock: DatasetLock,
     progress: &(dyn Fn(Progress<'_>) + Sync),
 ) -> anyhow::Result<(Option<u32>, Option<GenerateSummary>)> {
     let round = match info.curation.last() {
@@ -236,7 +264,47 @@ fn run_round(
             start_round(layout, &mut info, records, plan)?
         }
     };
+    if let Some(shard) = opts.shard {
+        // One farm task: its part of the replacements, in its own folder; no commit.
+        drop(lock);
+        let summary = render(opts, layout, &info, &round, Some(shard), progress)?;
+        return Ok((None, Some(summary)));
+    }
     finish_round(opts, layout, info, &round, progress)
+}
+
+/// Renders the round's replacements (a shard's part of them) with `generate` into its folder.
+fn render(
+    opts: &CurateOptions,
+    layout: &DatasetLayout,
+    info: &DatasetInfo,
+    round: &CurationRound,
+    shard: Option<ShardId>,
+    progress: &(dyn Fn(Progress<'_>) + Sync),
+) -> anyhow::Result<GenerateSummary> {
+    apply::check_round_dir(layout, &round.dir)?;
+    let records: Vec<CurationRecord> = read_records(layout)?
+        .into_iter()
+        .filter(|r| r.round == round.round)
+        .collect();
+    let staging = DatasetLayout::new(layout.abs(&round.dir));
+    // The round's folder is a dataset of the same recipe, seed and assets as the root.
+    if !staging.info().exists() {
+        std::fs::create_dir_all(&staging.root)
+            .with_context(|| format!("cannot create {}", staging.root.display()))?;
+        let mut own = info.clone();
+        own.curation.clear();
+        staging.write_info(&own)?;
+    }
+    let mut g = GenerateOptions::new(&staging.root, info.recipe.clone(), info.seed, u64::MAX);
+    g.only = Some(records.iter().map(|r| r.replacement_index).collect());
+    g.shard = shard;
+    g.workers = opts.workers;
+    g.worker_options = opts.worker_options.clone();
+    g.stop = opts.stop.clone();
+    g.break_lock = opts.break_lock;
+    g.faults = opts.faults.clone();
+    generate(&g, progress)
 }
 
 /// The records of a new round: each flagged sample with its replacement.
@@ -324,31 +392,17 @@ fn finish_round(
     round: &CurationRound,
     progress: &(dyn Fn(Progress<'_>) + Sync),
 ) -> anyhow::Result<(Option<u32>, Option<GenerateSummary>)> {
-    apply::check_round_dir(layout, &round.dir)?;
-    let records: Vec<CurationRecord> = read_records(layout)?
-        .into_iter()
-        .filter(|r| r.round == round.round)
-        .collect();
+    // A round its farm tasks rendered (shards in its folder) is committed from their folders.
     let staging = DatasetLayout::new(layout.abs(&round.dir));
-    // The round's folder is a dataset of the same recipe, seed and assets as the root.
-    if !staging.info().exists() {
-        std::fs::create_dir_all(&staging.root)
-            .with_context(|| format!("cannot create {}", staging.root.display()))?;
-        let mut own = info.clone();
-        own.curation.clear();
-        staging.write_info(&own)?;
-    }
-    let mut g = GenerateOptions::new(&staging.root, info.recipe.clone(), info.seed, u64::MAX);
-    g.only = Some(records.iter().map(|r| r.replacement_index).collect());
-    g.workers = opts.workers;
-    g.worker_options = opts.worker_options.clone();
-    g.stop = opts.stop.clone();
-    g.break_lock = opts.break_lock;
-    g.faults = opts.faults.clone();
-    let summary = generate(&g, progress)?;
-    if summary.interrupted || !summary.failed.is_empty() {
-        return Ok((None, Some(summary)));
-    }
+    let summary = if staging.shards_dir().is_dir() {
+        None
+    } else {
+        let summary = render(opts, layout, &info, round, None, progress)?;
+        if summary.interrupted || !summary.failed.is_empty() {
+            return Ok((None, Some(summary)));
+        }
+        Some(summary)
+    };
     // Step 3: the whole manifest again, then the round marked complete.
     // The manifest holds the finished rounds already: this one is applied on top.
     let entries = read_manifest(&layout.manifest())?.entries;
@@ -358,7 +412,7 @@ fn finish_round(
         r.complete = true;
     }
     layout.write_info(&info)?;
-    Ok((Some(round.round), Some(summary)))
+    Ok((Some(round.round), summary))
 }
 
 /// Replays every round of another dataset's log (see [`CurateSource::Log`]): rounds this dataset
@@ -374,7 +428,7 @@ fn replay(
     if theirs.is_empty() {
         bail!("{} records no curation round", log.display());
     }
-    let _lock = DatasetLock::acquire(&layout.lock(), opts.break_lock)?;
+    let _lock = lock_root(layout, opts)?;
     let last = theirs.iter().map(|r| r.round).max().unwrap_or(0);
     let mut report = CurateReport {
         rule: format!("replayed from {}", log.display()),
