@@ -118,6 +118,8 @@ def make_material(name, spec, skipped):
     bsdf.inputs["Metallic"].default_value = spec["metallic"]
     _input(bsdf, "Transmission Weight", "Transmission").default_value = spec["transmission"]
     bsdf.inputs["IOR"].default_value = spec["ior"]
+    # Read back from the material-index pass as the sample's glass and mirror pixels.
+    mat.pass_index = spec.get("pass_index", 0)
     return mat
 
 

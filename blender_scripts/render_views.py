@@ -130,6 +130,7 @@ def _colour_pass(scene, render, view="left"):
     c.pixel_filter_type = _FILTERS[render["pixel_filter"]]
     c.filter_width = render["filter_width_px"]
     scene.view_layers[0].use_pass_z = False
+    scene.view_layers[0].use_pass_material_index = False
 
 
 def _depth_only(scene):
@@ -165,6 +166,9 @@ def _depth_pass(scene):
     c.use_adaptive_sampling = False
     c.pixel_filter_type, c.filter_width = DEPTH_FILTER
     scene.view_layers[0].use_pass_z = True
+    # Where the glass and mirror pixels are (each material's pass_index at the first surface):
+    # the same first hit as Z, written into the same EXR.
+    scene.view_layers[0].use_pass_material_index = MATERIAL_PASS
     if not scene.get("stereogen_depth_only"):
         _depth_only(scene)
 
@@ -172,6 +176,9 @@ def _depth_pass(scene):
 # Set (by generator/bench/fixed_cost.sh): each stage also records its process CPU time, all
 # threads, as `<stage>_cpu_s` (wall time misleads on a shared machine).
 CPU_TIMINGS = bool(os.environ.get("STEREOGEN_TIMINGS_CPU"))
+# Cleared (STEREOGEN_NO_MATERIAL_PASS=1, by generator/bench/fixed_cost.sh's comparison): the depth
+# passes render without the material-index pass, whose cost the comparison measures.
+MATERIAL_PASS = not os.environ.get("STEREOGEN_NO_MATERIAL_PASS")
 
 
 def _timed(timings, key, step):

@@ -30,6 +30,7 @@ fn textured() -> MaterialSpec {
         metallic: 0.0,
         transmission: 0.0,
         ior: 1.45,
+        pass_index: 0,
     }
 }
 

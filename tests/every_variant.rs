@@ -130,6 +130,7 @@ fn material(class: MaterialClass, base: BaseColor) -> MaterialSpec {
         metallic,
         transmission,
         ior: 1.45,
+        pass_index: class.pass_index(),
     }
 }
 

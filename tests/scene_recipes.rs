@@ -206,6 +206,7 @@ fn reflective_scenes_hold_metal_and_glass_with_first_surface_ground_truth() {
         metallic: 0.0,
         transmission: 1.0,
         ior: 1.5,
+        pass_index: MaterialClass::Glass.pass_index(),
     };
     let mirror = MaterialSpec {
         class: MaterialClass::Metallic,
@@ -214,6 +215,7 @@ fn reflective_scenes_hold_metal_and_glass_with_first_surface_ground_truth() {
         metallic: 1.0,
         transmission: 0.0,
         ior: 1.5,
+        pass_index: MaterialClass::Metallic.pass_index(),
     };
     let pane = object(
         "glass",
@@ -263,4 +265,35 @@ fn reflective_scenes_hold_metal_and_glass_with_first_surface_ground_truth() {
         }
     }
     assert!(checked > 3000, "{checked}");
+
+    // The material-index pass: the manifest's share of glass and mirror pixels lies between the
+    // analytic count of the pixels surely on the two planes and of those possibly on them.
+    let (mut surely, mut possibly) = (0usize, 0usize);
+    for y in 0..pair.left.height {
+        for x in 0..pair.left.width {
+            let dir = rig.ray_direction(x as f64 + 0.5, y as f64 + 0.5);
+            let cam = rig.camera_x(View::Left);
+            let on = |margin: f64| {
+                let plane = |z: f64, cx: f64| {
+                    (cam + dir[0] * z - cx).abs() < 0.6 + margin
+                        && (dir[1] * z).abs() < 2.0 + margin
+                };
+                plane(2.0, -0.6) || plane(2.5, 0.6)
+            };
+            surely += usize::from(on(-0.01));
+            possibly += usize::from(on(0.01));
+        }
+    }
+    let share = pair
+        .entry
+        .difficulty
+        .expect("difficulty facts")
+        .transparent_mirror
+        .expect("the material-index pass was rendered");
+    let pixels = share * (pair.left.width * pair.left.height) as f64;
+    println!("glass/mirror pixels: {pixels} (analytic: {surely} to {possibly})");
+    assert!(
+        pixels >= surely as f64 - 0.5 && pixels <= possibly as f64 + 0.5,
+        "{pixels} glass/mirror pixels, analytic {surely}..{possibly}"
+    );
 }

@@ -177,6 +177,7 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
             cy: H as f64 / 2.0,
             disparity_left: summary(&left),
             disparity_right: summary(&right),
+            difficulty: None,
             render_seconds: 0.0,
             render_timings: BTreeMap::new(),
             notes: Vec::new(),

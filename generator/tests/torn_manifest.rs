@@ -76,6 +76,7 @@ fn dataset_with_torn_line(root: &Path) -> String {
             cy: H as f64 / 2.0,
             disparity_left: None,
             disparity_right: None,
+            difficulty: None,
             render_seconds: 1.0,
             render_timings: [("render_color_left".to_string(), 0.5)].into(),
             notes: vec![],
@@ -134,6 +135,7 @@ fn every_reader_leaves_an_unfinished_last_line_out_and_only_the_appender_cuts_it
         jpeg_chroma: Default::default(),
         middlebury_variant: Default::default(),
         shards: Default::default(),
+        selection: None,
     };
     assert_eq!(export(&opts).unwrap().samples() as u64, FINISHED, "export");
     assert_eq!(

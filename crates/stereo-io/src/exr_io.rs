@@ -274,26 +274,45 @@ pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap
 /// Reads the planar depth channel from a render-pass EXR (Blender multilayer: `*.Depth.Z`,
 /// or a plain `Z`/`depth` channel). Returns (width, height, row-major depth from the top row).
 pub fn read_depth_channel(path: &Path) -> IoResult<(usize, usize, Vec<f32>)> {
+    let p = read_render_passes(path)?;
+    Ok((p.width, p.height, p.depth))
+}
+
+/// The passes of a render-pass EXR the generator reads: depth, and Cycles' material index
+/// (`*.IndexMA.X`: each pixel's first-surface material's `pass_index`) where it was rendered.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderPasses {
+    pub width: usize,
+    pub height: usize,
+    /// Row-major from the top row.
+    pub depth: Vec<f32>,
+    pub material_index: Option<Vec<f32>>,
+}
+
+/// Reads [`RenderPasses`] (see [`read_depth_channel`] for the depth channel's names).
+pub fn read_render_passes(path: &Path) -> IoResult<RenderPasses> {
     let layer = read_flat(path)?;
     let channels = &layer.channel_data.list;
-    let depth = channels
-        .iter()
-        .find(|c| {
-            let n = c.name.to_string();
-            n.ends_with(".Depth.Z") || n == "Z" || n == "Depth.Z" || n == "depth"
-        })
+    let named = |test: &dyn Fn(&str) -> bool| {
+        channels
+            .iter()
+            .find(|c| test(&c.name.to_string()))
+            .map(|c| samples_f32(&c.sample_data))
+    };
+    let depth = named(&|n| n.ends_with(".Depth.Z") || n == "Z" || n == "Depth.Z" || n == "depth")
         .ok_or_else(|| {
-            let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
-            Error::format(
-                path,
-                format!("no depth channel (channels: {})", names.join(", ")),
-            )
-        })?;
-    Ok((
-        layer.size.width(),
-        layer.size.height(),
-        samples_f32(&depth.sample_data),
-    ))
+        let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
+        Error::format(
+            path,
+            format!("no depth channel (channels: {})", names.join(", ")),
+        )
+    })?;
+    Ok(RenderPasses {
+        width: layer.size.width(),
+        height: layer.size.height(),
+        depth,
+        material_index: named(&|n| n.ends_with(".IndexMA.X") || n == "IndexMA.X"),
+    })
 }
 
 #[cfg(test)]

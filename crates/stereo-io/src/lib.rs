@@ -28,14 +28,15 @@ pub mod png_disp;
 pub mod pth;
 
 pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomically};
-pub use datasets::export::{ExportOptions, export_dataset};
+pub use datasets::export::{ExportOptions, SampleSelection, export_dataset, export_selected};
 pub use datasets::middlebury::MiddleburyVariant;
 pub use datasets::stereogen::{
     DatasetInfo, DatasetLayout, DisparitySummary, Manifest, ManifestContents, ManifestEntry,
     SamplePaths, read_manifest,
 };
 pub use datasets::webdataset::{
-    WebDataset, WebDatasetOptions, WebDatasetSummary, export_webdataset, parse_splits,
+    WebDataset, WebDatasetOptions, WebDatasetSummary, export_webdataset,
+    export_webdataset_selected, parse_splits,
 };
 pub use datasets::write::{
     DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, create_writer,
@@ -47,7 +48,8 @@ pub use datasets::{
 pub use disparity::{DisparityMap, DisparityMeta, DisparityStats, LEFT_RIGHT_TOLERANCE_PX};
 pub use error::{Error, Result};
 pub use exr_io::{
-    decode_disparity_exr, read_depth_channel, read_disparity_exr, write_disparity_exr,
+    RenderPasses, decode_disparity_exr, read_depth_channel, read_disparity_exr, read_render_passes,
+    write_disparity_exr,
 };
 pub use formats::{DisparityFormat, read_disparity, write_disparity};
 pub use image_io::{

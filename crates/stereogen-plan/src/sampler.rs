@@ -310,6 +310,7 @@ pub fn material<R: Rng>(
         metallic,
         transmission,
         ior: m.ior.sample(rng),
+        pass_index: class.pass_index(),
     }
 }
 
@@ -522,6 +523,7 @@ fn tree<R: Rng>(t: &TreeRecipe, rng: &mut R) -> DrawnShape {
         metallic: 0.0,
         transmission: 0.0,
         ior: 1.45,
+        pass_index: 0,
     };
     let shape = Shape::Skeleton {
         strands: tree.strands,

@@ -287,6 +287,23 @@ pub enum MaterialClass {
     Glass,
 }
 
+impl MaterialClass {
+    /// The `pass_index` a material of this class carries into Cycles' material-index pass,
+    /// rendered with the depth pass: glass 1, metallic 2, others 0. A sample's pixels whose first
+    /// surface has a non-zero index show glass or a mirror-like metal ([`MaterialSpec::pass_index`]).
+    pub fn pass_index(self) -> u32 {
+        match self {
+            Self::Glass => 1,
+            Self::Metallic => 2,
+            Self::Textured | Self::Textureless | Self::Glossy => 0,
+        }
+    }
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
+}
+
 /// A Principled BSDF surface.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -297,6 +314,10 @@ pub struct MaterialSpec {
     pub metallic: f64,
     pub transmission: f64,
     pub ior: f64,
+    /// Cycles' material pass index: [`MaterialClass::pass_index`] of `class` (absent, 0, in
+    /// specs planned before it was written, which render as before).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub pass_index: u32,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -364,6 +385,7 @@ impl MaterialSpec {
             metallic: 0.0,
             transmission: 0.0,
             ior: 1.45,
+            pass_index: 0,
         }
     }
 }

@@ -28,7 +28,7 @@ pub struct MergeArgs {
 
 pub fn run(a: MergeArgs) -> anyhow::Result<()> {
     if a.webdataset.is_none() && !a.shards.is_default() {
-        anyhow::bail!("--shard-size, --shuffle-seed and --splits need --webdataset DIR");
+        anyhow::bail!("--shard-size, --shuffle-seed, --splits and --where need --webdataset DIR");
     }
     let t0 = std::time::Instant::now();
     let report = merge(&MergeOptions {

@@ -263,6 +263,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 jpeg_quality,
                 jpeg_chroma,
                 middlebury_variant,
+                selection: shards.selection.clone(),
                 shards: shards.options(force),
             };
             match stereogen::dataset::export::export(&opts)? {

@@ -7,9 +7,12 @@ use std::fmt;
 use std::path::PathBuf;
 use std::str::FromStr;
 
+use super::select::Selection;
+
+use anyhow::{Context, bail};
 use stereo_io::{
     ChromaSampling, DatasetFormat, ImageEncoding, JpegOptions, MiddleburyVariant, ReadOptions,
-    WebDatasetOptions, WebDatasetSummary, WritableFormat, WriteSummary,
+    SampleSelection, WebDatasetOptions, WebDatasetSummary, WritableFormat, WriteSummary,
 };
 
 /// What `export --format` names: a folder layout, or WebDataset shards.
@@ -74,6 +77,16 @@ pub struct WebDatasetArgs {
     /// WebDataset: split names and fractions, e.g. train=0.98,val=0.02.
     #[arg(long, value_name = "NAME=FRACTION,...", default_value = "train=1")]
     pub splits: SplitFractions,
+    /// Only the samples whose manifest line matches, e.g. 'occluded < 0.2 and low_texture < 0.5'
+    /// (conditions FIELD OP VALUE joined by `and`; fields: occluded, low_texture,
+    /// transparent_mirror, disparity_p1, disparity_p99, disparity_min, disparity_max, disparity_mean, valid, index,
+    /// render_seconds, category == 'NAME'). Our datasets only: the facts are their manifest's.
+    #[arg(long = "where", value_name = "EXPR", value_parser = parse_selection)]
+    pub selection: Option<Selection>,
+}
+
+fn parse_selection(text: &str) -> Result<Selection, String> {
+    text.parse()
 }
 
 impl Default for WebDatasetArgs {
@@ -83,6 +96,7 @@ impl Default for WebDatasetArgs {
             shard_size: d.shard_bytes,
             shuffle_seed: d.shuffle_seed,
             splits: SplitFractions(d.splits),
+            selection: None,
         }
     }
 }
@@ -105,14 +119,18 @@ impl WebDatasetArgs {
 
     /// The options as a command line gives them (every one, so a job file says what it writes).
     pub fn to_args(&self) -> Vec<String> {
-        vec![
+        let mut a = vec![
             "--shard-size".into(),
             self.shard_size.to_string(),
             "--shuffle-seed".into(),
             self.shuffle_seed.to_string(),
             "--splits".into(),
             self.splits.to_string(),
-        ]
+        ];
+        if let Some(s) = &self.selection {
+            a.extend(["--where".into(), s.to_string()]);
+        }
+        a
     }
 }
 
@@ -186,6 +204,31 @@ pub struct ExportOptions {
     pub middlebury_variant: MiddleburyVariant,
     /// WebDataset only: shard size, shuffle seed, splits, replacing an existing export.
     pub shards: WebDatasetOptions,
+    /// Only the samples of our dataset whose manifest line matches (`--where`).
+    pub selection: Option<Selection>,
+}
+
+/// The ids of the samples of our dataset at `root` that `selection` takes.
+fn select(root: &std::path::Path, selection: &Selection) -> anyhow::Result<SampleSelection> {
+    let layout = super::DatasetLayout::new(root);
+    let entries = super::read_manifest(&layout.manifest())
+        .with_context(|| {
+            format!(
+                "--where reads the facts of our manifest: {} is not a stereogen dataset",
+                root.display()
+            )
+        })?
+        .entries;
+    let total = entries.len();
+    let kept = selection.filter(entries)?;
+    if kept.is_empty() {
+        bail!("--where {selection:?}: none of the {total} samples matches");
+    }
+    tracing::info!("--where {selection}: {} of {total} samples", kept.len());
+    Ok(SampleSelection {
+        ids: kept.into_iter().map(|e| e.id).collect(),
+        description: selection.to_string(),
+    })
 }
 
 /// Writes every sample of `opts.dataset` into `opts.out` in `opts.format`: a layout with
@@ -202,15 +245,20 @@ pub fn export(opts: &ExportOptions) -> anyhow::Result<ExportSummary> {
     let read = ReadOptions {
         middlebury_variant: opts.middlebury_variant,
     };
+    let selection = match &opts.selection {
+        Some(s) => Some(select(&opts.dataset, s)?),
+        None => None,
+    };
     let to = match opts.format {
         ExportFormat::Layout(to) => to,
         ExportFormat::WebDataset => {
-            let s = stereo_io::export_webdataset(
+            let s = stereo_io::export_webdataset_selected(
                 &opts.dataset,
                 &opts.out,
                 opts.from,
                 &read,
                 &opts.shards,
+                selection.as_ref(),
             )?;
             super::card::write_card(&opts.out)?;
             return Ok(ExportSummary::Shards(s));
@@ -222,7 +270,8 @@ pub fn export(opts: &ExportOptions) -> anyhow::Result<ExportSummary> {
         images,
         read,
     };
-    let written = stereo_io::export_dataset(&opts.dataset, &opts.out, &options)?;
+    let written =
+        stereo_io::export_selected(&opts.dataset, &opts.out, &options, selection.as_ref())?;
     Ok(ExportSummary::Layout {
         format: to,
         written,
@@ -271,6 +320,7 @@ mod tests {
             shard_size: 3_000_000,
             shuffle_seed: 7,
             splits: "train=0.98,val=0.02".parse().unwrap(),
+            selection: Some("occluded < 0.2 and category != 'tree'".parse().unwrap()),
         };
         assert!(!given.is_default());
         assert_eq!(parse(&given.to_args()), given);

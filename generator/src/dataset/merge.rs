@@ -185,6 +185,7 @@ fn write_shards(
         jpeg_chroma: stereo_io::ChromaSampling::Full,
         middlebury_variant: stereo_io::ReadOptions::default().middlebury_variant,
         shards: target.shards.options(target.force),
+        selection: target.shards.selection.clone(),
     };
     match export(&opts) {
         Ok(ExportSummary::Shards(s)) => Ok(s),

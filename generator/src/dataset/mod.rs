@@ -12,6 +12,7 @@ pub mod manifest;
 pub mod merge;
 pub mod sample;
 pub mod scene_file;
+pub mod select;
 pub mod shard;
 pub mod status;
 

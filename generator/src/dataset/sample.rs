@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use sha2::{Digest, Sha256};
+use stereo_io::datasets::stereogen::Difficulty;
 use stereo_io::{DisparityMap, DisparityMeta, RgbImage};
 
 use super::layout::{DatasetLayout, SamplePaths};
@@ -22,6 +23,8 @@ pub const DECODE_PNG_TIMING: &str = "decode_png_s";
 pub const CONVERT_TIMING: &str = "convert_s";
 pub const WRITE_TIMING: &str = "write_s";
 pub const VERIFY_TIMING: &str = "verify_s";
+/// Measuring the sample's [`Difficulty`] facts.
+pub const DIFFICULTY_TIMING: &str = "difficulty_s";
 
 fn summary(map: &DisparityMap) -> Option<DisparitySummary> {
     map.stats().map(|s| DisparitySummary {
@@ -34,7 +37,17 @@ fn summary(map: &DisparityMap) -> Option<DisparitySummary> {
 
 /// Reads a Cycles depth EXR and converts it to disparity with the spec's rig.
 pub fn disparity_from_depth_exr(path: &Path, spec: &SceneSpec) -> anyhow::Result<DisparityMap> {
-    let (w, h, depth) = stereo_io::read_depth_channel(path)?;
+    Ok(read_depth_pass(path, spec)?.0)
+}
+
+/// Reads a Cycles depth EXR: its depth converted to disparity with the spec's rig, and its
+/// material pass index where the worker rendered it.
+pub fn read_depth_pass(
+    path: &Path,
+    spec: &SceneSpec,
+) -> anyhow::Result<(DisparityMap, Option<Vec<f32>>)> {
+    let passes = stereo_io::read_render_passes(path)?;
+    let (w, h, depth) = (passes.width, passes.height, passes.depth);
     if (w, h) != (spec.rig.width as usize, spec.rig.height as usize) {
         bail!(
             "{}: depth is {w}x{h}, the spec asks for {}x{}",
@@ -44,14 +57,15 @@ pub fn disparity_from_depth_exr(path: &Path, spec: &SceneSpec) -> anyhow::Result
         );
     }
     // Cycles writes 1e10 where a ray escapes; nothing real lies beyond the far clip.
-    Ok(DisparityMap::from_depth(
+    let map = DisparityMap::from_depth(
         w,
         h,
         &depth,
         spec.rig.f_px(),
         spec.rig.baseline_m,
         spec.render.clip_end as f32,
-    ))
+    );
+    Ok((map, passes.material_index))
 }
 
 /// The worker's PNG decoded. It is re-encoded, not copied: Cycles writes render times into PNG
@@ -200,8 +214,9 @@ fn read_back(path: &Path) -> anyhow::Result<Vec<u8>> {
 /// compared with what was written; checksums taken from what was read) and returns its manifest
 /// entry; the caller appends the entry to the manifest last. On any error nothing of the sample
 /// stays in the dataset. `render_timings` is where the worker says its time went (stage →
-/// seconds); [`DECODE_PNG_TIMING`], [`CONVERT_TIMING`], [`WRITE_TIMING`] and [`VERIFY_TIMING`]
-/// are added, and `render_seconds` (the time before this call) grows by all four.
+/// seconds); [`DECODE_PNG_TIMING`], [`CONVERT_TIMING`], [`WRITE_TIMING`], [`VERIFY_TIMING`] and
+/// [`DIFFICULTY_TIMING`] are added, and `render_seconds` (the time before this call) grows by
+/// all five.
 pub fn finalize_sample(
     layout: &DatasetLayout,
     spec: &SceneSpec,
@@ -219,7 +234,7 @@ pub fn finalize_sample(
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
 
     let t0 = Instant::now();
-    let disp_left = disparity_from_depth_exr(&files.left_depth_exr, spec)?;
+    let (disp_left, material_index) = read_depth_pass(&files.left_depth_exr, spec)?;
     let disp_right = disparity_from_depth_exr(&files.right_depth_exr, spec)?;
     let convert_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
@@ -250,7 +265,16 @@ pub fn finalize_sample(
             return Err(e);
         }
     };
+    let t0 = Instant::now();
+    let difficulty = Difficulty::measure(
+        &content.left,
+        &content.disp_left,
+        &content.disp_right,
+        material_index.as_deref(),
+    );
+    let difficulty_s = t0.elapsed().as_secs_f64();
     let mut timings = render_timings.clone();
+    timings.insert(DIFFICULTY_TIMING.to_string(), difficulty_s);
     timings.insert(CONVERT_TIMING.to_string(), convert_s);
     timings.insert(DECODE_PNG_TIMING.to_string(), decode_png_s);
     timings.insert(WRITE_TIMING.to_string(), write_s);
@@ -270,7 +294,13 @@ pub fn finalize_sample(
         cy,
         disparity_left: summary(&content.disp_left),
         disparity_right: summary(&content.disp_right),
-        render_seconds: render_seconds + convert_s + decode_png_s + write_s + verify_s,
+        difficulty: Some(difficulty),
+        render_seconds: render_seconds
+            + convert_s
+            + decode_png_s
+            + write_s
+            + verify_s
+            + difficulty_s,
         render_timings: timings,
         notes: notes.to_vec(),
         sha256,

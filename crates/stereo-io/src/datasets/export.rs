@@ -22,6 +22,28 @@ pub struct ExportOptions {
     pub read: ReadOptions,
 }
 
+/// The samples an export takes: those with these ids (a `--where` of the caller's), described
+/// for messages and an export's resume record.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampleSelection {
+    pub ids: std::collections::BTreeSet<String>,
+    pub description: String,
+}
+
+impl SampleSelection {
+    /// The positions of `dataset`'s samples in the selection (all without one), in order.
+    pub(crate) fn positions(
+        selection: Option<&Self>,
+        dataset: &dyn super::StereoDataset,
+    ) -> Vec<usize> {
+        (0..dataset.len())
+            .filter(|&n| {
+                selection.is_none_or(|s| dataset.id(n).is_some_and(|id| s.ids.contains(id)))
+            })
+            .collect()
+    }
+}
+
 /// The name a sample gets in the output: ours keep `<category>/<id>`; others are named by their
 /// id (a path below the source root) made flat, without the image extension, so the output
 /// holds none of the folder names by which the source's layout is recognised.
@@ -44,6 +66,16 @@ pub(crate) fn export_name(format: DatasetFormat, meta: &SampleMeta) -> String {
 /// sample fails, the export stops; the error says what `out` holds (the samples before it, listed
 /// in [`EXPORT_INDEX_FILE`], and nothing of the failed one).
 pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result<WriteSummary> {
+    export_selected(source, out, opts, None)
+}
+
+/// [`export_dataset`] of the samples in `selection` only, numbered from 0 in the output.
+pub fn export_selected(
+    source: &Path,
+    out: &Path,
+    opts: &ExportOptions,
+    selection: Option<&SampleSelection>,
+) -> Result<WriteSummary> {
     if !source.is_dir() {
         return Err(Error::format(
             source,
@@ -64,8 +96,9 @@ pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result
     let mut writer = create_writer(opts.to, out, opts.images)?;
     crate::atomic::remove_orphaned_temp_files(out);
     let mut index = String::new();
-    for n in 0..dataset.len() {
-        let exported = dataset.sample(n).and_then(|sample| {
+    let chosen = SampleSelection::positions(selection, dataset.as_ref());
+    for (n, &k) in chosen.iter().enumerate() {
+        let exported = dataset.sample(k).and_then(|sample| {
             let name = export_name(dataset.format(), &sample.meta);
             let batch = crate::atomic::Batch::begin();
             writer.write(n, &name, &sample)?;
@@ -80,13 +113,13 @@ pub fn export_dataset(source: &Path, out: &Path, opts: &ExportOptions) -> Result
                 index.as_bytes(),
             )
             .is_ok();
-            let id = dataset.id(n).unwrap_or("?").to_string();
+            let id = dataset.id(k).unwrap_or("?").to_string();
             return Err(Error::format(
                 out,
                 format!(
                     "export stopped at sample {id} ({} of {}): {e}; left: the {n} sample(s) before it, complete{}, and nothing of {id}; re-run the same command to finish",
                     n + 1,
-                    dataset.len(),
+                    chosen.len(),
                     if listed {
                         format!(" (listed in {EXPORT_INDEX_FILE})")
                     } else {

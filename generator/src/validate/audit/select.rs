@@ -105,6 +105,7 @@ mod tests {
             cy: 3.0,
             disparity_left: None,
             disparity_right: None,
+            difficulty: None,
             render_seconds: 0.0,
             render_timings: Default::default(),
             notes: vec![],

@@ -5,6 +5,7 @@
 //! [`StatsReport`] ([`stats_report`]: what `stats.json` holds and each group's OK/FAIL/SKIP;
 //! [`ks_family`]: the KS tests as one family with a stated false-alarm rate).
 
+pub mod difficulty;
 pub mod files;
 pub mod ks_family;
 pub mod load;
@@ -158,6 +159,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         errors,
         notes,
         curation: loaded.info.curation.clone(),
+        difficulty: difficulty::difficulty_stats(&loaded.entries),
         pass,
         law,
     })

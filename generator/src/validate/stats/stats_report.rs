@@ -36,6 +36,10 @@ pub struct StatsReport {
     /// The rounds of `stereogen curate --replace` the dataset went through.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub curation: Vec<stereo_io::datasets::stereogen::CurationRound>,
+    /// The manifest's difficulty facts per category, then `all` (none for a manifest written
+    /// before they were measured).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub difficulty: Vec<super::difficulty::DifficultyStats>,
     pub pass: bool,
 }
 

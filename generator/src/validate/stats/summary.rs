@@ -30,6 +30,7 @@ pub fn summary_lines(report: &StatsReport) -> Vec<String> {
     }));
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
+    lines.extend(report.difficulty.iter().map(|d| d.line(w)));
     for e in report.errors.iter().take(10) {
         lines.push(format!("ERROR {e}"));
     }

@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::SamplePaths;
+use super::difficulty::Difficulty;
 use super::json_lines::read_finished_lines;
 use crate::error::{Error, Result};
 use crate::limits::relative_path_buf_problem;
@@ -61,6 +62,10 @@ pub struct ManifestEntry {
     pub disparity_left: Option<DisparitySummary>,
     #[serde(default)]
     pub disparity_right: Option<DisparitySummary>,
+    /// What makes the sample hard to match ([`Difficulty`]); absent in lines written before it
+    /// was measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub difficulty: Option<Difficulty>,
     /// Wall seconds from handing the spec to a worker to the sample being finished.
     #[serde(default)]
     pub render_seconds: f64,
@@ -209,6 +214,7 @@ mod tests {
                 mean: 1.5,
                 valid_fraction: 0.5,
             }),
+            difficulty: None,
             render_seconds: 1.25,
             render_timings: BTreeMap::from([("save".to_string(), 0.25)]),
             notes: vec![],

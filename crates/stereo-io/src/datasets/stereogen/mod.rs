@@ -20,6 +20,7 @@
 //! atomically, then appends the [`ManifestEntry`] through [`Manifest`].
 
 pub mod curation;
+pub mod difficulty;
 pub mod farm;
 mod json_lines;
 mod manifest;
@@ -33,6 +34,7 @@ use serde::{Deserialize, Serialize};
 pub use curation::{
     CURATION_DIR, CURATION_FILE, CurationRecord, CurationRound, curation_round_dir,
 };
+pub use difficulty::Difficulty;
 pub use farm::{
     ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
 };

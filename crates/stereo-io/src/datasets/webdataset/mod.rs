@@ -28,7 +28,10 @@ use serde::{Deserialize, Serialize};
 
 pub use read::{RawSample, ShardReader, WebDataset, decode_members};
 pub use scan::{ListedMember, scan_shard, scan_tar};
-pub use write::{CARD_FILE, WebDatasetOptions, WebDatasetSummary, export_webdataset, parse_splits};
+pub use write::{
+    CARD_FILE, WebDatasetOptions, WebDatasetSummary, export_webdataset, export_webdataset_selected,
+    parse_splits,
+};
 
 /// The index of one split: `<root>/<split>.index.json`.
 pub const INDEX_SUFFIX: &str = ".index.json";

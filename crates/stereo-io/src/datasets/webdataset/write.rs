@@ -14,7 +14,7 @@ use super::{
     INDEX_FORMAT, INDEX_SUFFIX, INDEX_VERSION, ShardEntry, ShardIndex, member, sample_key,
 };
 use crate::atomic::{place, temp_sibling, write_bytes_atomically};
-use crate::datasets::export::export_name;
+use crate::datasets::export::{SampleSelection, export_name};
 use crate::datasets::stereogen::{DatasetLayout, read_manifest};
 use crate::datasets::{DatasetFormat, ReadOptions, StereoSample, open_dataset_with};
 use crate::error::{Error, Result};
@@ -105,6 +105,9 @@ struct Plan {
     shard_bytes: u64,
     shuffle_seed: u64,
     splits: Vec<(String, f64)>,
+    /// The caller's selection (`--where`), when the export takes part of the dataset.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    selection: Option<String>,
 }
 
 /// Writes every sample of the dataset at `source` as WebDataset shards in `out` (see the module
@@ -118,21 +121,34 @@ pub fn export_webdataset(
     read: &ReadOptions,
     opts: &WebDatasetOptions,
 ) -> Result<WebDatasetSummary> {
+    export_webdataset_selected(source, out, from, read, opts, None)
+}
+
+/// [`export_webdataset`] of the samples in `selection` only.
+pub fn export_webdataset_selected(
+    source: &Path,
+    out: &Path,
+    from: Option<DatasetFormat>,
+    read: &ReadOptions,
+    opts: &WebDatasetOptions,
+    selection: Option<&SampleSelection>,
+) -> Result<WebDatasetSummary> {
     if opts.shard_bytes == 0 {
         return Err(Error::format(out, "the shard size must be at least 1 byte"));
     }
     let dataset = open_dataset_with(source, from, read)?;
+    let mut order = SampleSelection::positions(selection, dataset.as_ref());
     let plan = Plan {
         source: source.canonicalize().map_err(|e| Error::io(source, e))?,
-        samples: dataset.len(),
+        samples: order.len(),
         shard_bytes: opts.shard_bytes,
         shuffle_seed: opts.shuffle_seed,
         splits: opts.splits.clone(),
+        selection: selection.map(|s| s.description.clone()),
     };
     let done = prepare_output(out, &plan, opts.force)?;
     let manifest = manifest_lines(source, dataset.format())?;
 
-    let mut order: Vec<usize> = (0..dataset.len()).collect();
     order.shuffle(&mut ChaCha8Rng::seed_from_u64(opts.shuffle_seed));
     let mut summary = WebDatasetSummary {
         resumed_shards: done.len(),
