@@ -17,8 +17,11 @@ use anyhow::bail;
 
 use super::ManifestEntry;
 
-/// The numeric fields, with how each is read from a line (`None`: the line lacks it).
-const NUMBERS: &[(&str, fn(&ManifestEntry) -> Option<f64>)] = &[
+/// How a numeric field is read from a line (`None`: the line lacks it).
+type ReadField = fn(&ManifestEntry) -> Option<f64>;
+
+/// The numeric fields, with how each is read.
+const NUMBERS: &[(&str, ReadField)] = &[
     ("occluded", |e| e.difficulty.map(|d| d.occluded)),
     ("low_texture", |e| e.difficulty.map(|d| d.low_texture)),
     ("disparity_p1", |e| {
