@@ -219,12 +219,11 @@ pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap
         position(VALID_CHANNEL),
     );
     let disp_at = disp_at.ok_or_else(|| {
-        let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
         Error::format(
             path,
             format!(
                 "no disparity channel `{DISPARITY_CHANNEL}` (channels: {})",
-                names.join(", ")
+                channel_names(channels)
             ),
         )
     })?;
@@ -271,6 +270,16 @@ pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap
     ))
 }
 
+/// A file's channel names for an error message: quoted and escaped, so a hostile name (a
+/// newline, a control character) cannot break the message's one line.
+fn channel_names<S>(channels: &[exr::image::AnyChannel<S>]) -> String {
+    channels
+        .iter()
+        .map(|c| format!("{:?}", c.name.to_string()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// Reads the planar depth channel from a render-pass EXR (Blender multilayer: `*.Depth.Z`,
 /// or a plain `Z`/`depth` channel). Returns (width, height, row-major depth from the top row).
 pub fn read_depth_channel(path: &Path) -> IoResult<(usize, usize, Vec<f32>)> {
@@ -301,10 +310,9 @@ pub fn read_render_passes(path: &Path) -> IoResult<RenderPasses> {
     };
     let depth = named(&|n| n.ends_with(".Depth.Z") || n == "Z" || n == "Depth.Z" || n == "depth")
         .ok_or_else(|| {
-        let names: Vec<String> = channels.iter().map(|c| c.name.to_string()).collect();
         Error::format(
             path,
-            format!("no depth channel (channels: {})", names.join(", ")),
+            format!("no depth channel (channels: {})", channel_names(channels)),
         )
     })?;
     Ok(RenderPasses {
