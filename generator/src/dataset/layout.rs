@@ -3,9 +3,25 @@
 
 use anyhow::{Context, bail};
 
+use stereo_io::ManifestEntry;
 pub use stereo_io::{DatasetLayout, SamplePaths};
 
 use crate::plan::Recipe;
+
+/// `entry` with its files' paths put under `prefix` (a folder inside the dataset): how a
+/// top-level manifest names the files of a farm's shard or of a curation round.
+pub fn entry_under(prefix: &std::path::Path, mut entry: ManifestEntry) -> ManifestEntry {
+    for p in [
+        &mut entry.files.left,
+        &mut entry.files.right,
+        &mut entry.files.disp_left,
+        &mut entry.files.disp_right,
+        &mut entry.files.scene,
+    ] {
+        *p = prefix.join(&*p);
+    }
+    entry
+}
 
 /// `dataset.json` with the recipe read as the generator's [`Recipe`].
 pub type DatasetInfo = stereo_io::DatasetInfo<Recipe>;

@@ -21,7 +21,7 @@ use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardDirs, ShardI
 
 use super::curate::apply::{apply_rounds, write_manifest};
 use super::export::{ExportFormat, ExportOptions, ExportSummary, WebDatasetArgs, export};
-use super::layout::DatasetLayout;
+use super::layout::{DatasetLayout, entry_under};
 use super::lock::{LockState, inspect, unix_now};
 use super::manifest::{ManifestEntry, read_failures, read_manifest};
 
@@ -583,18 +583,7 @@ fn write_merge(
         Vec::with_capacity(shards.iter().map(|s| s.entries.len()).sum());
     for s in shards {
         let prefix = Path::new(stereo_io::datasets::stereogen::SHARDS_DIR).join(s.id.dir_name());
-        entries.extend(s.entries.iter().cloned().map(|mut e| {
-            for p in [
-                &mut e.files.left,
-                &mut e.files.right,
-                &mut e.files.disp_left,
-                &mut e.files.disp_right,
-                &mut e.files.scene,
-            ] {
-                *p = prefix.join(&*p);
-            }
-            e
-        }));
+        entries.extend(s.entries.iter().cloned().map(|e| entry_under(&prefix, e)));
     }
     entries.sort_by_key(|e| e.index);
     let finished: Vec<_> = info

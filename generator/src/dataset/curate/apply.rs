@@ -8,6 +8,7 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use stereo_io::datasets::stereogen::{CurationRecord, CurationRound, read_sidecar};
 
+use crate::dataset::layout::entry_under;
 use crate::dataset::{DatasetLayout, ManifestEntry, read_manifest};
 
 /// Every record of `curation.jsonl` (none when the dataset was never curated).
@@ -104,18 +105,12 @@ pub fn round_entries(
     let mut out = BTreeMap::new();
     for (prefix, path) in parts.into_iter().filter(|(_, p)| p.is_file()) {
         let contents = read_manifest(&path).context("reading a curation round's samples")?;
-        out.extend(contents.entries.into_iter().map(|mut e| {
-            for p in [
-                &mut e.files.left,
-                &mut e.files.right,
-                &mut e.files.disp_left,
-                &mut e.files.disp_right,
-                &mut e.files.scene,
-            ] {
-                *p = prefix.join(&*p);
-            }
-            (e.index, e)
-        }));
+        out.extend(
+            contents
+                .entries
+                .into_iter()
+                .map(|e| (e.index, entry_under(&prefix, e))),
+        );
     }
     Ok(out)
 }
