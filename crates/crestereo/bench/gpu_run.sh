@@ -17,11 +17,12 @@
 #   without a GPU; its figures then mean nothing).
 # DEADLINE_S (env, default 480): the script's budget in seconds; a part that cannot start in
 #   time is skipped and said so, a running one is stopped at the deadline (what it wrote stays).
-# KERNELS_IN (env, optional): the OUT_DIR/kernels.tgz of an earlier run of the same binary (or,
-#   when it was cut in parts, the path without the .00, .01, ... suffix).
+# KERNELS_IN (env, optional): an earlier run's OUT_DIR/kernels.txz (the path without the .00,
+#   .01, ... suffix of its parts; a gzip archive is read too) from the same binary and AUTOTUNE
+#   level.
 #   A cold start compiles for many minutes (on an H100 a first training step's warm-up had not
 #   finished after 506 s), more than one device call may have: every run leaves the kernels it
-#   compiled, and the autotune results, in OUT_DIR/kernels.tgz, and the next run starts from
+#   compiled, and the autotune results, in OUT_DIR/kernels.txz.*, and the next run starts from
 #   them, so runs in separate calls (or sessions) go on where the last one stopped.
 # COMPILE_S (env, default: all but the last 90 s): how long part 1's parallel cold compile may run.
 # COMPILE_LOG (env, optional): CubeCL's log of the parity part in OUT_DIR/cubecl_parity.log
@@ -49,6 +50,10 @@ in_time() {
 }
 chmod +x "$BIN" 2>/dev/null || true
 DEV=${DEV:-cuda}
+# AUTOTUNE (env, default minimal): CubeCL's autotune level for every part. At balanced a cold
+# start compiles every candidate of every tuned kernel, and did not finish a first inference
+# within 400 s on an H200; minimal takes CubeCL's first candidate and compiles only that.
+export CRESTEREO_AUTOTUNE_LEVEL=${AUTOTUNE:-minimal}
 WORK=$(mktemp -d)
 # The kernel cache: CRESTEREO_KERNEL_CACHE's folder holds one folder per build of the binary,
 # named by its size and modification time, which the carried cache restores.
@@ -62,19 +67,31 @@ census() {
     t=$(find "$KC" -type f -path '*autotune*' -exec cat {} + 2>/dev/null | wc -l)
     echo "$k compiled kernels, $t autotune results"
 }
-# On every exit, the deadline's included: the cache as it stands, for the next run. Over 15 MiB
-# it is cut into kernels.tgz.00, .01, ... (a device call returns files of at most 16 MiB).
+# On every exit, the deadline's included: the cache as it stands, for the next run, as
+# kernels.txz.00, .01, ... of at most 15 MiB each (a device call returns at most 8 files of
+# 16 MiB, 64 MiB in all): the PTX and the autotune results, not the driver's machine code
+# (nv/, gigabytes, rebuilt from the PTX). xz -9 because PTX repeats itself across kernels: 2418
+# kernels (420 MB) pack into 6.6 MB, against 35 MB with gzip; the packing takes about 20 s on 16
+# cores, so end DEADLINE_S 40 s before the device call's limit. Written under a temporary name
+# and renamed part by part at the end, so a run stopped mid-write leaves no torn archive.
+# KERNEL_PARTS (env, default 4): more parts than that are dropped, and said so.
 finish() {
     if [ -d "$KC" ]; then
         echo "$SHA" >"$WORK/BINARY_SHA256"
         stat -c %Y "$BIN" >"$WORK/BINARY_MTIME"
-        rm -f "$OUT"/kernels.tgz*
-        if tar czf "$OUT/kernels.tgz" -C "$WORK" BINARY_SHA256 BINARY_MTIME -C "$(dirname "$KC")" \
-            "$(basename "$KC")"; then
-            if [ "$(stat -c %s "$OUT/kernels.tgz")" -gt $(( 15 << 20 )) ]; then
-                split -b 15m -d "$OUT/kernels.tgz" "$OUT/kernels.tgz." && rm "$OUT/kernels.tgz"
+        rm -f "$OUT"/kernels.txz* "$OUT"/.kernels_part.*
+        # The cache folder is stored as `kernels`, whatever CRESTEREO_KERNEL_CACHE is named here.
+        if tar cf - --exclude="$(basename "$KC")/nv" --transform "s,^$(basename "$KC"),kernels," \
+            -C "$WORK" BINARY_SHA256 BINARY_MTIME -C "$(dirname "$KC")" "$(basename "$KC")" | xz -9 -T0 |
+            split -b 15m -d - "$OUT/.kernels_part."; then
+            n=$(ls "$OUT"/.kernels_part.* | wc -l)
+            if [ "$n" -le "${KERNEL_PARTS:-4}" ]; then
+                for part in "$OUT"/.kernels_part.*; do mv "$part" "$OUT/kernels.txz.${part##*.}"; done
+                say "kernel cache left in $OUT/kernels.txz.00..: $(census), $n parts"
+            else
+                rm -f "$OUT"/.kernels_part.*
+                say "kernel cache NOT left: $n parts of 15 MiB, over KERNEL_PARTS (${KERNEL_PARTS:-4})"
             fi
-            say "kernel cache left in $OUT/kernels.tgz*: $(census), $(du -sh "$KC" | cut -f1) unpacked"
         fi
     fi
     rm -rf "$WORK"
@@ -82,7 +99,7 @@ finish() {
 trap finish EXIT
 trap 'exit 143' TERM INT
 
-say "== machine"
+say "== machine (autotune level $CRESTEREO_AUTOTUNE_LEVEL)"
 if command -v nvidia-smi >/dev/null; then
     nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$SUMMARY"
 else
@@ -111,9 +128,11 @@ if [ -n "${KERNELS_IN:-}" ]; then
     # One file, or the parts KERNELS_IN.00, .01, ... in order.
     parts=("$KERNELS_IN")
     [ -f "$KERNELS_IN" ] || parts=("$KERNELS_IN".[0-9][0-9])
-    if cat "${parts[@]}" | tar xz -C "$WORK/in" && [ "$(cat "$WORK/in/BINARY_SHA256")" = "$SHA" ]; then
+    unpack() { if [ "$(head -c 6 "${parts[0]}" | od -An -tx1 | tr -d ' ')" = fd377a585a00 ]; then
+        xz -dc -T0; else gzip -dc; fi; }
+    if cat "${parts[@]}" | unpack | tar x -C "$WORK/in" && [ "$(cat "$WORK/in/BINARY_SHA256")" = "$SHA" ]; then
         touch -d "@$(cat "$WORK/in/BINARY_MTIME")" "$BIN"
-        mkdir -p "$KC" && cp -r "$WORK/in/$(basename "$KC")/." "$KC/"
+        mkdir -p "$KC" && cp -r "$WORK/in/kernels/." "$KC/"
         say "kernel cache from $KERNELS_IN: $(census)"
     else
         say "KERNELS_IN ($KERNELS_IN) is not from this binary: ignored, the start is cold"
@@ -246,6 +265,11 @@ for dev in dict.fromkeys((sys.argv[3], "cpu")):
     err = np.abs(d - ref).max()
     print(f"{dev}: max |pred - pred_full| = {err:.3e} ({'PASS' if err <= 1e-3 else 'FAIL'} at 1e-3)")
 EOF
+
+# PyTorch's own prediction on the device with TensorFloat-32 off, at its defaults and all on: the
+# size of error reduced-precision matrix units give on this input, beside the backend's figure.
+[ "$DEV" != cpu ] && CRESTEREO_TORCH_DEVICE=$DEV in_time python3 "$REF" parity "$E" "$FIX/weights_seed0.pt" \
+    2>&1 | sed 's/^/   /' | tee -a "$SUMMARY"
 
 if [ ! -s "$OUT/pred_$DEV.pfm" ]; then
     # Nothing below can run without a working backend: stop early, with the reason.

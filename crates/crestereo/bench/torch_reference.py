@@ -366,8 +366,34 @@ def bench(argv):
         bench_infer(threads, *(sizes or [480, 640]))
 
 
+def parity(case_dir, weights):
+    """`parity CASE_DIR WEIGHTS`: the two-pass prediction of eval_cascade_1x128x192 on DEVICE with
+    TensorFloat-32 off, as PyTorch sets it (cuDNN on, matrix products off) and all on, each against
+    pred_full.npy (float32 on a CPU): the size of the error reduced-precision matrix units give
+    this network on this input, to set a backend's CUDA parity figure against."""
+    import numpy as np
+    ref = np.load(f"{case_dir}/pred_full.npy")[0, 0]
+    ld = lambda name: torch.from_numpy(np.load(f"{case_dir}/{name}")).float().to(DEVICE)
+    m = CREStereo().to(DEVICE)
+    m.load_state_dict(torch.load(weights, map_location=DEVICE))
+    b = torch.backends
+    defaults = (b.cudnn.allow_tf32, b.cuda.matmul.allow_tf32)
+    for name, (conv, mm) in (("tf32 off", (False, False)), ("torch default", defaults),
+                             ("tf32 on", (True, True))):
+        b.cudnn.allow_tf32, b.cuda.matmul.allow_tf32 = conv, mm
+        with torch.inference_mode():
+            p = m(ld("left_dw2.npy"), ld("right_dw2.npy"), 20)[-1]
+            out = m(ld("left.npy"), ld("right.npy"), 20, flow_init=p)[-1][0, 0].cpu().numpy()
+        err = np.abs(out - ref)
+        print(f"torch {DEVICE} {name} (cudnn.allow_tf32 {conv}, matmul.allow_tf32 {mm}): "
+              f"max |pred - pred_full| = {err.max():.3e}, mean {err.mean():.3e}")
+    b.cudnn.allow_tf32, b.cuda.matmul.allow_tf32 = defaults
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "check":
         check(sys.argv[2])
+    elif sys.argv[1] == "parity":
+        parity(sys.argv[2], sys.argv[3])
     else:
         bench(sys.argv[2:])
