@@ -10,6 +10,7 @@
 
 pub mod dataset;
 pub mod farm;
+pub mod interrupt;
 pub mod render;
 pub mod validate;
 

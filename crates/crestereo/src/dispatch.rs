@@ -109,7 +109,7 @@ pub fn kernels<B: Backend>(device: &B::Device) -> Kernels {
         let plain = id == TypeId::of::<WgpuBackend>();
         if plain || id == TypeId::of::<Autodiff<WgpuBackend>>() {
             let device: &burn::backend::wgpu::WgpuDevice = same_ref(device);
-            if crate::agcl::wgpu_has_float_atomics(device) {
+            if wgpu_has_float_atomics(device) {
                 return if plain {
                     Kernels::Wgpu
                 } else {
@@ -119,6 +119,29 @@ pub fn kernels<B: Backend>(device: &B::Device) -> Kernels {
         }
     }
     Kernels::Composed
+}
+
+/// Whether a wgpu device can add floats atomically (Vulkan via SPIR-V on most drivers,
+/// lavapipe included; not WGSL). The backward kernels' scatters need it; without it the
+/// dispatch runs the composed ops. Asked once per device (the dispatch asks on every op).
+#[cfg(feature = "wgpu")]
+pub(crate) fn wgpu_has_float_atomics(device: &burn::backend::wgpu::WgpuDevice) -> bool {
+    use burn::backend::wgpu::WgpuDevice;
+    use burn_cubecl::cubecl::features::AtomicUsage;
+    use burn_cubecl::cubecl::ir::{FloatKind, StorageType, Type};
+    static KNOWN: std::sync::Mutex<Vec<(WgpuDevice, bool)>> = std::sync::Mutex::new(Vec::new());
+    let mut known = KNOWN.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, has)) = known.iter().find(|(d, _)| d == device) {
+        return *has;
+    }
+    let client =
+        <burn::backend::wgpu::WgpuRuntime as burn_cubecl::cubecl::prelude::Runtime>::client(device);
+    let has = client
+        .properties()
+        .atomic_type_usage(Type::new(StorageType::Atomic(FloatKind::F32.into())))
+        .contains(AtomicUsage::Add);
+    known.push((device.clone(), has));
+    has
 }
 
 /// The kernel family for `B` if every tensor is float32, else [`Kernels::Composed`].

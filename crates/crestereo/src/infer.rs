@@ -28,6 +28,68 @@ impl Default for InferenceOptions {
     }
 }
 
+impl InferenceOptions {
+    /// The stacked cascades the network runs: 1 to 4.
+    pub const STAGES: std::ops::RangeInclusive<usize> = 1..=4;
+
+    /// One clear line when the stages or iterations are out of range.
+    pub fn check(&self) -> Result<()> {
+        if !Self::STAGES.contains(&self.stages) {
+            bail!(
+                "stages must be {}..={}, got {}",
+                Self::STAGES.start(),
+                Self::STAGES.end(),
+                self.stages
+            );
+        }
+        if self.iters == 0 {
+            bail!("iters must be at least 1");
+        }
+        Ok(())
+    }
+
+    /// (multiple, minimum) of the image height and width these options take: every stage's 1/16
+    /// level must have whole pixels, two or more per axis (the sampling grid is normalised by
+    /// `size − 1`). `crestereo infer` pads to the multiple; a fixed-size graph must be one.
+    pub fn size_rule(&self) -> (usize, usize) {
+        let multiple = 16usize << (self.stages.max(1) - 1);
+        (multiple, 2 * multiple)
+    }
+
+    /// One clear line when a fixed input size `[h, w]` (an ONNX graph's) does not suit these
+    /// options.
+    pub fn check_size(&self, size: [usize; 2]) -> Result<()> {
+        self.check()?;
+        let (multiple, minimum) = self.size_rule();
+        let [h, w] = size;
+        // The network's input limit; the graph's constant tables (pixel grids, resize matrices)
+        // grow with the size, so it is refused here, before any is built.
+        if h > MAX_INPUT_SIDE || w > MAX_INPUT_SIDE || h * w > MAX_INPUT_PIXELS {
+            bail!(
+                "size {h}x{w} is over the network's limit ({MAX_INPUT_SIDE} px a side, {MAX_INPUT_PIXELS} pixels)"
+            );
+        }
+        if h % multiple != 0 || w % multiple != 0 {
+            let up = |v: usize| v.div_ceil(multiple) * multiple;
+            bail!(
+                "size {h}x{w} is not a multiple of {multiple} in both axes ({} stage(s) need it); the nearest sizes that are: {}x{}, {}x{} (pad the images to it, as `crestereo infer` does)",
+                self.stages,
+                up(h),
+                up(w),
+                (h / multiple).max(1) * multiple,
+                (w / multiple).max(1) * multiple
+            );
+        }
+        if h < minimum || w < minimum {
+            bail!(
+                "size {h}x{w} is too small: {} stage(s) need at least {minimum}x{minimum}",
+                self.stages
+            );
+        }
+        Ok(())
+    }
+}
+
 /// The longest side of an image the network takes (after padding to its multiple).
 pub const MAX_INPUT_SIDE: usize = 8192;
 /// The most pixels of an image the network takes (after padding): 2^24, e.g. 4096×4096 or
@@ -124,13 +186,8 @@ pub fn infer_disparity<B: Backend>(
             right.height
         );
     }
-    if opts.stages == 0 || opts.stages > 4 {
-        bail!("stages must be 1..=4, got {}", opts.stages);
-    }
-    if opts.iters == 0 {
-        bail!("iters must be at least 1");
-    }
-    let m = 16usize << (opts.stages - 1);
+    opts.check()?;
+    let (m, _) = opts.size_rule();
     let (w, h) = (left.width, left.height);
     let (pw, ph) = (w.div_ceil(m) * m, h.div_ceil(m) * m);
     check_input_size(pw, ph)?;

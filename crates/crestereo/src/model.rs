@@ -17,7 +17,7 @@ use crate::observer::{ForwardObserver, NoObserver};
 use crate::onnx::{Graph, Value};
 use crate::position_encoding::{PositionEncodingSine, PositionEncodingSineConfig};
 use crate::refine::{
-    EmittedLevel, EmittedLookup, Level, LevelInputs, Lookup, emit_hand_over, hand_over,
+    EmittedLevel, EmittedLookup, Level, LevelInputs, Lookup, Refiner, emit_hand_over, hand_over,
 };
 use crate::update::{UpdateBlock, UpdateBlockConfig};
 
@@ -180,15 +180,37 @@ impl<B: Backend> CREStereo<B> {
             Some(init) => hand_over(init, quarter.size()),
             None => {
                 let start = sixteenth.zero_flow();
-                let flow =
-                    self.refine_level(sixteenth, start, iters / 2, &mut predictions, observer);
+                let flow = self.refiner().refine_level(
+                    sixteenth,
+                    start,
+                    iters / 2,
+                    &mut predictions,
+                    observer,
+                );
                 let flow = hand_over(flow, eighth.size());
-                let flow = self.refine_level(eighth, flow, iters / 2, &mut predictions, observer);
+                let flow = self.refiner().refine_level(
+                    eighth,
+                    flow,
+                    iters / 2,
+                    &mut predictions,
+                    observer,
+                );
                 hand_over(flow, quarter.size())
             }
         };
-        self.refine_level(quarter, flow, iters, &mut predictions, observer);
+        self.refiner()
+            .refine_level(quarter, flow, iters, &mut predictions, observer);
         predictions
+    }
+
+    /// The parts of the network the refinement levels read.
+    fn refiner(&self) -> Refiner<'_, B> {
+        Refiner {
+            update_block: &self.update_block,
+            cross_attention: &self.cross_att_fn,
+            groups: self.groups,
+            upsample_rate: self.upsample_rate,
+        }
     }
 
     /// The encoder's 1/4 maps of both images, normalised to −1..1 first as the reference does.
@@ -338,13 +360,15 @@ impl<B: Backend> CREStereo<B> {
             None => {
                 let [n, _, h16, w16] = sixteenth.net.dims();
                 let start = g.zeros(&[n, 2, h16, w16]);
-                let flow = self.emit_refine_level(g, sixteenth, start, iters / 2);
+                let flow = self
+                    .refiner()
+                    .emit_refine_level(g, sixteenth, start, iters / 2);
                 let flow = emit_hand_over(g, &flow, eighth.size());
-                let flow = self.emit_refine_level(g, eighth, flow, iters / 2);
+                let flow = self.refiner().emit_refine_level(g, eighth, flow, iters / 2);
                 emit_hand_over(g, &flow, quarter.size())
             }
         };
-        let up = self.emit_refine_level(g, quarter, flow, iters);
+        let up = self.refiner().emit_refine_level(g, quarter, flow, iters);
         g.neg(&up)
     }
 

@@ -3,7 +3,7 @@
 
 use burn::prelude::*;
 
-use crate::refine::Level;
+use crate::level::Level;
 
 /// Called by [`crate::CREStereo::forward_observed`] at named points of the forward pass, in
 /// order. Every method does nothing by default; implement those whose tensors you want (clone

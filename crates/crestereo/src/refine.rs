@@ -5,36 +5,16 @@ use burn::prelude::*;
 
 use crate::agcl::CorrSpec;
 use crate::agcl::emit::{emit_offset_corr, emit_shift_corr, emit_warp};
-use crate::attention::from_tokens;
-use crate::attention::{emit_from_tokens, emit_to_tokens};
+use crate::attention::{LoFTREncoderLayer, emit_from_tokens, emit_to_tokens, from_tokens};
 use crate::corr::{AdaptiveGroupCorrelation, SearchWindow};
-use crate::model::CREStereo;
+pub use crate::level::Level;
 use crate::observer::{ForwardObserver, IterationOutputs};
 use crate::onnx::{Graph, Value};
+use crate::update::UpdateBlock;
 use crate::upsample::{
     convex_upsample, emit_convex_upsample, emit_resize_bilinear_align_corners,
     resize_bilinear_align_corners,
 };
-
-/// A level of the cascade, by its resolution relative to the input images.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Level {
-    Sixteenth,
-    Eighth,
-    Quarter,
-}
-
-impl Level {
-    /// The further upsampling from a convex-upsampled flow of this level (×rate, i.e. 1/4, 1/2
-    /// or full resolution) to a full-resolution prediction.
-    pub fn full_resolution_factor(self) -> usize {
-        match self {
-            Level::Sixteenth => 4,
-            Level::Eighth => 2,
-            Level::Quarter => 1,
-        }
-    }
-}
 
 /// How a level looks up correlation around the current flow.
 pub(crate) enum Lookup<B: Backend> {
@@ -115,7 +95,16 @@ fn full_resolution<B: Backend>(upsampled: Tensor<B, 4>, level: Level) -> Tensor<
     }
 }
 
-impl<B: Backend> CREStereo<B> {
+/// What the refinement reads of the network, borrowed from [`crate::CREStereo`] for one pass
+/// (the levels' iterations, the 1/16 cross-attention and the convex upsampling).
+pub(crate) struct Refiner<'a, B: Backend> {
+    pub update_block: &'a UpdateBlock<B>,
+    pub cross_attention: &'a LoFTREncoderLayer<B>,
+    pub groups: usize,
+    pub upsample_rate: usize,
+}
+
+impl<B: Backend> Refiner<'_, B> {
     /// Runs `iters` iterations at one level from `flow` (N, 2, h, w). Every iteration detaches
     /// the flow (the reference cuts the gradient there), looks up the correlation in the window
     /// of that iteration, runs the update block and pushes a full-resolution prediction.
@@ -175,7 +164,7 @@ impl<B: Backend> CREStereo<B> {
         match lookup {
             Lookup::AttendedOffsets { corr, offsets } => {
                 let [_, _, h, w] = corr.fmap1.dims();
-                let (left, right) = corr.cross_attend(&self.cross_att_fn);
+                let (left, right) = corr.cross_attend(self.cross_attention);
                 observer.cross_attention(index, &left, &right);
                 corr.corr_offset_maps(
                     from_tokens(left, h, w),
@@ -232,7 +221,7 @@ pub(crate) fn emit_hand_over(g: &mut Graph, flow: &Value, size: [usize; 2]) -> V
     g.mul_scalar(&resized, -scale as f32)
 }
 
-impl<B: Backend> CREStereo<B> {
+impl<B: Backend> Refiner<'_, B> {
     /// [`Self::refine_level`] as ONNX nodes, for inference: returns the last flow
     /// convex-upsampled ×rate (the predictions of the other iterations feed nothing, so they
     /// are not emitted).
@@ -262,7 +251,9 @@ impl<B: Backend> CREStereo<B> {
                 let [_, _, h, w] = left.dims();
                 let left_tokens = emit_to_tokens(g, &left);
                 let right_tokens = emit_to_tokens(g, &right);
-                let (l, r) = self.cross_att_fn.emit_cross(g, &left_tokens, &right_tokens);
+                let (l, r) = self
+                    .cross_attention
+                    .emit_cross(g, &left_tokens, &right_tokens);
                 EmittedLookup::Offsets {
                     left: emit_from_tokens(g, &l, h, w),
                     right: emit_from_tokens(g, &r, h, w),

@@ -93,7 +93,8 @@ fn images_and_export_sizes_over_the_networks_limit_are_refused_up_front() {
         .to_string();
     assert!(e.contains("network's limit"), "{e}");
     // The ONNX export's size, before any graph is built.
-    let e = crestereo::onnx::check_size([40000, 40000], InferenceOptions::default())
+    let e = InferenceOptions::default()
+        .check_size([40000, 40000])
         .unwrap_err()
         .to_string();
     assert!(e.contains("40000x40000 is over the network's limit"), "{e}");

@@ -26,7 +26,7 @@ use mozjpeg::{ColorSpace, Compress, Decompress};
 use mozjpeg_sys::{JWRN_JPEG_EOF, jpeg_common_struct, jpeg_error_mgr};
 
 use crate::error::{Error, Result};
-use crate::image_io::{Image, RgbImage, Samples, image_err};
+use crate::images::{Image, RgbImage, Samples, image_err};
 
 /// Whether `bytes` start like a JPEG file (SOI marker and the next marker's first byte).
 pub fn is_jpeg(bytes: &[u8]) -> bool {

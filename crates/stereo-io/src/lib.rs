@@ -19,6 +19,7 @@ pub mod error;
 pub mod exr_io;
 pub mod formats;
 pub mod image_io;
+mod images;
 pub mod jpeg;
 pub mod limits;
 pub mod npy;

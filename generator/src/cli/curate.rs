@@ -8,9 +8,9 @@ use stereogen::dataset::DatasetLayout;
 use stereogen::dataset::curate::{
     CurateOptions, CurateReport, CurateSource, FlagRule, Pixels, curate,
 };
-use stereogen::dataset::generate_command::FaultPlan;
-use stereogen::dataset::interrupt::{self, Interrupted};
 use stereogen::dataset::shard::{ShardArg, resolve_shard};
+use stereogen::interrupt::{self, Interrupted};
+use stereogen::render::FaultPlan;
 
 use super::RuntimeArgs;
 use super::generate::{draw, progress_bar};

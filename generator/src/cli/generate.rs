@@ -5,8 +5,8 @@ use std::time::Duration;
 use anyhow::bail;
 use indicatif::{ProgressBar, ProgressStyle};
 use stereogen::dataset::generate::Progress;
-use stereogen::dataset::interrupt::{self, Interrupted};
 use stereogen::dataset::{DatasetLayout, GenerateCommand, generate};
+use stereogen::interrupt::{self, Interrupted};
 
 /// Draws the library's progress reports (a hidden bar when `show` is false).
 pub(super) fn progress_bar(show: bool) -> ProgressBar {

@@ -338,10 +338,10 @@ pub fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            if e.downcast_ref::<stereogen::dataset::interrupt::Interrupted>()
+            if e.downcast_ref::<stereogen::interrupt::Interrupted>()
                 .is_some()
             {
-                ExitCode::from(stereogen::dataset::interrupt::EXIT_INTERRUPTED)
+                ExitCode::from(stereogen::interrupt::EXIT_INTERRUPTED)
             } else {
                 ExitCode::FAILURE
             }

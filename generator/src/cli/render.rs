@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use stereogen::dataset::interrupt::{self, Interrupted};
 use stereogen::dataset::{DatasetLayout, finalize_sample};
+use stereogen::interrupt::{self, Interrupted};
 use stereogen::render::{RenderService, WorkerError, WorkerOptions, scratch};
 
 pub fn run(spec: &Path, out: &Path, options: &WorkerOptions) -> anyhow::Result<()> {

@@ -1,6 +1,6 @@
 //! `stereogen generate`: plan, render and finish samples with a pool of Blender workers.
 //! Resumable: samples already in the manifest are skipped, half-written files are cleared.
-//! Stoppable: [`GenerateOptions::stop`] (set by SIGTERM/SIGINT through [`super::interrupt`]) ends
+//! Stoppable: [`GenerateOptions::stop`] (set by SIGTERM/SIGINT through [`crate::interrupt`]) ends
 //! the run cleanly between samples. Progress goes to a callback ([`Progress`]); drawing it is the
 //! caller's business.
 
@@ -14,8 +14,6 @@ use anyhow::{Context, bail};
 use serde::Serialize;
 use stereo_io::datasets::stereogen::ShardInfo;
 
-use super::generate_command::FaultPlan;
-use super::interrupt::StopFlag;
 use super::layout::{CreateDataset, DatasetLayout};
 use super::lock::DatasetLock;
 use super::manifest::{
@@ -25,7 +23,9 @@ use super::manifest::{
 use super::sample::{VERIFY_TIMING, finalize_sample};
 use super::shard::ShardId;
 use crate::assets::{AssetIndex, SkippedAsset, index_sources};
+use crate::interrupt::StopFlag;
 use crate::plan::{Recipe, SceneSpec, plan_scene};
+use crate::render::FaultPlan;
 use crate::render::runtime::stereogen_home;
 use crate::render::scratch;
 use crate::render::worker::{RenderService, Rendered, WorkerConfig, WorkerError, WorkerOptions};
@@ -46,7 +46,7 @@ pub struct GenerateOptions {
     pub workers: usize,
     /// How each worker is found, started and supervised.
     pub worker_options: WorkerOptions,
-    /// Set (by a signal, see [`super::interrupt::install`]): stop cleanly.
+    /// Set (by a signal, see [`crate::interrupt::install`]): stop cleanly.
     pub stop: StopFlag,
     /// Faults the workers inject (a test hook, parsed by the binary from STEREOGEN_FAULT).
     pub faults: FaultPlan,

@@ -5,7 +5,6 @@ pub mod curate;
 pub mod export;
 pub mod generate;
 pub mod generate_command;
-pub mod interrupt;
 pub mod layout;
 pub mod lock;
 pub mod manifest;

@@ -101,8 +101,8 @@ impl std::str::FromStr for TimeLimit {
 /// (EX_TEMPFAIL: nothing is wrong, run the same command again to resume). The job files treat
 /// it as "requeue this task": Slurm's script requeues itself, the Kubernetes Job's pod failure
 /// policy does not count it against the retry limit. The one definition is
-/// [`crate::dataset::interrupt::EXIT_INTERRUPTED`], which `generate` exits with.
-pub const INTERRUPTED_EXIT_CODE: i32 = crate::dataset::interrupt::EXIT_INTERRUPTED as i32;
+/// [`crate::interrupt::EXIT_INTERRUPTED`], which `generate` exits with.
+pub const INTERRUPTED_EXIT_CODE: i32 = crate::interrupt::EXIT_INTERRUPTED as i32;
 
 /// What a farm run renders and how its tasks are shaped.
 #[derive(Debug, Clone)]

@@ -3,7 +3,7 @@
 //!
 //! Each render gets a folder `stereogen-<pid>-<random>`, named after the process that owns it and
 //! removed when the render is done, fails or is abandoned (also on SIGTERM/SIGINT, see
-//! [`crate::dataset::interrupt`]). A process killed outright (SIGKILL, a crash, a power cut)
+//! [`crate::interrupt`]). A process killed outright (SIGKILL, a crash, a power cut)
 //! cannot clean up: the next run on the machine removes every scratch folder whose owner is no
 //! longer running ([`remove_orphans`]). This assumes one PID namespace per scratch location
 //! (containers that share a `/dev/shm` must set `STEREOGEN_SCRATCH` apart).

@@ -14,7 +14,7 @@ use super::protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply,
 use super::runtime::{BLENDER_SERIES, BlenderRuntime, discover_or_install, stereogen_home};
 use super::scratch;
 use super::scripts::install_scripts;
-use crate::dataset::interrupt::StopFlag;
+use crate::interrupt::StopFlag;
 use crate::plan::SceneSpec;
 use crate::plan::spec::SPEC_FORMAT_VERSION;
 

@@ -11,19 +11,16 @@ use crestereo_train::checkpoint::weights_file;
 use crestereo_train::disturb::{self, Disturbance};
 use crestereo_train::eval::{EvalOptions, EvalReport, ImageResult, evaluate};
 
+use super::network_args::NetworkArgs;
+
 /// The network and how it runs, as `eval` and `score` take them.
 #[derive(Debug, clap::Args)]
 pub struct ModelArgs {
-    /// Weights: .pt/.pth (reference), .mpk, a checkpoint directory, or a run (newest checkpoint).
-    #[arg(long, env = "CRESTEREO_WEIGHTS")]
-    pub weights: Option<PathBuf>,
+    #[command(flatten)]
+    pub network: NetworkArgs,
     /// Use an untrained network initialised with this seed (a baseline) instead of weights.
     #[arg(long, conflicts_with = "weights")]
     pub untrained_seed: Option<u64>,
-    #[arg(long, default_value_t = 20)]
-    pub iters: usize,
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
-    pub stages: u8,
 }
 
 #[derive(Debug, clap::Args)]
@@ -77,7 +74,7 @@ pub(super) struct Evaluated<B: Backend> {
 
 /// The network of `--weights` (a file, checkpoint or run) or of `--untrained-seed`.
 pub(super) fn load_model<B: Backend>(a: &ModelArgs, device: &B::Device) -> Result<Evaluated<B>> {
-    Ok(match (&a.weights, a.untrained_seed) {
+    Ok(match (&a.network.weights, a.untrained_seed) {
         (Some(w), _) => {
             let file = weights_file(w)?;
             let model = crestereo::weights::load_weights(
@@ -109,8 +106,8 @@ fn options(a: &EvalArgs) -> Result<EvalOptions> {
         bail!("--fg-masks {}: not a directory", dir.display());
     }
     Ok(EvalOptions {
-        iters: a.model.iters,
-        stages: usize::from(a.model.stages),
+        iters: a.model.network.iters,
+        stages: a.model.network.stages,
         limit: a.limit,
         fg_masks: a.fg_masks.clone(),
         boundary_px: a.boundary,

@@ -6,11 +6,13 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use burn::prelude::*;
 use crestereo::weights::load_weights;
-use crestereo::{BgrImage, CREStereoConfig, InferenceOptions, infer_disparity};
+use crestereo::{BgrImage, CREStereoConfig, infer_disparity};
 use stereo_io::colormap::{DisparityRange, colourise_with_bar};
 use stereo_io::{DisparityFormat, DisparityMap, DisparityMeta};
 
 use crestereo_train::checkpoint::weights_file;
+
+use super::network_args::NetworkArgs;
 
 #[derive(Debug, clap::Args)]
 pub struct InferArgs {
@@ -28,16 +30,8 @@ pub struct InferArgs {
     /// Colourised disparity PNG with a colour bar.
     #[arg(long)]
     pub viz: Option<PathBuf>,
-    /// Weights: a reference PyTorch state dict (.pt/.pth), a Burn record (.mpk), a checkpoint
-    /// directory or a training run (its newest checkpoint).
-    #[arg(long, env = "CRESTEREO_WEIGHTS")]
-    pub weights: Option<PathBuf>,
-    /// Refinement iterations per pass.
-    #[arg(long, default_value_t = 20)]
-    pub iters: usize,
-    /// Stacked cascades: 1, 2 (reference test procedure) or 3.
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
-    pub stages: u8,
+    #[command(flatten)]
+    pub network: NetworkArgs,
 }
 
 pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
@@ -64,17 +58,11 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
             r.height
         );
     }
-    let weights = a
-        .weights
-        .as_deref()
-        .context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")?;
+    let weights = a.network.weights()?;
     let model = CREStereoConfig::new().init::<B>(device);
     let model = load_weights(model, weights_file(weights)?, device)?;
     let t0 = Instant::now();
-    let opts = InferenceOptions {
-        iters: a.iters,
-        stages: usize::from(a.stages),
-    };
+    let opts = a.network.options();
     let disp = infer_disparity(&model, &l, &r, opts, device)?;
     eprintln!(
         "inference {}x{} ({} stages, {} iters): {:.2}s",
@@ -141,9 +129,11 @@ mod tests {
             output: dir.join(output),
             pfm: Some(dir.join("copy.pfm")),
             viz: Some(dir.join("viz.png")),
-            weights: None,
-            iters: 1,
-            stages: 1,
+            network: NetworkArgs {
+                weights: None,
+                iters: 1,
+                stages: 1,
+            },
         }
     }
 

@@ -10,6 +10,7 @@ mod farm;
 mod infer;
 #[cfg(feature = "kernel-cache")]
 mod kernel_cache;
+mod network_args;
 mod score;
 mod train;
 mod warmup;

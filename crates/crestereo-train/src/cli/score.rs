@@ -38,8 +38,8 @@ pub fn run<B: Backend>(a: &ScoreArgs, device: &B::Device) -> Result<()> {
         None => model.weights.clone(),
     };
     let opts = EvalOptions {
-        iters: a.model.iters,
-        stages: usize::from(a.model.stages),
+        iters: a.model.network.iters,
+        stages: a.model.network.stages,
         limit: a.limit,
         ..EvalOptions::default()
     };

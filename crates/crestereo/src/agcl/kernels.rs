@@ -458,7 +458,7 @@ pub fn shift_corr_backward(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::corr::SearchWindow;
+    use crate::agcl::SearchWindow;
 
     /// The scatter kernels' bits depend on the shape and the pool's thread count only, whatever
     /// else runs on the pool (see `crate::threads::sum_in_order`).

@@ -24,16 +24,15 @@ mod flex;
 pub mod kernels;
 mod layout;
 mod shift;
+mod window;
 
-#[cfg(feature = "wgpu")]
-pub(crate) use cube::wgpu_has_float_atomics;
 pub use shift::shift_corr;
+pub use window::SearchWindow;
 
 use burn::prelude::*;
 use burn::tensor::TensorPrimitive;
 use burn::tensor::ops::FloatTensor;
 
-use crate::corr::SearchWindow;
 use crate::dispatch::{kernels_f32, on_kernel_backend, same};
 
 /// Static parameters of an offset correlation: channel groups and the search window's

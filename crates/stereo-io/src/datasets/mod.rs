@@ -460,9 +460,45 @@ pub fn open_dataset_with(
         }
         return Ok(Box::new(shards));
     }
-    let samples = scan::scan(format, root, opts)?;
+    let samples = scan_files(format, root, opts)?;
     if samples.is_empty() {
         return Err(Error::format(root, format!("no {format} samples found")));
     }
     Ok(Box::new(FileListDataset::new(format, root, samples)))
+}
+
+/// The sample files of `format` under `root`: the dispatch to each layout's reader.
+fn scan_files(format: DatasetFormat, root: &Path, opts: &ReadOptions) -> Result<Vec<SampleFiles>> {
+    let mut samples = match format {
+        DatasetFormat::Stereogen => stereogen::scan(root)?,
+        DatasetFormat::Crestereo => crestereo::scan(root)?,
+        DatasetFormat::SceneFlow => sceneflow::scan(root)?,
+        DatasetFormat::Middlebury | DatasetFormat::Eth3d => {
+            middlebury::scan(root, format, opts.middlebury_variant)?
+        }
+        DatasetFormat::Kitti2012 => kitti::scan(root, &kitti::KITTI_2012)?,
+        DatasetFormat::Kitti2015 => kitti::scan(root, &kitti::KITTI_2015)?,
+        DatasetFormat::Sintel => sintel::scan(root)?,
+        DatasetFormat::FallingThings => falling_things::scan(root)?,
+        DatasetFormat::InStereo2k => instereo2k::scan(root)?,
+        DatasetFormat::WebDataset => {
+            return Err(Error::format(
+                root,
+                "WebDataset shards are not a list of files",
+            ));
+        }
+    };
+    // Ours keep manifest order; the others are sorted so indices are stable.
+    if format != DatasetFormat::Stereogen {
+        samples.sort_by(|a, b| a.left.cmp(&b.left));
+    }
+    for s in &mut samples {
+        s.meta.format = Some(format);
+        s.meta.id = s.id.clone();
+        s.meta.left_path = s.left.clone();
+        s.meta.right_path = s.right.clone();
+        s.meta.disp_left_path = s.disp_left.0.clone();
+        s.meta.disp_right_path = s.disp_right.as_ref().map(|(p, _)| p.clone());
+    }
+    Ok(samples)
 }

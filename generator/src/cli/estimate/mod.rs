@@ -34,9 +34,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use stereogen::dataset::generate::{GenerateOptions, Progress};
-use stereogen::dataset::interrupt::{self, Interrupted};
 use stereogen::dataset::{DatasetLayout, TaskArgs, generate, read_manifest};
 use stereogen::farm::TimeLimit;
+use stereogen::interrupt::{self, Interrupted};
 use stereogen::plan::{Recipe, scene_category};
 use stereogen::render::Device;
 

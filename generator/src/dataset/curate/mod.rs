@@ -69,9 +69,9 @@ pub struct CurateOptions {
     pub replace: bool,
     pub workers: usize,
     pub worker_options: WorkerOptions,
-    pub stop: super::interrupt::StopFlag,
+    pub stop: crate::interrupt::StopFlag,
     pub break_lock: bool,
-    pub faults: super::generate_command::FaultPlan,
+    pub faults: crate::render::FaultPlan,
     /// Render only this shard's part of the round's replacements (`index % N == K`), into the
     /// round's `shards/KKKK-of-NNNN/`, as one task of a farm; a run without it then commits the
     /// round from the shards.

@@ -10,14 +10,8 @@
 //! order by p-value is the order by `d · (√n + 0.12 + 0.11/√n)`, and "p < level" is "d > critical
 //! at level".
 
-use super::stats_report::ObjectStats;
+use super::stats_report::{MIN_OBJECTS_TO_JUDGE, ObjectStats};
 use crate::plan::dist::ks_critical;
-
-/// Groups with fewer content objects are not judged ("too few samples to judge"): at the
-/// default family rate 0.01 over five tests, the first Holm level is 0.002, where the KS critical
-/// value of 13 objects is 0.495 and of 12 is 0.513 — below 13 objects the test could not even
-/// see a law with half its mass misplaced, and the gap check has at most 2 bins.
-pub const MIN_OBJECTS_TO_JUDGE: usize = 13;
 
 /// `d · (√n + 0.12 + 0.11/√n)`: the larger, the smaller the test's p-value.
 fn strength(d: f64, n: usize) -> f64 {

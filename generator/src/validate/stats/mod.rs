@@ -18,7 +18,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 
-use self::ks_family::{MIN_OBJECTS_TO_JUDGE, holm_levels};
+use self::ks_family::holm_levels;
+use self::stats_report::MIN_OBJECTS_TO_JUDGE;
 use self::stats_report::{CategoryStats, ObjectStats, PixelStats, StatsReport, Status};
 use super::accumulate::PixelAcc;
 use super::hist::{MAX_GAP_BINS, equal_mass_edges, gap_bins_for};

@@ -4,27 +4,19 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use crestereo::InferenceOptions;
-use crestereo::onnx::{check_size, export_onnx};
+use crestereo::export::export_onnx;
 
-use super::{check_output, load_model, weights_arg};
+use super::{check_output, load_model};
+use crate::cli::network_args::NetworkArgs;
 
 #[derive(Debug, clap::Args)]
 pub struct OnnxArgs {
-    /// Weights: a reference PyTorch state dict (.pt/.pth), a Burn record (.mpk), a checkpoint
-    /// directory or a training run (its newest checkpoint).
-    #[arg(long, env = "CRESTEREO_WEIGHTS")]
-    pub weights: Option<PathBuf>,
+    #[command(flatten)]
+    pub network: NetworkArgs,
     /// Image size HxW the graph takes (static shapes); both must be multiples of
     /// 16·2^(stages−1), 32 for the reference two-stage procedure.
     #[arg(long)]
     pub size: String,
-    /// Refinement iterations per pass.
-    #[arg(long, default_value_t = 20)]
-    pub iters: usize,
-    /// Stacked cascades: 1, 2 (reference test procedure) or 3.
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=3))]
-    pub stages: u8,
     /// Output graph (.onnx).
     #[arg(short, long)]
     pub output: PathBuf,
@@ -44,12 +36,9 @@ fn parse_size(s: &str) -> Result<[usize; 2]> {
 
 pub fn run(a: &OnnxArgs) -> Result<()> {
     let size = parse_size(&a.size)?;
-    let opts = InferenceOptions {
-        iters: a.iters,
-        stages: usize::from(a.stages),
-    };
-    check_size(size, opts)?;
-    let weights = weights_arg(a.weights.as_deref())?;
+    let opts = a.network.options();
+    opts.check_size(size)?;
+    let weights = a.network.weights()?;
     check_output(&a.output, a.force)?;
     let model = load_model(weights)?;
     let t0 = Instant::now();

@@ -3,7 +3,7 @@
 //!
 //! [`install`] registers handlers for both signals (once per process) and returns the process's
 //! [`StopFlag`], which they set. A long-running command hands the flag to the library
-//! ([`super::GenerateOptions::stop`]), which checks it between samples and while it waits for a
+//! ([`crate::dataset::generate::GenerateOptions::stop`]), which checks it between samples and while it waits for a
 //! worker: `generate` then starts no new sample, kills the workers, abandons the samples they
 //! were rendering (nothing of them reaches the dataset; they are rendered again on resume),
 //! removes its scratch folders and returns; the CLI exits with [`EXIT_INTERRUPTED`]. A sample
