@@ -14,6 +14,7 @@
 pub mod atomic;
 pub mod colormap;
 pub mod datasets;
+pub mod digest;
 pub mod disparity;
 pub mod error;
 pub mod exr_io;

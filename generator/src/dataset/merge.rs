@@ -15,9 +15,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::bail;
 use rayon::prelude::*;
-use sha2::{Digest, Sha256};
 use stereo_io::DatasetInfo;
 use stereo_io::datasets::stereogen::{ChecksumCheck, MergeInfo, ShardDirs, ShardId, ShardInfo};
+use stereo_io::digest::sha256_file;
 
 use super::curate::apply::{apply_rounds, write_manifest};
 use super::export::{ExportFormat, ExportOptions, ExportSummary, WebDatasetArgs, export};
@@ -543,14 +543,6 @@ fn check_sample(s: &Shard, e: &ManifestEntry, hash: bool) -> (Vec<String>, u64, 
         }
     }
     (problems, checked, hashed)
-}
-
-fn sha256_file(path: &Path) -> std::io::Result<String> {
-    let bytes = std::fs::read(path)?;
-    Ok(Sha256::digest(&bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect())
 }
 
 /// The top-level files: `dataset.json` (the shards' own), `merge.json`, then `manifest.jsonl`

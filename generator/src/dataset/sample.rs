@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use sha2::{Digest, Sha256};
 use stereo_io::datasets::stereogen::Difficulty;
+use stereo_io::digest::sha256_hex;
 use stereo_io::{DisparityMap, DisparityMeta, RgbImage};
 
 use super::layout::{DatasetLayout, SamplePaths};
@@ -181,14 +181,10 @@ impl SampleContent<'_> {
             let path = layout.abs(rel);
             let bytes = read_back(&path)?;
             self.check(key, &path, &bytes)?;
-            sha256.insert(key.to_string(), hex(&Sha256::digest(&bytes)));
+            sha256.insert(key.to_string(), sha256_hex(&bytes));
         }
         Ok(sha256)
     }
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// Reads a file that was just written and synced, from the storage rather than from the page

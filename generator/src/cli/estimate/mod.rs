@@ -33,7 +33,7 @@ use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use stereogen::dataset::generate::{GenerateOptions, Progress};
+use stereogen::dataset::generate::{GenerateOptions, Progress, WORKER_START_TIMING};
 use stereogen::dataset::{DatasetLayout, TaskArgs, generate, read_manifest};
 use stereogen::farm::TimeLimit;
 use stereogen::interrupt::{self, Interrupted};
@@ -48,8 +48,6 @@ pub const EXACT_COUNT_LIMIT: u64 = 5_000_000;
 /// shared filesystem and scenes costlier than the few measured.
 pub const TIME_LIMIT_SAFETY: f64 = 1.5;
 pub const TIME_LIMIT_STEP_S: u64 = 300;
-/// The timing a sample's manifest line carries when its worker started for it.
-const WORKER_START_TIMING: &str = "worker_start_s";
 
 /// Which samples are rendered to measure, and where.
 #[derive(Debug, Clone, clap::Args)]

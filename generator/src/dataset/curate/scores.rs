@@ -10,7 +10,7 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use serde_json::Value;
-use sha2::{Digest, Sha256};
+use stereo_io::digest::sha256_hex;
 
 /// Which pixels a rule reads: the scores file's `all` or `nonocc` metrics.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -87,7 +87,7 @@ pub fn read_scores(path: &Path, rule: &FlagRule) -> anyhow::Result<Scores> {
     }
     let bytes = std::fs::read(path)
         .with_context(|| format!("cannot read the scores file {}", path.display()))?;
-    let sha256 = hex(&Sha256::digest(&bytes));
+    let sha256 = sha256_hex(&bytes);
     let text = std::str::from_utf8(&bytes)
         .with_context(|| format!("{} is not a scores file (not text)", path.display()))?;
     // Only whole lines: a scorer killed mid-append leaves an unfinished last one.
@@ -132,10 +132,6 @@ pub fn read_scores(path: &Path, rule: &FlagRule) -> anyhow::Result<Scores> {
         sha256,
         by_id,
     })
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 #[cfg(test)]

@@ -17,14 +17,13 @@ pub mod raycast;
 pub mod select;
 pub mod tally;
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
 use rayon::prelude::*;
-use sha2::{Digest, Sha256};
+use stereo_io::digest::sha256_file;
 
 pub use audit_report::{AuditReport, Bars, GroupAudit, SampleAudit, summary_lines};
 pub use select::{PixelSelection, SampleSelection};
@@ -68,25 +67,6 @@ impl AuditOptions {
 struct Rebuilt {
     spec: SceneSpec,
     geometry: SceneGeometry,
-}
-
-/// SHA-256 of a file, read in pieces.
-pub fn sha256_file(path: &Path) -> std::io::Result<String> {
-    let mut file = std::fs::File::open(path)?;
-    let mut hasher = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    loop {
-        let n = file.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        hasher.update(&buf[..n]);
-    }
-    Ok(hasher
-        .finalize()
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect())
 }
 
 /// Files of `entry` whose checksum differs from the manifest's, and files that cannot be read.

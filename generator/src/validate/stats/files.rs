@@ -4,6 +4,8 @@
 use std::fmt;
 use std::path::PathBuf;
 
+use stereo_io::digest::sha256_hex;
+
 use crate::dataset::ManifestEntry;
 use crate::validate::dataset_files::DatasetFiles;
 
@@ -52,15 +54,6 @@ impl fmt::Display for FileError {
             }
         }
     }
-}
-
-/// The SHA-256 of `bytes`, as the manifest writes it.
-fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::{Digest, Sha256};
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
 }
 
 /// Reads one file of a sample (from its folder or its export's shard): with `verify`, its
