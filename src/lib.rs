@@ -275,6 +275,25 @@ pub fn generate_failed_dataset(dir: &std::path::Path, name: &str) -> PathBuf {
     out
 }
 
+/// A finished command's stdout then stderr, as one text (what a person at the terminal saw).
+pub fn output_text(o: &std::process::Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+/// Runs `c` with no standard input and asserts that it succeeded, showing both streams if not.
+pub fn run_ok(c: &mut std::process::Command) -> std::process::Output {
+    let o = c
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {c:?}: {e}"));
+    assert!(o.status.success(), "{c:?} failed:\n{}", output_text(&o));
+    o
+}
+
 /// SHA-256 of a file as lowercase hex, recomputed with coreutils' `sha256sum`: independent of the
 /// generator's own hashing, so the manifest's checksums are checked by code nobody here wrote.
 pub fn sha256_hex(path: &std::path::Path) -> String {

@@ -14,7 +14,9 @@ use stereogen::plan::spec::{BaseColor, MaterialSpec, SceneSpec};
 use stereogen::plan::{Recipe, plan_scene};
 use stereogen::render::RenderService;
 use stereogen::render::runtime::managed_python;
-use stereogen_e2e::{RenderedPair, generate_cmd, stereogen_cmd, tiny_recipe, worker_config};
+use stereogen_e2e::{
+    RenderedPair, generate_cmd, output_text as text, stereogen_cmd, tiny_recipe, worker_config,
+};
 
 /// The Python the tests' Blender runtime uses (it has pip), so setup installs no second Blender.
 fn python() -> PathBuf {
@@ -32,14 +34,6 @@ fn stereogen(home: &Path, args: &[&str]) -> Output {
         .env("STEREOGEN_PYTHON", python())
         .output()
         .unwrap()
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 #[test]

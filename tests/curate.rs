@@ -7,11 +7,14 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 
 use stereogen::dataset::curate::{REPLACEMENT_BASE, replacement_index};
 use stereogen::dataset::{DatasetInfo, DatasetLayout, Manifest, ManifestEntry};
-use stereogen_e2e::{crestereo_bin, generate_cmd, sha256_hex, stereogen_cmd, write_tiny_recipe};
+use stereogen_e2e::{
+    crestereo_bin, generate_cmd, output_text as text_of, run_ok as run, sha256_hex, stereogen_cmd,
+    write_tiny_recipe,
+};
 
 const SEED: u64 = 3;
 const COUNT: u64 = 6;
@@ -20,25 +23,6 @@ const STEPS: u64 = 100;
 /// The re-render bounds of tests/rerender_exact.rs (README, "How exact is the disparity?").
 const DISPARITY_BOUND_PX: f32 = 5e-4;
 const IMAGE_BOUND_LEVELS: u8 = 4;
-
-fn run(c: &mut Command) -> Output {
-    let o = c.stdin(Stdio::null()).output().expect("run");
-    assert!(
-        o.status.success(),
-        "{c:?} failed:\n{}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    o
-}
-
-fn text_of(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 fn entries(root: &Path) -> Vec<ManifestEntry> {
     let mut e = Manifest::read(&DatasetLayout::new(root).manifest()).unwrap();

@@ -4,30 +4,10 @@
 
 use std::collections::BTreeSet;
 use std::path::Path;
-use std::process::Output;
 
 use stereo_io::datasets::stereogen::Difficulty;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
-use stereogen_e2e::{generate_tiny_preset, stereogen_cmd};
-
-fn run(c: &mut std::process::Command) -> Output {
-    let o = c.output().expect("run stereogen");
-    assert!(
-        o.status.success(),
-        "{c:?} failed:\n{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    o
-}
-
-fn said(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+use stereogen_e2e::{generate_tiny_preset, output_text as said, run_ok as run, stereogen_cmd};
 
 fn entries(root: &Path) -> Vec<ManifestEntry> {
     Manifest::read(&DatasetLayout::new(root).manifest()).unwrap()

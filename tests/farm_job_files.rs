@@ -20,7 +20,9 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
 use stereogen::dataset::Manifest;
-use stereogen_e2e::{farm_cmd, stereogen_bin, stereogen_cmd, write_tiny_recipe};
+use stereogen_e2e::{
+    farm_cmd, output_text as text, stereogen_bin, stereogen_cmd, write_tiny_recipe,
+};
 
 /// The `--webdataset` options the farms here are written with (DIR is `OUT/wds`); a size in
 /// bytes, as the job files spell it.
@@ -88,14 +90,6 @@ fn tools_or_skip(test: &str) -> Option<PathBuf> {
             None
         }
     }
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// `farm SCHEDULER` of 4 samples in 2 tasks, its merge step writing shards into `OUT/wds`, with

@@ -13,7 +13,8 @@ use crestereo_train::config::{DatasetEntry, TrainConfig};
 use crestereo_train::train::{TrainOptions, train};
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen_e2e::{
-    audit_cmd, export_cmd, generate_cmd, stats_cmd, stereogen_cmd, write_tiny_recipe,
+    audit_cmd, export_cmd, generate_cmd, output_text as text, stats_cmd, stereogen_cmd,
+    write_tiny_recipe,
 };
 
 fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {
@@ -24,14 +25,6 @@ fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {
 
 fn run(mut c: Command) -> Output {
     c.output().expect("run stereogen")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// A farm output of `count` samples in two shards, each rendered by its own process.

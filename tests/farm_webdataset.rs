@@ -6,11 +6,11 @@
 //! finished by the same command to the bytes of an uninterrupted one.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use stereo_io::{DatasetFormat, open_dataset};
-use stereogen_e2e::{export_cmd, generate_cmd, merge_cmd, write_tiny_recipe};
+use stereogen_e2e::{export_cmd, generate_cmd, merge_cmd, output_text as text, write_tiny_recipe};
 
 /// The shard options every merge here uses: one sample a shard, shuffled, two splits.
 const SHARDS: [&str; 6] = [
@@ -21,14 +21,6 @@ const SHARDS: [&str; 6] = [
     "--splits",
     "train=0.5,val=0.5",
 ];
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 /// A farm output of `count` samples in two shards, each rendered by its own process.
 fn two_shard_farm(dir: &Path, count: u64) -> PathBuf {
