@@ -297,6 +297,27 @@ fn onnxruntime_matches_crestereo_infer_with_reference_and_trained_weights() {
         ["20", "2"],
         &[&fixture, &random],
     );
+    // One stage (a single full-resolution pass, no initialisation) and three (from a quarter of
+    // the size): the other cascade loops the graph unrolls.
+    let quarter = random_pair(dir.path(), 64, 128, 13);
+    check_against_burn(
+        &venv,
+        dir.path(),
+        "one_stage",
+        &reference,
+        "64x128",
+        ["4", "1"],
+        &[&quarter],
+    );
+    check_against_burn(
+        &venv,
+        dir.path(),
+        "three_stages",
+        &reference,
+        "128x192",
+        ["4", "3"],
+        &[&random],
+    );
 
     // The deploy page's five lines, images decoded by OpenCV.
     let snippet = run_readme_snippet(&venv, dir.path(), &model, &fixture);

@@ -73,10 +73,22 @@ pub use refine::Level;
 pub use update::{UpdateBlock, UpdateBlockConfig};
 pub use upsample::{convex_upsample, resize_bilinear_align_corners};
 
+// The backends the network's kernels are written for, named here once for every crate that picks
+// one: a type spelt out elsewhere that drifted from these would run the composed ops silently.
 /// The CPU backend used by the tests, the CLI and the bench.
 pub type CpuBackend = burn::backend::Flex;
 /// The CPU backend with autodiff (training).
 pub type CpuAutodiffBackend = burn::backend::Autodiff<burn::backend::Flex>;
+#[cfg(feature = "cuda")]
+pub use dispatch::CudaBackend;
+/// The CUDA backend with autodiff (training).
+#[cfg(feature = "cuda")]
+pub type CudaAutodiffBackend = burn::backend::Autodiff<CudaBackend>;
+#[cfg(feature = "wgpu")]
+pub use dispatch::WgpuBackend;
+/// The wgpu backend with autodiff (training).
+#[cfg(feature = "wgpu")]
+pub type WgpuAutodiffBackend = burn::backend::Autodiff<WgpuBackend>;
 
 /// `t` in float dtype `dtype` (constants made in float32 join a float64 network this way).
 pub(crate) fn float_like<B: burn::prelude::Backend, const D: usize>(

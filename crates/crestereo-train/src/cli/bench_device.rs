@@ -189,7 +189,7 @@ pub fn run_cuda(
     is: &[usize],
     repeats: usize,
 ) -> Result<()> {
-    run_on::<burn::backend::Autodiff<burn::backend::Cuda>>(train, infer, ts, is, repeats)
+    run_on::<crestereo::CudaAutodiffBackend>(train, infer, ts, is, repeats)
 }
 
 #[cfg(not(feature = "cuda"))]
@@ -206,7 +206,7 @@ pub fn run_wgpu(
     is: &[usize],
     repeats: usize,
 ) -> Result<()> {
-    run_on::<burn::backend::Autodiff<burn::backend::Wgpu>>(train, infer, ts, is, repeats)
+    run_on::<crestereo::WgpuAutodiffBackend>(train, infer, ts, is, repeats)
 }
 
 #[cfg(not(feature = "wgpu"))]

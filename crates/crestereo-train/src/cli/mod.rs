@@ -189,31 +189,47 @@ macro_rules! with_backend {
     ($kind:expr, $ad:tt, |$b:ident| $body:expr) => {
         match $kind {
             DeviceKind::Cpu => {
-                type $b = with_backend!(@cpu $ad);
+        type $b = with_backend!(@cpu $ad);
                 $body
             }
             #[cfg(feature = "cuda")]
             DeviceKind::Cuda => {
-                type $b = with_backend!(@cuda $ad);
+        type $b = with_backend!(@cuda $ad);
                 $body
             }
             #[cfg(not(feature = "cuda"))]
-            DeviceKind::Cuda => bail!("this build has no CUDA backend: rebuild with `--features cuda`"),
+            DeviceKind::Cuda => {
+                bail!("this build has no CUDA backend: rebuild with `--features cuda`")
+            }
             #[cfg(feature = "wgpu")]
             DeviceKind::Vulkan => {
-                type $b = with_backend!(@wgpu $ad);
+        type $b = with_backend!(@wgpu $ad);
                 $body
             }
             #[cfg(not(feature = "wgpu"))]
-            DeviceKind::Vulkan => bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`"),
+            DeviceKind::Vulkan => {
+                bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`")
+            }
         }
     };
-    (@cpu true) => { CpuAutodiffBackend };
-    (@cpu false) => { CpuBackend };
-    (@cuda true) => { burn::backend::Autodiff<burn::backend::Cuda> };
-    (@cuda false) => { burn::backend::Cuda };
-    (@wgpu true) => { burn::backend::Autodiff<burn::backend::Wgpu> };
-    (@wgpu false) => { burn::backend::Wgpu };
+    (@cpu true) => {
+        CpuAutodiffBackend
+    };
+    (@cpu false) => {
+        CpuBackend
+    };
+    (@cuda true) => {
+        crestereo::CudaAutodiffBackend
+    };
+    (@cuda false) => {
+        crestereo::CudaBackend
+    };
+    (@wgpu true) => {
+        crestereo::WgpuAutodiffBackend
+    };
+    (@wgpu false) => {
+        crestereo::WgpuBackend
+    };
 }
 
 fn run(cli: Cli, cache: Option<std::path::PathBuf>) -> Result<()> {
