@@ -294,6 +294,17 @@ pub fn run_ok(c: &mut std::process::Command) -> std::process::Output {
     o
 }
 
+/// Runs `c` with no standard input, asserts that it failed, and returns what it said.
+pub fn run_fails(c: &mut std::process::Command) -> String {
+    let o = c
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {c:?}: {e}"));
+    let text = output_text(&o);
+    assert!(!o.status.success(), "{c:?} succeeded:\n{text}");
+    text
+}
+
 /// SHA-256 of a file as lowercase hex, recomputed with coreutils' `sha256sum`: independent of the
 /// generator's own hashing, so the manifest's checksums are checked by code nobody here wrote.
 pub fn sha256_hex(path: &std::path::Path) -> String {

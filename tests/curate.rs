@@ -7,13 +7,13 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 use stereogen::dataset::curate::{REPLACEMENT_BASE, replacement_index};
 use stereogen::dataset::{DatasetInfo, DatasetLayout, Manifest, ManifestEntry};
 use stereogen_e2e::{
-    crestereo_bin, generate_cmd, output_text as text_of, run_ok as run, sha256_hex, stereogen_cmd,
-    write_tiny_recipe,
+    crestereo_bin, generate_cmd, output_text as text_of, run_fails, run_ok as run, sha256_hex,
+    stereogen_cmd, write_tiny_recipe,
 };
 
 const SEED: u64 = 3;
@@ -231,13 +231,8 @@ fn a_planted_inconsistent_sample_is_flagged_replaced_and_the_curation_replays() 
     failing
         .arg("--replace")
         .env("STEREOGEN_FAULT", format!("raise@{r}"));
-    let o = failing.stdin(Stdio::null()).output().unwrap();
-    assert!(!o.status.success(), "{}", text_of(&o));
-    assert!(
-        text_of(&o).contains("the round stays open"),
-        "{}",
-        text_of(&o)
-    );
+    let err = run_fails(&mut failing);
+    assert!(err.contains("the round stays open"), "{err}");
     assert_eq!(std::fs::read(a.join("manifest.jsonl")).unwrap(), before);
     let open = info(&a).curation;
     assert_eq!(open.len(), 1);
@@ -286,9 +281,8 @@ fn a_planted_inconsistent_sample_is_flagged_replaced_and_the_curation_replays() 
     assert!(text_of(&o).contains("0 rendered"), "{}", text_of(&o));
     assert_eq!(entries(&a), now);
     // Scores of the dataset before curation are refused now: they name a sample it no longer holds.
-    let o = curate(&a, &rule).stdin(Stdio::null()).output().unwrap();
-    assert!(!o.status.success());
-    assert!(text_of(&o).contains("does not hold"), "{}", text_of(&o));
+    let err = run_fails(&mut curate(&a, &rule));
+    assert!(err.contains("does not hold"), "{err}");
 
     // stats, audit and the report show the round.
     let o = run(stereogen_cmd(["stats"]).arg(&a));

@@ -7,7 +7,9 @@ use std::path::Path;
 
 use stereo_io::datasets::stereogen::Difficulty;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
-use stereogen_e2e::{generate_tiny_preset, output_text as said, run_ok as run, stereogen_cmd};
+use stereogen_e2e::{
+    generate_tiny_preset, output_text as said, run_fails, run_ok as run, stereogen_cmd,
+};
 
 fn entries(root: &Path) -> Vec<ManifestEntry> {
     Manifest::read(&DatasetLayout::new(root).manifest()).unwrap()
@@ -96,32 +98,32 @@ fn every_sample_carries_its_difficulty_and_export_selects_by_it() {
     assert_eq!(got, expected);
 
     // A bad expression, and a line written before the facts were measured: clear errors.
-    let o = stereogen_cmd(["export"])
-        .arg(&data)
-        .args(["--format", "webdataset", "--out"])
-        .arg(dir.path().join("x"))
-        .args(["--where", "blur < 2"])
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    assert!(said(&o).contains("unknown field \"blur\""), "{}", said(&o));
+    // Neither refused export leaves an output folder behind.
+    let err = run_fails(
+        stereogen_cmd(["export"])
+            .arg(&data)
+            .args(["--format", "webdataset", "--out"])
+            .arg(dir.path().join("x"))
+            .args(["--where", "blur < 2"]),
+    );
+    assert!(err.contains("unknown field \"blur\""), "{err}");
+    assert!(!dir.path().join("x").exists());
     let manifest = layout.manifest();
     let text = std::fs::read_to_string(&manifest).unwrap();
     let mut first: serde_json::Value = serde_json::from_str(text.lines().next().unwrap()).unwrap();
     first.as_object_mut().unwrap().remove("difficulty");
     let rest: Vec<&str> = text.lines().skip(1).collect();
     std::fs::write(&manifest, format!("{first}\n{}\n", rest.join("\n"))).unwrap();
-    let o = stereogen_cmd(["export"])
-        .arg(&data)
-        .args(["--format", "crestereo", "--out"])
-        .arg(dir.path().join("y"))
-        .args(["--where", "low_texture < 0.5"])
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    assert!(
-        said(&o).contains(&format!("sample {} has no low_texture", all[0].id)),
-        "{}",
-        said(&o)
+    let err = run_fails(
+        stereogen_cmd(["export"])
+            .arg(&data)
+            .args(["--format", "crestereo", "--out"])
+            .arg(dir.path().join("y"))
+            .args(["--where", "low_texture < 0.5"]),
     );
+    assert!(
+        err.contains(&format!("sample {} has no low_texture", all[0].id)),
+        "{err}"
+    );
+    assert!(!dir.path().join("y").exists());
 }
