@@ -39,10 +39,13 @@ impl NetworkArgs {
 
     /// `--weights`, or one line saying it is missing.
     pub fn weights(&self) -> Result<&Path> {
-        self.weights
-            .as_deref()
-            .context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")
+        required_weights(self.weights.as_deref())
     }
+}
+
+/// A command's `--weights`, or one line saying it is missing.
+pub fn required_weights(weights: Option<&Path>) -> Result<&Path> {
+    weights.context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ mod pytorch;
 
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use crestereo::weights::load_weights;
 use crestereo::{CREStereo, CREStereoConfig, CpuBackend};
 
@@ -28,11 +28,6 @@ pub fn run(command: &ExportCommand) -> Result<()> {
         ExportCommand::Onnx(args) => onnx::run(args),
         ExportCommand::Pytorch(args) => pytorch::run(args),
     }
-}
-
-/// `--weights`, or one line saying it is missing.
-fn weights_arg(weights: Option<&Path>) -> Result<&Path> {
-    weights.context("no weights given: pass --weights FILE or set CRESTEREO_WEIGHTS")
 }
 
 /// Refuses, before anything is read, an output that is a folder, one that exists (without

@@ -6,7 +6,8 @@ use anyhow::{Result, bail};
 use crestereo::weights::named_parameters;
 use stereo_io::pth::write_state_dict;
 
-use super::{check_output, load_model, weights_arg};
+use super::{check_output, load_model};
+use crate::cli::network_args::required_weights;
 
 #[derive(Debug, clap::Args)]
 pub struct PytorchArgs {
@@ -24,7 +25,7 @@ pub struct PytorchArgs {
 
 pub fn run(args: &PytorchArgs) -> Result<()> {
     // Everything that can be refused without reading the weights is refused first.
-    let weights = weights_arg(args.weights.as_deref())?;
+    let weights = required_weights(args.weights.as_deref())?;
     let output = &args.output;
     if !matches!(
         output.extension().and_then(|e| e.to_str()),
