@@ -145,7 +145,7 @@ fn encoder<B: Measure>(t: &mut Table, m: &CREStereo<B>, n: usize, h: usize, w: u
     let (l, r) = (rand::<B, 4>([n, 3, h, w]), rand::<B, 4>([n, 3, h, w]));
     whole.add::<B>("e", 1, &|| {
         let (a, b) = m.fnet.forward_pair(l.clone(), r.clone());
-        Tensor::cat(vec![a, b], 0)
+        crestereo::cat(vec![a, b], 0)
     });
     let (ef, eb) = (whole.rows[0].1, whole.rows[0].2);
     t.rows.push((
@@ -180,11 +180,11 @@ fn cascade<B: Measure>(
         let tokens = || (ta.clone(), tb.clone());
         t.add::<B>("attention (self + cross, LoFTR linear)", 1, &|| {
             let (a, b) = m.self_att_fn.forward_self(tokens().0, tokens().1);
-            Tensor::cat(vec![a, b], 1).unsqueeze()
+            crestereo::cat(vec![a, b], 1).unsqueeze()
         });
         t.add::<B>("attention (self + cross, LoFTR linear)", l16, &|| {
             let (a, b) = m.cross_att_fn.forward_cross(tokens().0, tokens().1);
-            Tensor::cat(vec![a, b], 1).unsqueeze()
+            crestereo::cat(vec![a, b], 1).unsqueeze()
         });
     }
     for (calls, div, warp) in [(l16, 16, false), (l8, 8, false), (l4, 4, true)] {
@@ -230,7 +230,7 @@ fn cascade<B: Measure>(
         t.add::<B>("update block (motion encoder, GRU, heads)", calls, &|| {
             let (net, mask, delta) =
                 ub.forward(net_t.clone(), inp_t.clone(), cor_t.clone(), flow());
-            Tensor::cat(vec![net, mask, delta], 1)
+            crestereo::cat(vec![net, mask, delta], 1)
         });
         t.add::<B>("upsampling (convex + bilinear)", calls, &|| {
             let up = convex_upsample(fl_t.clone(), mask_t.clone(), 4);

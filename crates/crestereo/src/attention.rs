@@ -118,7 +118,10 @@ impl<B: Backend> LoFTREncoderLayer<B> {
         let v = self.v_proj.forward(source).reshape([n, s, h, d]);
         let message = self.attention.forward(q, k, v).reshape([n, l, c]);
         let message = self.norm1.forward(self.merge.forward(message));
-        let hidden = relu(self.mlp1.forward(Tensor::cat(vec![x.clone(), message], 2)));
+        let hidden = relu(
+            self.mlp1
+                .forward(crate::channels::cat(vec![x.clone(), message], 2)),
+        );
         let message = self.mlp2.forward(hidden);
         x + self.norm2.forward(message)
     }

@@ -1,4 +1,6 @@
-//! Concatenation of two maps along channels on Flex, copied in parallel, with its own backward.
+//! Concatenation: [`cat`], Burn's with its inputs kept alive until its output is in the autodiff
+//! graph, and [`cat_channels`], two maps along channels on Flex, copied in parallel, with its own
+//! backward.
 //!
 //! Flex concatenates on the calling thread, and Burn's backward of a concatenation hands each
 //! part a strided view of the gradient, which the next gradient sum then walks element by
@@ -17,6 +19,26 @@ use rayon::prelude::*;
 
 use crate::dispatch::{Kernels, from_autodiff_flex, from_flex, kernels_f32, same};
 
+/// `Tensor::cat(tensors, dim)`, safe beside a `backward()` on another thread: the network's and
+/// the trainer's one way to concatenate (`Tensor::cat` and `Tensor::stack` are disallowed by the
+/// workspace's `clippy.toml`).
+///
+/// Burn 0.21's autodiff concatenation lets go of its inputs (their reference counts, which tell
+/// Burn a node is still wanted) before it registers its output (tracel-ai/burn#5573). Every
+/// `backward()` ends by sweeping all the graphs of the process and frees the steps of any graph in
+/// which no tensor is referenced: a backward finishing on another thread inside that window (a
+/// replica on another device, another test) freed the convolutions of the flow branch before the
+/// motion encoder's concatenation joined it to the loss, and their parameters silently lost part
+/// of their gradient. Clones of the inputs, held until the output is registered, close the window;
+/// they share the inputs' storage, so nothing is copied.
+pub fn cat<B: Backend, const D: usize>(tensors: Vec<Tensor<B, D>>, dim: usize) -> Tensor<B, D> {
+    let kept = tensors.clone();
+    #[allow(clippy::disallowed_methods)] // the one call, with its inputs held
+    let out = Tensor::cat(tensors, dim);
+    drop(kept);
+    out
+}
+
 /// `Tensor::cat([a, b], 1)` for (N, C, H, W) maps: the same values (and gradients), copied in
 /// parallel on Flex with float32 maps, Burn's concatenation elsewhere.
 pub(crate) fn cat_channels<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> Tensor<B, 4> {
@@ -32,7 +54,7 @@ pub(crate) fn cat_channels<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> Tens
             same(a.into_primitive().tensor()),
             same(b.into_primitive().tensor()),
         )),
-        _ => Tensor::cat(vec![a, b], 1),
+        _ => cat(vec![a, b], 1),
     }
 }
 
@@ -133,7 +155,7 @@ mod tests {
             .swap_dims(2, 3)
             .swap_dims(2, 3)
             .narrow(1, 1, 4);
-        let want = Tensor::cat(vec![a.clone(), b.clone()], 1);
+        let want = super::cat(vec![a.clone(), b.clone()], 1);
         let got = super::cat_channels(a, b);
         assert_eq!(got.dims(), want.dims());
         assert_eq!(got.into_data(), want.into_data());
@@ -151,7 +173,7 @@ mod tests {
             let y = if ours {
                 super::cat_channels(a.clone(), b.clone())
             } else {
-                Tensor::cat(vec![a.clone(), b.clone()], 1)
+                super::cat(vec![a.clone(), b.clone()], 1)
             };
             // b also reaches the loss directly, so its two gradients are summed
             let loss = (y.clone() * weights.clone()).sum() + (b.clone() * b.clone()).sum();
@@ -161,5 +183,65 @@ mod tests {
             (y.inner().into_data(), ga, gb)
         };
         assert_eq!(run(true), run(false));
+    }
+
+    /// A `backward()` finishing on another thread while a training step builds its graph leaves
+    /// the step's gradients bit-identical. Threads that train in one process (the replicas of a
+    /// data-parallel run, tests) do this all the time; with Burn's concatenation unguarded, the
+    /// flow branch of the motion encoder lost its gradient in 19 of 20 runs of this test.
+    #[test]
+    fn a_concurrent_backward_leaves_a_step_unchanged() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+
+        use crate::{CREStereoConfig, CpuAutodiffBackend, sequence_loss};
+        type A = CpuAutodiffBackend;
+        let device = Default::default();
+        let model = CREStereoConfig::new().init::<A>(&device);
+        let step = || {
+            let (n, h, w) = (1, 32, 64);
+            let image = |salt: usize| {
+                let v: Vec<f32> = (0..n * 3 * h * w)
+                    .map(|i| (((i * 7919 + salt * 104_729) % 2003) as f32) * 0.1)
+                    .collect();
+                Tensor::<A, 1>::from_floats(v.as_slice(), &device).reshape([n, 3, h, w])
+            };
+            let d: Vec<f32> = (0..n * h * w).map(|i| (i % 37) as f32 * 0.5).collect();
+            let disp = Tensor::<A, 1>::from_floats(d.as_slice(), &device).reshape([n, h, w]);
+            let valid = Tensor::<A, 3>::ones([n, h, w], &device);
+            let preds = model.forward(image(1), image(2), 2, None);
+            let grads = sequence_loss(&preds, disp, valid, 0.9).backward();
+            crate::weights::named_gradients(&model, &grads)
+        };
+        // The model's parameters have been through a backward once: as in the second
+        // micro-batch of an accumulated step, their first use starts a graph of its own.
+        let quiet = step();
+        let stop = AtomicBool::new(false);
+        let differ = std::thread::scope(|s| {
+            s.spawn(|| {
+                let x = Tensor::<A, 1>::from_floats([1.0, 2.0, 3.0], &device).require_grad();
+                while !stop.load(Ordering::Relaxed) {
+                    let _ = (x.clone() * 2.0).sum().backward();
+                }
+            });
+            let mut differ = Vec::new();
+            for _ in 0..3 {
+                for (a, b) in quiet.iter().zip(step()) {
+                    let same = a
+                        .data
+                        .iter()
+                        .zip(&b.data)
+                        .all(|(x, y)| x.to_bits() == y.to_bits());
+                    if !same && !differ.contains(&a.name) {
+                        differ.push(a.name.clone());
+                    }
+                }
+            }
+            stop.store(true, Ordering::Relaxed);
+            differ
+        });
+        assert!(
+            differ.is_empty(),
+            "gradients changed by a backward on another thread: {differ:?}"
+        );
     }
 }

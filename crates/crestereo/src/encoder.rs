@@ -146,7 +146,7 @@ impl<B: Backend> BasicEncoder<B> {
         right: Tensor<B, 4>,
     ) -> (Tensor<B, 4>, Tensor<B, 4>) {
         let n = left.dims()[0];
-        let out = self.forward(Tensor::cat(vec![left, right], 0));
+        let out = self.forward(crate::channels::cat(vec![left, right], 0));
         let [_, c, h, w] = out.dims();
         (
             out.clone().slice([0..n, 0..c, 0..h, 0..w]),

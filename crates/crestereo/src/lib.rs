@@ -59,6 +59,7 @@ mod weights_mpk;
 pub use attention::{
     LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig,
 };
+pub use channels::cat;
 pub use corr::{AdaptiveGroupCorrelation, AdaptiveGroupCorrelationConfig, SearchWindow};
 pub use encoder::{BasicEncoder, BasicEncoderConfig, ResidualBlock, ResidualBlockConfig};
 pub use gru::{SepConvGru, SepConvGruConfig};

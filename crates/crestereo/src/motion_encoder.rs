@@ -41,8 +41,8 @@ impl<B: Backend> BasicMotionEncoder<B> {
         let cor = relu(self.convc2.forward(cor));
         let flo = relu(self.convf1.forward(flow.clone()));
         let flo = relu(self.convf2.forward(flo));
-        let out = relu(self.conv.forward(Tensor::cat(vec![cor, flo], 1)));
-        Tensor::cat(vec![out, flow], 1)
+        let out = relu(self.conv.forward(crate::channels::cat(vec![cor, flo], 1)));
+        crate::channels::cat(vec![out, flow], 1)
     }
 }
 

@@ -56,7 +56,7 @@ pub fn flatten_gradients<B: AutodiffBackend, M: AutodiffModule<B>>(
         device: device.clone(),
     };
     model.visit(&mut take);
-    Tensor::cat(take.parts, 0)
+    crestereo::cat(take.parts, 0)
 }
 
 /// The inverse of [`flatten_gradients`]: `flat` cut into `model`'s parameters' gradients.
@@ -98,7 +98,7 @@ pub fn flatten_parameters<B: Backend, M: Module<B>>(module: &M) -> Tensor<B, 1> 
     }
     let mut gather = Gather(Vec::new());
     module.visit(&mut gather);
-    Tensor::cat(gather.0, 0)
+    crestereo::cat(gather.0, 0)
 }
 
 /// `module` with its float parameters replaced by the slices of `flat` (same layout as

@@ -80,7 +80,7 @@ impl<B: AutodiffBackend> Replica<B> {
         let stats = Tensor::<B::InnerBackend, 1>::from_floats(stats.as_slice(), &inner);
         let summed = self
             .collective
-            .sum(Tensor::cat(vec![send, stats], 0), "the step's gradients")?;
+            .sum(crestereo::cat(vec![send, stats], 0), "the step's gradients")?;
         let stats: Vec<f32> = summed
             .clone()
             .slice(params..params + stats_len)

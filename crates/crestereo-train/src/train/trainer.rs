@@ -445,7 +445,7 @@ fn loss_and_error<B: Backend>(
         .reshape([n, h, w]);
     let err = ((d - disp.clone()).abs() * valid.clone()).sum();
     let count = valid.clone().sum();
-    let figures = Tensor::cat(vec![loss.clone().reshape([1]), err, count], 0)
+    let figures = crestereo::cat(vec![loss.clone().reshape([1]), err, count], 0)
         .into_data()
         .convert::<f64>()
         .into_vec::<f64>()

@@ -128,7 +128,7 @@ fn pad_edge<B: Backend>(x: Tensor<B, 4>, rx: usize, ry: usize) -> Tensor<B, 4> {
         let last = x.dims()[dim] - 1;
         let first = x.clone().narrow(dim, 0, 1).repeat_dim(dim, r);
         let end = x.clone().narrow(dim, last, 1).repeat_dim(dim, r);
-        Tensor::cat(vec![first, x, end], dim)
+        crate::channels::cat(vec![first, x, end], dim)
     };
     pad(pad(x, 3, rx), 2, ry)
 }
@@ -154,5 +154,5 @@ pub fn shift_corr<B: Backend>(
                 .mean_dim(2)
         })
         .collect();
-    Tensor::cat(corrs, 2).reshape([n, g * spec.candidates(), h, w])
+    crate::channels::cat(corrs, 2).reshape([n, g * spec.candidates(), h, w])
 }

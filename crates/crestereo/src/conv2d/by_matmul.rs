@@ -17,13 +17,13 @@ fn pad_zeros<B: Backend>(x: Tensor<B, 4>, [ph, pw]: [usize; 2]) -> Tensor<B, 4> 
     let (device, dtype) = (x.device(), x.dtype());
     let x = if pw > 0 {
         let col = Tensor::zeros([n, c, h, pw], (&device, dtype));
-        Tensor::cat(vec![col.clone(), x, col], 3)
+        crate::channels::cat(vec![col.clone(), x, col], 3)
     } else {
         x
     };
     if ph > 0 {
         let row = Tensor::zeros([n, c, ph, w + 2 * pw], (&device, dtype));
-        Tensor::cat(vec![row.clone(), x, row], 2)
+        crate::channels::cat(vec![row.clone(), x, row], 2)
     } else {
         x
     }
@@ -55,7 +55,7 @@ pub(crate) fn conv2d_by_matmul<B: Backend>(
                     .slice([0..n, 0..cin, oy..oy + ho, ox..ox + wo])
             })
             .collect();
-        Tensor::cat(taps, 1)
+        crate::channels::cat(taps, 1)
     };
     let k = cin * kh * kw;
     let weight = weight

@@ -91,19 +91,19 @@ pub fn forward_stacked<B: Backend>(convs: &[&Conv2d<B>], x: Tensor<B, 4>) -> Ten
             && c.bias.is_some() == first.bias.is_some()
     });
     if convs.len() == 1 || !same_geometry {
-        return Tensor::cat(convs.iter().map(|c| c.forward(x.clone())).collect(), 1);
+        return crate::channels::cat(convs.iter().map(|c| c.forward(x.clone())).collect(), 1);
     }
     let stacked = Conv2d {
         // `Param::initialized`, not `from_tensor`: the stacked tensors stay in the autodiff graph
         // of the parameters they are made of (from_tensor would mark them as new leaves).
         weight: Param::initialized(
             ParamId::new(),
-            Tensor::cat(convs.iter().map(|c| c.weight.val()).collect(), 0),
+            crate::channels::cat(convs.iter().map(|c| c.weight.val()).collect(), 0),
         ),
         bias: first.bias.as_ref().map(|_| {
             Param::initialized(
                 ParamId::new(),
-                Tensor::cat(
+                crate::channels::cat(
                     convs
                         .iter()
                         .map(|c| c.bias.as_ref().expect("checked above").val())

@@ -230,7 +230,7 @@ fn stacked_convolutions_match_separate_ones() {
     let x = Tensor::<Ad, 4>::random([2, 16, 5, 7], Distribution::Normal(0.0, 1.0), &device)
         .require_grad();
     let stacked = forward_stacked(&[&a, &b], x.clone());
-    let separate = Tensor::cat(
+    let separate = crate::channels::cat(
         vec![a.forward_composed(x.clone()), b.forward_composed(x.clone())],
         1,
     );

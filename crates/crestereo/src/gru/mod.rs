@@ -101,7 +101,7 @@ fn composed_gates<B: Backend>(
     let zr = sigmoid(zr);
     let z = zr.clone().narrow(1, 0, hidden);
     let r = zr.narrow(1, hidden, hidden);
-    let q = tanh(cq.forward(Tensor::cat(vec![r * h.clone(), x], 1)));
+    let q = tanh(cq.forward(crate::channels::cat(vec![r * h.clone(), x], 1)));
     // (1 - z) * h + z * q
     (z.clone().neg().add_scalar(1.0)) * h + z * q
 }

@@ -96,8 +96,8 @@ fn pad_zeros<B: Backend>(x: Tensor<B, 4>) -> Tensor<B, 4> {
     let [n, c, h, w] = x.dims();
     let zeros = |shape: [usize; 4]| Tensor::zeros(shape, (&x.device(), x.dtype()));
     let (col, row) = (zeros([n, c, h, 1]), zeros([n, c, 1, w + 2]));
-    let x = Tensor::cat(vec![col.clone(), x, col], 3);
-    Tensor::cat(vec![row.clone(), x, row], 2)
+    let x = crate::channels::cat(vec![col.clone(), x, col], 3);
+    crate::channels::cat(vec![row.clone(), x, row], 2)
 }
 
 /// [`convex_upsample`] composed from tensor ops (any backend).
@@ -122,7 +122,7 @@ pub fn composed_convex_upsample<B: Backend>(
                 .reshape([n, c, 1, hw])
         })
         .collect();
-    let unfolded = Tensor::cat(neighbours, 2); // (n, c, 9, h·w)
+    let unfolded = crate::channels::cat(neighbours, 2); // (n, c, 9, h·w)
     let up = (mask.reshape([n, 1, 9, rr, hw]) * unfolded.reshape([n, c, 9, 1, hw])).sum_dim(2);
     // (n·c, ry, rx, y, x) → (n·c, y, ry, x, rx): sub-pixels interleaved into the full grid
     up.reshape([n * c, rate, rate, h, w])

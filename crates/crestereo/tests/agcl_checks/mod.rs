@@ -27,7 +27,7 @@ pub fn reference_sample_points<B: Backend>(
     let [n, c, h, w] = img.dims();
     let [_, p] = x.dims();
     let device = img.device();
-    let table = Tensor::cat(
+    let table = crestereo::cat(
         vec![
             img.permute([0, 2, 3, 1]).reshape([n * h * w, c]),
             Tensor::zeros([1, c], &device),
@@ -80,7 +80,7 @@ pub fn reference_sample_points<B: Backend>(
     let wy1 = y - y0;
     let wx0 = wx1.clone().neg().add_scalar(1.0);
     let wy0 = wy1.clone().neg().add_scalar(1.0);
-    let weights = Tensor::stack::<3>(
+    let weights = crestereo::cat(
         vec![
             wx0.clone() * wy0.clone(),
             wx1.clone() * wy0,
@@ -174,7 +174,7 @@ fn reference_shift_corr<B: Backend>(
         let prod = (left.clone() * crop).reshape([n, g, c / g, h, w]);
         corrs.push(prod.mean_dim(2));
     }
-    Tensor::cat(corrs, 2).reshape([n, g * window.offsets().len(), h, w])
+    crestereo::cat(corrs, 2).reshape([n, g * window.offsets().len(), h, w])
 }
 
 fn values<B: Backend, const D: usize>(t: Tensor<B, D>) -> Vec<f32> {
