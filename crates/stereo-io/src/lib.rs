@@ -30,6 +30,7 @@ pub mod png_disp;
 pub mod pth;
 
 pub use atomic::{is_temp_name, temp_sibling, write_atomically, write_bytes_atomically};
+pub use datasets::export::create_writer;
 pub use datasets::export::{ExportOptions, SampleSelection, export_dataset, export_selected};
 pub use datasets::middlebury::MiddleburyVariant;
 pub use datasets::stereogen::{
@@ -40,9 +41,7 @@ pub use datasets::webdataset::{
     WebDataset, WebDatasetOptions, WebDatasetSummary, export_webdataset,
     export_webdataset_selected, parse_splits,
 };
-pub use datasets::write::{
-    DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, create_writer,
-};
+pub use datasets::write::{DatasetWriter, ImageEncoding, WritableFormat, WriteSummary};
 pub use datasets::{
     DatasetFormat, ReadOptions, SampleMeta, StereoDataset, StereoSample, detect_format,
     open_dataset, open_dataset_with,

@@ -1,9 +1,20 @@
 //! Converting a dataset: any layout [`open_dataset`] reads, written in a layout that has a
-//! writer, with an index of where each sample came from.
+//! writer, with an index of where each sample came from; and [`create_writer`], the writer of
+//! each layout:
+//!
+//! | layout | writer | files of one sample |
+//! | --- | --- | --- |
+//! | `crestereo` | [`CrestereoWriter`] | `<category>/<name>_left.jpg`, `_right.jpg` (real JPEG), `_left.disp.png`, `_right.disp.png` (d·32) |
+//! | `kitti2012` | [`KittiWriter`] | `training/colored_0/NNNNNN_10.png`, `colored_1/`, `disp_occ/`, `disp_noc/` (d·256) |
+//! | `kitti2015` | [`KittiWriter`] | `training/image_2/NNNNNN_10.png`, `image_3/`, `disp_occ_0/`, `disp_noc_0/` (d·256) |
+//! | `middlebury` | [`MiddleburyWriter`] | `Middlebury2014/train/<name>-perfect/im0.png`, `im1.png`, `disp0.pfm`, `disp1.pfm`, `calib.txt` |
 
 use std::path::Path;
 
-use super::write::{ImageEncoding, WritableFormat, WriteSummary, create_writer};
+use super::crestereo::CrestereoWriter;
+use super::kitti::{KITTI_2012, KITTI_2015, KittiWriter};
+use super::middlebury::MiddleburyWriter;
+use super::write::{DatasetWriter, ImageEncoding, WritableFormat, WriteSummary, mkdir};
 use super::{DatasetFormat, ReadOptions, SampleMeta, open_dataset_with};
 use crate::error::{Error, Result};
 
@@ -133,6 +144,37 @@ pub fn export_selected(
     Ok(writer.summary().clone())
 }
 
+/// A writer of `format` creating its files under `root`.
+pub fn create_writer(
+    format: WritableFormat,
+    root: &Path,
+    images: ImageEncoding,
+) -> Result<Box<dyn DatasetWriter>> {
+    if let Some(jpeg) = images.jpeg_options() {
+        if format != WritableFormat::Crestereo {
+            return Err(Error::format(
+                root,
+                format!(
+                    "the {format} layout stores PNG images; JPEG quality applies to crestereo only"
+                ),
+            ));
+        }
+        if !(1..=100).contains(&jpeg.quality) {
+            return Err(Error::format(
+                root,
+                format!("JPEG quality {} is outside 1..=100", jpeg.quality),
+            ));
+        }
+    }
+    mkdir(root)?;
+    Ok(match format {
+        WritableFormat::Crestereo => Box::new(CrestereoWriter::new(root, images)?),
+        WritableFormat::Kitti2012 => Box::new(KittiWriter::new(root, KITTI_2012)),
+        WritableFormat::Kitti2015 => Box::new(KittiWriter::new(root, KITTI_2015)),
+        WritableFormat::Middlebury => Box::new(MiddleburyWriter::new(root)),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -160,6 +202,28 @@ mod tests {
         assert_eq!(
             export_name(DatasetFormat::Middlebury, &meta),
             "trainingF_Adirondack"
+        );
+    }
+
+    #[test]
+    fn jpeg_quality_is_for_crestereo_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = create_writer(
+            WritableFormat::Kitti2015,
+            dir.path(),
+            ImageEncoding::Jpeg(90),
+        )
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(e.contains("crestereo only"), "{e}");
+        assert!(
+            create_writer(
+                WritableFormat::Crestereo,
+                dir.path(),
+                ImageEncoding::Jpeg(0)
+            )
+            .is_err()
         );
     }
 }

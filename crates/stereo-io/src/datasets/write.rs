@@ -1,12 +1,7 @@
-//! Writing samples in another trainer's layout: a [`DatasetWriter`] per layout (each beside its
-//! reader, sharing its file names), and what they have in common.
-//!
-//! | layout | writer | files of one sample |
-//! | --- | --- | --- |
-//! | `crestereo` | [`CrestereoWriter`](super::crestereo::CrestereoWriter) | `<category>/<name>_left.jpg`, `_right.jpg` (real JPEG), `_left.disp.png`, `_right.disp.png` (d·32) |
-//! | `kitti2012` | [`KittiWriter`](super::kitti::KittiWriter) | `training/colored_0/NNNNNN_10.png`, `colored_1/`, `disp_occ/`, `disp_noc/` (d·256) |
-//! | `kitti2015` | [`KittiWriter`](super::kitti::KittiWriter) | `training/image_2/NNNNNN_10.png`, `image_3/`, `disp_occ_0/`, `disp_noc_0/` (d·256) |
-//! | `middlebury` | [`MiddleburyWriter`](super::middlebury::MiddleburyWriter) | `Middlebury2014/train/<name>-perfect/im0.png`, `im1.png`, `disp0.pfm`, `disp1.pfm`, `calib.txt` |
+//! Writing samples in another trainer's layout: what the writers have in common — the
+//! [`DatasetWriter`] trait each layout's writer implements (beside its reader, sharing its file
+//! names), the image encoding, the summary, and the file placement. Which writer a layout gets
+//! is decided one floor up, in [`create_writer`](super::export::create_writer).
 //!
 //! Our own layout is written by the generator (it renders; it does not convert).
 //!
@@ -170,45 +165,6 @@ impl FromStr for WritableFormat {
                 )
             })
     }
-}
-
-/// A writer of `format` creating its files under `root`.
-pub fn create_writer(
-    format: WritableFormat,
-    root: &Path,
-    images: ImageEncoding,
-) -> Result<Box<dyn DatasetWriter>> {
-    if let Some(jpeg) = images.jpeg_options() {
-        if format != WritableFormat::Crestereo {
-            return Err(Error::format(
-                root,
-                format!(
-                    "the {format} layout stores PNG images; JPEG quality applies to crestereo only"
-                ),
-            ));
-        }
-        if !(1..=100).contains(&jpeg.quality) {
-            return Err(Error::format(
-                root,
-                format!("JPEG quality {} is outside 1..=100", jpeg.quality),
-            ));
-        }
-    }
-    mkdir(root)?;
-    Ok(match format {
-        WritableFormat::Crestereo => {
-            Box::new(super::crestereo::CrestereoWriter::new(root, images)?)
-        }
-        WritableFormat::Kitti2012 => Box::new(super::kitti::KittiWriter::new(
-            root,
-            super::kitti::KITTI_2012,
-        )),
-        WritableFormat::Kitti2015 => Box::new(super::kitti::KittiWriter::new(
-            root,
-            super::kitti::KITTI_2015,
-        )),
-        WritableFormat::Middlebury => Box::new(super::middlebury::MiddleburyWriter::new(root)),
-    })
 }
 
 pub(crate) fn mkdir(dir: &Path) -> Result<()> {
@@ -431,27 +387,5 @@ mod tests {
         let (out, dropped) = representable(&map, 256.0);
         assert_eq!(dropped, 2);
         assert_eq!(out.valid, vec![true, false, false, false]);
-    }
-
-    #[test]
-    fn jpeg_quality_is_for_crestereo_only() {
-        let dir = tempfile::tempdir().unwrap();
-        let e = create_writer(
-            WritableFormat::Kitti2015,
-            dir.path(),
-            ImageEncoding::Jpeg(90),
-        )
-        .err()
-        .unwrap()
-        .to_string();
-        assert!(e.contains("crestereo only"), "{e}");
-        assert!(
-            create_writer(
-                WritableFormat::Crestereo,
-                dir.path(),
-                ImageEncoding::Jpeg(0)
-            )
-            .is_err()
-        );
     }
 }
