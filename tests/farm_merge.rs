@@ -8,12 +8,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use crestereo::CpuAutodiffBackend;
-use crestereo_train::config::{DatasetEntry, TrainConfig};
-use crestereo_train::train::{TrainOptions, train};
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen_e2e::{
-    audit_cmd, export_cmd, generate_cmd, output_text as text, stats_cmd, stereogen_cmd,
+    audit_cmd, crestereo_bin, export_cmd, generate_cmd, output_text as text, stats_cmd, stereogen_cmd,
     write_tiny_recipe,
 };
 
@@ -66,37 +63,58 @@ fn problems(o: &Output) -> Vec<String> {
         .collect()
 }
 
-/// `crestereo train` on a merged dataset: the library call the CLI makes, two steps on 32×48
-/// crops of the 64×48 samples, every sample drawn once.
+/// `crestereo train` on a merged dataset: two steps on 32×48 crops of the 64×48 samples, every
+/// sample drawn once; both losses finite (a non-finite one would have skipped its step).
 fn train_two_steps_on(data: &Path, run: &Path) {
-    let mut cfg = TrainConfig {
-        datasets: vec![DatasetEntry {
-            path: data.to_path_buf(),
-            format: None,
-            weight: 1.0,
-            splits: None,
-        }],
-        steps: 2,
-        batch_size: 2,
-        accumulate: 1,
-        iters: 2,
-        ..TrainConfig::default()
-    };
-    cfg.augment.crop = [32, 48];
-    cfg.schedule.warmup_steps = 1;
-    cfg.schedule.decay_start = 1;
-    cfg.loader.workers = 2;
-    let opts = TrainOptions {
-        progress: false,
-        ..TrainOptions::default()
-    };
-    let done = train::<CpuAutodiffBackend>(&cfg, run, &opts, &Default::default())
-        .expect("crestereo train on the merged dataset");
-    assert_eq!(done.step, 2);
+    let cfg = run.with_extension("toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            r#"steps = 2
+batch_size = 2
+accumulate = 1
+iters = 2
+
+[[datasets]]
+path = "{}"
+
+[augment]
+crop = [32, 48]
+
+[schedule]
+warmup_steps = 1
+decay_start = 1
+
+[loader]
+workers = 2
+
+[checkpoint]
+every = 2
+"#,
+            data.display()
+        ),
+    )
+    .unwrap();
+    let o = Command::new(crestereo_bin())
+        .args(["train", "--no-progress", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(run)
+        .env("CRESTEREO_LOG", "warn")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
     assert!(
-        done.last_loss.is_some_and(f64::is_finite) && done.skipped_steps == 0,
-        "{done:?}"
+        o.status.success(),
+        "crestereo train on the merged dataset:\n{}",
+        text(&o)
     );
+    let state: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run.join("checkpoints/step-00000002/state.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(state["step"], 2, "{state}");
+    assert_eq!(state["skipped_steps"], 0, "{state}");
 }
 
 #[test]

@@ -38,7 +38,7 @@ const PAGES: &[(&str, &str)] = &[
 /// Blocks run elsewhere: marker name, and the test file that finds the marker.
 const RUN_ELSEWHERE: &[(&str, &str)] = &[(
     "onnx-snippet",
-    "crates/crestereo-train/tests/export_onnx.rs",
+    "crates/crestereo-train/tests/integration/export_onnx.rs",
 )];
 
 const COMMAND_LANGUAGES: &[&str] = &["sh", "bash", "shell", "console", "python", "py"];

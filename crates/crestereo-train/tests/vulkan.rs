@@ -31,7 +31,7 @@ use burn::backend::{Autodiff, Wgpu};
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use common::network_checks;
-use crestereo::dispatch::{Kernels, kernels};
+use crestereo::ops::dispatch::{Kernels, kernels};
 use crestereo_train::host_reads::{HostReadCounter, count as reads};
 
 type W = Wgpu;
@@ -218,7 +218,7 @@ fn training_steps_lower_the_loss_without_host_reads() {
 /// `crestereo infer --device vulkan`, as a user runs it (the default wgpu device, pointed at
 /// lavapipe with CUBECL_WGPU_DEFAULT_DEVICE=Cpu), against `crestereo infer --device cpu` on the
 /// fixture pair, both two-pass with 4 iterations (the Flex CLI is checked against the
-/// reference's 20-iteration prediction in `tests/cli.rs`, and the network on lavapipe against
+/// reference's 20-iteration prediction in `tests/integration/cli.rs`, and the network on lavapipe against
 /// the fixtures above; 4 iterations keep lavapipe's share of CI small). The Vulkan run is made
 /// twice with one kernel cache (`CRESTEREO_KERNEL_CACHE`): the first compiles, the second
 /// compiles nothing (CubeCL's compilation log counts the compilations) and gives the same bits.

@@ -4,7 +4,7 @@
         --threads 2 --repeats 3
 
 Run it with a Python that has onnxruntime, onnx and numpy (the test venv of
-tests/export_onnx.rs has them). Exports the graph once (two-pass cascade, 20 iterations), then
+crates/crestereo-train/tests/integration/export_onnx.rs has them). Exports the graph once (two-pass cascade, 20 iterations), then
 alternates, `--repeats` times, one `crestereo bench --what infer` process (the first inference
 after the model is made, as a user's `crestereo infer` runs it) and one onnxruntime process
 (`onnx_run.py --time`: the first run after the session is made, then the median of 3 more).

@@ -1,10 +1,10 @@
 //! One convolution of the shapes the network runs, forward and backward on `Autodiff<Flex>`
-//! and the inference forward on `Flex`, through `crestereo::conv2d`, next to a plain matrix
+//! and the inference forward on `Flex`, through `crestereo::ops::conv2d`, next to a plain matrix
 //! product with the same FLOPs (the rate the GEMM kernel reaches on this machine): how far a
 //! convolution is from its GEMM.
 //!
 //! ```sh
-//! cargo run --release -p crestereo --example conv_micro -- 2 384 96 128 128 1x5 5
+//! cargo run --release -p crestereo --features examples --example conv_micro -- 2 384 96 128 128 1x5 5
 //! #                                                      N Cin  H   W Cout kernel repeats
 //! ```
 
@@ -14,7 +14,7 @@ use burn::module::AutodiffModule;
 use burn::nn::PaddingConfig2d;
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use crestereo::conv2d::Conv2dConfig;
+use crestereo::ops::conv2d::Conv2dConfig;
 use crestereo::{CpuAutodiffBackend, CpuBackend};
 
 type A = CpuAutodiffBackend;

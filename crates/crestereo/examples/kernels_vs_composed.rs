@@ -7,16 +7,16 @@
 //! on `Autodiff<Flex>`.
 //!
 //! ```sh
-//! cargo run --release -p crestereo --example kernels_vs_composed [-- REPEATS]
+//! cargo run --release -p crestereo --features examples --example kernels_vs_composed [-- REPEATS]
 //! ```
 
 use std::time::Instant;
 
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use crestereo::agcl::{self, CorrSpec};
-use crestereo::conv2d::Conv2dConfig;
-use crestereo::dispatch::use_composed_ops;
+use crestereo::ops::agcl::{self, CorrSpec};
+use crestereo::ops::conv2d::Conv2dConfig;
+use crestereo::ops::dispatch::use_composed_ops;
 use crestereo::{
     CpuAutodiffBackend, CpuBackend, SearchWindow, SepConvGru, SepConvGruConfig, convex_upsample,
 };

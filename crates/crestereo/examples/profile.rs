@@ -6,8 +6,8 @@
 //! groups cover. Flex runs eagerly, so wall-clock timers around the calls are exact.
 //!
 //! ```sh
-//! cargo run --release -p crestereo --example profile -- train 1 192 256 4
-//! cargo run --release -p crestereo --example profile -- infer 256 320 20
+//! cargo run --release -p crestereo --features examples --example profile -- train 1 192 256 4
+//! cargo run --release -p crestereo --features examples --example profile -- infer 256 320 20
 //! ```
 //!
 //! `PROFILE_CLOCK=cpu` measures process CPU time instead of wall time (use it with
@@ -18,8 +18,8 @@ use std::time::Instant;
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use crestereo::attention::to_tokens;
-use crestereo::encoder::instance_norm;
+use crestereo::network::attention::to_tokens;
+use crestereo::network::encoder::instance_norm;
 use crestereo::{
     AdaptiveGroupCorrelationConfig, CREStereo, CREStereoConfig, CpuAutodiffBackend, CpuBackend,
     SearchWindow, convex_upsample, resize_bilinear_align_corners, sequence_loss,

@@ -6,8 +6,8 @@ use burn::tensor::ops::PadMode;
 use stereo_io::DisparityMap;
 
 use crate::input::BgrImage;
-use crate::model::CREStereo;
-use crate::upsample::{emit_resize_bilinear_align_corners, resize_bilinear_align_corners};
+use crate::network::model::CREStereo;
+use crate::ops::upsample::{emit_resize_bilinear_align_corners, resize_bilinear_align_corners};
 
 #[derive(Debug, Clone, Copy)]
 pub struct InferenceOptions {
@@ -144,14 +144,14 @@ pub fn cascade<B: Backend>(
 /// [`cascade`] as ONNX nodes: the same stages, resizes and hand-overs.
 pub fn emit_cascade<B: Backend>(
     model: &CREStereo<B>,
-    g: &mut crate::onnx::Graph,
-    left: &crate::onnx::Value,
-    right: &crate::onnx::Value,
+    g: &mut crate::export::onnx::Graph,
+    left: &crate::export::onnx::Value,
+    right: &crate::export::onnx::Value,
     opts: InferenceOptions,
-) -> crate::onnx::Value {
+) -> crate::export::onnx::Value {
     assert!(opts.stages >= 1 && opts.iters >= 1);
     let [_, _, h, w] = left.dims();
-    let mut flow: Option<crate::onnx::Value> = None;
+    let mut flow: Option<crate::export::onnx::Value> = None;
     for s in 0..opts.stages {
         let f = 1usize << (opts.stages - 1 - s);
         let (l, r) = if f == 1 {

@@ -29,50 +29,35 @@
 //! predictions (N, 2, H, W), channel 0 = disparity; [`sequence_loss`] is the reference loss.
 //! [`CREStereo::forward_observed`] shows the intermediates to a [`ForwardObserver`].
 
-pub mod agcl;
-pub mod attention;
-mod channels;
-pub mod conv2d;
-pub mod corr;
-pub mod dispatch;
-pub mod encoder;
+// The crate in floors: `ops` (the kernels, their dispatch and composed fallbacks) at the bottom,
+// `network` (the modules, read top-down like the reference: encoder, attention, correlation,
+// update, refinement, model) on it, `export` (the ONNX graph builder and the exporter) and
+// `weights` above, `infer` (the cascade driver) on top.
 pub mod export;
-pub mod gru;
 pub mod infer;
 pub mod input;
-mod level;
 pub mod loss;
-pub mod model;
-pub mod motion_encoder;
-mod norm;
-pub mod observer;
-pub mod onnx;
-pub mod position_encoding;
-pub mod refine;
-pub mod simd;
-pub mod threads;
-pub mod update;
-pub mod upsample;
+pub mod network;
+pub mod ops;
 pub mod weights;
-mod weights_mpk;
 
-pub use attention::{
-    LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig,
-};
-pub use channels::cat;
-pub use corr::{AdaptiveGroupCorrelation, AdaptiveGroupCorrelationConfig, SearchWindow};
-pub use encoder::{BasicEncoder, BasicEncoderConfig, ResidualBlock, ResidualBlockConfig};
-pub use gru::{SepConvGru, SepConvGruConfig};
 pub use infer::{InferenceOptions, infer_disparity};
 pub use input::BgrImage;
 pub use loss::sequence_loss;
-pub use model::{CREStereo, CREStereoConfig};
-pub use motion_encoder::{BasicMotionEncoder, BasicMotionEncoderConfig};
-pub use observer::{ForwardObserver, IterationOutputs, NoObserver};
-pub use position_encoding::{PositionEncodingSine, PositionEncodingSineConfig};
-pub use refine::Level;
-pub use update::{UpdateBlock, UpdateBlockConfig};
-pub use upsample::{convex_upsample, resize_bilinear_align_corners};
+pub use network::attention::{
+    LinearAttention, LinearAttentionConfig, LoFTREncoderLayer, LoFTREncoderLayerConfig,
+};
+pub use network::corr::{AdaptiveGroupCorrelation, AdaptiveGroupCorrelationConfig, SearchWindow};
+pub use network::encoder::{BasicEncoder, BasicEncoderConfig, ResidualBlock, ResidualBlockConfig};
+pub use network::gru::{SepConvGru, SepConvGruConfig};
+pub use network::model::{CREStereo, CREStereoConfig};
+pub use network::motion_encoder::{BasicMotionEncoder, BasicMotionEncoderConfig};
+pub use network::observer::{ForwardObserver, IterationOutputs, NoObserver};
+pub use network::position_encoding::{PositionEncodingSine, PositionEncodingSineConfig};
+pub use network::refine::Level;
+pub use network::update::{UpdateBlock, UpdateBlockConfig};
+pub use ops::channels::cat;
+pub use ops::upsample::{convex_upsample, resize_bilinear_align_corners};
 
 // The backends the network's kernels are written for, named here once for every crate that picks
 // one: a type spelt out elsewhere that drifted from these would run the composed ops silently.
@@ -81,12 +66,12 @@ pub type CpuBackend = burn::backend::Flex;
 /// The CPU backend with autodiff (training).
 pub type CpuAutodiffBackend = burn::backend::Autodiff<burn::backend::Flex>;
 #[cfg(feature = "cuda")]
-pub use dispatch::CudaBackend;
+pub use ops::dispatch::CudaBackend;
 /// The CUDA backend with autodiff (training).
 #[cfg(feature = "cuda")]
 pub type CudaAutodiffBackend = burn::backend::Autodiff<CudaBackend>;
 #[cfg(feature = "wgpu")]
-pub use dispatch::WgpuBackend;
+pub use ops::dispatch::WgpuBackend;
 /// The wgpu backend with autodiff (training).
 #[cfg(feature = "wgpu")]
 pub type WgpuAutodiffBackend = burn::backend::Autodiff<WgpuBackend>;

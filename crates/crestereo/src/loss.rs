@@ -13,7 +13,7 @@ pub fn sequence_loss<B: Backend>(
     gamma: f64,
 ) -> Tensor<B, 1> {
     let [n, h, w] = disp.dims();
-    let gt = crate::channels::cat(
+    let gt = crate::ops::channels::cat(
         vec![
             disp.clone().reshape([n, 1, h, w]),
             Tensor::zeros([n, 1, h, w], (&disp.device(), disp.dtype())),

@@ -9,7 +9,7 @@ mod common;
 
 use agcl_checks::TestDevice;
 use common::network_checks;
-use crestereo::dispatch::{Kernels, kernels, use_composed_ops};
+use crestereo::ops::dispatch::{Kernels, kernels, use_composed_ops};
 use crestereo::{CpuAutodiffBackend, CpuBackend};
 
 type B = CpuBackend;

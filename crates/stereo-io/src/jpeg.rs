@@ -6,7 +6,8 @@
 //! crate builds libjpeg-turbo's fork from vendored C with `cc` (no nasm, no cmake) and its decoder
 //! is libjpeg-turbo's: the accurate integer IDCT (`JDCT_ISLOW`) and "fancy" (triangle-filter)
 //! chroma upsampling, both libjpeg's defaults and what PIL and OpenCV use. The measurements are
-//! in the stereo-io README section on formats and in `tests/jpeg_conformance.rs`.
+//! in the stereo-io README section on formats and in `tests/integration/conformance.rs` (OpenCV
+//! and Pillow decode our JPEGs; we decode OpenCV's).
 //!
 //! Errors: libjpeg's fatal errors become an error naming the file; of its warnings, a file that
 //! ends before its image data does is an error too (its missing rows would be made up), while

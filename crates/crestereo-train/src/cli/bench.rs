@@ -35,9 +35,9 @@ pub fn cpu_line() -> String {
         .unwrap_or_else(|| "unknown CPU".into());
     format!(
         "cpu: {model}; kernels {} (best here {}), gemm {}",
-        crestereo::simd::isa().name(),
-        crestereo::simd::Isa::best().name(),
-        crestereo::simd::gemm_isa()
+        crestereo::ops::simd::isa().name(),
+        crestereo::ops::simd::Isa::best().name(),
+        crestereo::ops::simd::gemm_isa()
     )
 }
 

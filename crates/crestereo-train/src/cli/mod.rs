@@ -401,13 +401,13 @@ pub fn main() -> ExitCode {
         tracing::debug!("GPU kernel cache: {}", dir.display());
     }
     // A bad CRESTEREO_ISA is a clear error here rather than a panic inside the first kernel.
-    if let Err(e) = crestereo::simd::isa_from_env() {
+    if let Err(e) = crestereo::ops::simd::isa_from_env() {
         eprintln!("error: {e}");
         return ExitCode::FAILURE;
     }
     set_threads(cli.command.threads());
     // The whole command on a pool thread: each kernel then starts without a cold hand-over.
-    match crestereo::threads::on_pool(|| run(cli, cache)) {
+    match crestereo::ops::threads::on_pool(|| run(cli, cache)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e)
             if e.downcast_ref::<crestereo_train::interrupt::Interrupted>()

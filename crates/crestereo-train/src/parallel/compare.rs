@@ -14,7 +14,7 @@ pub struct RunDifference {
     /// Of the logged losses, |a − b| / |a|, largest over the steps both logged.
     pub loss: f64,
     /// Of the weights together, ‖a − b‖₂ / ‖a‖₂, leaving out the biases an instance
-    /// normalisation cancels ([`crestereo::encoder::bias_cancelled_by_instance_norm`]): no
+    /// normalisation cancels ([`crestereo::network::encoder::bias_cancelled_by_instance_norm`]): no
     /// output depends on them, their gradient is rounding noise, and Adam moves them by about
     /// the learning rate either way, in any two runs whose sums round differently.
     pub weight: f64,
@@ -91,7 +91,7 @@ pub fn compare_runs(a: &Path, b: &Path, step: u64) -> Result<RunDifference> {
             bail!("{name} is not finite in one of the runs");
         }
         all = (all.0 + d2, all.1 + n2);
-        if crestereo::encoder::bias_cancelled_by_instance_norm(name) {
+        if crestereo::network::encoder::bias_cancelled_by_instance_norm(name) {
             continue;
         }
         kept = (kept.0 + d2, kept.1 + n2);

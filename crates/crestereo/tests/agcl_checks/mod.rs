@@ -1,4 +1,4 @@
-//! Checks of the AGCL ops on any backend, shared by the Flex tests (`tests/agcl.rs`) and the
+//! Checks of the AGCL ops on any backend, shared by the Flex tests (`tests/integration/agcl.rs`) and the
 //! Vulkan tests (`crestereo-train/tests/vulkan.rs`): the dispatched op (the backend's kernel,
 //! or the composed ops where it has none) and the composed ops of `agcl::composed` against the
 //! historical implementation kept here as the reference (it reads coordinates on the host and
@@ -10,7 +10,7 @@ use burn::prelude::*;
 use burn::tensor::TensorData;
 use burn::tensor::backend::AutodiffBackend;
 use crestereo::SearchWindow;
-use crestereo::agcl::{self, CorrSpec, composed};
+use crestereo::ops::agcl::{self, CorrSpec, composed};
 
 /// The device a test runs a backend on.
 pub trait TestDevice: Backend {

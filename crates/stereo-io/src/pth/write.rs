@@ -156,7 +156,7 @@ impl SerializationId {
 /// The pickle (protocol 2) of the ordered state dict, byte for byte what `torch.save` writes for
 /// an `OrderedDict` of these tensors (its pickler memoizes every string, tuple and object once,
 /// takes globals and repeated strings from the memo, and sets the items 1000 per `SETITEMS`;
-/// `crestereo-train/tests/export_pytorch.rs` compares with `torch.save`).
+/// `crestereo-train/tests/integration/export_pytorch.rs` compares with `torch.save`).
 fn state_dict_pickle(tensors: &[NamedArray]) -> Vec<u8> {
     const BATCH: usize = 1000;
     let mut p = Pickler::default();

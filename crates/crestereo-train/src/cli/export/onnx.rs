@@ -51,7 +51,7 @@ pub fn run(a: &OnnxArgs) -> Result<()> {
         a.output.display(),
         export.bytes.len() as f64 / 1e6,
         export.nodes,
-        crestereo::onnx::OPSET,
+        crestereo::export::onnx::OPSET,
         opts.stages,
         opts.iters,
         t0.elapsed().as_secs_f64()

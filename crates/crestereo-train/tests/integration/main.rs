@@ -1,0 +1,28 @@
+//! The trainer's integration tests, one module per subject, built as one binary (each binary
+//! links Burn and compiles the network again: one instead of eight saves most of the build).
+//! `cargo test -p crestereo-train --test integration training::` runs one module.
+//! `vulkan.rs` stays a binary of its own: it sets the process's autotune level for CubeCL
+//! before the first device opens.
+//!
+//! Helpers shared with other crates' tests are included by path.
+
+#[allow(dead_code)]
+#[path = "../../../stereo-io/tests/support/small_fs.rs"]
+#[macro_use]
+mod small_fs;
+#[allow(dead_code)]
+#[path = "../../../crestereo/tests/common/mod.rs"]
+mod common;
+#[allow(dead_code)]
+#[path = "../../../stereo-io/tests/support/pinned_venv.rs"]
+mod pinned_venv;
+mod short_run;
+
+mod checkpoint_disk_full;
+mod cli;
+mod cli_train;
+mod export_onnx;
+mod export_pytorch;
+mod parallel;
+mod training;
+mod webdataset_stream;

@@ -1,0 +1,224 @@
+//! Separable ConvGRU: a 1×5 (horizontal) GRU step followed by a 5×1 (vertical) one.
+//!
+//! On the Flex backend the gates' element-wise work runs as two parallel kernels (`flex`); under
+//! autodiff on Flex (training) as the same kernels recorded with their own backward
+//! (`autodiff`); elsewhere it is composed from tensor ops.
+
+use burn::prelude::*;
+use burn::tensor::activation::{sigmoid, tanh};
+
+use crate::network::encoder::conv_cfg;
+use crate::ops::conv2d::Conv2d;
+use crate::ops::dispatch::{autodiff_flex_f32, flex_f32, from_autodiff_flex, from_flex};
+
+mod autodiff;
+mod flex;
+
+use flex::GateMath;
+
+#[derive(Config, Debug)]
+pub struct SepConvGruConfig {
+    #[config(default = 128)]
+    pub hidden_dim: usize,
+    /// Context (128) + motion features (128).
+    #[config(default = 256)]
+    pub input_dim: usize,
+}
+
+#[derive(Module, Debug)]
+pub struct SepConvGru<B: Backend> {
+    pub convz1: Conv2d<B>,
+    pub convr1: Conv2d<B>,
+    pub convq1: Conv2d<B>,
+    pub convz2: Conv2d<B>,
+    pub convr2: Conv2d<B>,
+    pub convq2: Conv2d<B>,
+}
+
+impl SepConvGruConfig {
+    pub fn init<B: Backend>(&self, device: &B::Device) -> SepConvGru<B> {
+        let cin = self.hidden_dim + self.input_dim;
+        let h = self.hidden_dim;
+        let horiz = || conv_cfg(cin, h, [1, 5], 1, [0, 2]).init(device);
+        let vert = || conv_cfg(cin, h, [5, 1], 1, [2, 0]).init(device);
+        SepConvGru {
+            convz1: horiz(),
+            convr1: horiz(),
+            convq1: horiz(),
+            convz2: vert(),
+            convr2: vert(),
+            convq2: vert(),
+        }
+    }
+}
+
+fn gru_step<B: Backend>(
+    h: Tensor<B, 4>,
+    x: Tensor<B, 4>,
+    cz: &Conv2d<B>,
+    cr: &Conv2d<B>,
+    cq: &Conv2d<B>,
+) -> Tensor<B, 4> {
+    let hx = crate::ops::channels::cat_channels(h.clone(), x.clone());
+    // z and r read the same input: one stacked convolution, then split.
+    let zr = crate::ops::conv2d::forward_stacked(&[cz, cr], hx);
+    match kernel_gates(&zr, &h, &x, cq) {
+        Some(h) => h,
+        None => composed_gates(zr, h, x, cq),
+    }
+}
+
+/// The gates from the stacked logits `zr` by the Flex kernels (with their own backward under
+/// autodiff), or `None` where they do not apply (another backend or dtype).
+fn kernel_gates<B: Backend>(
+    zr: &Tensor<B, 4>,
+    h: &Tensor<B, 4>,
+    x: &Tensor<B, 4>,
+    cq: &Conv2d<B>,
+) -> Option<Tensor<B, 4>> {
+    if let Some([zr_f, h_f, x_f]) = flex_f32([zr, h, x]) {
+        // Plain Flex is inference: the vectorised σ and tanh (see `GateMath`).
+        let math = GateMath::Vectorised;
+        let q = cq.forward(from_flex(flex::reset_input(&zr_f, &h_f, &x_f, math)));
+        let [q_f] = flex_f32([&q]).expect("a Flex tensor");
+        return Some(from_flex(flex::blend(&zr_f, &h_f, &q_f, math)));
+    }
+    let [zr_a, h_a, x_a] = autodiff_flex_f32([zr, h, x])?;
+    let r_input = from_autodiff_flex(autodiff::reset_input(zr_a, h_a, x_a));
+    let q = cq.forward(r_input);
+    let [zr_a, h_a, q_a] = autodiff_flex_f32([zr, h, &q]).expect("an Autodiff<Flex> tensor");
+    Some(from_autodiff_flex(autodiff::blend(zr_a, h_a, q_a)))
+}
+
+/// The gates from the stacked logits `zr` composed from tensor ops (any backend).
+fn composed_gates<B: Backend>(
+    zr: Tensor<B, 4>,
+    h: Tensor<B, 4>,
+    x: Tensor<B, 4>,
+    cq: &Conv2d<B>,
+) -> Tensor<B, 4> {
+    let hidden = h.dims()[1];
+    let zr = sigmoid(zr);
+    let z = zr.clone().narrow(1, 0, hidden);
+    let r = zr.narrow(1, hidden, hidden);
+    let q = tanh(cq.forward(crate::ops::channels::cat(vec![r * h.clone(), x], 1)));
+    // (1 - z) * h + z * q
+    (z.clone().neg().add_scalar(1.0)) * h + z * q
+}
+
+impl<B: Backend> SepConvGru<B> {
+    pub fn forward(&self, h: Tensor<B, 4>, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let h = gru_step(h, x.clone(), &self.convz1, &self.convr1, &self.convq1);
+        gru_step(h, x, &self.convz2, &self.convr2, &self.convq2)
+    }
+}
+
+/// One GRU step as ONNX nodes, in the order of operations of [`composed_gates`].
+fn emit_gru_step<B: Backend>(
+    g: &mut crate::export::onnx::Graph,
+    h: &crate::export::onnx::Value,
+    x: &crate::export::onnx::Value,
+    [cz, cr, cq]: [&Conv2d<B>; 3],
+) -> crate::export::onnx::Value {
+    let hx = g.concat(&[h, x], 1);
+    let z = cz.emit(g, &hx);
+    let z = g.sigmoid(&z);
+    let r = cr.emit(g, &hx);
+    let r = g.sigmoid(&r);
+    let rh = g.mul(&r, h);
+    let q = g.concat(&[&rh, x], 1);
+    let q = cq.emit(g, &q);
+    let q = g.tanh(&q);
+    let keep = g.neg(&z);
+    let keep = g.add_scalar(&keep, 1.0);
+    let kept = g.mul(&keep, h);
+    let new = g.mul(&z, &q);
+    g.add(&kept, &new)
+}
+
+impl<B: Backend> SepConvGru<B> {
+    /// [`Self::forward`] as ONNX nodes.
+    pub fn emit(
+        &self,
+        g: &mut crate::export::onnx::Graph,
+        h: &crate::export::onnx::Value,
+        x: &crate::export::onnx::Value,
+    ) -> crate::export::onnx::Value {
+        let h = emit_gru_step(g, h, x, [&self.convz1, &self.convr1, &self.convq1]);
+        emit_gru_step(g, &h, x, [&self.convz2, &self.convr2, &self.convq2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use burn::module::AutodiffModule;
+    use burn::tensor::Distribution;
+
+    use super::*;
+    use crate::test_util::{assert_output_and_grads_close, max_abs};
+    use crate::{CpuAutodiffBackend, CpuBackend};
+
+    fn random<B: Backend>(shape: [usize; 4], device: &B::Device) -> Tensor<B, 4> {
+        Tensor::random(shape, Distribution::Normal(0.0, 1.0), device)
+    }
+
+    /// The GRU with its Flex gate kernels (plain Flex) against the composed gates (taken under
+    /// autodiff), same weights and inputs.
+    #[test]
+    fn flex_gates_match_the_composed_ops() {
+        let device = Default::default();
+        let gru = SepConvGruConfig::new()
+            .with_hidden_dim(16)
+            .with_input_dim(24)
+            .init::<CpuAutodiffBackend>(&device);
+        let h = random::<CpuBackend>([2, 16, 9, 11], &device).tanh();
+        let x = random::<CpuBackend>([2, 24, 9, 11], &device);
+        let q = &gru.valid().convq1;
+        let zr = random::<CpuBackend>([2, 32, 9, 11], &device).mul_scalar(2.0);
+        let kernel = kernel_gates(&zr, &h, &x, q).expect("the Flex kernels");
+        let composed = composed_gates(zr, h, x, q);
+        let diff = max_abs(kernel, composed);
+        assert!(diff < 1e-5, "max difference {diff}");
+    }
+
+    /// Under autodiff on Flex: the kernels' output and the gradients their backward gives (the
+    /// logits, hidden state, input, and the candidate convolution's weights) against autodiff of
+    /// the composed gates.
+    #[test]
+    fn autodiff_gates_match_the_composed_ops_and_their_gradients() {
+        type A = CpuAutodiffBackend;
+        let device = Default::default();
+        let gru = SepConvGruConfig::new()
+            .with_hidden_dim(16)
+            .with_input_dim(24)
+            .init::<A>(&device);
+        let inputs = (
+            random::<CpuBackend>([2, 32, 9, 11], &device).mul_scalar(2.0),
+            random::<CpuBackend>([2, 16, 9, 11], &device).tanh(),
+            random::<CpuBackend>([2, 24, 9, 11], &device),
+        );
+        let weights = random::<CpuBackend>([2, 16, 9, 11], &device);
+        let run = |kernel: bool| {
+            let track =
+                |t: &Tensor<CpuBackend, 4>| Tensor::<A, 4>::from_inner(t.clone()).require_grad();
+            let (zr, h, x) = (track(&inputs.0), track(&inputs.1), track(&inputs.2));
+            let out = if kernel {
+                kernel_gates(&zr, &h, &x, &gru.convq1).expect("the Autodiff<Flex> kernels")
+            } else {
+                composed_gates(zr.clone(), h.clone(), x.clone(), &gru.convq1)
+            };
+            let grads = (out.clone() * Tensor::from_inner(weights.clone()))
+                .sum()
+                .backward();
+            let wq = gru.convq1.weight.val();
+            let g = |t: &Tensor<A, 4>| t.grad(&grads).expect("a gradient");
+            (out.inner(), [g(&zr), g(&h), g(&x), g(&wq)])
+        };
+        assert_output_and_grads_close(
+            "GRU gates",
+            ["zr", "h", "x", "convq weight"],
+            run(true),
+            run(false),
+        );
+    }
+}

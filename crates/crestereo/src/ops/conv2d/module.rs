@@ -1,0 +1,182 @@
+//! The network's convolution module. Every convolution of the model is one of these, so each
+//! call goes through the kernel dispatch: a new module cannot miss the fast path by calling a
+//! Burn convolution directly. Field names and record layout are those of Burn's `Conv2d`
+//! (reference state dicts and saved records load unchanged).
+
+use burn::module::{Module, Param};
+use burn::nn::PaddingConfig2d;
+use burn::prelude::*;
+use burn::tensor::ops::ConvOptions;
+
+#[cfg(feature = "wgpu")]
+use crate::ops::dispatch::Kernels;
+use crate::ops::dispatch::kernels_f32;
+
+/// Configuration of a [`Conv2d`]: PyTorch's `nn.Conv2d` initialisation (as Burn's).
+#[derive(Config, Debug)]
+pub struct Conv2dConfig {
+    /// Input and output channels.
+    pub channels: [usize; 2],
+    pub kernel_size: [usize; 2],
+    #[config(default = "[1, 1]")]
+    pub stride: [usize; 2],
+    #[config(default = "[1, 1]")]
+    pub dilation: [usize; 2],
+    #[config(default = "1")]
+    pub groups: usize,
+    #[config(default = "PaddingConfig2d::Valid")]
+    pub padding: PaddingConfig2d,
+    #[config(default = true)]
+    pub bias: bool,
+}
+
+/// A 2-D convolution whose forward is chosen by [`crate::ops::dispatch`]: the Flex kernels of
+/// [`super`] where they apply, Burn's convolution ([`Conv2d::forward_composed`]) elsewhere.
+#[derive(Module, Debug)]
+pub struct Conv2d<B: Backend> {
+    /// (C_out, C_in / groups, kh, kw).
+    pub weight: Param<Tensor<B, 4>>,
+    pub bias: Option<Param<Tensor<B, 1>>>,
+    pub stride: [usize; 2],
+    pub kernel_size: [usize; 2],
+    pub dilation: [usize; 2],
+    pub groups: usize,
+    pub padding: PaddingConfig2d,
+}
+
+impl Conv2dConfig {
+    pub fn init<B: Backend>(&self, device: &B::Device) -> Conv2d<B> {
+        // Burn's initialiser (PyTorch's Kaiming-uniform weights and fan-in bias), then its
+        // parameters moved into this module.
+        let burn::nn::conv::Conv2d {
+            weight,
+            bias,
+            stride,
+            kernel_size,
+            dilation,
+            groups,
+            padding,
+        } = burn::nn::conv::Conv2dConfig::new(self.channels, self.kernel_size)
+            .with_stride(self.stride)
+            .with_dilation(self.dilation)
+            .with_groups(self.groups)
+            .with_padding(self.padding.clone())
+            .with_bias(self.bias)
+            .init(device);
+        Conv2d {
+            weight,
+            bias,
+            stride,
+            kernel_size,
+            dilation,
+            groups,
+            padding,
+        }
+    }
+}
+
+impl<B: Backend> Conv2d<B> {
+    /// The convolution of `x` (N, C_in, H, W): a kernel where one applies; on wgpu a stride-1
+    /// convolution as one matrix product over the unfolded input ([`Self::forward_by_matmul`]);
+    /// else Burn's convolution.
+    pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let choice = kernels_f32(&[&x, &self.weight.val()]);
+        let x = match super::kernel_forward(self, x, choice) {
+            Ok(y) => return y,
+            Err(x) => x,
+        };
+        #[cfg(feature = "wgpu")]
+        if matches!(choice, Kernels::Wgpu | Kernels::AutodiffWgpu)
+            && self.stride == [1, 1]
+            && self.groups == 1
+        {
+            return self.forward_by_matmul(x);
+        }
+        self.forward_composed(x)
+    }
+
+    /// A stride-1, groups-1 convolution as one matrix product over the input unfolded from
+    /// shifted slices (Burn tensor ops; any backend). Panics on other strides or groups.
+    pub fn forward_by_matmul(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        assert!(
+            self.stride == [1, 1] && self.groups == 1,
+            "forward_by_matmul: stride 1, groups 1 only"
+        );
+        let padding = self.symmetric_padding().expect("symmetric padding");
+        let dtype = x.dtype();
+        let weight = crate::float_like(self.weight.val(), dtype);
+        let bias = self
+            .bias
+            .as_ref()
+            .map(|b| crate::float_like(b.val(), dtype));
+        super::by_matmul::conv2d_by_matmul(x, weight, bias, padding, self.dilation)
+    }
+
+    /// Burn's convolution (any backend and dtype; parameters cast to the input's float dtype,
+    /// so a float64 input runs in float64).
+    pub fn forward_composed(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
+        let dtype = x.dtype();
+        let cast = |t: Tensor<B, 4>| match dtype == t.dtype() {
+            true => t,
+            false => t.cast(dtype),
+        };
+        let weight = cast(self.weight.val());
+        let bias = self.bias.as_ref().map(|b| {
+            let b = b.val();
+            if b.dtype() == dtype { b } else { b.cast(dtype) }
+        });
+        let padding = self.symmetric_padding().unwrap_or_else(|| {
+            panic!(
+                "convolution padding {:?} is not symmetric explicit or valid",
+                self.padding
+            )
+        });
+        burn::tensor::module::conv2d(
+            x,
+            weight,
+            bias,
+            ConvOptions::new(self.stride, padding, self.dilation, self.groups),
+        )
+    }
+
+    /// (top = bottom, left = right) of an explicit symmetric or valid padding.
+    pub(crate) fn symmetric_padding(&self) -> Option<[usize; 2]> {
+        match self.padding {
+            PaddingConfig2d::Explicit(top, left, bottom, right)
+                if top == bottom && left == right =>
+            {
+                Some([top, left])
+            }
+            PaddingConfig2d::Valid => Some([0, 0]),
+            _ => None,
+        }
+    }
+}
+
+impl<B: Backend> Conv2d<B> {
+    /// This convolution as an ONNX `Conv` node (weights and bias as initializers, shared by
+    /// every call).
+    pub fn emit(
+        &self,
+        g: &mut crate::export::onnx::Graph,
+        x: &crate::export::onnx::Value,
+    ) -> crate::export::onnx::Value {
+        let [top, left] = self.symmetric_padding().unwrap_or_else(|| {
+            panic!(
+                "convolution padding {:?} is not symmetric explicit or valid",
+                self.padding
+            )
+        });
+        let weight = g.param(&self.weight);
+        let bias = self.bias.as_ref().map(|b| g.param(b));
+        g.conv(
+            x,
+            &weight,
+            bias.as_ref(),
+            self.stride,
+            [top, left, top, left],
+            self.dilation,
+            self.groups,
+        )
+    }
+}

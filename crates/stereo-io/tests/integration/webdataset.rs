@@ -1,0 +1,360 @@
+//! WebDataset export and reading: shards GNU tar lists and extracts byte for byte, samples read
+//! back equal to the source's, a seeded shuffle, splits, a shard cut short named as such, an
+//! interrupted export resumed to the same bytes, an existing export refused without `force`.
+
+use std::fs;
+use std::path::Path;
+use std::process::Command;
+
+use stereo_io::*;
+
+use crate::fixtures;
+use crate::pinned_venv;
+use fixtures::*;
+
+/// The readers nobody here wrote: the `webdataset` package, Pillow, OpenEXR.
+const PYTHON_PINS: &[&str] = &[
+    "webdataset==1.0.2",
+    "pillow==13.0.0",
+    "OpenEXR==3.5.3",
+    "numpy==2.4.6",
+];
+
+fn opts(force: bool) -> WebDatasetOptions {
+    WebDatasetOptions {
+        // About two samples per shard.
+        shard_bytes: 6000,
+        shuffle_seed: 3,
+        splits: parse_splits("train=0.7,val=0.3").unwrap(),
+        force,
+    }
+}
+
+fn export(source: &Path, out: &Path, o: &WebDatasetOptions) -> Result<WebDatasetSummary> {
+    export_webdataset(source, out, None, &ReadOptions::default(), o)
+}
+
+/// Every file of an export folder with its size and a hash of its bytes, sorted by name.
+fn files(dir: &Path) -> Vec<(String, usize, u64)> {
+    use std::hash::{Hash, Hasher};
+    let mut out: Vec<_> = fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| {
+            let bytes = fs::read(&p).unwrap();
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            bytes.hash(&mut h);
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                bytes.len(),
+                h.finish(),
+            )
+        })
+        .collect();
+    out.sort();
+    out
+}
+
+fn gnu_tar(args: &[&str], shard: &Path) -> Vec<u8> {
+    let out = Command::new("tar")
+        .args(args)
+        .arg(shard)
+        .output()
+        .expect("GNU tar");
+    assert!(
+        out.status.success(),
+        "tar {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
+#[test]
+fn shards_hold_every_sample_as_the_source_has_it() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    let summary = export(&source, &out, &opts(false)).unwrap();
+    assert_eq!((summary.samples, summary.resumed_shards), (IDS, 0));
+    assert!(summary.shards >= 4, "{summary:?}");
+
+    // GNU tar lists each shard: a sample's six members together, in order, under one key (the
+    // SceneSpec travels as stored, so `stats` can compute the object figures from shards).
+    let mut keys = vec![];
+    for split in ["train", "val"] {
+        let index: serde_json::Value =
+            serde_json::from_slice(&fs::read(out.join(format!("{split}.index.json"))).unwrap())
+                .unwrap();
+        let mut total = 0;
+        for shard in index["shards"].as_array().unwrap() {
+            let path = out.join(shard["name"].as_str().unwrap());
+            assert_eq!(
+                fs::metadata(&path).unwrap().len(),
+                shard["bytes"].as_u64().unwrap()
+            );
+            let listing = String::from_utf8(gnu_tar(&["-tf"], &path)).unwrap();
+            let names: Vec<&str> = listing.lines().collect();
+            assert_eq!(names.len() % 6, 0, "{listing}");
+            for group in names.chunks(6) {
+                let key = group[0].strip_suffix(".left.png").expect(group[0]);
+                let want: Vec<String> = [
+                    "left.png",
+                    "right.png",
+                    "disp_left.exr",
+                    "disp_right.exr",
+                    "scene.json",
+                    "json",
+                ]
+                .iter()
+                .map(|m| format!("{key}.{m}"))
+                .collect();
+                assert_eq!(group, want.as_slice());
+                keys.push(key.to_string());
+            }
+            total += shard["samples"].as_u64().unwrap();
+            // GNU tar extracts the source's EXR byte for byte.
+            let first = names[2];
+            let (category, id) = first
+                .trim_end_matches(".disp_left.exr")
+                .split_once('/')
+                .unwrap();
+            let member = Command::new("tar")
+                .args(["-xOf"])
+                .arg(&path)
+                .arg(first)
+                .output()
+                .unwrap();
+            assert_eq!(
+                member.stdout,
+                fs::read(source.join(category).join(format!("{id}_left.disp.exr"))).unwrap(),
+                "{first}"
+            );
+        }
+        assert_eq!(total, index["samples"].as_u64().unwrap());
+    }
+    assert_eq!(keys.len(), IDS);
+    let in_order: Vec<String> = (0..IDS)
+        .map(|k| format!("{}/{k:07}", ["tree", "hole"][k % 2]))
+        .collect();
+    assert_ne!(keys, in_order, "the seed shuffles samples across shards");
+    let mut sorted = keys.clone();
+    sorted.sort();
+    let mut want = in_order.clone();
+    want.sort();
+    assert_eq!(sorted, want, "every sample once");
+
+    // Read back through open_dataset: the source's pixels, disparities and camera.
+    let ours = open_dataset(&source, None).unwrap();
+    let shards = open_dataset(&out, None).unwrap();
+    assert_eq!(
+        (shards.format(), shards.len()),
+        (DatasetFormat::WebDataset, IDS)
+    );
+    for i in 0..IDS {
+        let got = shards.sample(i).unwrap();
+        let key = shards.id(i).unwrap();
+        let k = (0..IDS).find(|&k| in_order[k] == key).unwrap();
+        let want = ours.sample(k).unwrap();
+        assert_eq!((&got.left, &got.right), (&want.left, &want.right), "{key}");
+        assert_disp_eq(&got.disp_left, &want.disp_left);
+        assert_disp_eq(
+            got.disp_right.as_ref().unwrap(),
+            want.disp_right.as_ref().unwrap(),
+        );
+        assert_eq!((got.meta.f_px, got.meta.cx), (want.meta.f_px, want.meta.cx));
+        assert_eq!(
+            got.meta.extra.get("category"),
+            want.meta.extra.get("category")
+        );
+        assert_eq!(got.meta.format, Some(DatasetFormat::Stereogen));
+    }
+
+    // The same options give the same bytes; an existing export is refused without force.
+    let again = t.path().join("again");
+    export(&source, &again, &opts(false)).unwrap();
+    assert_eq!(files(&out), files(&again));
+    let e = export(&source, &out, &opts(false)).unwrap_err().to_string();
+    assert!(e.contains("not empty") && e.contains("--force"), "{e}");
+    export(&source, &out, &opts(true)).unwrap();
+    assert_eq!(files(&out), files(&again));
+}
+
+/// A split is opened on its own: `open_splits` reads the named splits' shards only (in index
+/// order, whatever the order asked), `open` every split, and a split the export lacks is an
+/// error listing those it has.
+#[test]
+fn splits_open_on_their_own() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    export(&source, &out, &opts(false)).unwrap();
+    assert_eq!(WebDataset::split_names(&out).unwrap(), ["train", "val"]);
+    let ids = |ds: &WebDataset| -> Vec<String> {
+        (0..ds.len())
+            .map(|i| ds.id(i).unwrap().to_string())
+            .collect()
+    };
+    let index_count = |split: &str| -> usize {
+        let index: serde_json::Value =
+            serde_json::from_slice(&fs::read(out.join(format!("{split}.index.json"))).unwrap())
+                .unwrap();
+        index["samples"].as_u64().unwrap() as usize
+    };
+    let train = WebDataset::open_splits(&out, &["train"]).unwrap();
+    let val = WebDataset::open_splits(&out, &["val"]).unwrap();
+    assert_eq!(
+        (train.splits(), val.splits()),
+        (&["train".to_string()][..], &["val".to_string()][..])
+    );
+    assert_eq!(
+        (train.len(), val.len()),
+        (index_count("train"), index_count("val"))
+    );
+    assert!(train.len() > val.len() && !val.is_empty());
+    let (train_ids, val_ids) = (ids(&train), ids(&val));
+    assert!(train_ids.iter().all(|k| !val_ids.contains(k)));
+    let all = WebDataset::open(&out).unwrap();
+    assert_eq!(ids(&all), [train_ids.clone(), val_ids.clone()].concat());
+    let both = WebDataset::open_splits(&out, &["val", "train", "val"]).unwrap();
+    assert_eq!(ids(&both), ids(&all));
+    // A val sample read from its split alone is the one read from the whole export.
+    let k = train.len();
+    assert!(val.sample(0).unwrap().left == all.sample(k).unwrap().left);
+    // Streaming numbers the shards of the opened splits only.
+    assert_eq!(val.shard_samples().iter().sum::<usize>(), val.len());
+    assert_eq!(val.shard_reader(0).unwrap().read(&val, 0).unwrap().index, 0);
+    let e = WebDataset::open_splits(&out, &["test"])
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("no split \"test\"") && e.contains("its splits: train, val"),
+        "{e}"
+    );
+    let none: [&str; 0] = [];
+    let e = WebDataset::open_splits(&out, &none)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("no split asked for"), "{e}");
+}
+
+#[test]
+fn a_shard_cut_short_is_named_not_read_as_fewer_samples() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    export(&source, &out, &opts(false)).unwrap();
+    let shard = out.join("train-000001.tar");
+    let bytes = fs::read(&shard).unwrap();
+    // Cut at a block boundary (what a killed copy leaves): tar itself would read fewer members.
+    fs::write(&shard, &bytes[..bytes.len() / 1024 * 512]).unwrap();
+    let e = open_dataset(&out, None).err().unwrap().to_string();
+    assert!(
+        e.contains("train-000001.tar") && e.contains("cut short"),
+        "{e}"
+    );
+    // An export that never wrote its index is not a dataset at all.
+    fs::remove_file(out.join("train.index.json")).unwrap();
+    fs::remove_file(out.join("val.index.json")).unwrap();
+    let e = open_dataset(&out, Some(DatasetFormat::WebDataset))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("did not finish"), "{e}");
+}
+
+#[test]
+fn an_interrupted_export_resumes_from_its_last_whole_shard() {
+    let t = tempfile::tempdir().unwrap();
+    let (source, out, clean) = (
+        t.path().join("ours"),
+        t.path().join("wds"),
+        t.path().join("clean"),
+    );
+    our_dataset(&mkdir(&source));
+    export(&source, &clean, &opts(false)).unwrap();
+    // A sample late in the shuffled order cannot be read: the export stops there, after some
+    // whole shards.
+    let late = {
+        let shards = open_dataset(&clean, None).unwrap();
+        shards.id(IDS - 3).unwrap().to_string()
+    };
+    let (category, id) = late.split_once('/').unwrap();
+    let victim = source.join(category).join(format!("{id}_right.png"));
+    let good = fs::read(&victim).unwrap();
+    fs::write(&victim, b"not a png").unwrap();
+    let e = export(&source, &out, &opts(false)).unwrap_err().to_string();
+    assert!(e.contains(&format!("{id}_right.png")), "{e}");
+    assert!(!out.join("train.index.json").exists() || !out.join("val.index.json").exists());
+    // Fixed and re-run: the whole shards are kept, the rest written, the result the clean one.
+    fs::write(&victim, good).unwrap();
+    let summary = export(&source, &out, &opts(false)).unwrap();
+    assert!(summary.resumed_shards > 0, "{summary:?}");
+    assert_eq!(files(&out), files(&clean));
+    // Other options than the unfinished run's are refused rather than mixed into it.
+    fs::write(&victim, b"not a png").unwrap();
+    let _ = export(&source, &t.path().join("wds2"), &opts(false));
+    let mut other = opts(false);
+    other.shuffle_seed = 4;
+    let e = export(&source, &t.path().join("wds2"), &other)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("same ones") && e.contains("--force"), "{e}");
+}
+
+#[test]
+fn the_webdataset_package_reads_our_shards_as_we_read_the_source() {
+    let venv = pinned_venv::ensure_venv("venv-webdataset", PYTHON_PINS);
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    export(&source, &out, &opts(false)).unwrap();
+    let read = t.path().join("read");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/webdataset_reader.py");
+    let keys = pinned_venv::run(
+        Command::new(venv.join("bin/python"))
+            .arg(&script)
+            .arg(&out)
+            .arg(&read),
+        "webdataset_reader.py",
+    );
+    let keys: serde_json::Value = serde_json::from_str(keys.trim()).unwrap();
+    let keys = keys.as_array().unwrap();
+    assert_eq!(keys.len(), IDS, "every sample, once");
+    let ours = open_dataset(&source, None).unwrap();
+    let npy = |name: String| read_npy(&read.join(name)).unwrap().data;
+    let disparity = |d: &DisparityMap| -> Vec<f32> {
+        d.data
+            .iter()
+            .zip(&d.valid)
+            .map(|(&v, &ok)| if ok { v } else { f32::NAN })
+            .collect()
+    };
+    let same = |a: &[f32], b: &[f32]| {
+        a.len() == b.len()
+            && a.iter()
+                .zip(b)
+                .all(|(x, y)| x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()))
+    };
+    for (n, k) in keys.iter().enumerate() {
+        let (key, id) = (k["key"].as_str().unwrap(), k["id"].as_str().unwrap());
+        assert!(key.ends_with(id), "{key} names sample {id}");
+        let i = (0..IDS)
+            .find(|&i| ours.id(i).is_some_and(|x| x.ends_with(id)))
+            .unwrap();
+        let s = ours.sample(i).unwrap();
+        let pixels = |img: &RgbImage| img.data.iter().map(|&v| f32::from(v)).collect::<Vec<_>>();
+        assert_eq!(npy(format!("{n}_left.npy")), pixels(&s.left), "{key}");
+        assert_eq!(npy(format!("{n}_right.npy")), pixels(&s.right), "{key}");
+        assert!(
+            same(&npy(format!("{n}_disp_left.npy")), &disparity(&s.disp_left)),
+            "{key}"
+        );
+        let right = s.disp_right.as_ref().unwrap();
+        assert!(
+            same(&npy(format!("{n}_disp_right.npy")), &disparity(right)),
+            "{key}"
+        );
+    }
+}

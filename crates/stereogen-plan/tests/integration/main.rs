@@ -1,0 +1,5 @@
+//! The planner's integration tests, one module per subject, built as one binary.
+
+mod pack_planning;
+mod plan_laws;
+mod scene_spec_check;
