@@ -10,8 +10,8 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen_e2e::{
-    audit_cmd, crestereo_bin, export_cmd, generate_cmd, output_text as text, stats_cmd, stereogen_cmd,
-    write_tiny_recipe,
+    audit_cmd, crestereo_bin, export_cmd, generate_cmd, output_text as text, stats_cmd,
+    stereogen_cmd, write_tiny_recipe,
 };
 
 fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {

@@ -4,6 +4,8 @@
 //! Exports re-run into the same folder leave no temp links, and a failed export leaves only whole
 //! samples and says so.
 
+use crate::small_fs;
+
 use std::path::Path;
 
 use stereo_io::datasets::export::EXPORT_INDEX_FILE;
