@@ -10,10 +10,8 @@
 #[path = "../../../stereo-io/tests/support/small_fs.rs"]
 #[macro_use]
 mod small_fs;
-#[allow(dead_code)]
 #[path = "../../../crestereo/tests/common/mod.rs"]
 mod common;
-#[allow(dead_code)]
 #[path = "../../../stereo-io/tests/support/pinned_venv.rs"]
 mod pinned_venv;
 mod short_run;

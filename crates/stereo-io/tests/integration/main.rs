@@ -6,10 +6,8 @@
 #[path = "../support/small_fs.rs"]
 #[macro_use]
 mod small_fs;
-#[allow(dead_code)]
 #[path = "../fixtures/mod.rs"]
 mod fixtures;
-#[allow(dead_code)]
 #[path = "../support/pinned_venv.rs"]
 mod pinned_venv;
 #[allow(dead_code)]
