@@ -101,6 +101,20 @@ pub fn crestereo_bin() -> PathBuf {
     bin
 }
 
+/// `crestereo train --no-progress --config CONFIG --out RUN`, with the trainer's log at `warn`.
+pub fn crestereo_train_cmd(
+    config: &std::path::Path,
+    run: &std::path::Path,
+) -> std::process::Command {
+    let mut c = std::process::Command::new(crestereo_bin());
+    c.args(["train", "--no-progress", "--config"])
+        .arg(config)
+        .arg("--out")
+        .arg(run)
+        .env("CRESTEREO_LOG", "warn");
+    c
+}
+
 /// `stereogen ARGS` as every test runs it: the binary built next to the test, no stdin, and none
 /// of the environment that steers a run from outside (`STEREOGEN_FAULT`, `STEREOGEN_SHARD`); a
 /// test that wants them sets them on the command.

@@ -12,8 +12,8 @@ use std::process::Command;
 use stereogen::dataset::curate::{REPLACEMENT_BASE, replacement_index};
 use stereogen::dataset::{DatasetInfo, DatasetLayout, Manifest, ManifestEntry};
 use stereogen_e2e::{
-    crestereo_bin, generate_cmd, output_text as text_of, run_fails, run_ok as run, sha256_hex,
-    stereogen_cmd, write_tiny_recipe,
+    crestereo_bin, crestereo_train_cmd, generate_cmd, output_text as text_of, run_fails,
+    run_ok as run, sha256_hex, stereogen_cmd, write_tiny_recipe,
 };
 
 const SEED: u64 = 3;
@@ -109,12 +109,7 @@ every = 1000
     )
     .unwrap();
     let run_dir = dir.join("run");
-    run(Command::new(crestereo_bin())
-        .args(["train", "--config"])
-        .arg(&config)
-        .arg("--out")
-        .arg(&run_dir)
-        .args(["--no-progress", "--threads", "2"]));
+    run(crestereo_train_cmd(&config, &run_dir).args(["--threads", "2"]));
     run_dir
 }
 

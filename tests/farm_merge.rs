@@ -10,8 +10,8 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen_e2e::{
-    audit_cmd, crestereo_bin, export_cmd, generate_cmd, output_text as text, stats_cmd,
-    stereogen_cmd, write_tiny_recipe,
+    audit_cmd, crestereo_train_cmd, export_cmd, generate_cmd, output_text as text, run_ok,
+    stats_cmd, stereogen_cmd, write_tiny_recipe,
 };
 
 fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {
@@ -95,20 +95,7 @@ every = 2
         ),
     )
     .unwrap();
-    let o = Command::new(crestereo_bin())
-        .args(["train", "--no-progress", "--config"])
-        .arg(&cfg)
-        .arg("--out")
-        .arg(run)
-        .env("CRESTEREO_LOG", "warn")
-        .stdin(Stdio::null())
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "crestereo train on the merged dataset:\n{}",
-        text(&o)
-    );
+    run_ok(&mut crestereo_train_cmd(&cfg, run));
     let state: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(run.join("checkpoints/step-00000002/state.json")).unwrap(),
     )
