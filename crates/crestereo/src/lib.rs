@@ -89,6 +89,45 @@ pub(crate) fn float_like<B: burn::prelude::Backend, const D: usize>(
 mod test_util {
     use burn::prelude::*;
 
+    use crate::weights::NamedArray;
+    use crate::{CREStereo, CpuAutodiffBackend, sequence_loss};
+
+    /// The named gradients of one training step of `model` (two iterations, loss with γ 0.9)
+    /// on a fixed 32×64 pair and disparity.
+    pub(crate) fn fixed_step_gradients(model: &CREStereo<CpuAutodiffBackend>) -> Vec<NamedArray> {
+        type A = CpuAutodiffBackend;
+        let device = Default::default();
+        let (n, h, w) = (1, 32, 64);
+        let image = |salt: usize| {
+            let v: Vec<f32> = (0..n * 3 * h * w)
+                .map(|i| (((i * 7919 + salt * 104_729) % 2003) as f32) * 0.1)
+                .collect();
+            Tensor::<A, 1>::from_floats(v.as_slice(), &device).reshape([n, 3, h, w])
+        };
+        let d: Vec<f32> = (0..n * h * w).map(|i| (i % 37) as f32 * 0.5).collect();
+        let disp = Tensor::<A, 1>::from_floats(d.as_slice(), &device).reshape([n, h, w]);
+        let valid = Tensor::<A, 3>::ones([n, h, w], &device);
+        let preds = model.forward(image(1), image(2), 2, None);
+        let grads = sequence_loss(&preds, disp, valid, 0.9).backward();
+        crate::weights::named_gradients(model, &grads)
+    }
+
+    /// The parameters whose gradients differ in any bit between `a` and `b`.
+    pub(crate) fn differing_gradients(a: &[NamedArray], b: &[NamedArray]) -> Vec<String> {
+        assert_eq!(a.len(), b.len(), "gradient lists of different lengths");
+        a.iter()
+            .zip(b)
+            .filter(|(x, y)| {
+                x.data.len() != y.data.len()
+                    || x.data
+                        .iter()
+                        .zip(&y.data)
+                        .any(|(p, q)| p.to_bits() != q.to_bits())
+            })
+            .map(|(x, _)| x.name.clone())
+            .collect()
+    }
+
     /// The largest absolute difference of two tensors.
     pub(crate) fn max_abs<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> f32 {
         (a - b).abs().max().into_scalar().elem()

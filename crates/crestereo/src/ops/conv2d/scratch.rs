@@ -95,8 +95,7 @@ mod tests {
     /// by another run at other sizes once made runs in one process differ.)
     #[test]
     fn leftover_contents_never_reach_a_result() {
-        use crate::{CREStereoConfig, CpuAutodiffBackend, sequence_loss};
-        use burn::prelude::*;
+        use crate::{CREStereoConfig, CpuAutodiffBackend};
         type B = CpuAutodiffBackend;
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(2)
@@ -107,27 +106,7 @@ mod tests {
         let device = Default::default();
         let model = CREStereoConfig::new().init::<B>(&device);
         let _ = crate::weights::named_parameters(&model);
-        let step = || {
-            pool.install(|| {
-                let model = model.clone();
-                let (n, h, w) = (1, 32, 64);
-                let v = |salt: usize| -> Vec<f32> {
-                    (0..n * 3 * h * w)
-                        .map(|i| (((i * 7919 + salt * 104_729) % 2003) as f32) * 0.1)
-                        .collect()
-                };
-                let image = |salt| {
-                    Tensor::<B, 1>::from_floats(v(salt).as_slice(), &device).reshape([n, 3, h, w])
-                };
-                let d: Vec<f32> = (0..n * h * w).map(|i| (i % 37) as f32 * 0.5).collect();
-                let disp = Tensor::<B, 1>::from_floats(d.as_slice(), &device).reshape([n, h, w]);
-                let valid = Tensor::<B, 3>::ones([n, h, w], &device);
-                let preds = model.forward(image(1), image(2), 2, None);
-                let loss = sequence_loss(&preds, disp, valid, 0.9);
-                let grads = loss.backward();
-                crate::weights::named_gradients(&model, &grads)
-            })
-        };
+        let step = || pool.install(|| crate::test_util::fixed_step_gradients(&model));
         let clean = step();
         // NaN, and a finite value too: a NaN read through a ReLU (`f32::max`) would vanish.
         for poison in [f32::NAN, 1.0e4] {
@@ -138,17 +117,7 @@ mod tests {
                 }
             });
             let poisoned = step();
-            let differ: Vec<&str> = clean
-                .iter()
-                .zip(&poisoned)
-                .filter(|(a, b)| {
-                    !a.data
-                        .iter()
-                        .zip(&b.data)
-                        .all(|(x, y)| x.to_bits() == y.to_bits())
-                })
-                .map(|(a, _)| a.name.as_str())
-                .collect();
+            let differ = crate::test_util::differing_gradients(&clean, &poisoned);
             assert!(
                 differ.is_empty(),
                 "gradients that read leftovers ({poison}): {differ:?}"
