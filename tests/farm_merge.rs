@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use crestereo_train::parallel::compare::logged_losses;
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen_e2e::{
     audit_cmd, crestereo_train_cmd, export_cmd, generate_cmd, output_text as text, run_ok,
@@ -88,6 +89,9 @@ decay_start = 1
 [loader]
 workers = 2
 
+[log]
+every = 1
+
 [checkpoint]
 every = 2
 "#,
@@ -102,6 +106,15 @@ every = 2
     .unwrap();
     assert_eq!(state["step"], 2, "{state}");
     assert_eq!(state["skipped_steps"], 0, "{state}");
+    // The data position: two batches of two, as many draws as the merged dataset holds.
+    assert_eq!(state["samples"], 4, "{state}");
+    let losses = logged_losses(run).unwrap();
+    assert_eq!(
+        losses.iter().map(|l| l.0).collect::<Vec<_>>(),
+        [1, 2],
+        "{losses:?}"
+    );
+    assert!(losses.iter().all(|l| l.1.is_finite()), "{losses:?}");
 }
 
 #[test]
