@@ -5,6 +5,7 @@ use burn::prelude::*;
 use burn::tensor::ops::PadMode;
 use stereo_io::DisparityMap;
 
+use crate::export::onnx::{Graph, Value};
 use crate::input::BgrImage;
 use crate::network::model::CREStereo;
 use crate::ops::upsample::{emit_resize_bilinear_align_corners, resize_bilinear_align_corners};
@@ -54,6 +55,14 @@ impl InferenceOptions {
     pub fn size_rule(&self) -> (usize, usize) {
         let multiple = 16usize << (self.stages.max(1) - 1);
         (multiple, 2 * multiple)
+    }
+
+    /// The image size of each stage for an input of `size` = [H, W], first to last: stage `s`
+    /// runs at `size / 2^(stages−1−s)`, the last at `size`.
+    pub fn stage_sizes(&self, size: [usize; 2]) -> Vec<[usize; 2]> {
+        (0..self.stages)
+            .map(|s| size.map(|v| v >> (self.stages - 1 - s)))
+            .collect()
     }
 
     /// One clear line when a fixed input size `[h, w]` (an ONNX graph's) does not suit these
@@ -122,49 +131,105 @@ pub fn cascade<B: Backend>(
     right: Tensor<B, 4>,
     opts: InferenceOptions,
 ) -> Tensor<B, 4> {
-    assert!(opts.stages >= 1 && opts.iters >= 1);
     let [_, _, h, w] = left.dims();
-    let mut flow: Option<Tensor<B, 4>> = None;
-    for s in 0..opts.stages {
-        let f = 1usize << (opts.stages - 1 - s);
-        let (l, r) = if f == 1 {
-            (left.clone(), right.clone())
-        } else {
-            (
-                resize_bilinear_align_corners(left.clone(), [h / f, w / f]),
-                resize_bilinear_align_corners(right.clone(), [h / f, w / f]),
-            )
-        };
-        let preds = model.forward(l, r, opts.iters, flow.take());
-        flow = preds.into_iter().last();
-    }
-    flow.expect("at least one prediction")
+    let mut run = Run {
+        model,
+        iters: opts.iters,
+    };
+    run_stages(&mut run, left, right, [h, w], opts)
 }
 
 /// [`cascade`] as ONNX nodes: the same stages, resizes and hand-overs.
 pub fn emit_cascade<B: Backend>(
     model: &CREStereo<B>,
-    g: &mut crate::export::onnx::Graph,
-    left: &crate::export::onnx::Value,
-    right: &crate::export::onnx::Value,
+    g: &mut Graph,
+    left: &Value,
+    right: &Value,
     opts: InferenceOptions,
-) -> crate::export::onnx::Value {
-    assert!(opts.stages >= 1 && opts.iters >= 1);
+) -> Value {
     let [_, _, h, w] = left.dims();
-    let mut flow: Option<crate::export::onnx::Value> = None;
-    for s in 0..opts.stages {
-        let f = 1usize << (opts.stages - 1 - s);
-        let (l, r) = if f == 1 {
+    let mut emit = Emit {
+        model,
+        g,
+        iters: opts.iters,
+    };
+    run_stages(&mut emit, left.clone(), right.clone(), [h, w], opts)
+}
+
+/// What the stacked cascade does at each stage, on tensors ([`Run`]) or as graph nodes
+/// ([`Emit`]): the procedure itself is written once, in [`run_stages`].
+trait Stages {
+    type Array: Clone;
+    /// An image pair's member resized (bilinear, align_corners) to `size`.
+    fn resize(&mut self, image: &Self::Array, size: [usize; 2]) -> Self::Array;
+    /// One pass of the network: its last prediction (N, 2, h, w).
+    fn pass(
+        &mut self,
+        left: Self::Array,
+        right: Self::Array,
+        init: Option<Self::Array>,
+    ) -> Self::Array;
+}
+
+fn run_stages<S: Stages>(
+    stages: &mut S,
+    left: S::Array,
+    right: S::Array,
+    size: [usize; 2],
+    opts: InferenceOptions,
+) -> S::Array {
+    assert!(opts.stages >= 1 && opts.iters >= 1);
+    let mut flow = None;
+    for stage_size in opts.stage_sizes(size) {
+        let (l, r) = if stage_size == size {
             (left.clone(), right.clone())
         } else {
             (
-                emit_resize_bilinear_align_corners(g, left, [h / f, w / f]),
-                emit_resize_bilinear_align_corners(g, right, [h / f, w / f]),
+                stages.resize(&left, stage_size),
+                stages.resize(&right, stage_size),
             )
         };
-        flow = Some(model.emit_forward(g, &l, &r, opts.iters, flow.as_ref()));
+        flow = Some(stages.pass(l, r, flow.take()));
     }
     flow.expect("at least one stage")
+}
+
+struct Run<'a, B: Backend> {
+    model: &'a CREStereo<B>,
+    iters: usize,
+}
+
+impl<B: Backend> Stages for Run<'_, B> {
+    type Array = Tensor<B, 4>;
+    fn resize(&mut self, image: &Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
+        resize_bilinear_align_corners(image.clone(), size)
+    }
+    fn pass(
+        &mut self,
+        left: Tensor<B, 4>,
+        right: Tensor<B, 4>,
+        init: Option<Tensor<B, 4>>,
+    ) -> Tensor<B, 4> {
+        let preds = self.model.forward(left, right, self.iters, init);
+        preds.into_iter().last().expect("at least one prediction")
+    }
+}
+
+struct Emit<'a, B: Backend> {
+    model: &'a CREStereo<B>,
+    g: &'a mut Graph,
+    iters: usize,
+}
+
+impl<B: Backend> Stages for Emit<'_, B> {
+    type Array = Value;
+    fn resize(&mut self, image: &Value, size: [usize; 2]) -> Value {
+        emit_resize_bilinear_align_corners(self.g, image, size)
+    }
+    fn pass(&mut self, left: Value, right: Value, init: Option<Value>) -> Value {
+        self.model
+            .emit_forward(self.g, &left, &right, self.iters, init.as_ref())
+    }
 }
 
 /// Runs the network on an image pair of any size: pads (edge replicate, bottom/right) to a
@@ -218,5 +283,45 @@ fn prediction_map(width: usize, height: usize, data: Vec<f32>) -> DisparityMap {
         height,
         valid: vec![true; data.len()],
         data,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+    use crate::test_util::uniform;
+    use crate::{CREStereoConfig, CpuBackend};
+
+    #[test]
+    fn stage_sizes_halve_from_the_last() {
+        let opts = |stages| InferenceOptions { iters: 1, stages };
+        assert_eq!(opts(1).stage_sizes([128, 192]), [[128, 192]]);
+        assert_eq!(
+            opts(3).stage_sizes([128, 192]),
+            [[32, 48], [64, 96], [128, 192]]
+        );
+    }
+
+    /// The stacked cascade as a graph against `cascade` for one, two and three stages (resizes
+    /// of the pair, hand-over of each stage's prediction, the last prediction).
+    #[test]
+    fn emitted_cascade_matches_forward_for_one_two_and_three_stages() {
+        let model = CREStereoConfig::new().init_seeded::<CpuBackend>(5, &Default::default());
+        let (h, w) = (128, 128);
+        let left = uniform([1, 3, h, w], 0.0, 255.0);
+        let right = uniform([1, 3, h, w], 0.0, 255.0);
+        for stages in 1..=3 {
+            let opts = InferenceOptions { iters: 2, stages };
+            opts.check_size([h, w])
+                .expect("a size every stage count takes");
+            let out = run_emitted(&[left.to_data(), right.to_data()], |g, x| {
+                vec![emit_cascade(&model, g, &x[0], &x[1], opts)]
+            });
+            let forward = cascade(&model, left.clone(), right.clone(), opts);
+            let label = format!("{stages} stage(s)");
+            let diff = assert_emit_matches(&label, &out[0], forward.into_data(), 1e-4);
+            println!("cascade, {label}: max |emit − forward| = {diff:.2e}");
+        }
     }
 }

@@ -128,6 +128,19 @@ mod test_util {
             .collect()
     }
 
+    /// A Flex tensor of values drawn uniformly from `lo..hi`.
+    pub(crate) fn uniform<const D: usize>(
+        shape: [usize; D],
+        lo: f64,
+        hi: f64,
+    ) -> Tensor<crate::CpuBackend, D> {
+        Tensor::random(
+            shape,
+            burn::tensor::Distribution::Uniform(lo, hi),
+            &Default::default(),
+        )
+    }
+
     /// The largest absolute difference of two tensors.
     pub(crate) fn max_abs<B: Backend>(a: Tensor<B, 4>, b: Tensor<B, 4>) -> f32 {
         (a - b).abs().max().into_scalar().elem()

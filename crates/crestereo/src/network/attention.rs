@@ -259,3 +259,44 @@ pub fn emit_from_tokens(g: &mut Graph, x: &Value, h: usize, w: usize) -> Value {
     let t = g.reshape(x, &[n, h, w, c]);
     g.transpose(&t, &[0, 3, 1, 2])
 }
+
+#[cfg(test)]
+mod tests {
+
+    use super::*;
+    use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+    use crate::test_util::uniform;
+
+    /// A LoFTR layer's self- and cross-attention as graph nodes (matrix products, LayerNorm)
+    /// against `forward_self` / `forward_cross`, through the token reshapes both sides use.
+    #[test]
+    fn emitted_attention_matches_forward() {
+        let layer = LoFTREncoderLayerConfig::new()
+            .with_d_model(32)
+            .with_nhead(4)
+            .init::<crate::CpuBackend>(&Default::default());
+        let (h, w) = (5, 6);
+        let (a, b) = (
+            uniform([2, 32, h, w], -2.0, 2.0),
+            uniform([2, 32, h, w], -2.0, 2.0),
+        );
+        let out = run_emitted(&[a.to_data(), b.to_data()], |g, x| {
+            let (ta, tb) = (emit_to_tokens(g, &x[0]), emit_to_tokens(g, &x[1]));
+            let (sa, sb) = layer.emit_self(g, &ta, &tb);
+            let (ca, cb) = layer.emit_cross(g, &ta, &tb);
+            vec![emit_from_tokens(g, &sa, h, w), sb, ca, cb]
+        });
+        let (ta, tb) = (to_tokens(a), to_tokens(b));
+        let (sa, sb) = layer.forward_self(ta.clone(), tb.clone());
+        let (ca, cb) = layer.forward_cross(ta, tb);
+        assert_emit_matches(
+            "self, left",
+            &out[0],
+            from_tokens(sa, h, w).into_data(),
+            1e-5,
+        );
+        assert_emit_matches("self, right", &out[1], sb.into_data(), 1e-5);
+        assert_emit_matches("cross, left", &out[2], ca.into_data(), 1e-5);
+        assert_emit_matches("cross, right", &out[3], cb.into_data(), 1e-5);
+    }
+}

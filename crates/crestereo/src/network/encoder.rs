@@ -246,4 +246,25 @@ mod tests {
             assert!(!bias_cancelled_by_instance_norm(name), "{name}");
         }
     }
+
+    /// The encoder's nodes (Burn's convolution, the instance norm as graph ops) against
+    /// `forward_pair` on Flex (its convolution and instance-norm kernels), both images in one
+    /// batch and split again.
+    #[test]
+    fn emitted_encoder_matches_forward() {
+        use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+        use crate::test_util::uniform;
+        let encoder = BasicEncoderConfig::new().init::<crate::CpuBackend>(&Default::default());
+        let (left, right) = (
+            uniform([1, 3, 32, 48], -1.0, 1.0),
+            uniform([1, 3, 32, 48], -1.0, 1.0),
+        );
+        let out = run_emitted(&[left.to_data(), right.to_data()], |g, x| {
+            let (a, b) = encoder.emit_pair(g, &x[0], &x[1]);
+            vec![a, b]
+        });
+        let (a, b) = encoder.forward_pair(left, right);
+        assert_emit_matches("fmap1", &out[0], a.into_data(), 1e-4);
+        assert_emit_matches("fmap2", &out[1], b.into_data(), 1e-4);
+    }
 }

@@ -5,6 +5,7 @@
 pub mod attention;
 pub mod corr;
 pub mod encoder;
+pub(crate) mod formula;
 pub mod gru;
 pub(crate) mod level;
 pub mod model;

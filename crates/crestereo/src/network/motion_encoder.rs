@@ -71,3 +71,23 @@ impl<B: Backend> BasicMotionEncoder<B> {
         g.concat(&[&out, flow], 1)
     }
 }
+
+#[cfg(test)]
+mod tests {
+
+    use super::*;
+    use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+    use crate::test_util::uniform;
+
+    #[test]
+    fn emitted_motion_encoder_matches_forward() {
+        let enc = BasicMotionEncoderConfig::new().init::<crate::CpuBackend>(&Default::default());
+        let flow = uniform([2, 2, 6, 10], -4.0, 4.0);
+        let corr = uniform([2, 36, 6, 10], -1.0, 1.0);
+        let out = run_emitted(&[flow.to_data(), corr.to_data()], |g, x| {
+            vec![enc.emit(g, &x[0], &x[1])]
+        });
+        let forward = enc.forward(flow, corr).into_data();
+        assert_emit_matches("motion encoder", &out[0], forward, 1e-5);
+    }
+}

@@ -102,3 +102,25 @@ impl PositionEncodingSine {
         g.add(x, &table)
     }
 }
+
+#[cfg(test)]
+mod tests {
+
+    use super::*;
+    use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+    use crate::test_util::uniform;
+
+    /// The table as a graph constant plus the map, against `forward`.
+    #[test]
+    fn emitted_encoding_matches_forward() {
+        let pe = PositionEncodingSineConfig::new().with_d_model(16).init();
+        let x = uniform([2, 16, 5, 7], -1.0, 1.0);
+        let out = run_emitted(&[x.to_data()], |g, v| vec![pe.emit(g, &v[0])]);
+        assert_emit_matches(
+            "position encoding",
+            &out[0],
+            pe.forward(x).into_data(),
+            1e-6,
+        );
+    }
+}

@@ -79,8 +79,13 @@ impl<B: Backend> LevelInputs<B> {
 /// `scale = size_h / flow_h`, bilinear with align_corners. The sign flips because the internal
 /// flow alternates between negative and positive disparity from level to level.
 pub(crate) fn hand_over<B: Backend>(flow: Tensor<B, 4>, size: [usize; 2]) -> Tensor<B, 4> {
-    let scale = size[0] as f64 / flow.dims()[2] as f64;
-    resize_bilinear_align_corners(flow, size).mul_scalar(-scale)
+    let factor = hand_over_factor(flow.dims()[2], size);
+    resize_bilinear_align_corners(flow, size).mul_scalar(factor)
+}
+
+/// The factor of [`hand_over`] from a flow of height `from_h` to `size`: `-size_h / from_h`.
+fn hand_over_factor(from_h: usize, size: [usize; 2]) -> f64 {
+    -(size[0] as f64 / from_h as f64)
 }
 
 /// A convex-upsampled flow of `level` as a full-resolution prediction whose channel 0 is the
@@ -216,9 +221,9 @@ impl EmittedLevel {
 
 /// [`hand_over`] as ONNX nodes.
 pub(crate) fn emit_hand_over(g: &mut Graph, flow: &Value, size: [usize; 2]) -> Value {
-    let scale = size[0] as f64 / flow.shape[2] as f64;
+    let factor = hand_over_factor(flow.shape[2], size);
     let resized = emit_resize_bilinear_align_corners(g, flow, size);
-    g.mul_scalar(&resized, -scale as f32)
+    g.mul_scalar(&resized, factor as f32)
 }
 
 impl<B: Backend> Refiner<'_, B> {

@@ -131,3 +131,32 @@ impl<B: Backend> UpdateBlock<B> {
         (net, mask, delta_flow)
     }
 }
+
+#[cfg(test)]
+mod tests {
+
+    use super::*;
+    use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+    use crate::test_util::uniform;
+
+    /// The update block of a level's last iteration (with the mask head) as graph nodes against
+    /// `forward`: hidden state, up-mask and Δflow.
+    #[test]
+    fn emitted_update_block_matches_forward() {
+        let block = UpdateBlockConfig::new().init::<crate::CpuBackend>(&Default::default());
+        let (n, h, w) = (1, 6, 8);
+        let net = uniform([n, 128, h, w], -1.0, 1.0);
+        let inp = uniform([n, 128, h, w], 0.0, 1.0);
+        let corr = uniform([n, 36, h, w], -1.0, 1.0);
+        let flow = uniform([n, 2, h, w], -4.0, 4.0);
+        let inputs = [&net, &inp, &corr, &flow].map(|t| t.to_data());
+        let out = run_emitted(&inputs, |g, x| {
+            let (net, mask, delta) = block.emit(g, &x[0], &x[1], &x[2], &x[3], true);
+            vec![net, mask.expect("the mask head"), delta]
+        });
+        let (net, mask, delta) = block.forward(net, inp, corr, flow);
+        assert_emit_matches("hidden state", &out[0], net.into_data(), 1e-5);
+        assert_emit_matches("up-mask", &out[1], mask.into_data(), 1e-5);
+        assert_emit_matches("delta flow", &out[2], delta.into_data(), 1e-5);
+    }
+}

@@ -12,6 +12,13 @@
 //! The network stays generic over `B: Backend`; where `B` is a backend a kernel is written for,
 //! the tensor primitives are moved (not copied) to the kernel's concrete type and back with
 //! [`same`], checked at run time.
+//!
+//! Every op with a kernel is called the same way: its entry point matches on
+//! [`kernels_f32`] of its inputs, one arm per kernel family it has (`Kernels::Flex` through
+//! [`to_flex`] / [`from_flex`], `Kernels::AutodiffFlex` through [`to_autodiff_flex`] /
+//! [`from_autodiff_flex`]; the AGCL ops, whose kernels exist for every family, through
+//! [`on_kernel_backend`], which writes one arm per family), and a last arm that calls the op's
+//! composed version, named `composed::<op>` in the op's own module.
 
 use std::any::{Any, TypeId};
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -167,13 +174,10 @@ fn same_ref<S: 'static, T: 'static>(value: &S) -> &T {
         .unwrap_or_else(|| unreachable!("kernel dispatch: device types differ"))
 }
 
-/// The Flex tensors behind float32 tensors when `B`'s kernels are the Flex ones, or `None`
-/// (the caller takes its composed path).
-pub(crate) fn flex_f32<B: Backend, const D: usize, const K: usize>(
-    tensors: [&Tensor<B, D>; K],
-) -> Option<[FlexTensor; K]> {
-    (kernels_f32(&tensors) == Kernels::Flex)
-        .then(|| tensors.map(|t| same(t.clone().into_primitive().tensor())))
+/// The Flex tensor behind a tensor of `B` (which must be Flex: the caller matched
+/// [`Kernels::Flex`]).
+pub(crate) fn to_flex<B: Backend, const D: usize>(t: Tensor<B, D>) -> FlexTensor {
+    same(t.into_primitive().tensor())
 }
 
 /// A Flex tensor as a tensor of `B` (which must be Flex).
@@ -181,13 +185,12 @@ pub(crate) fn from_flex<B: Backend, const D: usize>(t: FlexTensor) -> Tensor<B, 
     Tensor::from_primitive(TensorPrimitive::Float(same(t)))
 }
 
-/// The autodiff tensors behind float32 tensors when `B`'s kernels are the `Autodiff<Flex>`
-/// ones, or `None` (the caller takes its composed path).
-pub(crate) fn autodiff_flex_f32<B: Backend, const D: usize, const K: usize>(
-    tensors: [&Tensor<B, D>; K],
-) -> Option<[FloatTensor<Autodiff<Flex>>; K]> {
-    (kernels_f32(&tensors) == Kernels::AutodiffFlex)
-        .then(|| tensors.map(|t| same(t.clone().into_primitive().tensor())))
+/// The autodiff tensor behind a tensor of `B` (which must be `Autodiff<Flex>`: the caller
+/// matched [`Kernels::AutodiffFlex`]).
+pub(crate) fn to_autodiff_flex<B: Backend, const D: usize>(
+    t: Tensor<B, D>,
+) -> FloatTensor<Autodiff<Flex>> {
+    same(t.into_primitive().tensor())
 }
 
 /// An `Autodiff<Flex>` tensor as a tensor of `B` (which must be `Autodiff<Flex>`).

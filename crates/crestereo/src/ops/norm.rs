@@ -17,34 +17,37 @@ use burn::tensor::activation::relu;
 use burn::tensor::{TensorData, TensorMetadata};
 use rayon::prelude::*;
 
-use crate::ops::dispatch::{Kernels, from_autodiff_flex, from_flex, kernels_f32, same};
+use crate::ops::dispatch::{
+    Kernels, from_autodiff_flex, from_flex, kernels_f32, to_autodiff_flex, to_flex,
+};
 
 /// `(x − mean) / sqrt(var + eps)` per (image, channel) plane, biased variance as PyTorch's
 /// `instance_norm`, then ReLU when `relu_after`.
 pub fn instance_norm_act<B: Backend>(x: Tensor<B, 4>, eps: f64, relu_after: bool) -> Tensor<B, 4> {
     match kernels_f32(&[&x]) {
-        Kernels::Flex => {
-            let x: FlexTensor = same(x.into_primitive().tensor());
-            from_flex(forward(&x, eps, relu_after, false).0)
-        }
-        Kernels::AutodiffFlex => {
-            from_autodiff_flex(tracked(same(x.into_primitive().tensor()), eps, relu_after))
-        }
+        Kernels::Flex => from_flex(forward(&to_flex(x), eps, relu_after, false).0),
+        Kernels::AutodiffFlex => from_autodiff_flex(tracked(to_autodiff_flex(x), eps, relu_after)),
         _ => {
-            let y = composed(x, eps);
+            let y = composed::instance_norm(x, eps);
             if relu_after { relu(y) } else { y }
         }
     }
 }
 
-/// The norm from tensor ops, for any backend (and the reference the kernel is tested against).
-pub fn composed<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
-    let [n, c, h, w] = x.dims();
-    let flat = x.reshape([n, c, h * w]);
-    let mean = flat.clone().mean_dim(2);
-    let centered = flat - mean;
-    let var = centered.clone().square().mean_dim(2);
-    (centered / (var.add_scalar(eps)).sqrt()).reshape([n, c, h, w])
+/// The norm composed from tensor ops: the fallback where no kernel exists.
+pub mod composed {
+    use burn::prelude::*;
+
+    /// The norm from tensor ops, for any backend (and the reference the kernel is tested
+    /// against).
+    pub fn instance_norm<B: Backend>(x: Tensor<B, 4>, eps: f64) -> Tensor<B, 4> {
+        let [n, c, h, w] = x.dims();
+        let flat = x.reshape([n, c, h * w]);
+        let mean = flat.clone().mean_dim(2);
+        let centered = flat - mean;
+        let var = centered.clone().square().mean_dim(2);
+        (centered / (var.add_scalar(eps)).sqrt()).reshape([n, c, h, w])
+    }
 }
 
 /// The output, the normalised map before ReLU when `keep` (the backward needs it; without
@@ -186,7 +189,7 @@ mod tests {
         for relu_after in [false, true] {
             let plain =
                 super::instance_norm_act(map::<crate::CpuBackend>(&device), 1e-5, relu_after);
-            let want = super::composed(map::<crate::CpuBackend>(&device), 1e-5);
+            let want = super::composed::instance_norm(map::<crate::CpuBackend>(&device), 1e-5);
             let want = if relu_after { relu(want) } else { want };
             assert!(max_diff(plain, want) < 2e-6, "forward, relu {relu_after}");
 
@@ -196,7 +199,7 @@ mod tests {
                 let y = if ours {
                     super::instance_norm_act(x.clone(), 1e-5, relu_after)
                 } else {
-                    let y = super::composed(x.clone(), 1e-5);
+                    let y = super::composed::instance_norm(x.clone(), 1e-5);
                     if relu_after { relu(y) } else { y }
                 };
                 let grads = (y * weights.clone()).sum().backward();

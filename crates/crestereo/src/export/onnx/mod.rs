@@ -11,4 +11,7 @@
 mod graph;
 mod ops;
 
+#[cfg(test)]
+pub(crate) mod eval;
+
 pub use graph::{Attr, Graph, IR_VERSION, OPSET, Value};

@@ -5,13 +5,15 @@
 //! (`autodiff`); elsewhere it is composed from tensor ops.
 
 use burn::prelude::*;
-use burn::tensor::activation::{sigmoid, tanh};
 
 use crate::network::encoder::conv_cfg;
 use crate::ops::conv2d::Conv2d;
-use crate::ops::dispatch::{autodiff_flex_f32, flex_f32, from_autodiff_flex, from_flex};
+use crate::ops::dispatch::{
+    Kernels, from_autodiff_flex, from_flex, kernels_f32, to_autodiff_flex, to_flex,
+};
 
 mod autodiff;
+pub mod composed;
 mod flex;
 
 use flex::GateMath;
@@ -62,48 +64,33 @@ fn gru_step<B: Backend>(
     let hx = crate::ops::channels::cat_channels(h.clone(), x.clone());
     // z and r read the same input: one stacked convolution, then split.
     let zr = crate::ops::conv2d::forward_stacked(&[cz, cr], hx);
-    match kernel_gates(&zr, &h, &x, cq) {
-        Some(h) => h,
-        None => composed_gates(zr, h, x, cq),
-    }
+    gates(zr, h, x, cq)
 }
 
-/// The gates from the stacked logits `zr` by the Flex kernels (with their own backward under
-/// autodiff), or `None` where they do not apply (another backend or dtype).
-fn kernel_gates<B: Backend>(
-    zr: &Tensor<B, 4>,
-    h: &Tensor<B, 4>,
-    x: &Tensor<B, 4>,
-    cq: &Conv2d<B>,
-) -> Option<Tensor<B, 4>> {
-    if let Some([zr_f, h_f, x_f]) = flex_f32([zr, h, x]) {
-        // Plain Flex is inference: the vectorised σ and tanh (see `GateMath`).
-        let math = GateMath::Vectorised;
-        let q = cq.forward(from_flex(flex::reset_input(&zr_f, &h_f, &x_f, math)));
-        let [q_f] = flex_f32([&q]).expect("a Flex tensor");
-        return Some(from_flex(flex::blend(&zr_f, &h_f, &q_f, math)));
-    }
-    let [zr_a, h_a, x_a] = autodiff_flex_f32([zr, h, x])?;
-    let r_input = from_autodiff_flex(autodiff::reset_input(zr_a, h_a, x_a));
-    let q = cq.forward(r_input);
-    let [zr_a, h_a, q_a] = autodiff_flex_f32([zr, h, &q]).expect("an Autodiff<Flex> tensor");
-    Some(from_autodiff_flex(autodiff::blend(zr_a, h_a, q_a)))
-}
-
-/// The gates from the stacked logits `zr` composed from tensor ops (any backend).
-fn composed_gates<B: Backend>(
+/// The gates from the stacked logits `zr` (z then r) and the candidate convolution `cq`: by the
+/// Flex kernels (with their own backward under autodiff), else [`composed::gates`].
+fn gates<B: Backend>(
     zr: Tensor<B, 4>,
     h: Tensor<B, 4>,
     x: Tensor<B, 4>,
     cq: &Conv2d<B>,
 ) -> Tensor<B, 4> {
-    let hidden = h.dims()[1];
-    let zr = sigmoid(zr);
-    let z = zr.clone().narrow(1, 0, hidden);
-    let r = zr.narrow(1, hidden, hidden);
-    let q = tanh(cq.forward(crate::ops::channels::cat(vec![r * h.clone(), x], 1)));
-    // (1 - z) * h + z * q
-    (z.clone().neg().add_scalar(1.0)) * h + z * q
+    match kernels_f32(&[&zr, &h, &x]) {
+        Kernels::Flex => {
+            // Plain Flex is inference: the vectorised σ and tanh (see `GateMath`).
+            let math = GateMath::Vectorised;
+            let (zr, h, x) = (to_flex(zr), to_flex(h), to_flex(x));
+            let q = cq.forward(from_flex(flex::reset_input(&zr, &h, &x, math)));
+            from_flex(flex::blend(&zr, &h, &to_flex(q), math))
+        }
+        Kernels::AutodiffFlex => {
+            let (zr, h) = (to_autodiff_flex(zr), to_autodiff_flex(h));
+            let r_input = autodiff::reset_input(zr.clone(), h.clone(), to_autodiff_flex(x));
+            let q = cq.forward(from_autodiff_flex(r_input));
+            from_autodiff_flex(autodiff::blend(zr, h, to_autodiff_flex(q)))
+        }
+        _ => composed::gates(zr, h, x, cq),
+    }
 }
 
 impl<B: Backend> SepConvGru<B> {
@@ -113,7 +100,7 @@ impl<B: Backend> SepConvGru<B> {
     }
 }
 
-/// One GRU step as ONNX nodes, in the order of operations of [`composed_gates`].
+/// One GRU step as ONNX nodes, in the order of operations of [`composed::gates`].
 fn emit_gru_step<B: Backend>(
     g: &mut crate::export::onnx::Graph,
     h: &crate::export::onnx::Value,
@@ -175,8 +162,8 @@ mod tests {
         let x = random::<CpuBackend>([2, 24, 9, 11], &device);
         let q = &gru.valid().convq1;
         let zr = random::<CpuBackend>([2, 32, 9, 11], &device).mul_scalar(2.0);
-        let kernel = kernel_gates(&zr, &h, &x, q).expect("the Flex kernels");
-        let composed = composed_gates(zr, h, x, q);
+        let kernel = gates(zr.clone(), h.clone(), x.clone(), q);
+        let composed = composed::gates(zr, h, x, q);
         let diff = max_abs(kernel, composed);
         assert!(diff < 1e-5, "max difference {diff}");
     }
@@ -203,9 +190,9 @@ mod tests {
                 |t: &Tensor<CpuBackend, 4>| Tensor::<A, 4>::from_inner(t.clone()).require_grad();
             let (zr, h, x) = (track(&inputs.0), track(&inputs.1), track(&inputs.2));
             let out = if kernel {
-                kernel_gates(&zr, &h, &x, &gru.convq1).expect("the Autodiff<Flex> kernels")
+                gates(zr.clone(), h.clone(), x.clone(), &gru.convq1)
             } else {
-                composed_gates(zr.clone(), h.clone(), x.clone(), &gru.convq1)
+                composed::gates(zr.clone(), h.clone(), x.clone(), &gru.convq1)
             };
             let grads = (out.clone() * Tensor::from_inner(weights.clone()))
                 .sum()
@@ -220,5 +207,23 @@ mod tests {
             run(true),
             run(false),
         );
+    }
+
+    /// Both GRU steps as graph nodes (two convolutions where `forward` stacks z and r into one)
+    /// against `forward` with the Flex gate kernels.
+    #[test]
+    fn emitted_gru_matches_forward() {
+        use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+        let device = Default::default();
+        let gru = SepConvGruConfig::new()
+            .with_hidden_dim(16)
+            .with_input_dim(24)
+            .init::<CpuBackend>(&device);
+        let h = random::<CpuBackend>([2, 16, 9, 11], &device).tanh();
+        let x = random::<CpuBackend>([2, 24, 9, 11], &device);
+        let out = run_emitted(&[h.to_data(), x.to_data()], |g, v| {
+            vec![gru.emit(g, &v[0], &v[1])]
+        });
+        assert_emit_matches("GRU", &out[0], gru.forward(h, x).into_data(), 1e-5);
     }
 }

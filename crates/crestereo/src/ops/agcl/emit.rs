@@ -129,3 +129,53 @@ pub fn emit_shift_corr(g: &mut Graph, left: &Value, warped: &Value, spec: CorrSp
     let corr = g.concat(&corrs.iter().collect::<Vec<_>>(), 2);
     g.reshape(&corr, &[n, groups * spec.candidates(), h, w])
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+    use crate::ops::agcl::{SearchWindow, offset_corr, shift_corr, warp};
+    use crate::test_util::uniform;
+
+    /// The three AGCL ops as graph nodes against the kernels `forward` runs, for both search
+    /// windows (1×9 row, 3×3 square), with flows and offsets that reach past the borders.
+    #[test]
+    fn emitted_agcl_ops_match_the_kernels() {
+        let (n, c, h, w) = (2, 8, 6, 9);
+        let left = uniform([n, c, h, w], -1.0, 1.0);
+        let right = uniform([n, c, h, w], -1.0, 1.0);
+        let flow = uniform([n, 2, h, w], -3.0, 3.0);
+        let offset = uniform([n, 18, h, w], -1.5, 1.5);
+        for index in 0..2 {
+            let spec = CorrSpec::new(SearchWindow::for_iteration(index), 4);
+            let inputs = [&left, &right, &flow, &offset].map(|t| t.to_data());
+            let out = run_emitted(&inputs, |g, x| {
+                let warped = emit_warp(g, &x[1], &x[2]);
+                vec![
+                    emit_offset_corr(g, &x[0], &x[1], &x[2], &x[3], spec),
+                    emit_shift_corr(g, &x[0], &warped, spec),
+                    warped,
+                ]
+            });
+            let warped = warp(right.clone(), flow.clone());
+            let expected = [
+                offset_corr(
+                    left.clone(),
+                    right.clone(),
+                    flow.clone(),
+                    offset.clone(),
+                    spec,
+                ),
+                shift_corr(left.clone(), warped.clone(), spec),
+                warped,
+            ];
+            for ((label, emitted), forward) in ["offset corr", "shift corr", "warp"]
+                .iter()
+                .zip(&out)
+                .zip(expected)
+            {
+                assert_emit_matches(label, emitted, forward.into_data(), 1e-5);
+            }
+        }
+    }
+}

@@ -15,8 +15,10 @@ use burn::tensor::ops::FloatTensor;
 
 use super::kernels::{self, Dims};
 use super::layout::{channel_last, from_channel_last};
-use super::{CorrSpec, composed, prim, same, tensor};
-use crate::ops::dispatch::{Kernels, kernels_f32};
+use super::{CorrSpec, composed};
+use crate::ops::dispatch::{
+    Kernels, from_autodiff_flex, from_flex, kernels_f32, to_autodiff_flex, to_flex,
+};
 
 /// Shifted group correlation (N, G·K, H, W) of `left` and `warped` (N, C, H, W).
 pub fn shift_corr<B: Backend>(
@@ -30,14 +32,10 @@ pub fn shift_corr<B: Backend>(
         "AGCL: left/warped shapes differ"
     );
     match kernels_f32(&[&left, &warped]) {
-        Kernels::Flex => {
-            let (l, r): (FlexTensor, FlexTensor) = (same(prim(left)), same(prim(warped)));
-            tensor(same(flex_forward(&l, &r, spec)))
-        }
+        Kernels::Flex => from_flex(flex_forward(&to_flex(left), &to_flex(warped), spec)),
         Kernels::AutodiffFlex => {
-            let l: FloatTensor<Autodiff<Flex>> = same(prim(left));
-            let r: FloatTensor<Autodiff<Flex>> = same(prim(warped));
-            tensor(same(autodiff_forward(l, r, spec)))
+            let (l, r) = (to_autodiff_flex(left), to_autodiff_flex(warped));
+            from_autodiff_flex(autodiff_forward(l, r, spec))
         }
         _ => composed::shift_corr(left, warped, spec),
     }

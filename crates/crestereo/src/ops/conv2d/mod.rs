@@ -14,7 +14,7 @@
 //! altogether: 3×3, 1×5 and 5×1 kernels by Winograd's minimal filtering (`winograd`; larger
 //! tiles on `Flex`, i.e. inference, than on `Autodiff<Flex>`), others as a sum of products over
 //! shifted views of the padded input (`shifted`). Every other backend, float64 tensors and
-//! grouped convolutions run Burn's convolution ([`Conv2d::forward_composed`]); the model's
+//! grouped convolutions run Burn's convolution ([`composed::conv2d`]); the model's
 //! convolutions are [`Conv2d`] modules, whose `forward` makes that choice.
 
 use burn::backend::autodiff::NodeId;
@@ -34,6 +34,7 @@ use crate::ops::dispatch::{Kernels, same};
 use views::{View, matmul_into};
 
 mod by_matmul;
+pub mod composed;
 mod module;
 mod scratch;
 mod shifted;
@@ -43,19 +44,19 @@ mod winograd;
 pub use module::{Conv2d, Conv2dConfig};
 use winograd::Use;
 
-/// The Flex kernels' convolution of `x` (float32, groups 1, symmetric padding, `choice` a Flex
-/// family): `Ok(y)`; `Err(x)` where they do not apply (the caller composes).
+/// Whether the Flex kernels take `conv`: groups 1 and a symmetric padding.
+pub(crate) fn kernels_apply<B: Backend>(conv: &Conv2d<B>) -> bool {
+    conv.groups == 1 && conv.symmetric_padding().is_some()
+}
+
+/// The Flex kernels' convolution of float32 `x` (`choice` a Flex family, [`kernels_apply`]
+/// true).
 pub(crate) fn kernel_forward<B: Backend>(
     conv: &Conv2d<B>,
     x: Tensor<B, 4>,
     choice: Kernels,
-) -> Result<Tensor<B, 4>, Tensor<B, 4>> {
-    let (Some(padding), true) = (
-        conv.symmetric_padding(),
-        conv.groups == 1 && matches!(choice, Kernels::Flex | Kernels::AutodiffFlex),
-    ) else {
-        return Err(x);
-    };
+) -> Tensor<B, 4> {
+    let padding = conv.symmetric_padding().expect("kernels_apply");
     let options = ConvOptions::new(conv.stride, padding, conv.dilation, 1);
     let (x, w) = (
         x.into_primitive().tensor(),
@@ -72,7 +73,7 @@ pub(crate) fn kernel_forward<B: Backend>(
             None => y,
         })
     };
-    Ok(Tensor::from_primitive(TensorPrimitive::Float(y)))
+    Tensor::from_primitive(TensorPrimitive::Float(y))
 }
 
 /// Several convolutions of one input with the same geometry (kernel, stride, padding, dilation),

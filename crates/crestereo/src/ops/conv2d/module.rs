@@ -6,11 +6,8 @@
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::prelude::*;
-use burn::tensor::ops::ConvOptions;
 
-#[cfg(feature = "wgpu")]
-use crate::ops::dispatch::Kernels;
-use crate::ops::dispatch::kernels_f32;
+use crate::ops::dispatch::{Kernels, kernels_f32};
 
 /// Configuration of a [`Conv2d`]: PyTorch's `nn.Conv2d` initialisation (as Burn's).
 #[derive(Config, Debug)]
@@ -31,7 +28,7 @@ pub struct Conv2dConfig {
 }
 
 /// A 2-D convolution whose forward is chosen by [`crate::ops::dispatch`]: the Flex kernels of
-/// [`super`] where they apply, Burn's convolution ([`Conv2d::forward_composed`]) elsewhere.
+/// [`super`] where they apply, Burn's convolution ([`super::composed::conv2d`]) elsewhere.
 #[derive(Module, Debug)]
 pub struct Conv2d<B: Backend> {
     /// (C_out, C_in / groups, kh, kw).
@@ -80,19 +77,16 @@ impl<B: Backend> Conv2d<B> {
     /// convolution as one matrix product over the unfolded input ([`Self::forward_by_matmul`]);
     /// else Burn's convolution.
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        let choice = kernels_f32(&[&x, &self.weight.val()]);
-        let x = match super::kernel_forward(self, x, choice) {
-            Ok(y) => return y,
-            Err(x) => x,
-        };
-        #[cfg(feature = "wgpu")]
-        if matches!(choice, Kernels::Wgpu | Kernels::AutodiffWgpu)
-            && self.stride == [1, 1]
-            && self.groups == 1
-        {
-            return self.forward_by_matmul(x);
+        match kernels_f32(&[&x, &self.weight.val()]) {
+            choice @ (Kernels::Flex | Kernels::AutodiffFlex) if super::kernels_apply(self) => {
+                super::kernel_forward(self, x, choice)
+            }
+            #[cfg(feature = "wgpu")]
+            Kernels::Wgpu | Kernels::AutodiffWgpu if self.stride == [1, 1] && self.groups == 1 => {
+                self.forward_by_matmul(x)
+            }
+            _ => super::composed::conv2d(self, x),
         }
-        self.forward_composed(x)
     }
 
     /// A stride-1, groups-1 convolution as one matrix product over the input unfolded from
@@ -110,33 +104,6 @@ impl<B: Backend> Conv2d<B> {
             .as_ref()
             .map(|b| crate::float_like(b.val(), dtype));
         super::by_matmul::conv2d_by_matmul(x, weight, bias, padding, self.dilation)
-    }
-
-    /// Burn's convolution (any backend and dtype; parameters cast to the input's float dtype,
-    /// so a float64 input runs in float64).
-    pub fn forward_composed(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        let dtype = x.dtype();
-        let cast = |t: Tensor<B, 4>| match dtype == t.dtype() {
-            true => t,
-            false => t.cast(dtype),
-        };
-        let weight = cast(self.weight.val());
-        let bias = self.bias.as_ref().map(|b| {
-            let b = b.val();
-            if b.dtype() == dtype { b } else { b.cast(dtype) }
-        });
-        let padding = self.symmetric_padding().unwrap_or_else(|| {
-            panic!(
-                "convolution padding {:?} is not symmetric explicit or valid",
-                self.padding
-            )
-        });
-        burn::tensor::module::conv2d(
-            x,
-            weight,
-            bias,
-            ConvOptions::new(self.stride, padding, self.dilation, self.groups),
-        )
     }
 
     /// (top = bottom, left = right) of an explicit symmetric or valid padding.

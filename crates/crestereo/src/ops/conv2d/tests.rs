@@ -131,7 +131,7 @@ fn compare_with_burn_kernel(
     let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
         .require_grad();
     let ours = conv.forward(x.clone());
-    let theirs = conv.forward_composed(x.clone());
+    let theirs = composed::conv2d(&conv, x.clone());
     let case = format!(
         "cin {cin} cout {cout} kernel {kernel:?} stride {stride:?} pad {ph},{pw} \
          dilation {dilation:?} {h}x{w}"
@@ -172,7 +172,7 @@ fn compare_with_burn_kernel(
     let conv_f = conv.valid();
     let diff = max_diff(
         &values(conv_f.forward(xf.clone())),
-        &values(conv_f.forward_composed(xf)),
+        &values(composed::conv2d(&conv_f, xf)),
     );
     assert!(diff <= 1e-5, "{case}: Flex forward differs by {diff}");
 }
@@ -195,7 +195,7 @@ fn separable_kernels_match_burn_forward_and_gradients() {
             .init::<Ad>(&device);
         let x = Tensor::<Ad, 4>::random([2, 16, h, w], Distribution::Normal(0.0, 1.0), &device)
             .require_grad();
-        let (ours, theirs) = (conv.forward(x.clone()), conv.forward_composed(x.clone()));
+        let (ours, theirs) = (conv.forward(x.clone()), composed::conv2d(&conv, x.clone()));
         let case = format!("kernel {kernel:?} on {h}x{w}");
         let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
         assert!(fwd <= 1e-5, "{case}: forward differs by {fwd}");
@@ -231,7 +231,10 @@ fn stacked_convolutions_match_separate_ones() {
         .require_grad();
     let stacked = forward_stacked(&[&a, &b], x.clone());
     let separate = crate::ops::channels::cat(
-        vec![a.forward_composed(x.clone()), b.forward_composed(x.clone())],
+        vec![
+            composed::conv2d(&a, x.clone()),
+            composed::conv2d(&b, x.clone()),
+        ],
         1,
     );
     assert_eq!(stacked.dims(), [2, 8, 5, 7]);
@@ -282,7 +285,7 @@ fn matmul_composition_matches_burn_forward_and_gradients() {
             format!("cin {cin} cout {cout} kernel {kernel:?} pad {ph},{pw} dil {dilation:?}");
         let (ours, theirs) = (
             conv.forward_by_matmul(x.clone()),
-            conv.forward_composed(x.clone()),
+            composed::conv2d(&conv, x.clone()),
         );
         assert_eq!(ours.dims(), theirs.dims(), "{case}");
         let fwd = max_diff(&values(ours.clone()), &values(theirs.clone()));
@@ -302,5 +305,35 @@ fn matmul_composition_matches_burn_forward_and_gradients() {
         let as4 = |t: Tensor<Flex, 1>| values(t.reshape([1, 1, 1, cout]));
         let (a, b) = (as4(bias.grad(&g1).unwrap()), as4(bias.grad(&g2).unwrap()));
         assert!(max_diff(&a, &b) <= grad_tolerance(&b), "{case}: db differs");
+    }
+}
+
+/// Each convolution geometry of the network as a graph `Conv` node (Burn's convolution in the
+/// evaluator) against `Conv2d::forward` on Flex (the GEMM, Winograd and shifted-view kernels).
+#[test]
+fn emitted_convolutions_match_forward() {
+    use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+    let device = Default::default();
+    // (in, out, kernel, stride, padding): the encoder's 7×7/2 and 3×3/2, the 3×3, 1×1, 1×5 and
+    // 5×1 of the blocks and the GRU, the 7×7 of the motion encoder.
+    let geometries = [
+        (3, 8, [7, 7], 2, [3, 3]),
+        (8, 16, [3, 3], 2, [1, 1]),
+        (16, 16, [3, 3], 1, [1, 1]),
+        (16, 12, [1, 1], 1, [0, 0]),
+        (24, 16, [1, 5], 1, [0, 2]),
+        (24, 16, [5, 1], 1, [2, 0]),
+        (2, 16, [7, 7], 1, [3, 3]),
+    ];
+    for (cin, cout, kernel, stride, [ph, pw]) in geometries {
+        let conv = Conv2dConfig::new([cin, cout], kernel)
+            .with_stride([stride; 2])
+            .with_padding(PaddingConfig2d::Explicit(ph, pw, ph, pw))
+            .init::<Flex>(&device);
+        let x =
+            Tensor::<Flex, 4>::random([2, cin, 13, 18], Distribution::Uniform(-1.0, 1.0), &device);
+        let out = run_emitted(&[x.to_data()], |g, v| vec![conv.emit(g, &v[0])]);
+        let label = format!("{cin}->{cout} {kernel:?}/{stride}");
+        assert_emit_matches(&label, &out[0], conv.forward(x).into_data(), 1e-5);
     }
 }

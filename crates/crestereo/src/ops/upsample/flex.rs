@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 /// `flow` (N, C, H, W) upsampled by `rate` with `mask` (N, 9·rate², H, W; channel
 /// `k·rate² + a·rate + b` weighs neighbour k = 3·ky + kx for output offset (a, b)), as the
-/// composed path in `super::convex_upsample` defines it.
+/// composed path in `super::composed::convex_upsample` defines it.
 pub(super) fn convex_upsample(flow: &FlexTensor, mask: &FlexTensor, rate: usize) -> FlexTensor {
     let weights = softmax_weights(mask, rate);
     let [n, c, h, w] = flow.shape().dims();

@@ -2,14 +2,16 @@
 //!
 //! On the Flex backend the convex upsampling runs as two parallel kernels (`flex`), under
 //! autodiff on Flex (training) as the same kernels recorded with their own backward
-//! (`autodiff`); elsewhere it is composed from tensor ops.
+//! (`autodiff`); elsewhere it is composed from tensor ops ([`composed::convex_upsample`]).
 
 use burn::prelude::*;
-use burn::tensor::activation::softmax;
 
-use crate::ops::dispatch::{autodiff_flex_f32, flex_f32, from_autodiff_flex, from_flex};
+use crate::ops::dispatch::{
+    Kernels, from_autodiff_flex, from_flex, kernels_f32, to_autodiff_flex, to_flex,
+};
 
 mod autodiff;
+pub mod composed;
 mod flex;
 
 /// Interpolation matrix (out × in) of 1-D linear resizing with `align_corners = true`, with the
@@ -81,53 +83,17 @@ pub fn convex_upsample<B: Backend>(
         [n, 9 * rate * rate, h, w],
         "convex_upsample: mask shape"
     );
-    if let Some([flow_f, mask_f]) = flex_f32([&flow, &mask]) {
-        return from_flex(flex::convex_upsample(&flow_f, &mask_f, rate));
+    match kernels_f32(&[&flow, &mask]) {
+        Kernels::Flex => {
+            let (flow, mask) = (to_flex(flow), to_flex(mask));
+            from_flex(flex::convex_upsample(&flow, &mask, rate))
+        }
+        Kernels::AutodiffFlex => {
+            let (flow, mask) = (to_autodiff_flex(flow), to_autodiff_flex(mask));
+            from_autodiff_flex(autodiff::convex_upsample(flow, mask, rate))
+        }
+        _ => composed::convex_upsample(flow, mask, rate),
     }
-    if let Some([flow_a, mask_a]) = autodiff_flex_f32([&flow, &mask]) {
-        return from_autodiff_flex(autodiff::convex_upsample(flow_a, mask_a, rate));
-    }
-    composed_convex_upsample(flow, mask, rate)
-}
-
-/// `x` (N, C, H, W) with one row and column of zeros on every side, in `x`'s dtype (Burn's
-/// constant `pad` makes its border in the default float dtype: Flex then fails on float64).
-fn pad_zeros<B: Backend>(x: Tensor<B, 4>) -> Tensor<B, 4> {
-    let [n, c, h, w] = x.dims();
-    let zeros = |shape: [usize; 4]| Tensor::zeros(shape, (&x.device(), x.dtype()));
-    let (col, row) = (zeros([n, c, h, 1]), zeros([n, c, 1, w + 2]));
-    let x = crate::ops::channels::cat(vec![col.clone(), x, col], 3);
-    crate::ops::channels::cat(vec![row.clone(), x, row], 2)
-}
-
-/// [`convex_upsample`] composed from tensor ops (any backend).
-pub fn composed_convex_upsample<B: Backend>(
-    flow: Tensor<B, 4>,
-    mask: Tensor<B, 4>,
-    rate: usize,
-) -> Tensor<B, 4> {
-    // Ranks stay at 5 or below: with the 7-D softmax and 6-D permutation this had before, the
-    // gradients came out wrong on wgpu (Burn 0.21 fusion; found by the Vulkan tests).
-    let [n, c, h, w] = flow.dims();
-    let (rr, hw) = (rate * rate, h * w);
-    // mask channel k·rate² + ry·rate + rx: weight of neighbour k for sub-pixel (ry, rx)
-    let mask = softmax(mask.reshape([n, 9, rr, hw]), 1);
-    let padded = pad_zeros(flow.mul_scalar(rate as f64));
-    let neighbours = (0..9)
-        .map(|k| {
-            let (ky, kx) = (k / 3, k % 3);
-            padded
-                .clone()
-                .slice([0..n, 0..c, ky..ky + h, kx..kx + w])
-                .reshape([n, c, 1, hw])
-        })
-        .collect();
-    let unfolded = crate::ops::channels::cat(neighbours, 2); // (n, c, 9, h·w)
-    let up = (mask.reshape([n, 1, 9, rr, hw]) * unfolded.reshape([n, c, 9, 1, hw])).sum_dim(2);
-    // (n·c, ry, rx, y, x) → (n·c, y, ry, x, rx): sub-pixels interleaved into the full grid
-    up.reshape([n * c, rate, rate, h, w])
-        .permute([0, 3, 1, 4, 2])
-        .reshape([n, c, h * rate, w * rate])
 }
 
 /// [`resize_bilinear_align_corners`] as ONNX nodes: the same two interpolation-matrix
@@ -163,7 +129,7 @@ pub fn emit_resize_bilinear_align_corners(
     g.transpose(&y, &[0, 1, 3, 2])
 }
 
-/// [`composed_convex_upsample`] as ONNX nodes (ranks ≤ 5, a softmax over one axis, nine
+/// [`composed::convex_upsample`] as ONNX nodes (ranks ≤ 5, a softmax over one axis, nine
 /// slices of the zero-padded flow).
 pub fn emit_convex_upsample(
     g: &mut crate::export::onnx::Graph,
@@ -229,7 +195,7 @@ mod tests {
             let [flow, mask, _] = inputs(case);
             let kernel = convex_upsample(flow.clone(), mask.clone(), rate);
             assert_eq!(kernel.dims(), [n, 2, rate * h, rate * w]);
-            let diff = max_abs(kernel, composed_convex_upsample(flow, mask, rate));
+            let diff = max_abs(kernel, composed::convex_upsample(flow, mask, rate));
             assert!(diff < 1e-5, "{case:?}: max difference {diff}");
         }
     }
@@ -247,7 +213,7 @@ mod tests {
                 let out = if kernel {
                     convex_upsample(flow.clone(), mask.clone(), rate)
                 } else {
-                    composed_convex_upsample(flow.clone(), mask.clone(), rate)
+                    composed::convex_upsample(flow.clone(), mask.clone(), rate)
                 };
                 let grads = (out.clone() * Tensor::from_inner(weights.clone()))
                     .sum()
@@ -257,6 +223,29 @@ mod tests {
             };
             let label = format!("{case:?}");
             assert_output_and_grads_close(&label, ["flow", "mask"], run(true), run(false));
+        }
+    }
+
+    /// Convex upsampling and the bilinear resize as graph nodes against `forward`'s kernels.
+    #[test]
+    fn emitted_upsampling_and_resize_match_forward() {
+        use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
+        for case @ (_, h, w, rate) in CASES {
+            let [flow, mask, _] = inputs(case);
+            let sizes = [[2 * h + 1, 3 * w], [h.max(2), 2]];
+            let out = run_emitted(&[flow.to_data(), mask.to_data()], |g, x| {
+                let mut out = vec![emit_convex_upsample(g, &x[0], &x[1], rate)];
+                out.extend(sizes.map(|s| emit_resize_bilinear_align_corners(g, &x[0], s)));
+                out
+            });
+            let label = format!("convex upsampling {case:?}");
+            let forward = convex_upsample(flow.clone(), mask, rate);
+            assert_emit_matches(&label, &out[0], forward.into_data(), 1e-5);
+            for (size, emitted) in sizes.iter().zip(&out[1..]) {
+                let forward = resize_bilinear_align_corners(flow.clone(), *size);
+                let label = format!("resize {case:?} to {size:?}");
+                assert_emit_matches(&label, emitted, forward.into_data(), 1e-5);
+            }
         }
     }
 }

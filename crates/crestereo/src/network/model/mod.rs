@@ -3,7 +3,7 @@
 //! (the levels themselves are in [`crate::network::refine`]).
 
 use burn::prelude::*;
-use burn::tensor::activation::{relu, sigmoid, tanh};
+use burn::tensor::activation::{relu, tanh};
 use burn::tensor::module::avg_pool2d;
 
 use crate::export::onnx::{Graph, Value};
@@ -13,6 +13,7 @@ use crate::network::attention::{
 };
 use crate::network::corr::AdaptiveGroupCorrelationConfig;
 use crate::network::encoder::{BasicEncoder, BasicEncoderConfig, conv_cfg};
+use crate::network::formula;
 use crate::network::observer::{ForwardObserver, NoObserver};
 use crate::network::position_encoding::{PositionEncodingSine, PositionEncodingSineConfig};
 use crate::network::refine::{
@@ -220,7 +221,7 @@ impl<B: Backend> CREStereo<B> {
         right: Tensor<B, 4>,
         observer: &mut dyn ForwardObserver<B>,
     ) -> (Tensor<B, 4>, Tensor<B, 4>) {
-        let norm = |x: Tensor<B, 4>| x.div_scalar(255.0).mul_scalar(2.0).sub_scalar(1.0);
+        let norm = |x| formula::apply(x, &formula::INPUT_NORMALISATION);
         let (fmap1, fmap2) = self.fnet.forward_pair(norm(left), norm(right));
         observer.features(&fmap1, &fmap2);
         (fmap1, fmap2)
@@ -301,9 +302,7 @@ impl<B: Backend> CREStereo<B> {
     ) -> Tensor<B, 4> {
         let logits = conv.forward(x);
         observer.offset_logits(level, &logits);
-        sigmoid(logits)
-            .sub_scalar(0.5)
-            .mul_scalar(2.0 * self.offset_range)
+        formula::apply(logits, &formula::learned_offsets(self.offset_range))
     }
 
     /// Positional encoding, then self-attention, on the 1/16 maps.
@@ -347,12 +346,8 @@ impl<B: Backend> CREStereo<B> {
             ch == 3 && h % 16 == 0 && w % 16 == 0,
             "CREStereo: image size {h}x{w}"
         );
-        let mut norm = |x: &Value| {
-            let x = g.div_scalar(x, 255.0);
-            let x = g.mul_scalar(&x, 2.0);
-            g.sub_scalar(&x, 1.0)
-        };
-        let (left, right) = (norm(left), norm(right));
+        let left = formula::emit(g, left, &formula::INPUT_NORMALISATION);
+        let right = formula::emit(g, right, &formula::INPUT_NORMALISATION);
         let (fmap1, fmap2) = self.fnet.emit_pair(g, &left, &right);
         let [quarter, eighth, sixteenth] = self.emit_levels(g, fmap1, fmap2);
         let flow = match flow_init {
@@ -378,9 +373,7 @@ impl<B: Backend> CREStereo<B> {
         let hd = self.hidden_dim;
         let offsets = |g: &mut Graph, conv: &Conv2d<B>, x: &Value| {
             let logits = conv.emit(g, x);
-            let o = g.sigmoid(&logits);
-            let o = g.sub_scalar(&o, 0.5);
-            g.mul_scalar(&o, (2.0 * self.offset_range) as f32)
+            formula::emit(g, &logits, &formula::learned_offsets(self.offset_range))
         };
         let fmap1_dw8 = g.avg_pool(&fmap1, 2);
         let fmap2_dw8 = g.avg_pool(&fmap2, 2);
@@ -450,3 +443,6 @@ fn check_pair<B: Backend>(left: &Tensor<B, 4>, right: &Tensor<B, 4>) {
         "CREStereo: image size {h}x{w} is not a multiple of 16"
     );
 }
+
+#[cfg(test)]
+mod emit_tests;
