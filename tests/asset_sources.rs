@@ -8,8 +8,8 @@ use stereogen::dataset::Manifest;
 use stereogen::plan::recipe::ShapeSource;
 use stereogen::plan::{BaseColor, MaterialSpec, SceneSpec, Shape};
 use stereogen::render::RenderService;
-use stereogen_e2e::scenes::{base, object, plane};
-use stereogen_e2e::{generate_cmd, tiny_recipe, worker_config};
+use test_support::scenes::{base, object, plane};
+use test_support::{generate_cmd, tiny_recipe, worker_config};
 
 const CUBE_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n\
 f 1 2 3 4\nf 5 8 7 6\nf 1 5 6 2\nf 2 6 7 3\nf 3 7 8 4\nf 5 1 4 8\n";
@@ -262,7 +262,7 @@ fn shapenet_layouts_and_a_texture_folder_with_broken_files() {
 #[test]
 fn a_missing_asset_folder_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
-    let recipe = stereogen_e2e::write_tiny_recipe(dir.path(), "shapenet");
+    let recipe = test_support::write_tiny_recipe(dir.path(), "shapenet");
     let o = generate(
         &recipe,
         &dir.path().join("data"),

@@ -11,14 +11,14 @@ use serde_json::Value;
 use stereo_io::DisparityMap;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::recipe::PRESETS;
-use stereogen_e2e::{audit_cmd, sha256_hex};
+use test_support::{audit_cmd, sha256_hex};
 
 /// With seed 3 the first 8 scenes of the tiny `crestereo` mix cover all four categories.
 const MIX_SCENES: u64 = 8;
 const MIX_SEED: u64 = 3;
 
 fn generate(dir: &Path, preset: &str, count: u64, seed: u64) -> PathBuf {
-    stereogen_e2e::generate_tiny_preset(dir, preset, preset, count, seed)
+    test_support::generate_tiny_preset(dir, preset, preset, count, seed)
 }
 
 fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
@@ -287,7 +287,7 @@ fn audit_check_fails_on_corrupted_ground_truth_and_names_the_samples() {
 fn audit_explains_datasets_it_cannot_audit() {
     let tmp = tempfile::tempdir().unwrap();
     // An empty dataset: the generator made its directory, then every sample failed.
-    let data = stereogen_e2e::generate_failed_dataset(tmp.path(), "only-failures");
+    let data = test_support::generate_failed_dataset(tmp.path(), "only-failures");
     let (o, text) = audit(&data, &[]);
     assert!(!o.status.success());
     assert!(

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-use stereogen_e2e::{generate_cmd, stereogen_cmd, write_tiny_recipe};
+use test_support::{generate_cmd, stereogen_cmd, write_tiny_recipe};
 
 fn stereogen<S: AsRef<std::ffi::OsStr>>(args: &[S], dir: &Path) -> Output {
     stereogen_cmd(args)

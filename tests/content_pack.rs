@@ -14,7 +14,7 @@ use stereogen::plan::spec::{BaseColor, MaterialSpec, SceneSpec};
 use stereogen::plan::{Recipe, plan_scene};
 use stereogen::render::RenderService;
 use stereogen::render::runtime::managed_python;
-use stereogen_e2e::{
+use test_support::{
     RenderedPair, generate_cmd, output_text as text, stereogen_cmd, tiny_recipe, worker_config,
 };
 
@@ -266,7 +266,7 @@ fn a_dataset_records_its_asset_fingerprint_and_refuses_other_assets() {
     })
     .save(photos.join("a.png"))
     .unwrap();
-    let recipe = stereogen_e2e::write_tiny_recipe(dir.path(), "crestereo");
+    let recipe = test_support::write_tiny_recipe(dir.path(), "crestereo");
     let out = dir.path().join("data");
     let generate = |count: u64| {
         generate_cmd(&recipe, &out, count)

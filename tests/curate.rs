@@ -11,7 +11,7 @@ use std::process::Command;
 
 use stereogen::dataset::curate::{REPLACEMENT_BASE, replacement_index};
 use stereogen::dataset::{DatasetInfo, DatasetLayout, Manifest, ManifestEntry};
-use stereogen_e2e::{
+use test_support::{
     crestereo_bin, crestereo_train_cmd, generate_cmd, output_text as text_of, run_fails,
     run_ok as run, sha256_hex, stereogen_cmd, write_tiny_recipe,
 };
@@ -381,7 +381,7 @@ fn a_merge_after_curation_keeps_the_rounds() {
     for shard in ["0/2", "1/2"] {
         run(generate_cmd(&recipe, &farm, 4).args(["--seed", "9", "--shard", shard]));
     }
-    run(&mut stereogen_e2e::merge_cmd(&farm));
+    run(&mut test_support::merge_cmd(&farm));
     let merged = entries(&farm);
     assert_eq!(merged.len(), 4);
     let scores = dir.path().join("scores.jsonl");
@@ -434,7 +434,7 @@ fn a_merge_after_curation_keeps_the_rounds() {
         );
         assert!(curated.iter().all(|e| e.index != r.index));
     }
-    run(&mut stereogen_e2e::merge_cmd(&farm));
+    run(&mut test_support::merge_cmd(&farm));
     assert_eq!(entries(&farm), curated, "merge undid the curation");
     assert_eq!(info(&farm).curation.len(), 1);
 }

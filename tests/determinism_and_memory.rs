@@ -3,7 +3,7 @@
 use stereogen::assets::AssetIndex;
 use stereogen::plan::{Recipe, plan_scene};
 use stereogen::render::RenderService;
-use stereogen_e2e::{render, tiny_recipe, worker_config};
+use test_support::{render, tiny_recipe, worker_config};
 
 fn small_recipe() -> Recipe {
     let mut r = tiny_recipe("crestereo");

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use stereo_io::datasets::stereogen::Difficulty;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
-use stereogen_e2e::{
+use test_support::{
     generate_tiny_preset, output_text as said, run_fails, run_ok as run, stereogen_cmd,
 };
 

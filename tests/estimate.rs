@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::Output;
 
 use stereogen::plan::{Recipe, scene_category};
-use stereogen_e2e::{output_text as text, stereogen_cmd, tiny_recipe, write_tiny_recipe};
+use test_support::{output_text as text, stereogen_cmd, tiny_recipe, write_tiny_recipe};
 
 fn estimate(recipe: &Path, work: &Path, count: u64, extra: &[&str]) -> Output {
     let o = stereogen_cmd(["estimate", "--threads", "1", "--seed", "7"])

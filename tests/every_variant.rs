@@ -13,8 +13,8 @@ use stereogen::plan::{
     BaseColor, LightSpec, MaterialClass, MaterialSpec, ObjectSpec, Pattern, SceneSpec, Shape,
 };
 use stereogen::render::RenderService;
-use stereogen_e2e::scenes::{base, object, plane};
-use stereogen_e2e::{render, worker_config};
+use test_support::scenes::{base, object, plane};
+use test_support::{render, worker_config};
 
 fn shape_kind(s: &Shape) -> &'static str {
     match s {

@@ -7,7 +7,7 @@ use stereogen::render::RenderService;
 use stereogen::validate::audit::raycast::{
     RayScene, disparity_at, scene_triangles, visible_in_right,
 };
-use stereogen_e2e::{render, scenes, worker_config};
+use test_support::{render, scenes, worker_config};
 
 /// Steepest disparity change (px per px) tolerated before a pixel counts as grazing: there a
 /// ray offset of 1e-4 px (float32 raster arithmetic) already moves the disparity by 1e-3 px.

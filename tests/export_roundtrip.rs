@@ -6,10 +6,10 @@ use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
 use stereo_io::{DatasetFormat, DisparityMap, open_dataset};
-use stereogen_e2e::export_cmd;
+use test_support::export_cmd;
 
 fn generate(dir: &Path) -> PathBuf {
-    stereogen_e2e::generate_tiny_dataset(dir, "ours", 2, 3)
+    test_support::generate_tiny_dataset(dir, "ours", 2, 3)
 }
 
 fn export(data: &Path, format: &str, out: &Path, extra: &[&str]) -> std::process::Output {

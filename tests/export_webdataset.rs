@@ -9,10 +9,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 use stereo_io::{DatasetFormat, ImageEncoding, WritableFormat, create_writer, open_dataset};
-use stereogen_e2e::{export_cmd, stats_cmd, stereogen_cmd};
+use test_support::{export_cmd, stats_cmd, stereogen_cmd};
 
-#[path = "../crates/stereo-io/tests/support/pinned_venv.rs"]
-mod pinned_venv;
+use test_support::pinned_venv;
 
 fn export(data: &Path, out: &Path, extra: &[&str]) -> Command {
     let mut c = export_cmd(data, "webdataset", out);
@@ -46,7 +45,7 @@ fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
 #[test]
 fn a_rendered_dataset_as_shards_reads_back_as_it_was() {
     let t = tempfile::tempdir().unwrap();
-    let ours = stereogen_e2e::generate_tiny_dataset(t.path(), "ours", 3, 7);
+    let ours = test_support::generate_tiny_dataset(t.path(), "ours", 3, 7);
     let shards = t.path().join("shards");
     let said = run(&mut export(
         &ours,

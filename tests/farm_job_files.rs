@@ -20,7 +20,7 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
 use stereogen::dataset::Manifest;
-use stereogen_e2e::{
+use test_support::{
     farm_cmd, output_text as text, stereogen_bin, stereogen_cmd, write_tiny_recipe,
 };
 

@@ -4,15 +4,15 @@
 //! one line per problem and a non-zero exit; a second `generate` on a shard fails at once naming
 //! the holder, and a killed holder's lock is detected as stale.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use crestereo_train::parallel::compare::logged_losses;
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen_e2e::{
+use test_support::{
     audit_cmd, crestereo_train_cmd, export_cmd, generate_cmd, output_text as text, run_ok,
-    stats_cmd, stereogen_cmd, write_tiny_recipe,
+    stats_cmd, stereogen_cmd, two_shard_farm, write_tiny_recipe,
 };
 
 fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {
@@ -23,17 +23,6 @@ fn generate(recipe: &Path, out: &Path, count: u64, shard: &str) -> Command {
 
 fn run(mut c: Command) -> Output {
     c.output().expect("run stereogen")
-}
-
-/// A farm output of `count` samples in two shards, each rendered by its own process.
-fn two_shard_farm(dir: &Path, count: u64) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, "crestereo");
-    let out = dir.join("farm");
-    for shard in ["0/2", "1/2"] {
-        let o = run(generate(&recipe, &out, count, shard));
-        assert!(o.status.success(), "generate --shard {shard}: {}", text(&o));
-    }
-    out
 }
 
 fn copy_tree(from: &Path, to: &Path) {

@@ -13,8 +13,8 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen_e2e::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
-use stereogen_e2e::{farm_cmd, stats_cmd, write_tiny_recipe};
+use test_support::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
+use test_support::{farm_cmd, stats_cmd, write_tiny_recipe};
 
 /// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once; `extra` added.
 fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64, extra: &[&OsStr]) {

@@ -5,12 +5,12 @@
 //! export is kept unless `--force`; a merge killed with SIGKILL while writing its shards is
 //! finished by the same command to the bytes of an uninterrupted one.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use stereo_io::{DatasetFormat, open_dataset};
-use stereogen_e2e::{export_cmd, generate_cmd, merge_cmd, output_text as text, write_tiny_recipe};
+use test_support::{export_cmd, merge_cmd, output_text as text, two_shard_farm};
 
 /// The shard options every merge here uses: one sample a shard, shuffled, two splits.
 const SHARDS: [&str; 6] = [
@@ -21,20 +21,6 @@ const SHARDS: [&str; 6] = [
     "--splits",
     "train=0.5,val=0.5",
 ];
-
-/// A farm output of `count` samples in two shards, each rendered by its own process.
-fn two_shard_farm(dir: &Path, count: u64) -> PathBuf {
-    let recipe = write_tiny_recipe(dir, "crestereo");
-    let out = dir.join("farm");
-    for shard in ["0/2", "1/2"] {
-        let o = generate_cmd(&recipe, &out, count)
-            .args(["--seed", "9", "--shard", shard])
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "generate --shard {shard}: {}", text(&o));
-    }
-    out
-}
 
 /// `merge OUT --webdataset DIR` with [`SHARDS`] and `extra`.
 fn merge_into(out: &Path, wds: &Path, extra: &[&str]) -> Command {

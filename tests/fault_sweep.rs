@@ -16,11 +16,9 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::render::scratch;
-use stereogen_e2e::{generate_cmd, sha256_hex, write_tiny_recipe};
+use test_support::{generate_cmd, sha256_hex, write_tiny_recipe};
 
-#[path = "../crates/stereo-io/tests/support/small_fs.rs"]
-#[macro_use]
-mod small_fs;
+use test_support::small_fs_or_skip;
 
 /// Exit status of a run stopped by SIGTERM/SIGINT (`EX_TEMPFAIL`).
 const EXIT_INTERRUPTED: i32 = 75;

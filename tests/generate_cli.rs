@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::plan::recipe::PRESETS;
-use stereogen_e2e::{sha256_hex, stereogen_cmd, write_tiny_recipe};
+use test_support::{sha256_hex, stereogen_cmd, write_tiny_recipe};
 
 /// The default preset shrunk so a sample renders in about a second.
 fn tiny_recipe(dir: &Path) -> PathBuf {
@@ -21,7 +21,7 @@ fn generate_cmd(recipe: &Path, out: &Path, count: u64) -> Command {
 }
 
 fn generate_with_seed(recipe: &Path, out: &Path, count: u64, seed: u64) -> Command {
-    let mut c = stereogen_e2e::generate_cmd(recipe, out, count);
+    let mut c = test_support::generate_cmd(recipe, out, count);
     c.args(["--seed", &seed.to_string()]);
     c
 }

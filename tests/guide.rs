@@ -16,9 +16,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-#[path = "support/python_envs.rs"]
-mod python_envs;
 use python_envs::{base_venvs, fresh_venv, python_home, repo_root, target_dir};
+use test_support::python_envs;
 
 /// The pages whose command blocks `guide_commands_run_as_written` runs, in order, and the marker
 /// name of their blocks.

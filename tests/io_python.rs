@@ -11,9 +11,8 @@ use std::process::Command;
 use serde_json::json;
 use stereo_io::*;
 
-#[path = "../crates/stereo-io/tests/support/pinned_venv.rs"]
-mod pinned_venv;
 use pinned_venv::{ensure_venv, pip_install, run};
+use test_support::pinned_venv;
 
 const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
 
@@ -318,7 +317,7 @@ fn python_module_matches_the_rust_readers() {
             .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
             .arg(root.join("crates/stereogen-py/pytests"))
             .env("STEREOGEN_PY_FIXTURES", dir.path())
-            .env("STEREOGEN_BIN", stereogen_e2e::stereogen_bin()),
+            .env("STEREOGEN_BIN", test_support::stereogen_bin()),
         "pytest",
     );
 }

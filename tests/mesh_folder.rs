@@ -9,7 +9,7 @@ use stereo_io::datasets::stereogen::read_skipped_assets;
 use stereogen::assets::{AssetIndex, MeshAsset};
 use stereogen::dataset::{Manifest, read_scene_spec};
 use stereogen::plan::{Recipe, Shape, plan_scene};
-use stereogen_e2e::{generate_cmd, stereogen_cmd, write_tiny_recipe};
+use test_support::{generate_cmd, stereogen_cmd, write_tiny_recipe};
 
 /// A tetrahedron around the origin, stretched by `k` so the files differ.
 fn tetrahedron(k: usize) -> String {

@@ -11,11 +11,10 @@ use std::sync::OnceLock;
 use std::time::Instant;
 
 use stereo_io::{NpyArray, open_dataset, write_npy};
-use stereogen_e2e::export_cmd;
+use test_support::export_cmd;
 
-#[path = "support/python_envs.rs"]
-mod python_envs;
 use python_envs::{base_venvs, fresh_venv, pinned_venv::run, python_home, repo_root, target_dir};
+use test_support::python_envs;
 
 /// The wheel, built once per test run with the guide's command into `<target>/python-wheel`
 /// (by the maturin and for the Python of tests/io_python.rs, in its cargo folder: one build of
@@ -131,7 +130,7 @@ fn fixture() -> &'static Fixture {
     static FIXTURE: OnceLock<Fixture> = OnceLock::new();
     FIXTURE.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        let folder = stereogen_e2e::generate_tiny_dataset(dir.path(), "ours", 6, 11);
+        let folder = test_support::generate_tiny_dataset(dir.path(), "ours", 6, 11);
         let shards = dir.path().join("shards");
         let out = export_cmd(&folder, "webdataset", &shards)
             .args(["--shard-size", "1B", "--splits", "train=0.67,val=0.33"])

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::Command;
 
 use serde_json::Value;
-use stereogen_e2e::stereogen_bin;
+use test_support::stereogen_bin;
 
 #[test]
 fn the_study_renders_reference_and_candidates_and_reports_per_category() {

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use stereogen_e2e::{generate_tiny_dataset, stereogen_cmd};
+use test_support::{generate_tiny_dataset, stereogen_cmd};
 
 const SCENES: u64 = 8;
 const THUMBNAILS: usize = 6;
@@ -284,7 +284,7 @@ fn report_of_a_generated_dataset_loads_in_a_real_browser() {
 fn report_lists_what_is_wrong_and_renders_the_rest() {
     let tmp = tempfile::tempdir().unwrap();
     // A dataset whose only sample failed.
-    let failed = stereogen_e2e::generate_failed_dataset(tmp.path(), "failed");
+    let failed = test_support::generate_failed_dataset(tmp.path(), "failed");
     let html = report(&failed, &tmp.path().join("failed.html"), 4);
     assert!(
         html.contains("id=\"problems\"") && html.contains("no finished samples"),

@@ -9,7 +9,7 @@ use stereogen::assets::AssetIndex;
 use stereogen::plan::recipe::DEFAULT_PRESET;
 use stereogen::plan::{Modifier, Recipe, SceneSpec, plan_scene};
 use stereogen::render::RenderService;
-use stereogen_e2e::{render, worker_config};
+use test_support::{render, worker_config};
 
 /// Builds a spec's scene inside Blender (no render) and prints one line per mesh object: its
 /// name and a hash of its evaluated vertices and face corners, in Blender's order.
@@ -153,7 +153,7 @@ fn re_rendering_a_boolean_heavy_spec_stays_within_the_stated_bound() {
         );
     }
     for key in ["left", "right"] {
-        let read = |r: &stereogen_e2e::RenderedPair| {
+        let read = |r: &test_support::RenderedPair| {
             stereo_io::read_rgb(&r.layout.abs(if key == "left" {
                 &r.entry.files.left
             } else {
@@ -189,7 +189,7 @@ fn re_rendering_default_preset_samples_measured() {
     // Not `generate_cmd`: a measurement at the default thread count, of the default recipe
     // unless STEREOGEN_RERENDER_SIZE asks for another size.
     let mut generate =
-        stereogen_e2e::stereogen_cmd(["generate", "--no-progress", "--seed", "0", "--count"]);
+        test_support::stereogen_cmd(["generate", "--no-progress", "--seed", "0", "--count"]);
     generate.arg(count.to_string()).arg("--out").arg(&first);
     if let Ok(size) = std::env::var("STEREOGEN_RERENDER_SIZE") {
         let (w, h) = size.split_once('x').expect("STEREOGEN_RERENDER_SIZE=WxH");
@@ -216,7 +216,7 @@ fn re_rendering_default_preset_samples_measured() {
     );
     for e in &entries {
         let again = dir.path().join(format!("again-{}", e.index));
-        let o = stereogen_e2e::stereogen_cmd(["render"])
+        let o = test_support::stereogen_cmd(["render"])
             .arg("--spec")
             .arg(first.join(&e.files.scene))
             .arg("--out")

@@ -8,8 +8,8 @@ use stereogen::plan::rig::View;
 use stereogen::plan::spec::{Leaf, Modifier};
 use stereogen::plan::{BaseColor, MaterialClass, MaterialSpec, ObjectRole, Shape, plan_scene};
 use stereogen::render::RenderService;
-use stereogen_e2e::scenes::{base, object, plane};
-use stereogen_e2e::{render, tiny_recipe, worker_config};
+use test_support::scenes::{base, object, plane};
+use test_support::{render, tiny_recipe, worker_config};
 
 #[test]
 fn one_scene_of_every_preset_renders() {

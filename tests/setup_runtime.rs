@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use stereogen_e2e::stereogen_cmd;
+use test_support::stereogen_cmd;
 
 fn setup(home: &Path) -> Command {
     let mut c = stereogen_cmd(["setup"]);

@@ -9,12 +9,12 @@ use std::process::Output;
 use serde_json::Value;
 use stereogen::dataset::{DatasetInfo, Manifest};
 use stereogen::plan::Dist;
-use stereogen_e2e::stats_cmd;
+use test_support::stats_cmd;
 
 const SCENES: u64 = 24;
 
 fn generate(dir: &Path) -> PathBuf {
-    stereogen_e2e::generate_tiny_dataset(dir, "data", SCENES, 3)
+    test_support::generate_tiny_dataset(dir, "data", SCENES, 3)
 }
 
 fn stats(data: &Path, out: &Path) -> (Output, String) {

@@ -9,9 +9,10 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crestereo_train::parallel::compare::{compare_runs, logged_losses};
-use crestereo_train::tiny_run::{free_master_port, output_text, write_tiny_run};
-use stereogen_e2e::crestereo_bin;
-use stereogen_e2e::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
+use crestereo_train::tiny_run::{free_master_port, write_tiny_run};
+use test_support::crestereo_bin;
+use test_support::output_text;
+use test_support::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()

@@ -7,7 +7,7 @@ use std::path::Path;
 use stereogen::dataset::Manifest;
 use stereogen::plan::spec::SPEC_FORMAT_VERSION;
 use stereogen::render::{Worker, WorkerError};
-use stereogen_e2e::{generate_cmd, worker_config, write_tiny_recipe};
+use test_support::{generate_cmd, worker_config, write_tiny_recipe};
 
 #[test]
 fn a_worker_that_reads_another_spec_version_is_refused_at_start() {

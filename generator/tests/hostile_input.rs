@@ -15,8 +15,7 @@ use std::process::{Command, Output};
 use stereo_io::{ReadOptions, WebDatasetOptions, export_webdataset};
 use stereogen::plan::{AssetIndex, BaseColor, Recipe, SceneSpec, Shape, plan_scene};
 
-#[path = "../../crates/stereo-io/tests/fixtures/mod.rs"]
-mod fixtures;
+use test_support::io_fixtures;
 
 fn stereogen(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_stereogen"))
@@ -50,8 +49,8 @@ fn refused(out: &Output, want: &str) -> String {
 #[test]
 fn a_tar_header_claiming_4_tib_is_one_error_line_for_stats_and_export() {
     let dir = tempfile::tempdir().unwrap();
-    let source = fixtures::mkdir(&dir.path().join("source"));
-    fixtures::our_dataset(&source);
+    let source = io_fixtures::mkdir(&dir.path().join("source"));
+    io_fixtures::our_dataset(&source);
     let wds = dir.path().join("wds");
     let opts = WebDatasetOptions::default();
     export_webdataset(&source, &wds, None, &ReadOptions::default(), &opts).unwrap();
@@ -59,7 +58,7 @@ fn a_tar_header_claiming_4_tib_is_one_error_line_for_stats_and_export() {
     let members = stereo_io::datasets::webdataset::scan_shard(&shard).unwrap();
     let last = members.last().unwrap().offset as usize - 512;
     let mut bytes = fs::read(&shard).unwrap();
-    fixtures::set_size_base256(&mut bytes, last, 4 << 40);
+    io_fixtures::set_size_base256(&mut bytes, last, 4 << 40);
     fs::write(&shard, &bytes).unwrap();
     let want = "claims 4096 GiB of data";
     refused(&stereogen(&[&"stats", &wds]), want);
@@ -101,7 +100,7 @@ fn hostile_scene_specs_are_refused_before_blender_starts() {
 
     // A photo whose header claims 30000×30000 pixels: Blender would decode it whole.
     let photo = d.join("bomb.png");
-    fixtures::write_png_claiming(&photo, 30000, 30000);
+    io_fixtures::write_png_claiming(&photo, 30000, 30000);
     let mut s = spec();
     s.objects[0].material.base = BaseColor::Image {
         path: photo,

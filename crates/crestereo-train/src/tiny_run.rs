@@ -1,8 +1,7 @@
 //! A tiny training run, for the tests and demonstrations of data-parallel training: its data and
-//! config, a block of free loopback ports for its ranks, and a finished process's output.
+//! config and a block of free loopback ports for its ranks.
 
 use std::path::{Path, PathBuf};
-use std::process::Output;
 
 use anyhow::{Context, Result};
 
@@ -70,13 +69,4 @@ pub fn free_master_port() -> u16 {
             return p;
         }
     }
-}
-
-/// What a finished process printed: its stdout, then its stderr.
-pub fn output_text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }

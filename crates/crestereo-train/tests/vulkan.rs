@@ -6,7 +6,7 @@
 //!   implementation, and against central finite differences (the checks `tests/agcl.rs` runs
 //!   on Flex, `crestereo/tests/agcl_checks`);
 //! * the whole network against the reference fixtures at the Flex bounds (layers ≤ 1e-4,
-//!   predictions ≤ 1e-3, gradient cosine ≥ 0.9999: `crestereo/tests/common/network_checks.rs`),
+//!   predictions ≤ 1e-3, gradient cosine ≥ 0.9999: `test-support/src/network_fixtures/network_checks.rs`),
 //!   and `crestereo infer --device vulkan`'s two-pass disparity against `--device cpu`'s;
 //! * three training steps on a fixed sample with a falling loss, counting the backend's reads to
 //!   the host: one per step (the logged loss), none inside forward, backward or Adam.
@@ -16,41 +16,20 @@
 //! (set by `.ci/run`), which makes them fail.
 #![cfg(feature = "vulkan")]
 
-#[path = "../../crestereo/tests/agcl_checks/mod.rs"]
-mod agcl_checks;
-#[path = "../../crestereo/tests/common/mod.rs"]
-mod common;
-
 use std::path::Path;
 use std::process::Command;
 use std::sync::OnceLock;
 
-use agcl_checks::TestDevice;
-use burn::backend::wgpu::WgpuDevice;
 use burn::backend::{Autodiff, Wgpu};
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
-use common::network_checks;
 use crestereo::ops::dispatch::{Kernels, kernels};
 use crestereo_train::host_reads::{HostReadCounter, count as reads};
+use test_support::agcl_checks::{self, LAVAPIPE as DEVICE};
+use test_support::network_fixtures::{self, network_checks};
 
 type W = Wgpu;
 type Wa = Autodiff<Wgpu>;
-
-/// lavapipe: Mesa's CPU implementation of Vulkan, which wgpu lists as a CPU adapter.
-const DEVICE: WgpuDevice = WgpuDevice::Cpu;
-
-impl TestDevice for W {
-    fn test_device() -> Self::Device {
-        DEVICE
-    }
-}
-
-impl TestDevice for Wa {
-    fn test_device() -> Self::Device {
-        DEVICE
-    }
-}
 
 const LAVAPIPE_ICD: &str = "/usr/share/vulkan/icd.d/lvp_icd.x86_64.json";
 
@@ -161,10 +140,10 @@ fn training_steps_lower_the_loss_without_host_reads() {
     );
 
     let device = DEVICE;
-    let mut model = common::model::<Wa>(&device);
+    let mut model = network_fixtures::model::<Wa>(&device);
     let t = "train_b2_64x128";
     let first = |name: &str| {
-        let a = common::npy(&format!("{t}/{name}.npy"));
+        let a = network_fixtures::npy(&format!("{t}/{name}.npy"));
         let per_sample = a.data.len() / a.shape[0];
         (a.data[..per_sample].to_vec(), a.shape[1..].to_vec())
     };
@@ -227,7 +206,7 @@ fn cli_infer_on_vulkan_matches_the_cpu() {
     if !lavapipe() {
         return;
     }
-    let fixtures = common::fixtures();
+    let fixtures = network_fixtures::fixtures();
     let e = fixtures.join("eval_cascade_1x128x192");
     let out = tempfile::tempdir().unwrap();
     let cache = out.path().join("kernels");
@@ -279,7 +258,7 @@ fn cli_infer_on_vulkan_matches_the_cpu() {
             .all(|(a, b)| a.to_bits() == b.to_bits()),
         "cached kernels gave a different disparity"
     );
-    let (err, range) = common::max_err(&vulkan, &cpu);
+    let (err, range) = network_fixtures::max_err(&vulkan, &cpu);
     println!(
         "crestereo infer --device vulkan vs --device cpu: max |diff| = {err:.3e} (max |disparity| {range:.2})"
     );

@@ -4,28 +4,13 @@
 //! fixtures' forward and two-pass inference, and the gradient directions. Every test switches
 //! the kernels off first; the switch is process-wide, and this file is its own process.
 
-mod agcl_checks;
-mod common;
-
-use agcl_checks::TestDevice;
-use common::network_checks;
 use crestereo::ops::dispatch::{Kernels, kernels, use_composed_ops};
 use crestereo::{CpuAutodiffBackend, CpuBackend};
+use test_support::agcl_checks;
+use test_support::network_fixtures::network_checks;
 
 type B = CpuBackend;
 type A = CpuAutodiffBackend;
-
-impl TestDevice for B {
-    fn test_device() -> Self::Device {
-        Default::default()
-    }
-}
-
-impl TestDevice for A {
-    fn test_device() -> Self::Device {
-        Default::default()
-    }
-}
 
 fn composed() {
     use_composed_ops(true);

@@ -13,9 +13,8 @@ use std::time::Instant;
 
 use stereo_io::*;
 
-#[path = "../../stereo-io/tests/support/pinned_venv.rs"]
-mod pinned_venv;
 use pinned_venv::{ensure_venv, run};
+use test_support::pinned_venv;
 
 const PINS: &[&str] = &[
     "maturin==1.16.0",

@@ -5,6 +5,8 @@
 
 use std::path::Path;
 
+use test_support::small_fs_or_skip;
+
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use crestereo::{CREStereo, CREStereoConfig, CpuAutodiffBackend};

@@ -1,10 +1,10 @@
 //! The `crestereo infer` command on the fixture PNGs, and its error messages.
 
 // The model crate's fixture helpers, not a second copy of them.
-use crate::common;
+use crate::network_fixtures;
 use std::process::Command;
 
-use common::*;
+use network_fixtures::*;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_crestereo"))

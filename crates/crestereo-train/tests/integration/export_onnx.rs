@@ -3,7 +3,7 @@
 //! with the same weights — the reference fixture weights and a model after a few training steps,
 //! on the fixture pair and on a random pair — and its refusals of bad input.
 
-use crate::common;
+use crate::network_fixtures;
 use crate::pinned_venv;
 use crate::short_run;
 use std::path::{Path, PathBuf};
@@ -279,7 +279,7 @@ fn run_readme_snippet(venv: &Path, dir: &Path, model: &Path, pair: &Pair) -> Vec
 fn onnxruntime_matches_crestereo_infer_with_reference_and_trained_weights() {
     let venv = pinned_venv::ensure_venv("venv-onnx", PINS);
     let dir = tempfile::tempdir().unwrap();
-    let fixtures = common::fixtures();
+    let fixtures = network_fixtures::fixtures();
     let e = fixtures.join("eval_cascade_1x128x192");
     let fixture = pair_from_pngs(dir.path(), &e.join("left.png"), &e.join("right.png"));
     let random = random_pair(dir.path(), 128, 192, 7);
@@ -345,7 +345,7 @@ fn export_args<'a>(weights: &'a str, out: &'a str, rest: &[&'a str]) -> Vec<&'a 
 #[test]
 fn bad_input_gets_one_line_and_no_file() {
     let dir = tempfile::tempdir().unwrap();
-    let weights = common::fixtures().join("weights_seed0.pt");
+    let weights = network_fixtures::fixtures().join("weights_seed0.pt");
     let w = s(&weights);
     let out = dir.path().join("m.onnx");
     let o = s(&out);

@@ -4,16 +4,16 @@
 //! `crestereo infer` predicts; and bad input gets one clear line and no file.
 
 // The model crate's fixture helpers, not a second copy of them.
-use crate::common;
+use crate::network_fixtures;
 use crate::pinned_venv;
 use crate::short_run;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::Instant;
 
-use common::{fixtures, read_exr};
 use crestereo::weights::{NamedArray, load_weights, named_parameters};
 use crestereo::{CREStereo, CREStereoConfig, CpuBackend};
+use network_fixtures::{fixtures, read_exr};
 
 /// PyTorch and NumPy of the check (numpy as in the other Python checks of the workspace).
 const TORCH_PINS: &[&str] = &["torch==2.15.0", "numpy==2.4.6"];
@@ -184,7 +184,7 @@ fn check_in_pytorch(pth: &Path, same_as: Option<&Path>, work: &Path, what: &str)
     ]);
     let (w, h, burn) = read_exr(&burn_out).unwrap();
     assert_eq!((w, h), (192, 128));
-    let (diff, largest) = common::max_err(&burn, &torch.data);
+    let (diff, largest) = network_fixtures::max_err(&burn, &torch.data);
     println!("{what}: max |PyTorch - Burn| = {diff:.3e} px (largest |disparity| {largest:.2} px)");
     assert!(
         diff <= TOLERANCE_PX,

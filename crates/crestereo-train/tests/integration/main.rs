@@ -4,16 +4,10 @@
 //! `vulkan.rs` stays a binary of its own: it sets the process's autotune level for CubeCL
 //! before the first device opens.
 //!
-//! Helpers shared with other crates' tests are included by path.
+//! Helpers shared with other crates' tests come from the test-support crate.
 
-#[allow(dead_code)]
-#[path = "../../../stereo-io/tests/support/small_fs.rs"]
-#[macro_use]
-mod small_fs;
-#[path = "../../../crestereo/tests/common/mod.rs"]
-mod common;
-#[path = "../../../stereo-io/tests/support/pinned_venv.rs"]
-mod pinned_venv;
+use test_support::{network_fixtures, pinned_venv};
+
 mod short_run;
 
 mod checkpoint_disk_full;

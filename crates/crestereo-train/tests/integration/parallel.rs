@@ -5,11 +5,12 @@
 //! (exit 75).
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crestereo_train::parallel::compare::{checkpoint_weights, compare_runs, logged_losses};
-use crestereo_train::tiny_run::{free_master_port, output_text, write_tiny_run};
+use crestereo_train::tiny_run::{free_master_port, write_tiny_run};
+use test_support::output_text as text;
 
 /// The equality bound of the targets: losses and weights within 1e-5 relative.
 const TOLERANCE: f64 = 1e-5;
@@ -18,10 +19,6 @@ fn crestereo() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_crestereo"));
     c.env("CRESTEREO_LOG", "warn").stdin(Stdio::null());
     c
-}
-
-fn text(o: &Output) -> String {
-    output_text(o)
 }
 
 fn s(p: &Path) -> &str {

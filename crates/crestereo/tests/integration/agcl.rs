@@ -3,23 +3,10 @@
 //! the kernels switched off, and the scan for host reads in the network's sources.
 
 use crate::agcl_checks;
-use agcl_checks::TestDevice;
 use crestereo::{CpuAutodiffBackend, CpuBackend};
 
 type B = CpuBackend;
 type A = CpuAutodiffBackend;
-
-impl TestDevice for B {
-    fn test_device() -> Self::Device {
-        Default::default()
-    }
-}
-
-impl TestDevice for A {
-    fn test_device() -> Self::Device {
-        Default::default()
-    }
-}
 
 #[test]
 fn offset_corr_matches_reference() {
@@ -147,7 +134,7 @@ fn no_host_reads_in_forward_or_backward() {
 /// The scan finds the reads of the sampler the fused op replaced (kept above as the reference).
 #[test]
 fn host_read_scan_detects_the_replaced_sampler() {
-    let this_file = include_str!("../agcl_checks/mod.rs");
+    let this_file = include_str!("../../../test-support/src/agcl_checks.rs");
     let start = this_file.find("fn reference_sample_points").unwrap();
     let end = this_file.find("fn pixel_grid").unwrap();
     let found = host_reads_in(&this_file[start..end]);

@@ -1,8 +1,8 @@
 //! Gradient parity: d loss / d parameter on Autodiff<Flex> vs `grads_official_semantics.npz`.
 
-use crate::common;
-use common::network_checks::{self, gradients};
+use crate::network_fixtures;
 use crestereo::CpuAutodiffBackend;
+use network_fixtures::network_checks::{self, gradients};
 
 type B = CpuAutodiffBackend;
 

@@ -3,11 +3,11 @@
 //! network's limit. Each is one error naming the file or the limit; nothing panics and nothing
 //! is allocated for what the file claims.
 
-use crate::common;
-use common::*;
+use crate::network_fixtures;
 use crestereo::infer::{InferenceOptions, MAX_INPUT_SIDE, check_input_size, infer_disparity};
 use crestereo::weights::{load_pytorch, load_record, save_record};
 use crestereo::{BgrImage, CREStereoConfig, CpuBackend};
+use network_fixtures::*;
 
 use crate::zip_edit;
 type B = CpuBackend;

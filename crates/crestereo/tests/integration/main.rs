@@ -3,15 +3,10 @@
 //! parity::` runs one module. `composed_ops.rs` stays a binary of its own: it switches every
 //! hand-written kernel off for its whole process.
 //!
-//! `common` and `agcl_checks` are shared with the trainer's tests (included by path there).
+//! The reference fixtures and the AGCL checks come from the test-support crate (the trainer's
+//! Vulkan tests run the same checks on lavapipe).
 
-#[path = "../agcl_checks/mod.rs"]
-mod agcl_checks;
-#[path = "../common/mod.rs"]
-mod common;
-#[allow(dead_code)]
-#[path = "../../../stereo-io/tests/support/zip_edit.rs"]
-mod zip_edit;
+use test_support::{agcl_checks, network_fixtures, zip_edit};
 
 mod agcl;
 mod gradients;

@@ -1,11 +1,11 @@
 //! Parity of the Burn port with the reference fixtures (Flex backend, CPU).
 
-use crate::common;
+use crate::network_fixtures;
 use burn::prelude::*;
-use common::network_checks;
-use common::*;
 use crestereo::weights::{REFERENCE_PARAM_COUNT, load_pytorch, named_parameters};
 use crestereo::{CREStereoConfig, CpuBackend};
+use network_fixtures::network_checks;
+use network_fixtures::*;
 
 type B = CpuBackend;
 

@@ -1,10 +1,10 @@
 //! Weight import errors and Burn record round trip.
 
-use crate::common;
+use crate::network_fixtures;
 use burn::prelude::*;
-use common::*;
 use crestereo::weights::{load_pytorch, load_record, save_record};
 use crestereo::{CREStereoConfig, CpuBackend};
+use network_fixtures::*;
 
 type B = CpuBackend;
 

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use stereo_io::*;
 
-use crate::fixtures;
-use fixtures::*;
+use crate::io_fixtures;
+use io_fixtures::*;
 
 fn grey8(path: &Path, f: impl Fn(usize) -> u8) {
     write_png(

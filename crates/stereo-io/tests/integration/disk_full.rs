@@ -5,6 +5,7 @@
 //! samples and says so.
 
 use crate::small_fs;
+use test_support::small_fs_or_skip;
 
 use std::path::Path;
 

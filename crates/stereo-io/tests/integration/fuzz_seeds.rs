@@ -14,8 +14,8 @@ use stereo_io::datasets::webdataset::{ShardIndex, scan_tar};
 use stereo_io::pth::{NamedArray, check_state_dict_from, encode_state_dict};
 use stereo_io::*;
 
-use crate::fixtures;
-use fixtures::*;
+use crate::io_fixtures;
+use io_fixtures::*;
 
 fn corpus() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/corpus")

@@ -11,8 +11,8 @@ use stereo_io::datasets::stereogen::{FailureRecord, read_sidecar};
 use stereo_io::limits::{MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 use stereo_io::*;
 
-use crate::fixtures;
-use fixtures::*;
+use crate::io_fixtures;
+use io_fixtures::*;
 
 fn error_of<T>(r: Result<T>, name: &str) -> String {
     let e = r.err().expect("a hostile file must be refused").to_string();

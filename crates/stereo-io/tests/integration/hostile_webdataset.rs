@@ -11,8 +11,8 @@ use serde_json::Value;
 use stereo_io::datasets::webdataset::{ShardIndex, scan_shard};
 use stereo_io::*;
 
-use crate::fixtures;
-use fixtures::*;
+use crate::io_fixtures;
+use io_fixtures::*;
 
 /// Our 9-sample dataset exported as one `train` shard; returns the export folder.
 fn export(dir: &Path) -> PathBuf {

@@ -1,18 +1,8 @@
 //! stereo-io's integration tests, one module per subject, built as one binary.
-//! `cargo test -p stereo-io --test integration fuzz_seeds::` runs one module. `support/` and
-//! `fixtures/` are shared with other crates' tests (included by path there).
+//! `cargo test -p stereo-io --test integration fuzz_seeds::` runs one module. The helpers (tiny
+//! datasets, pinned venvs, small file systems) come from the test-support crate.
 
-#[allow(dead_code)]
-#[path = "../support/small_fs.rs"]
-#[macro_use]
-mod small_fs;
-#[path = "../fixtures/mod.rs"]
-mod fixtures;
-#[path = "../support/pinned_venv.rs"]
-mod pinned_venv;
-#[allow(dead_code)]
-#[path = "../support/zip_edit.rs"]
-mod zip_edit;
+use test_support::{io_fixtures, pinned_venv, small_fs, zip_edit};
 
 mod conformance;
 mod datasets;

@@ -8,9 +8,9 @@ use std::process::Command;
 
 use stereo_io::*;
 
-use crate::fixtures;
+use crate::io_fixtures;
 use crate::pinned_venv;
-use fixtures::*;
+use io_fixtures::*;
 
 /// The readers nobody here wrote: the `webdataset` package, Pillow, OpenEXR.
 const PYTHON_PINS: &[&str] = &[

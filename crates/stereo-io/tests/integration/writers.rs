@@ -6,8 +6,8 @@ use std::path::Path;
 
 use stereo_io::*;
 
-use crate::fixtures;
-use fixtures::*;
+use crate::io_fixtures;
+use io_fixtures::*;
 
 /// A sample with a camera, built from pixels only (no source files to link).
 fn sample(seed: u8, with_right: bool) -> StereoSample {

@@ -2,10 +2,9 @@
 //! (OpenCV, Pillow, OpenEXR, the maturin-built module): one venv per set of pinned packages under
 //! `$STEREOGEN_HOME/python` (default `~/.cache/stereogen/python`), made once and reused.
 //!
-//! Shared by `#[path]` (stereo-io's conformance test, the e2e Python test, stereogen-py's decode
-//! bench), so there is one way to make such an environment.
-
-#![allow(dead_code)]
+//! Every test and bench that needs such an environment makes it here (stereo-io's conformance
+//! tests, the trainer's export tests, the e2e Python tests, stereogen-py's decode bench), so there
+//! is one way to make one.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

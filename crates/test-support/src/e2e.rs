@@ -1,9 +1,5 @@
-//! Support for the end-to-end tests in `tests/`: the analytic test scenes and helpers that run the
-//! real renderer and the real CLI. The ray caster the tests compare against is the audit's
-//! (`stereogen::validate::audit::raycast`), so the analytic scenes also check the audit itself.
-
-pub mod scenes;
-pub mod slurm_cluster;
+//! Helpers of the end-to-end tests that run the real renderer and the real CLIs (`stereogen`,
+//! `crestereo`).
 
 use std::path::PathBuf;
 use std::sync::OnceLock;
@@ -14,6 +10,8 @@ use stereogen::dataset::DatasetLayout;
 use stereogen::plan::recipe::CountRange;
 use stereogen::plan::{Dist, Recipe, SceneSpec};
 use stereogen::render::{RenderService, WorkerConfig, WorkerOptions};
+
+use crate::run::run_ok;
 
 /// The worker configuration every test uses: the real Blender runtime, installed on first use.
 pub fn worker_config() -> WorkerConfig {
@@ -289,36 +287,6 @@ pub fn generate_failed_dataset(dir: &std::path::Path, name: &str) -> PathBuf {
     out
 }
 
-/// A finished command's stdout then stderr, as one text (what a person at the terminal saw).
-pub fn output_text(o: &std::process::Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
-/// Runs `c` with no standard input and asserts that it succeeded, showing both streams if not.
-pub fn run_ok(c: &mut std::process::Command) -> std::process::Output {
-    let o = c
-        .stdin(std::process::Stdio::null())
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {c:?}: {e}"));
-    assert!(o.status.success(), "{c:?} failed:\n{}", output_text(&o));
-    o
-}
-
-/// Runs `c` with no standard input, asserts that it failed, and returns what it said.
-pub fn run_fails(c: &mut std::process::Command) -> String {
-    let o = c
-        .stdin(std::process::Stdio::null())
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {c:?}: {e}"));
-    let text = output_text(&o);
-    assert!(!o.status.success(), "{c:?} succeeded:\n{text}");
-    text
-}
-
 /// SHA-256 of a file as lowercase hex, recomputed with coreutils' `sha256sum`: independent of the
 /// generator's own hashing, so the manifest's checksums are checked by code nobody here wrote.
 pub fn sha256_hex(path: &std::path::Path) -> String {
@@ -338,4 +306,15 @@ pub fn sha256_hex(path: &std::path::Path) -> String {
         .next()
         .unwrap()
         .to_string()
+}
+
+/// A farm output of `count` samples of the tiny `crestereo` recipe (seed 9) in two shards, each
+/// rendered by its own `stereogen generate --shard` process.
+pub fn two_shard_farm(dir: &std::path::Path, count: u64) -> PathBuf {
+    let recipe = write_tiny_recipe(dir, "crestereo");
+    let out = dir.join("farm");
+    for shard in ["0/2", "1/2"] {
+        run_ok(generate_cmd(&recipe, &out, count).args(["--seed", "9", "--shard", shard]));
+    }
+    out
 }

@@ -1,5 +1,4 @@
 //! Shared helpers for the parity tests.
-#![allow(dead_code)]
 
 pub mod network_checks;
 

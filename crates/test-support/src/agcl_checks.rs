@@ -4,7 +4,6 @@
 //! historical implementation kept here as the reference (it reads coordinates on the host and
 //! builds gather indices there: independent of both), gradients against Burn's autodiff of that
 //! reference, and central finite differences of the kernel's own backward.
-#![allow(dead_code)]
 
 use burn::prelude::*;
 use burn::tensor::TensorData;
@@ -15,6 +14,37 @@ use crestereo::ops::agcl::{self, CorrSpec, composed};
 /// The device a test runs a backend on.
 pub trait TestDevice: Backend {
     fn test_device() -> Self::Device;
+}
+
+impl TestDevice for burn::backend::Flex {
+    fn test_device() -> Self::Device {
+        Default::default()
+    }
+}
+
+impl TestDevice for burn::backend::Autodiff<burn::backend::Flex> {
+    fn test_device() -> Self::Device {
+        Default::default()
+    }
+}
+
+/// lavapipe, Mesa's CPU implementation of Vulkan, which wgpu lists as a CPU adapter: the GPU
+/// path's device in CI.
+#[cfg(feature = "wgpu")]
+pub const LAVAPIPE: burn::backend::wgpu::WgpuDevice = burn::backend::wgpu::WgpuDevice::Cpu;
+
+#[cfg(feature = "wgpu")]
+impl TestDevice for burn::backend::Wgpu {
+    fn test_device() -> Self::Device {
+        LAVAPIPE
+    }
+}
+
+#[cfg(feature = "wgpu")]
+impl TestDevice for burn::backend::Autodiff<burn::backend::Wgpu> {
+    fn test_device() -> Self::Device {
+        LAVAPIPE
+    }
 }
 
 /// The former `corr::bilinear_sample_points`: coordinates read on the host, gather indices

@@ -10,7 +10,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/farm/slurm-cluster.sh");
+const SCRIPT: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../tests/farm/slurm-cluster.sh"
+);
 /// No farm round of this test takes near this long (one is about 20 s on 2 cores).
 pub const ROUND_TIMEOUT: Duration = Duration::from_secs(600);
 

@@ -4,13 +4,10 @@
 //! is one copy of PyTorch), and venvs made anew for each run on top of it, so the wheel under test
 //! is installed into a fresh environment every time.
 
-#![allow(dead_code)]
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-#[path = "../../crates/stereo-io/tests/support/pinned_venv.rs"]
-pub mod pinned_venv;
+pub use crate::pinned_venv;
 
 /// The PyTorch venv of the `.pth` export and torchvision tests.
 pub const TORCH_PINS: &[&str] = &["torch==2.15.0", "numpy==2.4.6"];
@@ -99,5 +96,5 @@ pub fn target_dir() -> PathBuf {
 
 /// The repository's root.
 pub fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
