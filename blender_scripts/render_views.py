@@ -104,29 +104,28 @@ _DENOISE_QUALITY = {"high": "HIGH", "balanced": "BALANCED", "fast": "FAST"}
 
 
 def view_seed(render, view):
-    """The Cycles seed of a view's colour pass: the right view has its own where the spec says
-    (independent sensor noise); specs without `cycles_seed_right` render both with one seed."""
-    if view == "right":
-        return render.get("cycles_seed_right", render["cycles_seed"])
-    return render["cycles_seed"]
+    """The Cycles seed of a view's colour pass: each view has its own (independent sensor noise);
+    a spec planned before that was resolved by the orchestrator to one seed for both."""
+    return render["cycles_seed_right"] if view == "right" else render["cycles_seed"]
 
 
 def _colour_pass(scene, render, view="left"):
-    # Keys added after spec format 3 may be absent: their defaults are what Cycles did before.
+    # Every key is present: the orchestrator resolves those a spec leaves out (Rust's
+    # RenderSettings::resolved), so no default is decided here.
     c = scene.cycles
     c.seed = view_seed(render, view)
     c.samples = render["samples"]
     c.use_denoising = bool(render["denoise"])
     c.denoiser = "OPENIMAGEDENOISE"
-    c.denoising_prefilter = _PREFILTERS[render.get("denoise_prefilter", "accurate")]
-    c.denoising_input_passes = _DENOISE_PASSES[render.get("denoise_passes", "albedo_normal")]
-    c.denoising_quality = _DENOISE_QUALITY[render.get("denoise_quality", "high")]
-    threshold = render.get("adaptive_threshold")
+    c.denoising_prefilter = _PREFILTERS[render["denoise_prefilter"]]
+    c.denoising_input_passes = _DENOISE_PASSES[render["denoise_passes"]]
+    c.denoising_quality = _DENOISE_QUALITY[render["denoise_quality"]]
+    threshold = render["adaptive_threshold"]  # null: adaptive sampling off
     c.use_adaptive_sampling = threshold is not None
     if threshold is not None:
         c.adaptive_threshold = threshold
-        c.adaptive_min_samples = render.get("adaptive_min_samples", 0)
-    c.use_light_tree = render.get("light_tree", True)
+        c.adaptive_min_samples = render["adaptive_min_samples"]
+    c.use_light_tree = render["light_tree"]
     c.pixel_filter_type = _FILTERS[render["pixel_filter"]]
     c.filter_width = render["filter_width_px"]
     scene.view_layers[0].use_pass_z = False

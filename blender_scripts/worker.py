@@ -13,7 +13,9 @@ version these scripts understand (the orchestrator refuses a mismatch there, onc
 one "geometry" (the file export_geometry.py wrote, and how many renders ran meanwhile: none)
 or "error" per export_geometry request. The Rust side of this protocol is `render/protocol.rs`.
 
-The worker is started with `--threads N --device cpu|gpu --timing-keys JSON`: the last names the
+A request's spec has every render key present (the orchestrator fills in the defaults of keys a
+spec file leaves out), so these scripts decide no default. The worker is started with
+`--threads N --device cpu|gpu --timing-keys JSON`: the last names the
 stages its replies time (`WORKER_TIMINGS` in `render/protocol.rs`), so the Rust readers of those
 timings and these scripts cannot disagree about a name.
 """

@@ -143,8 +143,10 @@ pub enum Fault {
 #[derive(Debug, Serialize)]
 #[serde(tag = "cmd", rename_all = "snake_case")]
 pub enum Request<'a> {
-    /// Build `spec` and render both views into `out_dir` (a fresh temporary directory).
+    /// Build `spec` and render both views into `out_dir` (a fresh temporary directory). The
+    /// spec goes with its render settings resolved ([`SceneSpec::for_worker`]).
     Render {
+        #[serde(serialize_with = "spec_for_worker")]
         spec: &'a SceneSpec,
         out_dir: &'a Path,
         #[serde(skip_serializing_if = "Option::is_none")]
@@ -154,11 +156,17 @@ pub enum Request<'a> {
     /// (world-space triangles of every rendered object, with what decides a hit) into `out_dir`,
     /// for `stereogen audit`.
     ExportGeometry {
+        #[serde(serialize_with = "spec_for_worker")]
         spec: &'a SceneSpec,
         out_dir: &'a Path,
     },
     /// Exit cleanly.
     Quit,
+}
+
+/// A spec as the worker reads it: every render key present, defaults filled in by Rust.
+fn spec_for_worker<S: serde::Serializer>(spec: &&SceneSpec, s: S) -> Result<S::Ok, S::Error> {
+    spec.for_worker().serialize(s)
 }
 
 impl Request<'_> {
