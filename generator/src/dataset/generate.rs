@@ -26,8 +26,6 @@ use crate::assets::{AssetIndex, SkippedAsset, index_sources};
 use crate::interrupt::StopFlag;
 use crate::plan::{Recipe, SceneSpec, plan_scene};
 use crate::render::FaultPlan;
-#[cfg(doc)]
-use crate::render::protocol::WORKER_TIMINGS;
 use crate::render::protocol::{WORKER_START_TIMING, is_wall_timing};
 use crate::render::runtime::stereogen_home;
 use crate::render::scratch;
@@ -102,11 +100,12 @@ impl GenerateOptions {
 }
 
 /// Keys [`generate`] adds to a manifest entry's `render_timings`, beside the worker's steps
-/// ([`WORKER_TIMINGS`]), [`finalize_sample`]'s and the worker's start-up
-/// ([`WORKER_START_TIMING`], only on a worker's first sample: paid once per worker): seconds
-/// spent planning the scene, and the render request's round trip less the worker's own steps
-/// (the spec's JSON out, the pipe, the reply, the scratch folder). Appending the manifest line
-/// cannot be in the line itself: it is in [`GenerateSummary::manifest_seconds_per_sample`].
+/// ([`WORKER_TIMINGS`](crate::render::protocol::WORKER_TIMINGS)), [`finalize_sample`]'s and
+/// the worker's start-up ([`WORKER_START_TIMING`], only on a worker's first sample: paid once
+/// per worker): seconds spent planning the scene, and the render request's round trip less the
+/// worker's own steps (the spec's JSON out, the pipe, the reply, the scratch folder). Appending
+/// the manifest line cannot be in the line itself: it is in
+/// [`GenerateSummary::manifest_seconds_per_sample`].
 pub const PLAN_TIMING: &str = "plan_s";
 pub const REQUEST_TIMING: &str = "request_s";
 

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 
-use super::{Measurement, SampleCost, median};
+use super::cost::{Measurement, SampleCost, median};
 use crate::dataset::generate::{GenerateOptions, GenerateSummary, Progress};
 use crate::dataset::{DatasetLayout, ManifestEntry, TaskArgs, generate, read_manifest};
 use crate::interrupt::{Interrupted, StopFlag};

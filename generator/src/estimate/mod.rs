@@ -31,6 +31,7 @@
 //! manifest line; per task `dataset.json` and its manifest; with more than one task, the merged
 //! manifest).
 
+mod cost;
 mod measure;
 mod pick;
 mod projection;
@@ -38,24 +39,16 @@ mod table;
 
 use std::path::PathBuf;
 
-use serde::Serialize;
-
+pub use cost::{Measurement, SampleCost};
 pub use measure::{MeasureProgress, SampleRun, read_costs, render_samples};
 pub use pick::pick_indices;
-pub use projection::{CategoryEstimate, Estimate, Spread, Target, TaskEstimate, project};
+pub use projection::{
+    CategoryEstimate, EXACT_COUNT_LIMIT, Estimate, Spread, TIME_LIMIT_SAFETY, TIME_LIMIT_STEP_S,
+    Target, TaskEstimate, project,
+};
 
 use crate::dataset::TaskArgs;
 use crate::interrupt::StopFlag;
-use crate::render::Device;
-
-/// Ranges up to this many samples get their categories counted exactly (planning a sample's
-/// category is a hash and a draw); longer ones are split by the weights.
-pub const EXACT_COUNT_LIMIT: u64 = 5_000_000;
-/// A time limit set from an estimate is this many times the largest task's projected wall time
-/// (plus the grace period), rounded up to [`TIME_LIMIT_STEP_S`]: room for slower cores, a busy
-/// shared filesystem and scenes costlier than the few measured.
-pub const TIME_LIMIT_SAFETY: f64 = 1.5;
-pub const TIME_LIMIT_STEP_S: u64 = 300;
 
 /// Which samples are rendered to measure, and where (what `--sample`, `--sample-seed` and
 /// `--work` say).
@@ -67,45 +60,6 @@ pub struct Sampling {
     pub seed: u64,
     /// Where the temporary dataset goes; `None`: the system's temporary folder.
     pub work: Option<PathBuf>,
-}
-
-/// One measured sample.
-#[derive(Debug, Clone, Serialize)]
-pub struct SampleCost {
-    pub index: u64,
-    pub category: String,
-    /// Wall seconds of the sample on one worker, worker start-up excluded.
-    pub seconds: f64,
-    /// The part of `seconds` in the colour and depth renders.
-    pub parallel_seconds: f64,
-    /// Its files (images, disparities, scene) and their bytes.
-    pub files: u64,
-    pub bytes: u64,
-    /// Bytes of its manifest line.
-    pub manifest_bytes: u64,
-}
-
-/// What rendering the samples here measured.
-#[derive(Debug, Clone, Serialize)]
-pub struct Measurement {
-    pub samples: Vec<SampleCost>,
-    /// Blender start-up of each worker (seconds), out of its first sample.
-    pub worker_start_s: Vec<f64>,
-    /// Wall seconds of the run not spent on samples (asset index, dataset, start-up, shutdown).
-    pub task_fixed_s: f64,
-    pub workers: usize,
-    pub threads: u32,
-    /// Cores (CPU) or GPUs one worker had here.
-    pub units_per_worker: f64,
-    pub device: Device,
-    /// The machine: CPU model and cores (or "GPU").
-    pub machine: String,
-    pub worker_restarts: u32,
-    pub failed: usize,
-    /// Files of a dataset besides its samples' (dataset.json, manifest.jsonl) and their bytes
-    /// (the manifest counted in its lines, per sample).
-    pub dataset_files: u64,
-    pub dataset_bytes: u64,
 }
 
 /// Picks, renders and reads: the three steps in order (see the module docs). `stop` ends the
@@ -133,19 +87,4 @@ pub fn measure(
     let run = render_samples(task, recipe, &indices, &work, stop, progress)?;
     read_costs(&run)
     // `run` (and its temporary dataset) is removed here.
-}
-
-/// Median of `v` (0 for none).
-fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        (s[n / 2 - 1] + s[n / 2]) / 2.0
-    }
 }

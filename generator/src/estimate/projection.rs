@@ -5,12 +5,19 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::{
-    EXACT_COUNT_LIMIT, Measurement, SampleCost, TIME_LIMIT_SAFETY, TIME_LIMIT_STEP_S, median,
-};
+use super::cost::{Measurement, SampleCost, median};
 use crate::farm::TimeLimit;
 use crate::plan::{Recipe, scene_category};
 use crate::render::Device;
+
+/// Ranges up to this many samples get their categories counted exactly (planning a sample's
+/// category is a hash and a draw); longer ones are split by the weights.
+pub const EXACT_COUNT_LIMIT: u64 = 5_000_000;
+/// A time limit set from an estimate is this many times the largest task's projected wall time
+/// (plus the grace period), rounded up to [`TIME_LIMIT_STEP_S`]: room for slower cores, a busy
+/// shared filesystem and scenes costlier than the few measured.
+pub const TIME_LIMIT_SAFETY: f64 = 1.5;
+pub const TIME_LIMIT_STEP_S: u64 = 300;
 
 /// min / median / max / mean and the standard error of the mean.
 #[derive(Debug, Clone, Copy, Serialize)]

@@ -1,6 +1,6 @@
 //! How an [`Estimate`] reads as a table (what `stereogen estimate` and `farm --estimate` print).
 
-use super::Estimate;
+use super::projection::Estimate;
 use crate::farm::TimeLimit;
 use crate::render::Device;
 
