@@ -104,29 +104,28 @@ _DENOISE_QUALITY = {"high": "HIGH", "balanced": "BALANCED", "fast": "FAST"}
 
 
 def view_seed(render, view):
-    """The Cycles seed of a view's colour pass: the right view has its own where the spec says
-    (independent sensor noise); specs without `cycles_seed_right` render both with one seed."""
-    if view == "right":
-        return render.get("cycles_seed_right", render["cycles_seed"])
-    return render["cycles_seed"]
+    """The Cycles seed of a view's colour pass: each view has its own (independent sensor noise);
+    a spec planned before that was resolved by the orchestrator to one seed for both."""
+    return render["cycles_seed_right"] if view == "right" else render["cycles_seed"]
 
 
 def _colour_pass(scene, render, view="left"):
-    # Keys added after spec format 3 may be absent: their defaults are what Cycles did before.
+    # Every key is present: the orchestrator resolves those a spec leaves out (Rust's
+    # RenderSettings::resolved), so no default is decided here.
     c = scene.cycles
     c.seed = view_seed(render, view)
     c.samples = render["samples"]
     c.use_denoising = bool(render["denoise"])
     c.denoiser = "OPENIMAGEDENOISE"
-    c.denoising_prefilter = _PREFILTERS[render.get("denoise_prefilter", "accurate")]
-    c.denoising_input_passes = _DENOISE_PASSES[render.get("denoise_passes", "albedo_normal")]
-    c.denoising_quality = _DENOISE_QUALITY[render.get("denoise_quality", "high")]
-    threshold = render.get("adaptive_threshold")
+    c.denoising_prefilter = _PREFILTERS[render["denoise_prefilter"]]
+    c.denoising_input_passes = _DENOISE_PASSES[render["denoise_passes"]]
+    c.denoising_quality = _DENOISE_QUALITY[render["denoise_quality"]]
+    threshold = render["adaptive_threshold"]  # null: adaptive sampling off
     c.use_adaptive_sampling = threshold is not None
     if threshold is not None:
         c.adaptive_threshold = threshold
-        c.adaptive_min_samples = render.get("adaptive_min_samples", 0)
-    c.use_light_tree = render.get("light_tree", True)
+        c.adaptive_min_samples = render["adaptive_min_samples"]
+    c.use_light_tree = render["light_tree"]
     c.pixel_filter_type = _FILTERS[render["pixel_filter"]]
     c.filter_width = render["filter_width_px"]
     scene.view_layers[0].use_pass_z = False
@@ -181,22 +180,32 @@ CPU_TIMINGS = bool(os.environ.get("STEREOGEN_TIMINGS_CPU"))
 MATERIAL_PASS = not os.environ.get("STEREOGEN_NO_MATERIAL_PASS")
 
 
-def _timed(timings, key, step):
-    """Runs step() and adds its wall seconds to timings[key] (and its CPU seconds to
-    timings[<stage>_cpu_s] with CPU_TIMINGS). Returns what step returned."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    out = step()
-    timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
-    if CPU_TIMINGS:
-        cpu_key = key[:-2] + "_cpu_s"
-        timings[cpu_key] = timings.get(cpu_key, 0.0) + time.process_time() - c0
-    return out
+class Timings:
+    """Seconds per stage, under the names the orchestrator sent (`--timing-keys`, Rust's
+    `WORKER_TIMINGS`): `seconds` is what a reply carries."""
+
+    def __init__(self, keys):
+        self.keys = keys
+        self.seconds = {}
+
+    def timed(self, key, step):
+        """Runs step() and adds its wall seconds to seconds[key] (and its CPU seconds, with
+        CPU_TIMINGS, under key's CPU name). Returns what step returned."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = step()
+        self.seconds[key] = self.seconds.get(key, 0.0) + time.perf_counter() - t0
+        if CPU_TIMINGS:
+            wall, cpu = self.keys["wall_suffix"], self.keys["cpu_suffix"]
+            cpu_key = key[: -len(wall)] + cpu
+            self.seconds[cpu_key] = self.seconds.get(cpu_key, 0.0) + time.process_time() - c0
+        return out
 
 
 def render_both(scene, spec, out_dir, timings):
     """Renders colour and depth of both views into out_dir: both colour passes, then both depth
-    passes (after which the scene is depth-only, see the module docs). Adds to `timings`
-    (seconds): colour_<view>_s and depth_<view>_s per render, save_s for writing all four files."""
+    passes (after which the scene is depth-only, see the module docs). Adds to `timings` (a
+    Timings): its keys' colour and depth per view, save for writing all four files."""
+    keys = timings.keys
     os.makedirs(out_dir, exist_ok=True)
     files = {}
     result = lambda: bpy.data.images["Render Result"]
@@ -205,14 +214,14 @@ def render_both(scene, spec, out_dir, timings):
         camera(view)
         png = os.path.join(out_dir, view + ".png")
         _colour_pass(scene, spec["render"], view)
-        _timed(timings, "colour_%s_s" % view, lambda: bpy.ops.render.render(write_still=False))
-        _timed(timings, "save_s", lambda: _save(result(), scene, png, "PNG", color_mode="RGB", color_depth="8", compression=0))
+        timings.timed(keys["colour"][view], lambda: bpy.ops.render.render(write_still=False))
+        timings.timed(keys["save"], lambda: _save(result(), scene, png, "PNG", color_mode="RGB", color_depth="8", compression=0))
         files[view + "_png"] = png
     for view in ("left", "right"):
         camera(view)
         exr = os.path.join(out_dir, view + "_depth.exr")
         # Counted with the depth render: the first call makes the scene depth-only.
-        _timed(timings, "depth_%s_s" % view, lambda: (_depth_pass(scene), bpy.ops.render.render(write_still=False)))
-        _timed(timings, "save_s", lambda: _save(result(), scene, exr, "OPEN_EXR_MULTILAYER", color_depth="32", exr_codec="NONE"))
+        timings.timed(keys["depth"][view], lambda: (_depth_pass(scene), bpy.ops.render.render(write_still=False)))
+        timings.timed(keys["save"], lambda: _save(result(), scene, exr, "OPEN_EXR_MULTILAYER", color_depth="32", exr_codec="NONE"))
         files[view + "_depth_exr"] = exr
     return files

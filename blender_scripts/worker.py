@@ -12,6 +12,12 @@ version these scripts understand (the orchestrator refuses a mismatch there, onc
 (files, timings, notes, skipped assets) or "error" (message and traceback) per render request, and
 one "geometry" (the file export_geometry.py wrote, and how many renders ran meanwhile: none)
 or "error" per export_geometry request. The Rust side of this protocol is `render/protocol.rs`.
+
+A request's spec has every render key present (the orchestrator fills in the defaults of keys a
+spec file leaves out), so these scripts decide no default. The worker is started with
+`--threads N --device cpu|gpu --timing-keys JSON`: the last names the
+stages its replies time (`WORKER_TIMINGS` in `render/protocol.rs`), so the Rust readers of those
+timings and these scripts cannot disagree about a name.
 """
 
 import json
@@ -29,13 +35,17 @@ SPEC_FORMAT_VERSION = 3
 def script_args():
     argv = sys.argv
     args = argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
-    opts = {"threads": 0, "device": "cpu"}
+    opts = {"threads": 0, "device": "cpu", "timing_keys": None}
     it = iter(args)
     for a in it:
         if a == "--threads":
             opts["threads"] = int(next(it))
         elif a == "--device":
             opts["device"] = next(it)
+        elif a == "--timing-keys":
+            opts["timing_keys"] = json.loads(next(it))
+    if opts["timing_keys"] is None:
+        raise SystemExit("worker.py: --timing-keys JSON is required (the orchestrator sends it)")
     return opts
 
 
@@ -106,17 +116,18 @@ def main():
             while True:
                 time.sleep(3600)
 
-        timings = {}
+        keys = opts["timing_keys"]
+        timings = render_views.Timings(keys)
         try:
             if fault == "raise":
                 raise RuntimeError("injected failure")
             spec = req["spec"]
-            render_views._timed(timings, "reset_s", scene_builder.reset)
-            scene, skipped, notes = render_views._timed(
-                timings, "build_s", lambda: scene_builder.build(spec, opts["threads"], opts["device"])
+            timings.timed(keys["reset"], scene_builder.reset)
+            scene, skipped, notes = timings.timed(
+                keys["build"], lambda: scene_builder.build(spec, opts["threads"], opts["device"])
             )
             files = render_views.render_both(scene, spec, req["out_dir"], timings)
-            send({"status": "ok", "files": files, "timings": timings, "rss_bytes": rss_bytes(), "skipped_assets": skipped, "notes": notes})
+            send({"status": "ok", "files": files, "timings": timings.seconds, "rss_bytes": rss_bytes(), "skipped_assets": skipped, "notes": notes})
         except Exception as e:  # one bad spec must not take the worker down
             send({
                 "status": "error",
@@ -129,23 +140,23 @@ def main():
 def _export_geometry(req, opts, scene_builder, export_geometry, renders):
     """Builds the spec as a render would, then writes its evaluated geometry instead of rendering.
     The reply counts the Cycles renders run meanwhile (`renders`): none, as the audit relies on."""
-    timings = {}
+    keys = opts["timing_keys"]
+    timings = render_views.Timings(keys)
     renders_before = renders[0]
     try:
-        t0 = time.perf_counter()
-        scene_builder.reset()
-        scene, skipped, notes = scene_builder.build(req["spec"], opts["threads"], opts["device"])
-        timings["build_s"] = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        path, objects, triangles = export_geometry.write(scene, req["out_dir"])
-        timings["export_s"] = time.perf_counter() - t1
+        def build():
+            scene_builder.reset()
+            return scene_builder.build(req["spec"], opts["threads"], opts["device"])
+
+        scene, skipped, notes = timings.timed(keys["build"], build)
+        path, objects, triangles = timings.timed(keys["export"], lambda: export_geometry.write(scene, req["out_dir"]))
         return {
             "status": "geometry",
             "file": path,
             "objects": objects,
             "triangles": triangles,
             "renders": renders[0] - renders_before,
-            "timings": timings,
+            "timings": timings.seconds,
             "rss_bytes": rss_bytes(),
             "skipped_assets": skipped,
             "notes": notes,

@@ -129,7 +129,7 @@ fn re_rendering_a_boolean_heavy_spec_stays_within_the_stated_bound() {
     // render threads, as `generate` uses on a 2-core machine.
     spec.rig.width = 240;
     spec.rig.height = 135;
-    spec.render.samples = 4;
+    spec.render.recipe.samples = 4;
     let mut cfg = worker_config();
     cfg.threads = 2;
     let a = render(&mut RenderService::new(cfg.clone()), &spec);

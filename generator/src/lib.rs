@@ -5,10 +5,12 @@
 //! - [`assets`]: indexes of the asset folders a recipe names: the `stereogen-assets` crate.
 //! - [`render`]: finding or installing Blender's Python, and the worker processes that render specs.
 //! - [`dataset`]: the on-disk layout, manifest, atomic writes and resumable generation.
+//! - [`estimate`]: what a dataset will cost, from a few of its samples rendered here.
 //! - [`farm`]: job files for Slurm, Kubernetes and Open Job Description (`stereogen farm`).
 //! - [`validate`]: `stereogen stats`: disparity statistics, the check against the recipe's law, plots.
 
 pub mod dataset;
+pub mod estimate;
 pub mod farm;
 pub mod interrupt;
 pub mod render;

@@ -13,17 +13,25 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 
 /// The SHA-256 of the file at `path`, in lower-case hex, read 64 KiB at a time.
 pub fn sha256_file(path: &Path) -> std::io::Result<String> {
+    sha256_file_with_len(path).map(|(sha, _)| sha)
+}
+
+/// The SHA-256 of the file at `path` (as [`sha256_file`]) and the bytes read, from the one pass:
+/// a download's check and record need both, and a file still growing has no other true length.
+pub fn sha256_file_with_len(path: &Path) -> std::io::Result<(String, u64)> {
     let mut file = std::fs::File::open(path)?;
     let mut hasher = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];
+    let mut len = 0;
     loop {
         let n = file.read(&mut buf)?;
         if n == 0 {
             break;
         }
         hasher.update(&buf[..n]);
+        len += n as u64;
     }
-    Ok(hex(&hasher.finalize()))
+    Ok((hex(&hasher.finalize()), len))
 }
 
 fn hex(bytes: &[u8]) -> String {
@@ -49,6 +57,10 @@ mod tests {
         let bytes: Vec<u8> = (0..200_001u32).map(|i| (i * 7 % 251) as u8).collect();
         std::fs::write(&path, &bytes).unwrap();
         assert_eq!(sha256_file(&path).unwrap(), sha256_hex(&bytes));
+        assert_eq!(
+            sha256_file_with_len(&path).unwrap(),
+            (sha256_hex(&bytes), 200_001)
+        );
         std::fs::write(&path, b"abc").unwrap();
         assert_eq!(sha256_file(&path).unwrap(), abc);
         assert!(sha256_file(&dir.path().join("missing")).is_err());

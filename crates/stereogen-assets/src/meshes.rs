@@ -155,8 +155,7 @@ fn check_fetched(path: &Path) -> Result<(), String> {
     let Ok(record) = serde_json::from_str::<crate::objaverse::ObjectRecord>(&text) else {
         return Ok(());
     };
-    let (sha, _) = crate::objaverse::download::sha256_file(path)
-        .map_err(|e| format!("cannot read it: {e}"))?;
+    let sha = stereo_io::digest::sha256_file(path).map_err(|e| format!("cannot read it: {e}"))?;
     if sha != record.sha256 {
         return Err(format!(
             "corrupt: SHA-256 {sha} is not the {} its record states",

@@ -8,6 +8,7 @@ pub mod checker;
 pub mod dist;
 pub mod photo_sizing;
 pub mod recipe;
+pub mod render;
 pub mod rig;
 pub mod rng;
 pub mod sampler;

@@ -148,22 +148,12 @@ fn render_settings(
     nearest_depth: f64,
     background_depth: f64,
 ) -> RenderSettings {
-    let (r, cam) = (&recipe.render_for(category), &recipe.camera);
+    let cam = &recipe.camera;
     RenderSettings {
-        samples: r.samples,
-        denoise: r.denoise,
+        recipe: recipe.render_for(category),
         cycles_seed: root.child("cycles").small_seed(),
-        max_bounces: r.max_bounces,
-        pixel_filter: r.pixel_filter,
-        filter_width_px: r.filter_width_px,
         clip_start: (nearest_depth * cam.clip_start_factor).max(MIN_CLIP_START_M),
         clip_end: background_depth * cam.clip_end_factor,
-        adaptive_threshold: r.adaptive_threshold,
-        adaptive_min_samples: r.adaptive_min_samples,
-        denoise_prefilter: r.denoise_prefilter,
-        denoise_passes: r.denoise_passes,
-        denoise_quality: r.denoise_quality,
-        light_tree: r.light_tree,
         cycles_seed_right: Some(root.child("cycles-right").small_seed()),
     }
 }

@@ -10,6 +10,9 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
+pub use super::render::{
+    DenoisePasses, DenoisePrefilter, DenoiseQuality, PixelFilter, RenderSettings,
+};
 use super::rig::{StereoCameras, StereoRig};
 
 /// Version of the SceneSpec schema. The worker states the version it understands when it starts
@@ -31,99 +34,6 @@ pub struct SceneSpec {
     pub world: WorldSpec,
     pub objects: Vec<ObjectSpec>,
     pub lights: Vec<LightSpec>,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RenderSettings {
-    /// Cycles path-tracing samples per pixel of the colour pass (the depth pass uses one).
-    pub samples: u32,
-    pub denoise: bool,
-    /// Cycles noise seed (of the left view's colour pass, and of the right one's when
-    /// `cycles_seed_right` is absent).
-    pub cycles_seed: u32,
-    pub max_bounces: u32,
-    /// Anti-aliasing filter of the colour pass (the depth pass always samples pixel centres).
-    pub pixel_filter: PixelFilter,
-    pub filter_width_px: f64,
-    /// Camera clipping range in metres.
-    pub clip_start: f64,
-    pub clip_end: f64,
-    // Added after format version 3 was written: absent means what Cycles did before they were
-    // settable (adaptive sampling off, OpenImageDenoise's accurate prefilter with albedo and
-    // normal passes at high quality, light tree on), and such values are not written, so older
-    // specs read and re-render unchanged.
-    /// Adaptive sampling's noise threshold; `None`: off (every pixel gets `samples`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub adaptive_threshold: Option<f64>,
-    /// Adaptive sampling's minimum samples per pixel; 0: Cycles' automatic choice.
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub adaptive_min_samples: u32,
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub denoise_prefilter: DenoisePrefilter,
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub denoise_passes: DenoisePasses,
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub denoise_quality: DenoiseQuality,
-    /// Cycles' light tree (many-light sampling).
-    #[serde(default = "yes", skip_serializing_if = "is_true")]
-    pub light_tree: bool,
-    /// The right view's Cycles noise seed: a real pair's two sensors have independent noise,
-    /// and one seed for both views draws the same sampling noise at the same pixel of each, a
-    /// pattern a network can learn to match. Absent (specs planned before it existed): both
-    /// views use `cycles_seed`, as those specs were rendered.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub cycles_seed_right: Option<u32>,
-}
-
-fn is_default<T: Default + PartialEq>(v: &T) -> bool {
-    *v == T::default()
-}
-
-fn yes() -> bool {
-    true
-}
-
-fn is_true(v: &bool) -> bool {
-    *v
-}
-
-/// How OpenImageDenoise cleans its guiding passes before use.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DenoisePrefilter {
-    #[default]
-    Accurate,
-    Fast,
-    None,
-}
-
-/// The passes that guide the denoiser besides the noisy colour.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DenoisePasses {
-    Rgb,
-    Albedo,
-    #[default]
-    AlbedoNormal,
-}
-
-/// OpenImageDenoise's quality mode.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DenoiseQuality {
-    #[default]
-    High,
-    Balanced,
-    Fast,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PixelFilter {
-    BlackmanHarris,
-    Gaussian,
-    Box,
 }
 
 /// Uniform world light (background colour that also lights the scene).
@@ -426,9 +336,11 @@ pub enum LightSpec {
     },
 }
 
-/// The JSON form of a [`SceneSpec`] as written: its fields plus the derived `cameras`.
+/// The JSON form of a [`SceneSpec`] as written: its fields plus the derived `cameras`; `render`
+/// as a spec file has it ([`RenderSettings`]) or as the worker is sent it
+/// ([`RenderSettings::resolved`]).
 #[derive(Serialize)]
-struct SceneSpecOut<'a> {
+struct SceneSpecOut<'a, R> {
     format_version: u32,
     id: &'a str,
     category: &'a str,
@@ -436,7 +348,7 @@ struct SceneSpecOut<'a> {
     index: u64,
     rig: &'a StereoRig,
     cameras: StereoCameras,
-    render: &'a RenderSettings,
+    render: R,
     world: &'a WorldSpec,
     objects: &'a [ObjectSpec],
     lights: &'a [LightSpec],
@@ -460,8 +372,8 @@ struct SceneSpecIn {
     lights: Vec<LightSpec>,
 }
 
-impl Serialize for SceneSpec {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+impl SceneSpec {
+    fn out<R>(&self, render: R) -> SceneSpecOut<'_, R> {
         SceneSpecOut {
             format_version: self.format_version,
             id: &self.id,
@@ -470,12 +382,23 @@ impl Serialize for SceneSpec {
             index: self.index,
             rig: &self.rig,
             cameras: self.rig.cameras(),
-            render: &self.render,
+            render,
             world: &self.world,
             objects: &self.objects,
             lights: &self.lights,
         }
-        .serialize(serializer)
+    }
+
+    /// The spec as the worker is sent it: as written, but with every render key present
+    /// ([`RenderSettings::resolved`]), so the defaults of keys a spec leaves out live in Rust.
+    pub fn for_worker(&self) -> impl Serialize + '_ {
+        self.out(self.render.resolved())
+    }
+}
+
+impl Serialize for SceneSpec {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        self.out(&self.render).serialize(serializer)
     }
 }
 
@@ -624,9 +547,12 @@ mod tests {
             v["render"].as_object_mut().unwrap().remove(key);
         }
         let old = SceneSpec::from_json(&v.to_string()).unwrap();
-        assert_eq!(old.render.adaptive_threshold, None);
-        assert!(old.render.light_tree);
-        assert_eq!(old.render.denoise_passes, DenoisePasses::AlbedoNormal);
+        assert_eq!(old.render.recipe.adaptive_threshold, None);
+        assert!(old.render.recipe.light_tree);
+        assert_eq!(
+            old.render.recipe.denoise_passes,
+            DenoisePasses::AlbedoNormal
+        );
         let render = json_value(&old)["render"].clone();
         assert!(render.get("light_tree").is_none() && render.get("denoise_prefilter").is_none());
 

@@ -1,5 +1,6 @@
 //! Hand-made scenes with known geometry for the exactness tests.
 
+use stereogen::plan::recipe::RenderRecipe;
 use stereogen::plan::spec::{PixelFilter, SPEC_FORMAT_VERSION};
 use stereogen::plan::{
     BaseColor, LightSpec, MaterialClass, MaterialSpec, ObjectRole, ObjectSpec, Pattern,
@@ -66,20 +67,22 @@ pub fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
         index: 0,
         rig: rig(),
         render: RenderSettings {
-            samples: 2,
-            denoise: false,
+            recipe: RenderRecipe {
+                samples: 2,
+                denoise: false,
+                max_bounces: 2,
+                pixel_filter: PixelFilter::BlackmanHarris,
+                filter_width_px: 1.5,
+                adaptive_threshold: None,
+                adaptive_min_samples: 0,
+                denoise_prefilter: Default::default(),
+                denoise_passes: Default::default(),
+                denoise_quality: Default::default(),
+                light_tree: true,
+            },
             cycles_seed: 1,
-            max_bounces: 2,
-            pixel_filter: PixelFilter::BlackmanHarris,
-            filter_width_px: 1.5,
             clip_start: 0.01,
             clip_end: 100.0,
-            adaptive_threshold: None,
-            adaptive_min_samples: 0,
-            denoise_prefilter: Default::default(),
-            denoise_passes: Default::default(),
-            denoise_quality: Default::default(),
-            light_tree: true,
             cycles_seed_right: None,
         },
         world: WorldSpec {

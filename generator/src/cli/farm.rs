@@ -9,7 +9,9 @@ use stereogen::dataset::merge::WebDatasetTarget;
 use stereogen::farm::{FarmOptions, Scheduler, TimeLimit, write_job_files};
 use stereogen::render::Device;
 
-use super::estimate::{self, SampleArgs, Target};
+use stereogen::estimate::{self, Estimate, Target};
+
+use super::estimate::{SampleArgs, measure_printing_progress};
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum SchedulerArg {
@@ -193,11 +195,11 @@ fn farm_estimate(
     opts: &mut FarmOptions,
     mut task: stereogen::dataset::TaskArgs,
     sampling: &SampleArgs,
-) -> anyhow::Result<estimate::Estimate> {
+) -> anyhow::Result<Estimate> {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     task.workers = task.workers.clamp(1, cores);
     task.runtime.threads = None;
-    let m = estimate::measure(&task, sampling)?;
+    let m = measure_printing_progress(&task, sampling)?;
     let units = match opts.task.runtime.device {
         Device::Cpu => f64::from(opts.cpus()),
         Device::Gpu => f64::from(opts.gpus().unwrap_or(1)),

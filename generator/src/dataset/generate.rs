@@ -26,6 +26,7 @@ use crate::assets::{AssetIndex, SkippedAsset, index_sources};
 use crate::interrupt::StopFlag;
 use crate::plan::{Recipe, SceneSpec, plan_scene};
 use crate::render::FaultPlan;
+use crate::render::protocol::{WORKER_START_TIMING, is_wall_timing};
 use crate::render::runtime::stereogen_home;
 use crate::render::scratch;
 use crate::render::worker::{RenderService, Rendered, WorkerConfig, WorkerError, WorkerOptions};
@@ -98,14 +99,14 @@ impl GenerateOptions {
     }
 }
 
-/// Keys [`generate`] adds to a manifest entry's `render_timings`, beside the worker's steps and
-/// [`finalize_sample`]'s: seconds spent planning the scene; starting the worker that rendered it
-/// (only on a worker's first sample: paid once per worker); and the render request's round trip
-/// less the worker's own steps (the spec's JSON out, the pipe, the reply, the scratch folder).
-/// Appending the manifest line cannot be in the line itself: it is in
+/// Keys [`generate`] adds to a manifest entry's `render_timings`, beside the worker's steps
+/// ([`WORKER_TIMINGS`](crate::render::protocol::WORKER_TIMINGS)), [`finalize_sample`]'s and
+/// the worker's start-up ([`WORKER_START_TIMING`], only on a worker's first sample: paid once
+/// per worker): seconds spent planning the scene, and the render request's round trip less the
+/// worker's own steps (the spec's JSON out, the pipe, the reply, the scratch folder). Appending
+/// the manifest line cannot be in the line itself: it is in
 /// [`GenerateSummary::manifest_seconds_per_sample`].
 pub const PLAN_TIMING: &str = "plan_s";
-pub const WORKER_START_TIMING: &str = "worker_start_s";
 pub const REQUEST_TIMING: &str = "request_s";
 
 /// What [`generate`] reports as it goes; called from the worker threads.
@@ -495,7 +496,7 @@ fn stage_timings(rendered: &Rendered, plan_s: f64, render_s: f64) -> BTreeMap<St
     let mut timings = rendered.reply.timings.clone();
     let worker_steps: f64 = timings
         .iter()
-        .filter(|(k, _)| !k.ends_with("_cpu_s"))
+        .filter(|(k, _)| is_wall_timing(k))
         .map(|(_, v)| v)
         .sum();
     let start = rendered.worker_start_s.unwrap_or(0.0);

@@ -51,6 +51,82 @@ impl std::fmt::Display for Device {
     }
 }
 
+/// The wall-seconds key of the time a worker took to start (process start, Blender's import,
+/// the hello), measured by the orchestrator and added to the timings of the sample that started
+/// it: a worker's first sample pays it.
+pub const WORKER_START_TIMING: &str = "worker_start_s";
+
+/// The names a worker reports its stages under (`timings` of [`RenderOutput`] and
+/// [`GeometryOutput`]): defined here once and sent to the worker when it starts (`--timing-keys`,
+/// see [`WorkerTimings::to_arg`]), so `blender_scripts/` use the names they are given and the
+/// readers of the manifest's `render_timings` (the estimate, the benches) agree with them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct WorkerTimings {
+    /// Clearing the previous scene.
+    pub reset: &'static str,
+    /// Building the spec's scene.
+    pub build: &'static str,
+    /// The colour render of each view (Cycles spreads it over threads).
+    pub colour: ByView,
+    /// The depth render of each view (also threaded).
+    pub depth: ByView,
+    /// Writing the rendered files, all four together.
+    pub save: &'static str,
+    /// Writing a spec's geometry (an `export_geometry` request instead of the renders).
+    pub export: &'static str,
+    /// Every key above ends in this (wall seconds) ...
+    pub wall_suffix: &'static str,
+    /// ... and a stage's CPU seconds, where STEREOGEN_TIMINGS_CPU is set, go under its key with
+    /// `wall_suffix` replaced by this.
+    pub cpu_suffix: &'static str,
+}
+
+/// A name per stereo view.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct ByView {
+    pub left: &'static str,
+    pub right: &'static str,
+}
+
+pub const WORKER_TIMINGS: WorkerTimings = WorkerTimings {
+    reset: "reset_s",
+    build: "build_s",
+    colour: ByView {
+        left: "colour_left_s",
+        right: "colour_right_s",
+    },
+    depth: ByView {
+        left: "depth_left_s",
+        right: "depth_right_s",
+    },
+    save: "save_s",
+    export: "export_s",
+    wall_suffix: "_s",
+    cpu_suffix: "_cpu_s",
+};
+
+impl WorkerTimings {
+    /// The keys of the renders, the part of a sample Cycles runs on all its threads.
+    pub fn renders(&self) -> [&'static str; 4] {
+        [
+            self.colour.left,
+            self.colour.right,
+            self.depth.left,
+            self.depth.right,
+        ]
+    }
+
+    /// The command-line value that hands these names to the worker (JSON).
+    pub fn to_arg(&self) -> String {
+        serde_json::to_string(self).expect("timing keys serialise")
+    }
+}
+
+/// Whether a timing key is wall seconds (not a stage's CPU seconds).
+pub fn is_wall_timing(key: &str) -> bool {
+    !key.ends_with(WORKER_TIMINGS.cpu_suffix)
+}
+
 /// Failures the worker injects on request, so tests exercise the recovery paths for real.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -67,8 +143,10 @@ pub enum Fault {
 #[derive(Debug, Serialize)]
 #[serde(tag = "cmd", rename_all = "snake_case")]
 pub enum Request<'a> {
-    /// Build `spec` and render both views into `out_dir` (a fresh temporary directory).
+    /// Build `spec` and render both views into `out_dir` (a fresh temporary directory). The
+    /// spec goes with its render settings resolved ([`SceneSpec::for_worker`]).
     Render {
+        #[serde(serialize_with = "spec_for_worker")]
         spec: &'a SceneSpec,
         out_dir: &'a Path,
         #[serde(skip_serializing_if = "Option::is_none")]
@@ -78,11 +156,17 @@ pub enum Request<'a> {
     /// (world-space triangles of every rendered object, with what decides a hit) into `out_dir`,
     /// for `stereogen audit`.
     ExportGeometry {
+        #[serde(serialize_with = "spec_for_worker")]
         spec: &'a SceneSpec,
         out_dir: &'a Path,
     },
     /// Exit cleanly.
     Quit,
+}
+
+/// A spec as the worker reads it: every render key present, defaults filled in by Rust.
+fn spec_for_worker<S: serde::Serializer>(spec: &&SceneSpec, s: S) -> Result<S::Ok, S::Error> {
+    spec.for_worker().serialize(s)
 }
 
 impl Request<'_> {
@@ -132,9 +216,8 @@ pub struct RenderedFiles {
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderOutput {
     pub files: RenderedFiles,
-    /// Seconds per step: `reset_s`, `build_s`, `colour_left_s`, `colour_right_s`,
-    /// `depth_left_s`, `depth_right_s`, `save_s` (and `<step>_cpu_s`, the worker's CPU seconds,
-    /// where STEREOGEN_TIMINGS_CPU is set).
+    /// Seconds per step, under the [`WORKER_TIMINGS`] keys `reset`, `build`, `colour`, `depth`
+    /// and `save` (and each step's CPU seconds where STEREOGEN_TIMINGS_CPU is set).
     #[serde(default)]
     pub timings: BTreeMap<String, f64>,
     #[serde(default)]
@@ -156,7 +239,7 @@ pub struct GeometryOutput {
     pub triangles: usize,
     /// Cycles renders the worker ran while handling the request: 0, as nothing is rendered.
     pub renders: u64,
-    /// Seconds per step: `build_s`, `export_s`.
+    /// Seconds per step, under the [`WORKER_TIMINGS`] keys `build` and `export`.
     #[serde(default)]
     pub timings: BTreeMap<String, f64>,
     #[serde(default)]
@@ -223,6 +306,27 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    #[test]
+    fn timing_keys_reach_the_worker_as_json_and_name_the_renders() {
+        let sent: serde_json::Value = serde_json::from_str(&WORKER_TIMINGS.to_arg()).unwrap();
+        assert_eq!(sent["colour"]["left"], "colour_left_s");
+        assert_eq!(sent["depth"]["right"], "depth_right_s");
+        assert_eq!(sent["cpu_suffix"], "_cpu_s");
+        let renders = WORKER_TIMINGS.renders();
+        assert!(renders.contains(&"depth_left_s") && !renders.contains(&"save_s"));
+        // Every wall key ends in the suffix the worker replaces for its CPU seconds.
+        for key in renders.iter().chain(&[
+            WORKER_TIMINGS.reset,
+            WORKER_TIMINGS.build,
+            WORKER_TIMINGS.save,
+            WORKER_TIMINGS.export,
+            WORKER_START_TIMING,
+        ]) {
+            assert!(key.ends_with(WORKER_TIMINGS.wall_suffix) && is_wall_timing(key));
+        }
+        assert!(!is_wall_timing("colour_left_cpu_s"));
     }
 
     #[test]

@@ -10,7 +10,9 @@ use std::time::Duration;
 
 use anyhow::Context;
 
-use super::protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request};
+use super::protocol::{
+    Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request, WORKER_TIMINGS,
+};
 use super::runtime::{BLENDER_SERIES, BlenderRuntime, discover_or_install, stereogen_home};
 use super::scratch;
 use super::scripts::install_scripts;
@@ -431,13 +433,16 @@ impl Process {
     }
 }
 
-/// Starts the runtime on `worker.py` with piped stdio.
+/// Starts the runtime on `worker.py` with piped stdio, telling it its threads, its device and
+/// the names to report its stages under.
 fn start_process(cfg: &WorkerConfig) -> std::io::Result<Child> {
     let args = [
         "--threads".to_string(),
         cfg.threads.to_string(),
         "--device".to_string(),
         cfg.device.to_string(),
+        "--timing-keys".to_string(),
+        WORKER_TIMINGS.to_arg(),
     ];
     let mut cmd = cfg.runtime.command(&cfg.script, &args);
     cmd.stdin(Stdio::piped())

@@ -7,7 +7,7 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use sha2::{Digest, Sha256};
+use stereo_io::digest::sha256_file_with_len;
 
 /// Redirect hops followed per request.
 const MAX_REDIRECTS: usize = 8;
@@ -124,22 +124,6 @@ fn body_start(resp: &ureq::Response) -> u64 {
         .unwrap_or(0)
 }
 
-pub fn sha256_file(path: &Path) -> std::io::Result<(String, u64)> {
-    let mut f = File::open(path)?;
-    let mut h = Sha256::new();
-    let mut buf = vec![0u8; 1 << 16];
-    let mut n = 0;
-    loop {
-        let k = f.read(&mut buf)?;
-        if k == 0 {
-            break;
-        }
-        h.update(&buf[..k]);
-        n += k as u64;
-    }
-    Ok((h.finalize().iter().map(|b| format!("{b:02x}")).collect(), n))
-}
-
 /// Downloads `url` into `dest` through `dest.part`, resuming what an earlier attempt left, with
 /// up to `retries` further attempts. `check` vets the finished bytes (e.g. a GLB header).
 /// Returns the file's SHA-256 and length; on failure nothing is left at `dest`.
@@ -156,7 +140,7 @@ pub fn download(
     for _ in 0..=retries {
         match attempt(agent, url, &part, on_bytes) {
             Ok(announced) => {
-                let (sha, bytes) = sha256_file(&part)
+                let (sha, bytes) = sha256_file_with_len(&part)
                     .map_err(|e| format!("cannot read {}: {e}", part.display()))?;
                 if let Some(expected) = announced
                     && expected != sha

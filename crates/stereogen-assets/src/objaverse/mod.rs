@@ -147,8 +147,8 @@ fn is_present(out: &Path, uid: &str) -> bool {
     let Ok(record) = serde_json::from_str::<ObjectRecord>(&text) else {
         return false;
     };
-    download::sha256_file(&out.join(format!("{uid}.glb")))
-        .is_ok_and(|(sha, _)| sha == record.sha256)
+    stereo_io::digest::sha256_file(&out.join(format!("{uid}.glb")))
+        .is_ok_and(|sha| sha == record.sha256)
 }
 
 /// Picks the first `count` objects, in shard and uid order, whose licence and category pass.

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use stereogen_plan::assets::{MeshAsset, SkippedAsset, TextureAsset};
 
-use crate::objaverse::download::sha256_file;
+use stereo_io::digest::sha256_file_with_len;
 
 pub use contents::{FILES, PACKAGES, PackFile, PackKind, PackPackage, requirements};
 pub use install::{default_pip_python, ensure_installed, install_pack, installed_index};
@@ -107,7 +107,8 @@ fn check(root: &Path, f: &PackFile) -> Result<PackEntry, String> {
             "missing from the installed pack (run `stereogen setup` to reinstall it)".into(),
         );
     }
-    let (sha256, bytes) = sha256_file(&path).map_err(|e| format!("cannot read it: {e}"))?;
+    let (sha256, bytes) =
+        sha256_file_with_len(&path).map_err(|e| format!("cannot read it: {e}"))?;
     if sha256 != f.sha256 {
         return Err(format!(
             "corrupt: SHA-256 {sha256} is not the pinned {} (run `stereogen setup` to reinstall the pack)",

@@ -39,11 +39,15 @@ pub fn scene_spec_checks(spec: &SceneSpec) -> Vec<Check<'_>> {
                 ),
             },
         ),
-        int("render.samples", render.samples, 1, 65536),
-        positive("render.filter_width_px", render.filter_width_px, 10.0),
+        int("render.samples", render.recipe.samples, 1, 65536),
+        positive(
+            "render.filter_width_px",
+            render.recipe.filter_width_px,
+            10.0,
+        ),
         Check::new(
             "render.adaptive_threshold",
-            match render.adaptive_threshold {
+            match render.recipe.adaptive_threshold {
                 Some(t) => Rule::Positive { value: t, max: 1.0 },
                 None => Rule::AnyValue,
             },

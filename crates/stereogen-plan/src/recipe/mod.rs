@@ -11,7 +11,8 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 pub use super::dist::{CountRange, Dist, UniformRange};
-use super::spec::{DenoisePasses, DenoisePrefilter, DenoiseQuality, MaterialClass, PixelFilter};
+pub use super::render::{RenderOverride, RenderRecipe};
+use super::spec::MaterialClass;
 
 mod validate;
 
@@ -65,12 +66,6 @@ added_keys! {
     pack_mesh_share: f64 = 0.5;
     procedural_share: f64 = 0.0;
     photo_texel_px: Option<[f64; 2]> = None;
-    adaptive_threshold: Option<f64> = None;
-    adaptive_min_samples: u32 = 0;
-    denoise_prefilter: DenoisePrefilter = DenoisePrefilter::Accurate;
-    denoise_passes: DenoisePasses = DenoisePasses::AlbedoNormal;
-    denoise_quality: DenoiseQuality = DenoiseQuality::High;
-    light_tree: bool = true;
 }
 
 /// Built-in presets: (name, TOML).
@@ -168,48 +163,6 @@ pub struct CameraRecipe {
         skip_serializing_if = "is_default::clip_end_factor"
     )]
     pub clip_end_factor: f64,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RenderRecipe {
-    pub samples: u32,
-    pub denoise: bool,
-    pub max_bounces: u32,
-    pub pixel_filter: PixelFilter,
-    pub filter_width_px: f64,
-    /// Adaptive sampling's noise threshold; absent: adaptive sampling off.
-    #[serde(
-        default = "default::adaptive_threshold",
-        skip_serializing_if = "is_default::adaptive_threshold"
-    )]
-    pub adaptive_threshold: Option<f64>,
-    /// Adaptive sampling's minimum samples per pixel (0: Cycles' automatic choice).
-    #[serde(
-        default = "default::adaptive_min_samples",
-        skip_serializing_if = "is_default::adaptive_min_samples"
-    )]
-    pub adaptive_min_samples: u32,
-    #[serde(
-        default = "default::denoise_prefilter",
-        skip_serializing_if = "is_default::denoise_prefilter"
-    )]
-    pub denoise_prefilter: DenoisePrefilter,
-    #[serde(
-        default = "default::denoise_passes",
-        skip_serializing_if = "is_default::denoise_passes"
-    )]
-    pub denoise_passes: DenoisePasses,
-    #[serde(
-        default = "default::denoise_quality",
-        skip_serializing_if = "is_default::denoise_quality"
-    )]
-    pub denoise_quality: DenoiseQuality,
-    #[serde(
-        default = "default::light_tree",
-        skip_serializing_if = "is_default::light_tree"
-    )]
-    pub light_tree: bool,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -520,56 +473,6 @@ pub struct CategoryRecipe {
     pub render: Option<RenderOverride>,
 }
 
-/// Render keys a category sets for itself; each set key replaces the recipe's `[render]` one.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RenderOverride {
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub samples: Option<u32>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub denoise: Option<bool>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub max_bounces: Option<u32>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub pixel_filter: Option<PixelFilter>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub filter_width_px: Option<f64>,
-    /// Turns adaptive sampling on for this category (with this threshold).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub adaptive_threshold: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub adaptive_min_samples: Option<u32>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub denoise_prefilter: Option<DenoisePrefilter>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub denoise_passes: Option<DenoisePasses>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub denoise_quality: Option<DenoiseQuality>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub light_tree: Option<bool>,
-}
-
-impl RenderOverride {
-    /// `base` with this category's keys in place of its own.
-    pub fn apply(&self, base: &RenderRecipe) -> RenderRecipe {
-        RenderRecipe {
-            samples: self.samples.unwrap_or(base.samples),
-            denoise: self.denoise.unwrap_or(base.denoise),
-            max_bounces: self.max_bounces.unwrap_or(base.max_bounces),
-            pixel_filter: self.pixel_filter.unwrap_or(base.pixel_filter),
-            filter_width_px: self.filter_width_px.unwrap_or(base.filter_width_px),
-            adaptive_threshold: self.adaptive_threshold.or(base.adaptive_threshold),
-            adaptive_min_samples: self
-                .adaptive_min_samples
-                .unwrap_or(base.adaptive_min_samples),
-            denoise_prefilter: self.denoise_prefilter.unwrap_or(base.denoise_prefilter),
-            denoise_passes: self.denoise_passes.unwrap_or(base.denoise_passes),
-            denoise_quality: self.denoise_quality.unwrap_or(base.denoise_quality),
-            light_tree: self.light_tree.unwrap_or(base.light_tree),
-        }
-    }
-}
-
 fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let before = &text[..offset.min(text.len())];
     let line = before.matches('\n').count() + 1;
@@ -666,6 +569,7 @@ impl Recipe {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::DenoisePrefilter;
 
     #[test]
     fn a_category_render_key_replaces_the_recipe_one_and_is_checked() {
@@ -674,7 +578,7 @@ mod tests {
         let mut seen = BTreeMap::new();
         for index in 0..40 {
             let spec = crate::plan_scene(&recipe, &assets, 5, index);
-            let r = spec.render;
+            let r = spec.render.recipe;
             let expected = match spec.category.as_str() {
                 "reflective" => (24, None, DenoisePrefilter::Accurate),
                 "shapenet" => (32, Some(0.02), DenoisePrefilter::Accurate),

@@ -3,3 +3,4 @@
 mod pack_planning;
 mod plan_laws;
 mod scene_spec_check;
+mod spec_bytes;

@@ -87,7 +87,7 @@ fn planned_specs_pass_and_impossible_values_are_named() {
         ),
         (
             "render.samples",
-            |s| s.render.samples = 0,
+            |s| s.render.recipe.samples = 0,
             "need 1..=65536, got 0",
         ),
     ];

@@ -1,7 +1,23 @@
 //! Projecting a measurement onto a whole run: per category and per task, with the spread of
-//! the sample times, and how it is printed.
+//! the sample times (printed by [`Estimate::text`]).
 
-use super::*;
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use super::cost::{Measurement, SampleCost, median};
+use crate::farm::TimeLimit;
+use crate::plan::{Recipe, scene_category};
+use crate::render::Device;
+
+/// Ranges up to this many samples get their categories counted exactly (planning a sample's
+/// category is a hash and a draw); longer ones are split by the weights.
+pub const EXACT_COUNT_LIMIT: u64 = 5_000_000;
+/// A time limit set from an estimate is this many times the largest task's projected wall time
+/// (plus the grace period), rounded up to [`TIME_LIMIT_STEP_S`]: room for slower cores, a busy
+/// shared filesystem and scenes costlier than the few measured.
+pub const TIME_LIMIT_SAFETY: f64 = 1.5;
+pub const TIME_LIMIT_STEP_S: u64 = 300;
 
 /// min / median / max / mean and the standard error of the mean.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -15,7 +31,7 @@ pub struct Spread {
 }
 
 impl Spread {
-    fn of(v: &[f64]) -> Self {
+    pub fn of(v: &[f64]) -> Self {
         let n = v.len() as f64;
         let mean = v.iter().sum::<f64>() / n;
         let sem = (v.len() > 1).then(|| {
@@ -312,166 +328,101 @@ impl Estimate {
         ));
         t
     }
+}
 
-    /// The estimate as a table.
-    pub fn text(&self) -> String {
-        let m = &self.measured;
-        let unit = &self.unit;
-        let mut out = Vec::new();
-        let starts: Vec<String> = m.worker_start_s.iter().map(|s| format!("{s:.1}")).collect();
-        out.push(format!(
-            "estimate of {} samples of {} ({}×{} px, {} samples per pixel), seed {}, on the {}",
-            self.count,
-            self.recipe,
-            self.width,
-            self.height,
-            self.samples_per_pixel,
-            self.seed,
-            self.device
-        ));
-        if !self.category_render.is_empty() {
-            let own: Vec<String> = self
-                .category_render
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(index: u64, category: &str, seconds: f64) -> SampleCost {
+        SampleCost {
+            index,
+            category: category.into(),
+            seconds,
+            parallel_seconds: seconds - 2.0,
+            files: 5,
+            bytes: 1000,
+            manifest_bytes: 100,
+        }
+    }
+
+    fn measurement(samples: Vec<SampleCost>) -> Measurement {
+        Measurement {
+            samples,
+            worker_start_s: vec![5.0],
+            task_fixed_s: 30.0,
+            workers: 1,
+            threads: 2,
+            units_per_worker: 2.0,
+            device: Device::Cpu,
+            machine: "test".into(),
+            worker_restarts: 0,
+            failed: 0,
+            dataset_files: 2,
+            dataset_bytes: 400,
+        }
+    }
+
+    #[test]
+    fn renders_scale_with_cores_and_the_serial_rest_does_not() {
+        let recipe = Recipe::preset("crestereo").unwrap();
+        let names: Vec<&str> = recipe.categories.iter().map(|c| c.name.as_str()).collect();
+        // 10 s a sample here on 2 cores, 8 of them in the renders: 2 + 8 × 2/4 = 6 s on 4 cores.
+        let m = measurement(
+            names
                 .iter()
-                .map(|(name, keys)| format!("{name} {keys}"))
-                .collect();
-            out.push(format!(
-                "categories with their own render keys: {}",
-                own.join(", ")
-            ));
-        }
-        out.push(format!(
-            "measured here: {} sample(s) with {} worker(s) × {} thread(s) on {}{}{}",
-            m.samples.len(),
-            m.workers,
-            m.threads,
-            m.machine,
-            if m.failed > 0 {
-                format!(", {} failed", m.failed)
-            } else {
-                String::new()
-            },
-            if m.worker_restarts > 0 {
-                format!(", {} worker restart(s)", m.worker_restarts)
-            } else {
-                String::new()
-            }
-        ));
-        out.push(format!(
-            "per task, once: {:.1} s wall (asset index, dataset, shutdown, and worker start-up, Blender import: {} s per worker)",
-            m.task_fixed_s,
-            starts.join(", ")
-        ));
-        let t = &self.task;
-        let unit_word = match m.device {
-            Device::Cpu => "core(s)",
-            Device::Gpu => "GPU(s)",
+                .enumerate()
+                .map(|(i, n)| sample(i as u64, n, 10.0))
+                .collect(),
+        );
+        let target = Target {
+            tasks: 2,
+            workers: 1,
+            units: 4.0,
         };
-        out.push(format!(
-            "projected to {} task(s) of {} worker(s) and {} {unit_word}",
-            t.tasks,
-            t.workers,
-            fmt_units(t.units)
-        ));
-        out.push(String::new());
-        out.push(format!(
-            "{:<12} {:>7} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
-            "category", "weight", "samples", "n", "s/sample min/med/max", unit, "output", "files"
-        ));
-        for c in &self.categories {
-            let spread = c.seconds.map_or("(not measured)".to_string(), |s| {
-                format!("{:.1} / {:.1} / {:.1}", s.min, s.median, s.max)
-            });
-            out.push(format!(
-                "{:<12} {:>7.3} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
-                c.name,
-                c.weight,
-                c.samples,
-                c.measured,
-                spread,
-                format!("{} ± {}", fmt_hours(c.hours), fmt_hours(c.hours_sem)),
-                fmt_bytes(c.bytes),
-                c.files
-            ));
-        }
-        let s = &self.seconds;
-        out.push(format!(
-            "{:<12} {:>7} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
-            "total",
-            "",
-            self.count,
-            m.samples.len(),
-            format!("{:.1} / {:.1} / {:.1}", s.min, s.median, s.max),
-            format!("{} ± {}", fmt_hours(self.hours), fmt_hours(self.hours_sem)),
-            fmt_bytes(self.bytes),
-            self.files
-        ));
-        out.push(String::new());
-        out.push(format!(
-            "{unit}: samples {} + per-task fixed time {}; ± is one standard error of the mean over the measured samples",
-            fmt_hours(self.sample_hours),
-            fmt_hours(self.fixed_hours)
-        ));
-        out.push(format!(
-            "largest task: {} samples, {} ± {} wall ({} {unit})",
-            t.samples,
-            fmt_duration(t.wall_s),
-            fmt_duration(t.wall_s_sem),
-            fmt_hours(t.hours)
-        ));
-        if let (Some(l), Some(rule)) = (self.time_limit_s, &self.time_limit_rule) {
-            out.push(format!(
-                "time limit per task: {} ({rule})",
-                TimeLimit(l).slurm()
-            ));
-        }
-        if m.device == Device::Cpu
-            && (t.units / t.workers.max(1) as f64 - m.units_per_worker).abs() > 1e-9
-        {
-            out.push(format!(
-                "cores per worker {} here, {} in the projection: the colour and depth renders scaled linearly, the rest of a sample not",
-                fmt_units(m.units_per_worker),
-                fmt_units(t.units / t.workers.max(1) as f64)
-            ));
-        }
-        out.join("\n") + "\n"
+        let mut e = project(&m, &recipe, 7, 0, 1000, target);
+        let counts: u64 = e.categories.iter().map(|c| c.samples).sum();
+        assert_eq!(counts, 1000, "the range's exact counts add up");
+        assert!((e.sample_hours - 1000.0 * 6.0 * 4.0 / 3600.0).abs() < 1e-9);
+        assert!((e.fixed_hours - 2.0 * 30.0 * 4.0 / 3600.0).abs() < 1e-12);
+        assert_eq!(e.task.samples, 500);
+        assert!((e.task.wall_s - (30.0 + 500.0 * 6.0)).abs() < 1e-9);
+        assert_eq!(e.hours_sem, 0.0, "equal samples: no spread");
+        // Five files a sample, dataset.json and a manifest per task, and the merged manifest.
+        assert_eq!(e.files, 1000 * 5 + 2 * 2 + 1);
+        assert_eq!(e.bytes, 1000 * 1100 + 2 * 400 + 1000 * 100);
+        // 1.5 × 3030 s + 120 s = 4665 s, rounded up to 5 minutes.
+        assert_eq!(e.set_time_limit(120).seconds(), 4800);
+        assert!(
+            e.text().contains("time limit per task: 01:20:00"),
+            "{}",
+            e.text()
+        );
     }
-}
 
-fn fmt_units(u: f64) -> String {
-    if (u - u.round()).abs() < 1e-9 {
-        format!("{}", u.round() as u64)
-    } else {
-        format!("{u:.2}")
+    #[test]
+    fn a_category_measured_once_borrows_the_pooled_spread() {
+        let recipe = Recipe::preset("crestereo").unwrap();
+        let (a, b) = (&recipe.categories[0].name, &recipe.categories[1].name);
+        let m = measurement(vec![
+            sample(0, a, 10.0),
+            sample(1, a, 14.0),
+            sample(2, b, 12.0),
+        ]);
+        let e = project(&m, &recipe, 7, 0, 1000, Target::like(&m, 1));
+        let (ca, cb) = (&e.categories[0], &e.categories[1]);
+        let sa = ca.device_seconds.unwrap();
+        let cv = sa.sem.unwrap() * 2f64.sqrt() / sa.mean;
+        let sb = cb.device_seconds.unwrap();
+        assert_eq!(sb.sem, None, "one value has no spread of its own");
+        let want = cb.samples as f64 * cv * sb.mean / 3600.0;
+        assert!(
+            (cb.hours_sem - want).abs() < 1e-12,
+            "{} vs {want}",
+            cb.hours_sem
+        );
+        // Categories not measured at all are projected from every measured sample.
+        assert_eq!(e.categories[2].measured, 0);
+        assert!(e.categories[2].seconds.is_none() && e.categories[2].hours > 0.0);
     }
-}
-
-fn fmt_hours(h: f64) -> String {
-    if h >= 100.0 {
-        format!("{h:.0}")
-    } else if h >= 1.0 {
-        format!("{h:.1}")
-    } else {
-        format!("{h:.3}")
-    }
-}
-
-fn fmt_duration(s: f64) -> String {
-    if s >= 3600.0 {
-        format!("{:.1} h", s / 3600.0)
-    } else if s >= 60.0 {
-        format!("{:.1} min", s / 60.0)
-    } else {
-        format!("{s:.1} s")
-    }
-}
-
-fn fmt_bytes(b: u64) -> String {
-    let b = b as f64;
-    for (unit, size) in [("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)] {
-        if b >= size {
-            return format!("{:.1} {unit}", b / size);
-        }
-    }
-    format!("{b:.0} B")
 }

@@ -1,0 +1,169 @@
+//! How an [`Estimate`] reads as a table (what `stereogen estimate` and `farm --estimate` print).
+
+use super::projection::Estimate;
+use crate::farm::TimeLimit;
+use crate::render::Device;
+
+impl Estimate {
+    /// The estimate as a table.
+    pub fn text(&self) -> String {
+        let m = &self.measured;
+        let unit = &self.unit;
+        let mut out = Vec::new();
+        let starts: Vec<String> = m.worker_start_s.iter().map(|s| format!("{s:.1}")).collect();
+        out.push(format!(
+            "estimate of {} samples of {} ({}×{} px, {} samples per pixel), seed {}, on the {}",
+            self.count,
+            self.recipe,
+            self.width,
+            self.height,
+            self.samples_per_pixel,
+            self.seed,
+            self.device
+        ));
+        if !self.category_render.is_empty() {
+            let own: Vec<String> = self
+                .category_render
+                .iter()
+                .map(|(name, keys)| format!("{name} {keys}"))
+                .collect();
+            out.push(format!(
+                "categories with their own render keys: {}",
+                own.join(", ")
+            ));
+        }
+        out.push(format!(
+            "measured here: {} sample(s) with {} worker(s) × {} thread(s) on {}{}{}",
+            m.samples.len(),
+            m.workers,
+            m.threads,
+            m.machine,
+            if m.failed > 0 {
+                format!(", {} failed", m.failed)
+            } else {
+                String::new()
+            },
+            if m.worker_restarts > 0 {
+                format!(", {} worker restart(s)", m.worker_restarts)
+            } else {
+                String::new()
+            }
+        ));
+        out.push(format!(
+            "per task, once: {:.1} s wall (asset index, dataset, shutdown, and worker start-up, Blender import: {} s per worker)",
+            m.task_fixed_s,
+            starts.join(", ")
+        ));
+        let t = &self.task;
+        let unit_word = match m.device {
+            Device::Cpu => "core(s)",
+            Device::Gpu => "GPU(s)",
+        };
+        out.push(format!(
+            "projected to {} task(s) of {} worker(s) and {} {unit_word}",
+            t.tasks,
+            t.workers,
+            fmt_units(t.units)
+        ));
+        out.push(String::new());
+        out.push(format!(
+            "{:<12} {:>7} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
+            "category", "weight", "samples", "n", "s/sample min/med/max", unit, "output", "files"
+        ));
+        for c in &self.categories {
+            let spread = c.seconds.map_or("(not measured)".to_string(), |s| {
+                format!("{:.1} / {:.1} / {:.1}", s.min, s.median, s.max)
+            });
+            out.push(format!(
+                "{:<12} {:>7.3} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
+                c.name,
+                c.weight,
+                c.samples,
+                c.measured,
+                spread,
+                format!("{} ± {}", fmt_hours(c.hours), fmt_hours(c.hours_sem)),
+                fmt_bytes(c.bytes),
+                c.files
+            ));
+        }
+        let s = &self.seconds;
+        out.push(format!(
+            "{:<12} {:>7} {:>9} {:>3}  {:<22} {:>18} {:>10} {:>11}",
+            "total",
+            "",
+            self.count,
+            m.samples.len(),
+            format!("{:.1} / {:.1} / {:.1}", s.min, s.median, s.max),
+            format!("{} ± {}", fmt_hours(self.hours), fmt_hours(self.hours_sem)),
+            fmt_bytes(self.bytes),
+            self.files
+        ));
+        out.push(String::new());
+        out.push(format!(
+            "{unit}: samples {} + per-task fixed time {}; ± is one standard error of the mean over the measured samples",
+            fmt_hours(self.sample_hours),
+            fmt_hours(self.fixed_hours)
+        ));
+        out.push(format!(
+            "largest task: {} samples, {} ± {} wall ({} {unit})",
+            t.samples,
+            fmt_duration(t.wall_s),
+            fmt_duration(t.wall_s_sem),
+            fmt_hours(t.hours)
+        ));
+        if let (Some(l), Some(rule)) = (self.time_limit_s, &self.time_limit_rule) {
+            out.push(format!(
+                "time limit per task: {} ({rule})",
+                TimeLimit(l).slurm()
+            ));
+        }
+        if m.device == Device::Cpu
+            && (t.units / t.workers.max(1) as f64 - m.units_per_worker).abs() > 1e-9
+        {
+            out.push(format!(
+                "cores per worker {} here, {} in the projection: the colour and depth renders scaled linearly, the rest of a sample not",
+                fmt_units(m.units_per_worker),
+                fmt_units(t.units / t.workers.max(1) as f64)
+            ));
+        }
+        out.join("\n") + "\n"
+    }
+}
+
+fn fmt_units(u: f64) -> String {
+    if (u - u.round()).abs() < 1e-9 {
+        format!("{}", u.round() as u64)
+    } else {
+        format!("{u:.2}")
+    }
+}
+
+fn fmt_hours(h: f64) -> String {
+    if h >= 100.0 {
+        format!("{h:.0}")
+    } else if h >= 1.0 {
+        format!("{h:.1}")
+    } else {
+        format!("{h:.3}")
+    }
+}
+
+fn fmt_duration(s: f64) -> String {
+    if s >= 3600.0 {
+        format!("{:.1} h", s / 3600.0)
+    } else if s >= 60.0 {
+        format!("{:.1} min", s / 60.0)
+    } else {
+        format!("{s:.1} s")
+    }
+}
+
+fn fmt_bytes(b: u64) -> String {
+    let b = b as f64;
+    for (unit, size) in [("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)] {
+        if b >= size {
+            return format!("{:.1} {unit}", b / size);
+        }
+    }
+    format!("{b:.0} B")
+}
