@@ -6,12 +6,12 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
+use test_support::{audit_cmd, run_shown, sha256_hex};
 
 use serde_json::Value;
 use stereo_io::DisparityMap;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::recipe::PRESETS;
-use test_support::{audit_cmd, sha256_hex};
 
 /// With seed 3 the first 8 scenes of the tiny `crestereo` mix cover all four categories.
 const MIX_SCENES: u64 = 8;
@@ -22,18 +22,11 @@ fn generate(dir: &Path, preset: &str, count: u64, seed: u64) -> PathBuf {
 }
 
 fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
-    let o = audit_cmd(data)
-        .args(["--all", "--every-pixel", "--check"])
-        .args(extra)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    println!("{text}");
-    (o, text)
+    run_shown(
+        audit_cmd(data)
+            .args(["--all", "--every-pixel", "--check"])
+            .args(extra),
+    )
 }
 
 fn audit_json(data: &Path) -> Value {

@@ -6,12 +6,14 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use test_support::{
+    export_cmd, output_text, pinned_venv,
+    python_envs::{MATURIN_PINS, install_stereogen_module, repo_root},
+    stats_cmd, stereogen_cmd,
+};
 
 use serde_json::Value;
 use stereo_io::{DatasetFormat, ImageEncoding, WritableFormat, create_writer, open_dataset};
-use test_support::{export_cmd, stats_cmd, stereogen_cmd};
-
-use test_support::pinned_venv;
 
 fn export(data: &Path, out: &Path, extra: &[&str]) -> Command {
     let mut c = export_cmd(data, "webdataset", out);
@@ -211,56 +213,19 @@ fn report_from_shards(ours: &Path, shards: &Path) {
     );
 }
 
-const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
-
 /// The Python module opens the export as it opens the source (pytest
 /// crates/stereogen-py/pytests/test_webdataset.py, in the venv of tests/io_python.rs).
 fn python_reads_the_export(ours: &Path, shards: &Path, tmp: &Path) {
-    use pinned_venv::{ensure_venv, pip_install, run as run_checked};
-    let venv = ensure_venv("venv-test", PY_PINS);
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let wheels = tempfile::tempdir().unwrap();
-    let target = std::env::current_exe()
-        .unwrap()
-        .ancestors()
-        .nth(3)
-        .unwrap()
-        .to_path_buf();
-    run_checked(
-        Command::new(venv.join("bin/maturin"))
-            .args([
-                "build",
-                "--release",
-                "--auditwheel",
-                "skip",
-                "--manifest-path",
-            ])
-            .arg(root.join("crates/stereogen-py/Cargo.toml"))
-            .arg("--interpreter")
-            .arg(venv.join("bin/python"))
-            .arg("--out")
-            .arg(wheels.path())
-            .env("CARGO_TARGET_DIR", target.join("python-ext")),
-        "maturin build",
-    );
-    let wheel = std::fs::read_dir(wheels.path())
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .find(|p| p.extension().is_some_and(|x| x == "whl"))
-        .expect("a wheel");
-    run_checked(
-        pip_install(&venv)
-            .args(["--no-deps", "--force-reinstall"])
-            .arg(&wheel),
-        "pip install wheel",
-    );
+    use pinned_venv::{ensure_venv, run as run_checked};
+    let venv = ensure_venv("venv-test", MATURIN_PINS);
+    install_stereogen_module(&venv);
     let fixture = tmp.join("webdataset-fixture.json");
     let facts = serde_json::json!({"source": ours, "export": shards, "len": 3});
     std::fs::write(&fixture, facts.to_string()).unwrap();
     let said = run_checked(
         Command::new(venv.join("bin/python"))
             .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
-            .arg(root.join("crates/stereogen-py/pytests/test_webdataset.py"))
+            .arg(repo_root().join("crates/stereogen-py/pytests/test_webdataset.py"))
             .env("STEREOGEN_PY_WEBDATASET", &fixture),
         "pytest",
     );
@@ -273,11 +238,7 @@ fn python_reads_the_export(ours: &Path, shards: &Path, tmp: &Path) {
 /// Runs `c`, asserting success; its stdout and stderr.
 fn run_out(c: &mut Command) -> String {
     let out = c.output().unwrap();
-    let all = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let all = output_text(&out);
     assert!(out.status.success(), "{all}");
     all
 }

@@ -15,9 +15,9 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
+use test_support::{output_text, python_envs};
 
 use python_envs::{base_venvs, fresh_venv, python_home, repo_root, target_dir};
-use test_support::python_envs;
 
 /// The pages whose command blocks `guide_commands_run_as_written` runs, in order, and the marker
 /// name of their blocks.
@@ -512,11 +512,7 @@ fn guide_commands_run_as_written() {
             .stdin(std::process::Stdio::null())
             .output()
             .unwrap();
-        let said = format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let said = output_text(&out);
         assert!(
             out.status.success(),
             "{what} failed ({}):\n{said}",

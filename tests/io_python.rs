@@ -11,52 +11,11 @@ use std::process::Command;
 use serde_json::json;
 use stereo_io::*;
 
-use pinned_venv::{ensure_venv, pip_install, run};
-use test_support::pinned_venv;
-
-const PY_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
-
-fn target_dir() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    exe.ancestors()
-        .nth(3)
-        .expect("<target>/<profile>/deps/<test>")
-        .to_path_buf()
-}
-
-/// Builds the module with maturin and installs the wheel into `venv`.
-pub fn install_module(venv: &Path) {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let wheels = tempfile::tempdir().unwrap();
-    run(
-        Command::new(venv.join("bin/maturin"))
-            .args([
-                "build",
-                "--release",
-                "--auditwheel",
-                "skip",
-                "--manifest-path",
-            ])
-            .arg(root.join("crates/stereogen-py/Cargo.toml"))
-            .arg("--interpreter")
-            .arg(venv.join("bin/python"))
-            .arg("--out")
-            .arg(wheels.path())
-            .env("CARGO_TARGET_DIR", target_dir().join("python-ext")),
-        "maturin build",
-    );
-    let wheel = std::fs::read_dir(wheels.path())
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .find(|p| p.extension().is_some_and(|x| x == "whl"))
-        .expect("a wheel");
-    run(
-        pip_install(venv)
-            .args(["--no-deps", "--force-reinstall"])
-            .arg(&wheel),
-        "pip install wheel",
-    );
-}
+use pinned_venv::{ensure_venv, run};
+use test_support::{
+    pinned_venv,
+    python_envs::{MATURIN_PINS, install_stereogen_module},
+};
 
 fn rgb(w: usize, h: usize, seed: u8) -> RgbImage {
     RgbImage {
@@ -302,8 +261,8 @@ fn fixtures(dir: &Path) -> serde_json::Value {
 
 #[test]
 fn python_module_matches_the_rust_readers() {
-    let venv = ensure_venv("venv-test", PY_PINS);
-    install_module(&venv);
+    let venv = ensure_venv("venv-test", MATURIN_PINS);
+    install_stereogen_module(&venv);
     let dir = tempfile::tempdir().unwrap();
     let expect = fixtures(dir.path());
     std::fs::write(

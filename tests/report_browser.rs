@@ -10,24 +10,15 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
+use test_support::{generate_tiny_dataset, run_shown, stereogen_cmd};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use test_support::{generate_tiny_dataset, stereogen_cmd};
 
 const SCENES: u64 = 8;
 const THUMBNAILS: usize = 6;
 
 fn run(args: &[&str], paths: &[&Path]) -> (Output, String) {
-    let mut c = stereogen_cmd(args);
-    c.args(paths);
-    let o = c.output().unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    println!("{text}");
-    (o, text)
+    run_shown(stereogen_cmd(args).args(paths))
 }
 
 fn report(data: &Path, out: &Path, thumbnails: usize) -> String {

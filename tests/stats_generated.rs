@@ -5,11 +5,11 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
+use test_support::{run_shown, stats_cmd};
 
 use serde_json::Value;
 use stereogen::dataset::{DatasetInfo, Manifest};
 use stereogen::plan::Dist;
-use test_support::stats_cmd;
 
 const SCENES: u64 = 24;
 
@@ -18,18 +18,11 @@ fn generate(dir: &Path) -> PathBuf {
 }
 
 fn stats(data: &Path, out: &Path) -> (Output, String) {
-    let o = stats_cmd(data)
-        .args(["--check", "--plot", "--out"])
-        .arg(out)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    println!("{text}");
-    (o, text)
+    run_shown(
+        stats_cmd(data)
+            .args(["--check", "--plot", "--out"])
+            .arg(out),
+    )
 }
 
 fn f(v: &Value) -> f64 {

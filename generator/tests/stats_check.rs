@@ -11,6 +11,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Command, Output};
+use test_support::run_shown;
 
 use serde_json::Value;
 use stereo_io::{DisparityMap, DisparityMeta};
@@ -193,20 +194,14 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
 
 fn stats(root: &Path, extra: &[&str]) -> (Output, String, Value) {
     let out = root.join("stats-out");
-    let o = Command::new(env!("CARGO_BIN_EXE_stereogen"))
-        .arg("stats")
-        .arg(root)
-        .arg("--out")
-        .arg(&out)
-        .args(extra)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
+    let (o, text) = run_shown(
+        Command::new(env!("CARGO_BIN_EXE_stereogen"))
+            .arg("stats")
+            .arg(root)
+            .arg("--out")
+            .arg(&out)
+            .args(extra),
     );
-    println!("{text}");
     let report =
         serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
     (o, text, report)

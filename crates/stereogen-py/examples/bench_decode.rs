@@ -14,7 +14,7 @@ use std::time::Instant;
 use stereo_io::*;
 
 use pinned_venv::{ensure_venv, run};
-use test_support::pinned_venv;
+use test_support::{pinned_venv, python_envs::install_stereogen_module};
 
 const PINS: &[&str] = &[
     "maturin==1.16.0",
@@ -24,48 +24,6 @@ const PINS: &[&str] = &[
 ];
 const W: usize = 1920;
 const H: usize = 1080;
-
-fn install_module(venv: &Path) {
-    let crate_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let exe = std::env::current_exe().unwrap();
-    let target = exe.ancestors().nth(3).unwrap().join("python-ext");
-    let wheels = tempfile::tempdir().unwrap();
-    run(
-        Command::new(venv.join("bin/maturin"))
-            .args([
-                "build",
-                "--release",
-                "--auditwheel",
-                "skip",
-                "--manifest-path",
-            ])
-            .arg(crate_dir.join("Cargo.toml"))
-            .arg("--interpreter")
-            .arg(venv.join("bin/python"))
-            .arg("--out")
-            .arg(wheels.path())
-            .env("CARGO_TARGET_DIR", target),
-        "maturin build",
-    );
-    let wheel = std::fs::read_dir(wheels.path())
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .find(|p| p.extension().is_some_and(|x| x == "whl"))
-        .unwrap();
-    run(
-        Command::new(venv.join("bin/python"))
-            .args([
-                "-m",
-                "pip",
-                "install",
-                "--quiet",
-                "--no-deps",
-                "--force-reinstall",
-            ])
-            .arg(wheel),
-        "pip install wheel",
-    );
-}
 
 /// A photo-like picture (smooth shading, edges, grain) so PNG compresses as it does on renders.
 fn picture(seed: u32) -> RgbImage {
@@ -196,7 +154,7 @@ fn main() {
         return;
     }
     let venv = ensure_venv("venv-bench", PINS);
-    install_module(&venv);
+    install_stereogen_module(&venv);
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/bench_decode.py");
     let out = run(
         Command::new(venv.join("bin/python"))

@@ -26,4 +26,4 @@ pub mod agcl_checks;
 #[cfg(feature = "network")]
 pub mod network_fixtures;
 
-pub use run::{output_text, run_fails, run_ok};
+pub use run::{output_text, run_fails, run_ok, run_shown};

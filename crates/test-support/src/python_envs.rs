@@ -46,6 +46,42 @@ pub const HUB_PINS: &[&str] = &[
 /// The venv with maturin that builds the module for the other Python tests (tests/io_python.rs).
 pub const MATURIN_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
 
+/// Builds the `stereogen` Python module (crates/stereogen-py) with `venv`'s maturin and installs
+/// the wheel into `venv`. The build goes to `<target>/python-ext`, a cargo folder of its own:
+/// maturin's build environment would otherwise invalidate the workspace's pyo3 build, and one
+/// folder for every caller keeps the build incremental.
+pub fn install_stereogen_module(venv: &Path) {
+    let wheels = tempfile::tempdir().unwrap();
+    pinned_venv::run(
+        Command::new(venv.join("bin/maturin"))
+            .args([
+                "build",
+                "--release",
+                "--auditwheel",
+                "skip",
+                "--manifest-path",
+            ])
+            .arg(repo_root().join("crates/stereogen-py/Cargo.toml"))
+            .arg("--interpreter")
+            .arg(venv.join("bin/python"))
+            .arg("--out")
+            .arg(wheels.path())
+            .env("CARGO_TARGET_DIR", target_dir().join("python-ext")),
+        "maturin build",
+    );
+    let wheel = std::fs::read_dir(wheels.path())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "whl"))
+        .expect("maturin wrote a wheel");
+    pinned_venv::run(
+        pinned_venv::pip_install(venv)
+            .args(["--no-deps", "--force-reinstall"])
+            .arg(&wheel),
+        "pip install wheel",
+    );
+}
+
 /// The base venvs: PyTorch's, and the one with `datasets`, `webdataset` and maturin on it.
 pub fn base_venvs() -> (PathBuf, PathBuf) {
     let torch = pinned_venv::ensure_venv("venv-torch", TORCH_PINS);
@@ -85,7 +121,8 @@ pub fn fresh_venv(dir: &Path, on: &[&Path]) -> PathBuf {
 
 pub use pinned_venv::python_home;
 
-/// The target directory of this test build (`<target>/<profile>/deps/<test>` → `<target>`).
+/// The target directory of this build (`<target>/<profile>/deps/<test>` or
+/// `<target>/<profile>/examples/<example>` → `<target>`).
 pub fn target_dir() -> PathBuf {
     let exe = std::env::current_exe().unwrap();
     exe.ancestors()

@@ -30,3 +30,15 @@ pub fn run_fails(c: &mut std::process::Command) -> String {
     assert!(!o.status.success(), "{c:?} succeeded:\n{text}");
     text
 }
+
+/// Runs `c` with no standard input, whatever its exit, prints what it said (a failing test then
+/// shows it) and returns its output with that text.
+pub fn run_shown(c: &mut std::process::Command) -> (std::process::Output, String) {
+    let o = c
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {c:?}: {e}"));
+    let text = output_text(&o);
+    println!("{text}");
+    (o, text)
+}

@@ -290,6 +290,24 @@ fn size_category(n: usize) -> &'static str {
 }
 
 fn render(info: Option<&Info>, c: &Contents, licences: &[LicenceUse]) -> String {
+    let title = match info {
+        Some(i) => format!(
+            "stereogen {} stereo dataset (seed {})",
+            i.recipe_name, i.seed
+        ),
+        None => "stereo dataset (WebDataset shards by stereogen)".to_string(),
+    };
+    let mut s = front_matter(&title, c, licences);
+    intro(&mut s, &title, info);
+    contents_section(&mut s, c);
+    members_section(&mut s, &c.members);
+    load_section(&mut s, c);
+    licences_section(&mut s, licences);
+    s
+}
+
+/// The YAML header the Hub reads: licences, title, task, size and the splits' shards.
+fn front_matter(title: &str, c: &Contents, licences: &[LicenceUse]) -> String {
     let total: usize = c.counts.values().flat_map(|m| m.values()).sum();
     let mut hub: BTreeSet<&str> = BTreeSet::new();
     let mut other = false;
@@ -314,13 +332,6 @@ fn render(info: Option<&Info>, c: &Contents, licences: &[LicenceUse]) -> String 
             s += "- other\nlicense_name: mixed-see-card\n";
         }
     }
-    let title = match info {
-        Some(i) => format!(
-            "stereogen {} stereo dataset (seed {})",
-            i.recipe_name, i.seed
-        ),
-        None => "stereo dataset (WebDataset shards by stereogen)".to_string(),
-    };
     let _ = writeln!(s, "pretty_name: \"{title}\"");
     s += "task_categories:\n- depth-estimation\ntags:\n- stereo\n- disparity\n- synthetic\n- webdataset\n";
     let _ = writeln!(s, "size_categories:\n- {}", size_category(total));
@@ -329,8 +340,13 @@ fn render(info: Option<&Info>, c: &Contents, licences: &[LicenceUse]) -> String 
         let _ = writeln!(s, "  - split: {split}\n    path: \"{split}-*.tar\"");
     }
     s += "---\n\n";
+    s
+}
+
+/// The title and what the files are, with how to make them again.
+fn intro(s: &mut String, title: &str, info: Option<&Info>) {
     let _ = writeln!(s, "# {title}\n");
-    s += "Stereo pairs with exact float32 disparity for both views, as WebDataset tar shards: the files \
+    *s += "Stereo pairs with exact float32 disparity for both views, as WebDataset tar shards: the files \
 of one sample lie consecutively in a shard under one key (`<key>.left.png`, `<key>.right.png`, \
 `<key>.disp_left.exr`, ...).\n\n";
     if let Some(i) = info {
@@ -342,7 +358,11 @@ The recipe is in `dataset.json` beside this card.\n",
             i.version, i.recipe_name, i.fingerprint, i.seed
         );
     }
-    s += "## Contents\n\n| split | shards | samples | per category |\n|---|---:|---:|---|\n";
+}
+
+/// The splits, their shards and samples, the image sizes and the disparity's range.
+fn contents_section(s: &mut String, c: &Contents) {
+    *s += "## Contents\n\n| split | shards | samples | per category |\n|---|---:|---:|---|\n";
     for (split, cats) in &c.counts {
         let n: usize = cats.values().sum();
         let per = cats
@@ -385,8 +405,12 @@ ground truth (the others, where no surface was hit, hold 0 and are flagged inval
             100.0 * d.valid / d.pixels.max(1.0)
         );
     }
-    s += "\n## Members of a sample\n\n| member | what | `datasets` gives |\n|---|---|---|\n";
-    for m in &c.members {
+}
+
+/// What each member of a sample is and what `datasets` makes of it.
+fn members_section(s: &mut String, members: &[String]) {
+    *s += "\n## Members of a sample\n\n| member | what | `datasets` gives |\n|---|---|---|\n";
+    for m in members {
         let (what, hub_gives) = match m.as_str() {
             "left.png" | "left.jpg" => ("left image, 8-bit RGB", "a PIL image"),
             "right.png" | "right.jpg" => ("right image, 8-bit RGB", "a PIL image"),
@@ -414,6 +438,10 @@ ground truth (the others, where no surface was hit, hold 0 and are flagged inval
         };
         let _ = writeln!(s, "| `{m}` | {what} | {hub_gives} |");
     }
+}
+
+/// How to load the shards with `datasets`, `webdataset` + PyTorch and `stereogen.torch`.
+fn load_section(s: &mut String, c: &Contents) {
     let first_shard = |split: &str| format!("{split}-000000.tar");
     let train = c
         .counts
@@ -482,11 +510,15 @@ stereogen itself reads the folder as a dataset: `stereogen stats .`, `stereogen 
 ",
         first = first_shard(&train),
     );
+}
+
+/// The licences of the content the images show, with attributions.
+fn licences_section(s: &mut String, licences: &[LicenceUse]) {
     if licences.is_empty() {
-        s += "Procedural content only: no third-party photo or mesh is in these images. The \
+        *s += "Procedural content only: no third-party photo or mesh is in these images. The \
 licence is yours to choose: set `license:` in the header before publishing.\n";
     } else {
-        s += "The images show content under these licences (the rendered images are derivative works \
+        *s += "The images show content under these licences (the rendered images are derivative works \
 of it; CC-BY content asks for attribution when you publish images that show it):\n\n";
         for l in licences {
             let _ = writeln!(s, "- **{}**: {}", l.licence, l.what);
@@ -501,9 +533,8 @@ of it; CC-BY content asks for attribution when you publish images that show it):
         for a in attributions {
             let _ = writeln!(s, "\nAttribution: {a}.");
         }
-        s += "\n`stereogen assets list` names every file of the content pack with its source and licence.\n";
+        *s += "\n`stereogen assets list` names every file of the content pack with its source and licence.\n";
     }
-    s
 }
 
 #[cfg(test)]

@@ -2,6 +2,7 @@
 
 use std::path::Path;
 use std::process::{Command, Output};
+use test_support::output_text;
 
 use crate::short_run;
 fn crestereo(args: &[&str]) -> Output {
@@ -27,11 +28,7 @@ fn ok_logged(args: &[&str]) -> String {
 
 fn ok_at(args: &[&str], level: &str) -> String {
     let out = crestereo_logging(args, level);
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let text = output_text(&out);
     assert!(out.status.success(), "crestereo {args:?} failed:\n{text}");
     text
 }

@@ -10,6 +10,7 @@ use crate::short_run;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::Instant;
+use test_support::output_text;
 
 use crestereo::weights::{NamedArray, load_weights, named_parameters};
 use crestereo::{CREStereo, CREStereoConfig, CpuBackend};
@@ -31,11 +32,7 @@ fn crestereo(args: &[&std::ffi::OsStr]) -> Output {
 
 fn ok(args: &[&std::ffi::OsStr]) -> String {
     let out = crestereo(args);
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let text = output_text(&out);
     assert!(out.status.success(), "crestereo {args:?} failed:\n{text}");
     text
 }

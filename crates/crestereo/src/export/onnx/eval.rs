@@ -247,45 +247,89 @@ pub(crate) fn assert_emit_matches(
     diff
 }
 
-fn run(node: &NodeProto, values: &Values) -> Array {
-    let input = |i: usize| values.float(&node.input[i]);
-    let attrs = Attrs(node);
-    let unary = |f: fn(T) -> T| {
-        let x = input(0);
-        Array::new(x.shape.clone(), f(x.data.clone()))
+/// A node being evaluated: its inputs and attributes.
+struct Node<'a> {
+    proto: &'a NodeProto,
+    values: &'a Values,
+}
+
+impl Node<'_> {
+    fn input(&self, i: usize) -> &Array {
+        self.values.float(&self.proto.input[i])
+    }
+
+    /// An int64 input (shapes, axes, slice bounds) as indices.
+    fn indices(&self, i: usize) -> Vec<usize> {
+        let v = self.values.ints(&self.proto.input[i]);
+        v.iter().map(|&d| to_usize(d)).collect()
+    }
+
+    fn attrs(&self) -> Attrs<'_> {
+        Attrs(self.proto)
+    }
+
+    fn name(&self) -> &str {
+        &self.proto.name
+    }
+}
+
+fn run(proto: &NodeProto, values: &Values) -> Array {
+    let node = Node { proto, values };
+    match proto.op_type.as_str() {
+        "Identity" => node.input(0).clone(),
+        "Add" | "Sub" | "Mul" | "Div" | "Min" => binary(&node),
+        "Relu" | "Sigmoid" | "Tanh" | "Neg" | "Sqrt" | "Exp" | "Reciprocal" => unary(&node),
+        "Reshape" | "Transpose" | "Concat" | "Slice" => reshaping(&node),
+        "ReduceMean" | "ReduceSum" | "Softmax" | "LayerNormalization" => reducing(&node),
+        "MatMul" => matmul(node.input(0), node.input(1)),
+        "Conv" | "AveragePool" | "GridSample" => spatial(&node),
+        other => panic!(
+            "evaluator: op type {other} ({}) is not implemented",
+            node.name()
+        ),
+    }
+}
+
+fn binary(node: &Node) -> Array {
+    let (a, b) = (node.input(0), node.input(1));
+    let shape = broadcast(&a.shape, &b.shape);
+    let (a, b) = (expand(a, &shape), expand(b, &shape));
+    let data = match node.proto.op_type.as_str() {
+        "Add" => a + b,
+        "Sub" => a - b,
+        "Mul" => a * b,
+        "Div" => a / b,
+        "Min" => a.min_pair(b),
+        other => unreachable!("{other}"),
     };
-    let binary = |f: fn(T, T) -> T| {
-        let (a, b) = (input(0), input(1));
-        let shape = broadcast(&a.shape, &b.shape);
-        let data = f(expand(a, &shape), expand(b, &shape));
-        Array::new(shape, data)
+    Array::new(shape, data)
+}
+
+fn unary(node: &Node) -> Array {
+    let x = node.input(0);
+    let t = x.data.clone();
+    let data = match node.proto.op_type.as_str() {
+        "Relu" => relu(t),
+        "Sigmoid" => sigmoid(t),
+        "Tanh" => t.tanh(),
+        "Neg" => t.neg(),
+        "Sqrt" => t.sqrt(),
+        "Exp" => t.exp(),
+        "Reciprocal" => t.recip(),
+        other => unreachable!("{other}"),
     };
-    match node.op_type.as_str() {
-        "Identity" => input(0).clone(),
-        "Add" => binary(|a, b| a + b),
-        "Sub" => binary(|a, b| a - b),
-        "Mul" => binary(|a, b| a * b),
-        "Div" => binary(|a, b| a / b),
-        "Min" => binary(|a, b| a.min_pair(b)),
-        "Relu" => unary(relu),
-        "Sigmoid" => unary(sigmoid),
-        "Tanh" => unary(|x| x.tanh()),
-        "Neg" => unary(|x| x.neg()),
-        "Sqrt" => unary(|x| x.sqrt()),
-        "Exp" => unary(|x| x.exp()),
-        "Reciprocal" => unary(|x| x.recip()),
+    Array::new(x.shape.clone(), data)
+}
+
+fn reshaping(node: &Node) -> Array {
+    let x = node.input(0);
+    match node.proto.op_type.as_str() {
         "Reshape" => {
-            let x = input(0);
-            let shape: Vec<usize> = values
-                .ints(&node.input[1])
-                .iter()
-                .map(|&d| to_usize(d))
-                .collect();
+            let shape = node.indices(1);
             Array::new(shape.clone(), x.data.clone().reshape(padded(&shape)))
         }
         "Transpose" => {
-            let x = input(0);
-            let perm = attrs.ints("perm");
+            let perm = node.attrs().ints("perm");
             let lead = RANK - perm.len();
             let mut full = [0; RANK];
             for (i, slot) in full.iter_mut().enumerate() {
@@ -295,46 +339,43 @@ fn run(node: &NodeProto, values: &Values) -> Array {
             Array::new(shape, x.data.clone().permute(full))
         }
         "Concat" => {
-            let axis = to_usize(attrs.int("axis"));
-            let parts: Vec<&Array> = (0..node.input.len()).map(input).collect();
+            let axis = to_usize(node.attrs().int("axis"));
+            let parts: Vec<&Array> = (0..node.proto.input.len()).map(|i| node.input(i)).collect();
             let mut shape = parts[0].shape.clone();
             shape[axis] = parts.iter().map(|p| p.shape[axis]).sum();
-            let data = crate::cat(
-                parts.iter().map(|p| p.data.clone()).collect(),
-                parts[0].axis(axis),
-            );
-            Array::new(shape, data)
+            let tensors = parts.iter().map(|p| p.data.clone()).collect();
+            Array::new(shape, crate::cat(tensors, parts[0].axis(axis)))
         }
         "Slice" => {
-            let x = input(0);
-            let [start, end, axis] = [1, 2, 3].map(|i| {
-                let v = values.ints(&node.input[i]);
-                assert_eq!(v.len(), 1, "{}: one axis per Slice", node.name);
-                to_usize(v[0])
+            let [start, end, axis] = [1, 2, 3].map(|i| match node.indices(i)[..] {
+                [v] => v,
+                _ => panic!("{}: one axis per Slice", node.name()),
             });
             let mut shape = x.shape.clone();
             shape[axis] = end - start;
-            Array::new(
-                shape,
-                x.data.clone().narrow(x.axis(axis), start, end - start),
-            )
+            let data = x.data.clone().narrow(x.axis(axis), start, end - start);
+            Array::new(shape, data)
         }
-        "ReduceMean" | "ReduceSum" => {
-            let x = input(0);
-            assert_eq!(attrs.int("keepdims"), 1, "{}: keepdims", node.name);
-            let axes: Vec<usize> = if node.op_type == "ReduceMean" {
+        other => unreachable!("{other}"),
+    }
+}
+
+fn reducing(node: &Node) -> Array {
+    let x = node.input(0);
+    let attrs = node.attrs();
+    match node.proto.op_type.as_str() {
+        op @ ("ReduceMean" | "ReduceSum") => {
+            assert_eq!(attrs.int("keepdims"), 1, "{}: keepdims", node.name());
+            // Opset 17: ReduceMean's axes are an attribute, ReduceSum's an input.
+            let axes = if op == "ReduceMean" {
                 attrs.ints("axes")
             } else {
-                values
-                    .ints(&node.input[1])
-                    .iter()
-                    .map(|&a| to_usize(a))
-                    .collect()
+                node.indices(1)
             };
             let (mut shape, mut data) = (x.shape.clone(), x.data.clone());
             for axis in axes {
                 let a = x.axis(axis);
-                data = if node.op_type == "ReduceMean" {
+                data = if op == "ReduceMean" {
                     data.mean_dim(a)
                 } else {
                     data.sum_dim(a)
@@ -344,65 +385,12 @@ fn run(node: &NodeProto, values: &Values) -> Array {
             Array::new(shape, data)
         }
         "Softmax" => {
-            let x = input(0);
-            let axis = to_usize(attrs.int("axis"));
-            Array::new(x.shape.clone(), softmax(x.data.clone(), x.axis(axis)))
-        }
-        "MatMul" => {
-            let (a, b) = (input(0), input(1));
-            let (ra, rb) = (a.shape.len(), b.shape.len());
-            let mut batch = broadcast(&a.shape[..ra - 2], &b.shape[..rb - 2]);
-            let (m, k, n) = (a.shape[ra - 2], a.shape[ra - 1], b.shape[rb - 1]);
-            let with = |tail: [usize; 2]| [batch.clone(), tail.to_vec()].concat();
-            let (sa, sb) = (with([m, k]), with([k, n]));
-            let data =
-                expand(&reshaped(a, sa.len()), &sa).matmul(expand(&reshaped(b, sb.len()), &sb));
-            batch.extend([m, n]);
-            Array::new(batch, data)
-        }
-        "Conv" => {
-            let (x, w) = (input(0).nchw(), input(1).nchw());
-            let bias = (node.input.len() > 2).then(|| {
-                let b = input(2);
-                b.data.clone().reshape([b.shape[0]])
-            });
-            let pads = attrs.ints("pads");
-            let stride = attrs.ints("strides");
-            let dilation = attrs.ints("dilations");
-            let options = PaddedConvOptions::asymmetric(
-                [stride[0], stride[1]],
-                [pads[0], pads[1]],
-                [pads[2], pads[3]],
-                [dilation[0], dilation[1]],
-                to_usize(attrs.int("group")),
-            );
-            Array::from_nchw(conv2d(x, w, bias, options))
-        }
-        "AveragePool" => {
-            let k = attrs.ints("kernel_shape");
-            let s = attrs.ints("strides");
-            let y = avg_pool2d(
-                input(0).nchw(),
-                [k[0], k[1]],
-                [s[0], s[1]],
-                [0, 0],
-                true,
-                false,
-            );
-            Array::from_nchw(y)
-        }
-        "GridSample" => {
-            assert_eq!(attrs.int("align_corners"), 1, "{}", node.name);
-            assert_eq!(attrs.string("mode"), "bilinear", "{}", node.name);
-            assert_eq!(attrs.string("padding_mode"), "zeros", "{}", node.name);
-            let options = GridSampleOptions::new(InterpolateMode::Bilinear)
-                .with_padding_mode(GridSamplePaddingMode::Zeros)
-                .with_align_corners(true);
-            Array::from_nchw(input(0).nchw().grid_sample_2d(input(1).nchw(), options))
+            let axis = x.axis(to_usize(attrs.int("axis")));
+            Array::new(x.shape.clone(), softmax(x.data.clone(), axis))
         }
         "LayerNormalization" => {
-            let (x, gamma, beta) = (input(0), input(1), input(2));
-            assert_eq!(attrs.int("axis"), -1, "{}: the last axis", node.name);
+            let (gamma, beta) = (node.input(1), node.input(2));
+            assert_eq!(attrs.int("axis"), -1, "{}: the last axis", node.name());
             let eps = f64::from(attrs.float("epsilon"));
             let last = RANK - 1;
             let mean = x.data.clone().mean_dim(last);
@@ -412,11 +400,60 @@ fn run(node: &NodeProto, values: &Values) -> Array {
             let data = normed * expand(gamma, &x.shape) + expand(beta, &x.shape);
             Array::new(x.shape.clone(), data)
         }
-        other => panic!(
-            "evaluator: op type {other} ({}) is not implemented",
-            node.name
-        ),
+        other => unreachable!("{other}"),
     }
+}
+
+/// A batched matrix product with NumPy broadcasting of the leading axes.
+fn matmul(a: &Array, b: &Array) -> Array {
+    let (ra, rb) = (a.shape.len(), b.shape.len());
+    let mut batch = broadcast(&a.shape[..ra - 2], &b.shape[..rb - 2]);
+    let (m, k, n) = (a.shape[ra - 2], a.shape[ra - 1], b.shape[rb - 1]);
+    let with = |tail: [usize; 2]| [batch.clone(), tail.to_vec()].concat();
+    let (sa, sb) = (with([m, k]), with([k, n]));
+    let a = expand(&reshaped(a, sa.len()), &sa);
+    let data = a.matmul(expand(&reshaped(b, sb.len()), &sb));
+    batch.extend([m, n]);
+    Array::new(batch, data)
+}
+
+fn spatial(node: &Node) -> Array {
+    let attrs = node.attrs();
+    let x = node.input(0).nchw();
+    let y = match node.proto.op_type.as_str() {
+        "Conv" => {
+            let w = node.input(1).nchw();
+            let bias = (node.proto.input.len() > 2).then(|| {
+                let b = node.input(2);
+                b.data.clone().reshape([b.shape[0]])
+            });
+            let (pads, stride) = (attrs.ints("pads"), attrs.ints("strides"));
+            let dilation = attrs.ints("dilations");
+            let options = PaddedConvOptions::asymmetric(
+                [stride[0], stride[1]],
+                [pads[0], pads[1]],
+                [pads[2], pads[3]],
+                [dilation[0], dilation[1]],
+                to_usize(attrs.int("group")),
+            );
+            conv2d(x, w, bias, options)
+        }
+        "AveragePool" => {
+            let (k, s) = (attrs.ints("kernel_shape"), attrs.ints("strides"));
+            avg_pool2d(x, [k[0], k[1]], [s[0], s[1]], [0, 0], true, false)
+        }
+        "GridSample" => {
+            assert_eq!(attrs.int("align_corners"), 1, "{}", node.name());
+            assert_eq!(attrs.string("mode"), "bilinear", "{}", node.name());
+            assert_eq!(attrs.string("padding_mode"), "zeros", "{}", node.name());
+            let options = GridSampleOptions::new(InterpolateMode::Bilinear)
+                .with_padding_mode(GridSamplePaddingMode::Zeros)
+                .with_align_corners(true);
+            x.grid_sample_2d(node.input(1).nchw(), options)
+        }
+        other => unreachable!("{other}"),
+    };
+    Array::from_nchw(y)
 }
 
 /// `x` with leading axes of size 1 added up to rank `rank` (its padded data is unchanged).
