@@ -103,7 +103,8 @@ def main():
         if cmd == "quit":
             break
         if cmd == "export_geometry":
-            send(_export_geometry(req, opts, scene_builder, export_geometry, renders))
+            timings = render_views.Timings(opts["timing_keys"])
+            send(_export_geometry(req, opts, scene_builder, export_geometry, renders, timings))
             continue
         if cmd != "render":
             send({"status": "error", "error": "unknown command %r" % cmd})
@@ -137,11 +138,11 @@ def main():
             })
 
 
-def _export_geometry(req, opts, scene_builder, export_geometry, renders):
+def _export_geometry(req, opts, scene_builder, export_geometry, renders, timings):
     """Builds the spec as a render would, then writes its evaluated geometry instead of rendering.
-    The reply counts the Cycles renders run meanwhile (`renders`): none, as the audit relies on."""
+    The reply counts the Cycles renders run meanwhile (`renders`): none, as the audit relies on.
+    `timings` (a render_views.Timings) gets the build and export seconds."""
     keys = opts["timing_keys"]
-    timings = render_views.Timings(keys)
     renders_before = renders[0]
     try:
         def build():

@@ -9,7 +9,6 @@ use std::process::Output;
 use stereogen::assets::SkippedAsset;
 use stereogen::assets::pack::{FILES, PACKAGES, PackKind, ensure_installed, site_dir};
 use stereogen::assets::{index_sources, stereogen_home};
-use stereogen::dataset::{DatasetLayout, finalize_sample};
 use stereogen::plan::spec::{BaseColor, MaterialSpec, SceneSpec};
 use stereogen::plan::{Recipe, plan_scene};
 use stereogen::render::RenderService;
@@ -124,33 +123,9 @@ fn is_pack_photo(m: &MaterialSpec, site: &Path) -> bool {
 /// Renders `spec` in a fresh worker and finishes it into a fresh dataset dir; also returns what
 /// the worker skipped.
 fn render(spec: &SceneSpec) -> (RenderedPair, Vec<SkippedAsset>) {
-    let rendered = RenderService::new(worker_config())
-        .render(spec, |_| None)
-        .expect("render");
-    let dir = tempfile::tempdir().unwrap();
-    let layout = DatasetLayout::new(dir.path());
-    let reply = &rendered.reply;
-    let entry = finalize_sample(
-        &layout,
-        spec,
-        &reply.files,
-        &reply.notes,
-        0.0,
-        &reply.timings,
-    )
-    .expect("finalize");
-    let (left, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_left)).unwrap();
-    let (right, _) = stereo_io::read_disparity_exr(&layout.abs(&entry.files.disp_right)).unwrap();
-    (
-        RenderedPair {
-            left,
-            right,
-            dir,
-            layout,
-            entry,
-        },
-        reply.skipped_assets.clone(),
-    )
+    let pair = test_support::render(&mut RenderService::new(worker_config()), spec);
+    let skipped = pair.skipped_assets.clone();
+    (pair, skipped)
 }
 
 /// A plan with a pack mesh, and a pack photo on the background.

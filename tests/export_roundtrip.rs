@@ -2,6 +2,7 @@
 //! the same pictures and the same disparities within each format's quantisation; and an export
 //! of one of those exports (a dataset that is not ours) to another layout.
 
+use test_support::files::walk;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
@@ -318,15 +319,3 @@ fn crestereo_export_follows_the_official_loader_paths_and_jpeg_option() {
     );
 }
 
-fn walk(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_dir() {
-            out.extend(walk(&p));
-        } else {
-            out.push(p);
-        }
-    }
-    out
-}

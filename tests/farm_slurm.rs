@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use test_support::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
+use test_support::files::walk;
 use test_support::{farm_cmd, stats_cmd, write_tiny_recipe};
 
 /// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once; `extra` added.
@@ -125,18 +126,6 @@ fn assert_complete_farm(out: &Path, count: u64, tasks: u64) {
     }
 }
 
-fn walk(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_dir() {
-            out.extend(walk(&p));
-        } else {
-            out.push(p);
-        }
-    }
-    out
-}
 
 /// Task logs are files people read with `less` or a web viewer: no terminal colour codes.
 fn assert_plain_text_logs(out: &Path, tasks: u64) {

@@ -10,6 +10,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use stereo_io::{DatasetFormat, open_dataset};
+use test_support::files::files_with_bytes as files;
 use test_support::{export_cmd, merge_cmd, output_text as text, two_shard_farm};
 
 /// The shard options every merge here uses: one sample a shard, shuffled, two splits.
@@ -27,22 +28,6 @@ fn merge_into(out: &Path, wds: &Path, extra: &[&str]) -> Command {
     let mut c = merge_cmd(out);
     c.arg("--webdataset").arg(wds).args(SHARDS).args(extra);
     c
-}
-
-/// Every file of a folder, with its bytes, sorted by name.
-fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut out: Vec<_> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .map(|p| {
-            (
-                p.file_name().unwrap().to_string_lossy().into_owned(),
-                std::fs::read(&p).unwrap(),
-            )
-        })
-        .collect();
-    out.sort();
-    out
 }
 
 /// The shards hold every sample of the merged dataset, with its pixels and disparities exactly.

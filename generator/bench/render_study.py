@@ -179,7 +179,9 @@ def prepare(args):
         for index in range(1000):
             if all(n >= args.per_category for n in per_cat.values()):
                 break
-            spec = json.loads(subprocess.check_output([sg, "plan", "--recipe", recipe, "--seed", str(args.seed), "--index", str(index)]))
+            # --resolved: every render key present (the study sets them on Cycles as the worker does).
+            plan = [sg, "plan", "--recipe", recipe, "--seed", str(args.seed), "--index", str(index), "--resolved"]
+            spec = json.loads(subprocess.check_output(plan))
             cat = spec["category"]
             if per_cat.get(cat, 0) < args.per_category:
                 per_cat[cat] += 1

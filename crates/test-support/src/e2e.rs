@@ -38,6 +38,8 @@ pub struct RenderedPair {
     pub dir: tempfile::TempDir,
     pub layout: DatasetLayout,
     pub entry: stereogen::dataset::ManifestEntry,
+    /// The assets the worker could not load and left out of the scene.
+    pub skipped_assets: Vec<stereogen::assets::SkippedAsset>,
 }
 
 /// Renders `spec` with a real worker, finishes it into a fresh dataset dir and reads both maps.
@@ -65,6 +67,7 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
         dir,
         layout,
         entry,
+        skipped_assets: reply.skipped_assets.clone(),
     }
 }
 

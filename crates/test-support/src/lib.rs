@@ -5,6 +5,7 @@
 //! real renderer and CLIs, analytic scenes, a local Slurm cluster), with `network` the network's
 //! reference fixtures and the AGCL checks that run on every backend.
 
+pub mod files;
 pub mod io_fixtures;
 pub mod pinned_venv;
 pub mod python_envs;

@@ -65,6 +65,10 @@ pub enum Command {
         seed: u64,
         #[arg(long, default_value_t = 0)]
         index: u64,
+        /// Print every render setting, defaults included, as the Blender worker receives it (a
+        /// spec file leaves out the keys at their defaults).
+        #[arg(long)]
+        resolved: bool,
     },
     /// Render one SceneSpec JSON file (e.g. a sample's `<id>.scene.json.gz`, or an older plain `<id>.scene.json`) into DIR, reproducing it exactly.
     Render {
@@ -232,13 +236,20 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             recipe,
             seed,
             index,
+            resolved,
         } => {
             let recipe = recipe.load()?;
             let assets = index_sources(&recipe.sources, &stereogen_home())?;
             for s in &assets.skipped {
                 tracing::warn!("skipping asset {}: {}", s.path.display(), s.reason);
             }
-            println!("{}", plan_scene(&recipe, &assets, seed, index).to_json());
+            let spec = plan_scene(&recipe, &assets, seed, index);
+            if resolved {
+                let text = serde_json::to_string_pretty(&spec.for_worker())?;
+                println!("{text}");
+            } else {
+                println!("{}", spec.to_json());
+            }
         }
         Command::Render { spec, out, runtime } => {
             render::run(&spec, &out, &runtime.worker_options())?
