@@ -109,11 +109,7 @@ pub fn index_shapenet(
                 if !synsets.is_empty() && !synsets.contains(&synset) {
                     continue;
                 }
-                if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
-                    skipped.push(SkippedAsset {
-                        path: entry.path().to_path_buf(),
-                        reason: "empty file".into(),
-                    });
+                if skipped_as_empty(&entry, &mut skipped) {
                     continue;
                 }
                 found.push(MeshAsset {
@@ -219,11 +215,7 @@ pub fn index_mesh_folder(
                 if !entry.file_type().is_file() || !has_mesh_extension(entry.path()) {
                     continue;
                 }
-                if entry.metadata().map(|m| m.len()).unwrap_or(0) == 0 {
-                    skipped.push(SkippedAsset {
-                        path: entry.path().to_path_buf(),
-                        reason: "empty file".into(),
-                    });
+                if skipped_as_empty(&entry, &mut skipped) {
                     continue;
                 }
                 if let Err(reason) = check_fetched(entry.path()).and_then(|()| check_obj(entry.path())) {
@@ -249,6 +241,19 @@ pub fn index_mesh_folder(
         );
     }
     Ok((found, skipped))
+}
+
+/// Whether `entry` is an empty file (or one whose size cannot be read), which is then listed
+/// in `skipped` instead of being indexed: Blender would fail on it at render time.
+fn skipped_as_empty(entry: &walkdir::DirEntry, skipped: &mut Vec<SkippedAsset>) -> bool {
+    let empty = entry.metadata().map(|m| m.len()).unwrap_or(0) == 0;
+    if empty {
+        skipped.push(SkippedAsset {
+            path: entry.path().to_path_buf(),
+            reason: "empty file".into(),
+        });
+    }
+    empty
 }
 
 #[cfg(test)]

@@ -10,11 +10,13 @@
 //! - `stats_coverage.png`: disparity of content pixels (p5–p95 band, median, mean) by image row
 //!   and column, and the fraction of content (and valid) pixels per row and column.
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 use anyhow::anyhow;
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
@@ -38,11 +40,76 @@ const PALETTE: [RGBColor; 8] = [
 ];
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+type Chart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 /// `(lo, hi, density)` bars and their legend label.
 type Bars = Option<(Vec<(f64, f64, f64)>, String)>;
 
 fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("plotting failed: {e:?}")
+}
+
+/// A panel's chart over `x` and `y`, titled, with `y_label_width` pixels for the y labels.
+fn panel_chart<'a, 'b>(
+    area: &'a Area<'b>,
+    title: &str,
+    y_label_width: u32,
+    x: Range<f64>,
+    y: Range<f64>,
+) -> anyhow::Result<Chart<'a, 'b>> {
+    ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 17))
+        .margin(8)
+        .x_label_area_size(38)
+        .y_label_area_size(y_label_width)
+        .build_cartesian_2d(x, y)
+        .map_err(plot_err)
+}
+
+/// Draws the axes with their descriptions and the coarse grid (the fine lines in white, so
+/// unseen); `y_labels` formats the y tick labels where plotters' own format does not suit.
+fn draw_axes(
+    chart: &mut Chart,
+    x_desc: &str,
+    y_desc: &str,
+    y_labels: Option<&dyn Fn(&f64) -> String>,
+) -> anyhow::Result<()> {
+    let mut mesh = chart.configure_mesh();
+    mesh.x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
+        .light_line_style(WHITE);
+    if let Some(format) = y_labels {
+        mesh.y_label_formatter(format);
+    }
+    mesh.draw().map_err(plot_err)
+}
+
+/// A legend key: a short line in the series' style.
+fn line_key(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style)
+}
+
+/// A legend key: a small filled box in the series' style.
+fn box_key(style: ShapeStyle) -> impl Fn((i32, i32)) -> Rectangle<(i32, i32)> {
+    move |(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], style)
+}
+
+/// Draws the legend of every labelled series on a light box with a black border.
+fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+    font_size: u32,
+) -> anyhow::Result<()> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .label_font(("sans-serif", font_size))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)
 }
 
 fn register() {
@@ -146,23 +213,13 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
     .fold(0.0, f64::max)
     .max(1e-9)
         * 1.15;
-    let mut chart = ChartBuilder::on(area)
-        .caption(&p.title, ("sans-serif", 17))
-        .margin(8)
-        .x_label_area_size(38)
-        .y_label_area_size(62)
-        .build_cartesian_2d(x0..x1, 0.0..y_max)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("disparity (px)")
-        .y_desc("density (1/px)")
-        .y_label_formatter(&|v| format!("{v:.3}"))
-        .label_style(("sans-serif", 13))
-        .axis_desc_style(("sans-serif", 14))
-        .light_line_style(WHITE)
-        .draw()
-        .map_err(plot_err)?;
+    let mut chart = panel_chart(area, &p.title, 62, x0..x1, 0.0..y_max)?;
+    draw_axes(
+        &mut chart,
+        "disparity (px)",
+        "density (1/px)",
+        Some(&|v| format!("{v:.3}")),
+    )?;
     if !p.empty.is_empty() {
         chart
             .draw_series(
@@ -172,7 +229,7 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
             )
             .map_err(plot_err)?
             .label(format!("empty gap bin ({})", p.empty.len()))
-            .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], LAW.mix(0.18).filled()));
+            .legend(box_key(LAW.mix(0.18).filled()));
     }
     if !p.gap_edges.is_empty() {
         let grey = RGBColor(150, 60, 170).mix(0.75);
@@ -199,33 +256,23 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
             )
             .map_err(plot_err)?
             .label(label.as_str())
-            .legend(|(x, y)| {
-                Rectangle::new([(x, y - 5), (x + 18, y + 5)], PIXEL.mix(0.55).filled())
-            });
+            .legend(box_key(PIXEL.mix(0.55).filled()));
     }
     if let Some((bars, label)) = &p.outline {
         chart
             .draw_series(LineSeries::new(step_line(bars), OBJECT.stroke_width(2)))
             .map_err(plot_err)?
             .label(label.as_str())
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], OBJECT.stroke_width(2)));
+            .legend(line_key(OBJECT.stroke_width(2)));
     }
     if !law_pts.is_empty() {
         chart
             .draw_series(LineSeries::new(law_pts, LAW.stroke_width(2)))
             .map_err(plot_err)?
             .label("recipe law (density)")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], LAW.stroke_width(2)));
+            .legend(line_key(LAW.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font(("sans-serif", 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
 fn object_bars(c: &CategoryStats) -> Bars {
@@ -310,22 +357,8 @@ fn coverage_panel(
     bands: &[Band],
     y_max: f64,
 ) -> anyhow::Result<()> {
-    let mut chart = ChartBuilder::on(area)
-        .caption(title, ("sans-serif", 17))
-        .margin(8)
-        .x_label_area_size(38)
-        .y_label_area_size(55)
-        .build_cartesian_2d(0.0..1.0, 0.0..y_max)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc("disparity (px)")
-        .label_style(("sans-serif", 13))
-        .axis_desc_style(("sans-serif", 14))
-        .light_line_style(WHITE)
-        .draw()
-        .map_err(plot_err)?;
+    let mut chart = panel_chart(area, title, 55, 0.0..1.0, 0.0..y_max)?;
+    draw_axes(&mut chart, x_desc, "disparity (px)", None)?;
     let mid = |b: &Band| 0.5 * (b.from + b.to);
     let have: Vec<&Band> = bands.iter().filter(|b| b.p5.is_some()).collect();
     if have.is_empty() {
@@ -337,7 +370,7 @@ fn coverage_panel(
         .draw_series(std::iter::once(Polygon::new(poly, PIXEL.mix(0.3).filled())))
         .map_err(plot_err)?
         .label("p5-p95")
-        .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], PIXEL.mix(0.3).filled()));
+        .legend(box_key(PIXEL.mix(0.3).filled()));
     chart
         .draw_series(LineSeries::new(
             have.iter().map(|b| (mid(b), b.p50.unwrap())),
@@ -345,7 +378,7 @@ fn coverage_panel(
         ))
         .map_err(plot_err)?
         .label("median")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], PIXEL.stroke_width(2)));
+        .legend(line_key(PIXEL.stroke_width(2)));
     chart
         .draw_series(LineSeries::new(
             have.iter().filter_map(|b| b.mean.map(|m| (mid(b), m))),
@@ -353,16 +386,8 @@ fn coverage_panel(
         ))
         .map_err(plot_err)?
         .label("mean")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font(("sans-serif", 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+        .legend(line_key(BLACK.into()));
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
 fn valid_panel(
@@ -372,22 +397,8 @@ fn valid_panel(
     report: &StatsReport,
     rows: bool,
 ) -> anyhow::Result<()> {
-    let mut chart = ChartBuilder::on(area)
-        .caption(title, ("sans-serif", 17))
-        .margin(8)
-        .x_label_area_size(38)
-        .y_label_area_size(55)
-        .build_cartesian_2d(0.0..1.0, 0.0..1.05)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc("fraction of pixels")
-        .label_style(("sans-serif", 13))
-        .axis_desc_style(("sans-serif", 14))
-        .light_line_style(WHITE)
-        .draw()
-        .map_err(plot_err)?;
+    let mut chart = panel_chart(area, title, 55, 0.0..1.0, 0.0..1.05)?;
+    draw_axes(&mut chart, x_desc, "fraction of pixels", None)?;
     let groups = report
         .categories
         .iter()
@@ -407,9 +418,7 @@ fn valid_panel(
             ))
             .map_err(plot_err)?
             .label(format!("{} content", c.name))
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(width))
-            });
+            .legend(line_key(color.stroke_width(width)));
     }
     if let Some(p) = &report.overall.pixels {
         let grey = RGBColor(150, 150, 150);
@@ -423,19 +432,9 @@ fn valid_panel(
             ))
             .map_err(plot_err)?
             .label("all valid")
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], grey.stroke_width(2))
-            });
+            .legend(line_key(grey.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::MiddleRight)
-        .label_font(("sans-serif", 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 12)
 }
 
 /// Writes the four PNGs into `dir` and returns their paths.

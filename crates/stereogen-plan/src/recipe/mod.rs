@@ -599,20 +599,14 @@ mod tests {
 
         let text = PRESETS[0].1;
         let with = |line: &str| text.replacen("render = { samples = 24 }", line, 1);
-        let e = Recipe::from_toml_str(&with("render = { samples = 0 }"), "x.toml")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error(&with("render = { samples = 0 }"));
         assert!(e.contains("categories[3].render.samples"), "{e}");
-        let e = Recipe::from_toml_str(&with("render = { adaptive_min_samples = 40 }"), "x.toml")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error(&with("render = { adaptive_min_samples = 40 }"));
         assert!(
             e.contains("categories[3].render.adaptive_min_samples"),
             "{e}"
         );
-        let e = Recipe::from_toml_str(&with("render = { spp = 8 }"), "x.toml")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error(&with("render = { spp = 8 }"));
         assert!(e.contains("spp"), "{e}");
         // A recipe without them (every recipe written before) renders every category with [render].
         let old = Recipe::from_toml_str(&with(""), "x.toml").unwrap();
@@ -640,12 +634,22 @@ mod tests {
         PRESETS[0].1
     }
 
+    /// The error reading `text` as a recipe, as a person sees it.
+    fn parse_error(text: &str) -> String {
+        Recipe::from_toml_str(text, "x.toml")
+            .unwrap_err()
+            .to_string()
+    }
+
+    /// The error reading the default recipe with `from` replaced by `to`.
+    fn error_with(from: &str, to: &str) -> String {
+        parse_error(&default_text().replace(from, to))
+    }
+
     #[test]
     fn unknown_key_is_named_with_its_line() {
         let text = default_text().replace("[render]", "[render]\nspp = 3");
-        let err = Recipe::from_toml_str(&text, "x.toml")
-            .unwrap_err()
-            .to_string();
+        let err = parse_error(&text);
         assert!(
             err.contains("unknown field `spp`") && err.contains("line"),
             "{err}"
@@ -658,9 +662,7 @@ mod tests {
         // The first `samples =` is `[render]`'s (a category's inline `render = { samples = .. }`
         // stays).
         let text = default_text().replacen("samples = ", "# samples = ", 1);
-        let err = Recipe::from_toml_str(&text, "x.toml")
-            .unwrap_err()
-            .to_string();
+        let err = parse_error(&text);
         assert!(err.contains("missing field `samples`"), "{err}");
     }
 
@@ -670,38 +672,21 @@ mod tests {
             "focal_mm = { dist = \"uniform\"",
             "focal_mm = { dist = \"cauchy\"",
         );
-        let err = Recipe::from_toml_str(&text, "x.toml")
-            .unwrap_err()
-            .to_string();
+        let err = parse_error(&text);
         assert!(err.contains("unknown variant `cauchy`"), "{err}");
     }
 
     #[test]
     fn out_of_range_values_name_key_and_bounds() {
-        let err = Recipe::from_toml_str(
-            &default_text().replace("width = 960", "width = 4"),
-            "x.toml",
-        )
-        .unwrap_err()
-        .to_string();
+        let err = error_with("width = 960", "width = 4");
         assert!(
             err.contains("camera.width") && err.contains("16..=16384"),
             "{err}"
         );
-        let err = Recipe::from_toml_str(
-            &default_text().replace("boolean_probability = 0.25", "boolean_probability = 1.5"),
-            "x.toml",
-        )
-        .unwrap_err()
-        .to_string();
+        let err = error_with("boolean_probability = 0.25", "boolean_probability = 1.5");
         assert!(err.contains("primitives.boolean_probability"), "{err}");
         // A bound derived from the width prints as the number a person would write.
-        let err = Recipe::from_toml_str(
-            &default_text().replace("width = 960", "width = 96"),
-            "x.toml",
-        )
-        .unwrap_err()
-        .to_string();
+        let err = error_with("width = 960", "width = 96");
         assert!(
             err.contains("placement.disparity_px")
                 && err.contains("76.8")
@@ -801,29 +786,14 @@ mod tests {
 
     #[test]
     fn added_keys_are_checked_and_named() {
-        let err = Recipe::from_toml_str(
-            &default_text().replace("color_channel = [0.2, 1.0]", "color_channel = [0.2, 1.5]"),
-            "x.toml",
-        )
-        .unwrap_err()
-        .to_string();
+        let err = error_with("color_channel = [0.2, 1.0]", "color_channel = [0.2, 1.5]");
         assert!(
             err.contains("lights.color_channel") && err.contains("1.5"),
             "{err}"
         );
-        let err = Recipe::from_toml_str(
-            &default_text().replace("clip_end_factor = 2.0", "clip_end_factor = 0.5"),
-            "x.toml",
-        )
-        .unwrap_err()
-        .to_string();
+        let err = error_with("clip_end_factor = 2.0", "clip_end_factor = 0.5");
         assert!(err.contains("camera.clip_end_factor"), "{err}");
-        let err = Recipe::from_toml_str(
-            &default_text().replace("mesh_candidates = 3", "mesh_candidates = 0"),
-            "x.toml",
-        )
-        .unwrap_err()
-        .to_string();
+        let err = error_with("mesh_candidates = 3", "mesh_candidates = 0");
         assert!(err.contains("sources.mesh_candidates"), "{err}");
         let set = Recipe::from_toml_str(
             &default_text().replace("background_oversize = 1.15", "background_oversize = 1.5"),
