@@ -2,9 +2,9 @@
 //! the same pictures and the same disparities within each format's quantisation; and an export
 //! of one of those exports (a dataset that is not ours) to another layout.
 
-use test_support::files::walk;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
+use test_support::files::walk;
 
 use stereo_io::{DatasetFormat, DisparityMap, open_dataset};
 use test_support::export_cmd;
@@ -318,4 +318,3 @@ fn crestereo_export_follows_the_official_loader_paths_and_jpeg_option() {
         "{err}"
     );
 }
-

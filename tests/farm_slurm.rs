@@ -8,13 +8,13 @@
 //! `CI` or `STEREOGEN_REQUIRE_SLURM` is set: then it fails, so CI cannot skip it silently.
 
 use std::ffi::OsStr;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
-use test_support::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
 use test_support::files::walk;
+use test_support::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
 use test_support::{farm_cmd, stats_cmd, write_tiny_recipe};
 
 /// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once; `extra` added.
@@ -125,7 +125,6 @@ fn assert_complete_farm(out: &Path, count: u64, tasks: u64) {
         );
     }
 }
-
 
 /// Task logs are files people read with `less` or a web viewer: no terminal colour codes.
 fn assert_plain_text_logs(out: &Path, tasks: u64) {
