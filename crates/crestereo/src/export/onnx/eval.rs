@@ -19,6 +19,7 @@ use burn::tensor::ops::{
 use onnx_protobuf::tensor_proto::DataType;
 use onnx_protobuf::{ModelProto, NodeProto, TensorProto};
 
+use super::graph::broadcast;
 use super::{Graph, Value};
 
 /// The rank every value is held at.
@@ -81,11 +82,6 @@ fn padded(shape: &[usize]) -> [usize; RANK] {
     let mut out = [1; RANK];
     out[RANK - shape.len()..].copy_from_slice(shape);
     out
-}
-
-/// NumPy broadcasting of two shapes (the graph builder checked they broadcast).
-fn broadcast(a: &[usize], b: &[usize]) -> Vec<usize> {
-    super::graph::broadcast(a, b)
 }
 
 fn expand(x: &Array, shape: &[usize]) -> T {
@@ -233,13 +229,16 @@ pub(crate) fn assert_emit_matches(
         forward.convert::<f32>().to_vec::<f32>().expect("float32"),
     );
     let scale = b.iter().fold(1f32, |m, v| m.max(v.abs()));
-    let diff = a.iter().zip(&b).fold(0f32, |m, (x, y)| {
-        if x.is_nan() || y.is_nan() {
-            f32::NAN
-        } else {
-            m.max((x - y).abs())
-        }
-    });
+    // f32::max drops a NaN, so a NaN on either side is refused before the largest difference.
+    let nan = a.iter().chain(&b).position(|v| v.is_nan());
+    assert!(
+        nan.is_none(),
+        "{label}: NaN in emit or forward (value {nan:?})"
+    );
+    let diff = a
+        .iter()
+        .zip(&b)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
     assert!(
         diff <= bound * scale,
         "{label}: emit differs from forward by {diff} (largest |forward| {scale}, bound {bound} relative)"
@@ -511,5 +510,14 @@ mod tests {
         run_emitted(&[data(&[2], |i| i as f32)], |g, x| {
             vec![g.unary("Floor", &x[0])]
         });
+    }
+
+    /// A NaN on either side fails the comparison (f32::max alone would skip it).
+    #[test]
+    #[should_panic(expected = "NaN in emit or forward")]
+    fn a_nan_fails_the_comparison() {
+        let a = TensorData::new(vec![1.0f32, f32::NAN], [2]);
+        let b = TensorData::new(vec![1.0f32, 2.0], [2]);
+        assert_emit_matches("nan", &a, b, 1e-5);
     }
 }
