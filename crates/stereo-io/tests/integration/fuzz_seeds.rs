@@ -162,3 +162,21 @@ fn every_seed_is_a_file_its_reader_accepts() {
         assert!(ok > 0, "{name}");
     }
 }
+
+/// Inputs that once failed a fuzzer (`fuzz/regressions/exr_disparity/`), decoded by the build the
+/// tests run, which is the release build that ships: each is read or refused with an error that
+/// names the file, never a panic. (`fuzz/run` replays them in its own instrumented build too.)
+#[test]
+fn exr_inputs_that_once_failed_a_fuzzer_are_read_or_refused_in_a_release_build() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/regressions/exr_disparity");
+    let mut seen = 0;
+    for entry in fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let bytes = fs::read(&path).unwrap();
+        if let Err(e) = decode_disparity_exr(&bytes, Path::new("hostile.exr")) {
+            assert!(e.to_string().contains("hostile.exr"), "{path:?}: {e}");
+        }
+        seen += 1;
+    }
+    assert!(seen >= 2, "the regression inputs are missing from {dir:?}");
+}
