@@ -92,7 +92,7 @@ fn every_mesh_format_loads_and_broken_candidates_fall_back() {
     let rendered = RenderService::new(worker_config())
         .render(&spec, |_| None)
         .expect("a broken asset never fails the scene");
-    let notes = rendered.reply.notes.join("\n");
+    let notes = rendered.reply.report.notes.join("\n");
     println!("{notes}");
     for name in ["cube.obj", "tetra.ply", "tetra.stl", "octa.off"] {
         assert!(
@@ -107,6 +107,7 @@ fn every_mesh_format_loads_and_broken_candidates_fall_back() {
     assert!(notes.contains("hopeless dropped"), "{notes}");
     let skipped: BTreeMap<String, String> = rendered
         .reply
+        .report
         .skipped_assets
         .iter()
         .map(|s| {

@@ -43,7 +43,9 @@ fn worker_memory_is_flat_over_twenty_scenes() {
     for index in (0..20).map(|i| i % 5) {
         let spec = plan_scene(&recipe, &AssetIndex::default(), 11, index);
         let rendered = service.render(&spec, |_| None).expect("render");
-        rss.push(rendered.reply.rss_bytes.expect("worker reports RSS") as f64 / (1024.0 * 1024.0));
+        rss.push(
+            rendered.reply.report.rss_bytes.expect("worker reports RSS") as f64 / (1024.0 * 1024.0),
+        );
     }
     let growth = rss[19] - rss[0];
     println!(

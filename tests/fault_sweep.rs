@@ -159,6 +159,23 @@ impl Sweep {
         }
     }
 
+    /// Starts a run with at least 12 samples left to make and waits until it is past its
+    /// start-up (it has a worker and has finished a sample), to be disturbed there.
+    fn start_past_its_first_sample(&mut self, out: &Path, count: &mut u64) -> (Run, u32) {
+        keep_work_ahead(out, count, 12);
+        let mut run = self.start(out, *count, &[]);
+        let pid = run.child.id();
+        let lines = manifest_lines(out);
+        let exited = self.watch(&mut run, Duration::from_secs(300), &|| {
+            !children(pid).is_empty() && manifest_lines(out) > lines
+        });
+        assert!(
+            exited.is_none(),
+            "the run ended before it could be disturbed"
+        );
+        (run, pid)
+    }
+
     fn finish(&mut self, mut run: Run) -> (ExitStatus, String) {
         let status = self
             .watch(&mut run, Duration::from_secs(600), &|| false)
@@ -382,18 +399,7 @@ fn kill_generate(sweep: &mut Sweep, out: &Path, count: &mut u64, kills: usize) {
 
 /// kill -9 of the worker while it renders: the run restarts it and completes.
 fn kill_worker(sweep: &mut Sweep, out: &Path, count: &mut u64) {
-    keep_work_ahead(out, count, 12);
-    let mut run = sweep.start(out, *count, &[]);
-    let pid = run.child.id();
-    // Past its start-up: it has finished a sample of this run.
-    let lines = manifest_lines(out);
-    let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| {
-        !children(pid).is_empty() && manifest_lines(out) > lines
-    });
-    assert!(
-        exited.is_none(),
-        "the run ended before its worker could be killed"
-    );
+    let (run, pid) = sweep.start_past_its_first_sample(out, count);
     std::thread::sleep(Duration::from_millis(sweep.moments.millis(400)));
     for w in children(pid) {
         send(w, libc::SIGKILL);
@@ -408,14 +414,7 @@ fn kill_worker(sweep: &mut Sweep, out: &Path, count: &mut u64) {
 
 /// SIGTERM or SIGINT: the run stops within seconds with [`EXIT_INTERRUPTED`], its worker gone.
 fn interrupt(sweep: &mut Sweep, out: &Path, count: &mut u64, signal: i32, name: &str) {
-    keep_work_ahead(out, count, 12);
-    let mut run = sweep.start(out, *count, &[]);
-    let pid = run.child.id();
-    let lines = manifest_lines(out);
-    let exited = sweep.watch(&mut run, Duration::from_secs(300), &|| {
-        !children(pid).is_empty() && manifest_lines(out) > lines
-    });
-    assert!(exited.is_none(), "the run ended before it could be stopped");
+    let (run, pid) = sweep.start_past_its_first_sample(out, count);
     std::thread::sleep(Duration::from_millis(sweep.moments.millis(600)));
     let t0 = Instant::now();
     send(pid, signal);

@@ -133,6 +133,28 @@ impl DisparityMap {
     }
 }
 
+/// Refuses disparity that holds a NaN, naming the first such pixel: NaN is neither a disparity
+/// nor a mark of "no ground truth", so a file holding one is corrupt. `hint` ends the message
+/// (how the format marks a missing value, where it has a way).
+pub(crate) fn refuse_nan(
+    path: &std::path::Path,
+    data: &[f32],
+    width: usize,
+    hint: &str,
+) -> crate::error::Result<()> {
+    match data.iter().position(|d| d.is_nan()) {
+        None => Ok(()),
+        Some(i) => Err(crate::error::Error::format(
+            path,
+            format!(
+                "disparity is NaN at pixel ({}, {}); NaN is not accepted{hint}",
+                i % width.max(1),
+                i / width.max(1)
+            ),
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

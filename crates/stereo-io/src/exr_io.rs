@@ -235,16 +235,7 @@ pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap
         FlatSamples::F32(v) => v,
         other => samples_f32(&other),
     };
-    if let Some(i) = data.iter().position(|d| d.is_nan()) {
-        return Err(Error::format(
-            path,
-            format!(
-                "disparity is NaN at pixel ({}, {}); NaN is not accepted",
-                i % width.max(1),
-                i / width.max(1)
-            ),
-        ));
-    }
+    crate::disparity::refuse_nan(path, &data, width, "")?;
     let valid = match valid_at.map(|i| &channels[i].sample_data) {
         Some(FlatSamples::F16(v)) => v.iter().map(|x| x.to_f32() > 0.5).collect(),
         Some(other) => samples_f32(other).iter().map(|&v| v > 0.5).collect(),

@@ -163,16 +163,7 @@ pub(crate) fn floats_to_disparity(
     height: usize,
     data: Vec<f32>,
 ) -> Result<DisparityMap> {
-    if let Some(i) = data.iter().position(|d| d.is_nan()) {
-        return Err(Error::format(
-            path,
-            format!(
-                "disparity is NaN at pixel ({}, {}); NaN is not accepted (use inf for no ground truth)",
-                i % width.max(1),
-                i / width.max(1)
-            ),
-        ));
-    }
+    crate::disparity::refuse_nan(path, &data, width, " (use inf for no ground truth)")?;
     let valid: Vec<bool> = data.iter().map(|d| d.is_finite()).collect();
     let data = data
         .into_iter()

@@ -279,25 +279,33 @@ pub fn ks_critical(n: usize, alpha: f64) -> f64 {
 
 /// An integer range drawn uniformly, written `[min, max]` or a single number.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(from = "CountRepr", into = "[u32; 2]")]
+#[serde(from = "NumberOrPair<u32>", into = "[u32; 2]")]
 pub struct CountRange {
     pub min: u32,
     pub max: u32,
 }
 
+/// A range as a recipe writes it: one number (min = max) or a `[min, max]` pair.
 #[derive(Deserialize)]
-#[serde(untagged)]
-enum CountRepr {
-    Fixed(u32),
-    Pair([u32; 2]),
+#[serde(untagged, expecting = "a number or a [min, max] pair")]
+enum NumberOrPair<T> {
+    Fixed(T),
+    Pair([T; 2]),
 }
 
-impl From<CountRepr> for CountRange {
-    fn from(r: CountRepr) -> Self {
-        match r {
-            CountRepr::Fixed(v) => CountRange { min: v, max: v },
-            CountRepr::Pair([min, max]) => CountRange { min, max },
+impl<T: Copy> NumberOrPair<T> {
+    fn bounds(self) -> [T; 2] {
+        match self {
+            Self::Fixed(v) => [v, v],
+            Self::Pair(pair) => pair,
         }
+    }
+}
+
+impl From<NumberOrPair<u32>> for CountRange {
+    fn from(r: NumberOrPair<u32>) -> Self {
+        let [min, max] = r.bounds();
+        Self { min, max }
     }
 }
 
@@ -325,25 +333,16 @@ impl CountRange {
 /// The planner's secondary knobs (light placement, material class ranges, leaf colours) use it:
 /// it draws exactly as the planner did before they were recipe keys, so plans stay identical.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(from = "RangeRepr", into = "[f64; 2]")]
+#[serde(from = "NumberOrPair<f64>", into = "[f64; 2]")]
 pub struct UniformRange {
     pub min: f64,
     pub max: f64,
 }
 
-#[derive(Deserialize)]
-#[serde(untagged)]
-enum RangeRepr {
-    Fixed(f64),
-    Pair([f64; 2]),
-}
-
-impl From<RangeRepr> for UniformRange {
-    fn from(r: RangeRepr) -> Self {
-        match r {
-            RangeRepr::Fixed(v) => UniformRange { min: v, max: v },
-            RangeRepr::Pair([min, max]) => UniformRange { min, max },
-        }
+impl From<NumberOrPair<f64>> for UniformRange {
+    fn from(r: NumberOrPair<f64>) -> Self {
+        let [min, max] = r.bounds();
+        Self { min, max }
     }
 }
 
@@ -402,6 +401,24 @@ mod tests {
         let _ = b.random_range(0.0..1.0);
         assert_eq!(a.random::<u64>(), b.random::<u64>());
         assert!(UniformRange::new(0.3, 0.1).validate(0.0, 1.0).is_err());
+    }
+
+    #[test]
+    fn ranges_read_a_number_or_a_pair_and_say_so_otherwise() {
+        type Ranges<T> = std::collections::BTreeMap<String, T>;
+        let counts: Ranges<CountRange> = toml::from_str("a = 3\nb = [1, 4]").unwrap();
+        assert_eq!(counts["a"], CountRange { min: 3, max: 3 });
+        assert_eq!(counts["b"], CountRange { min: 1, max: 4 });
+        let values: Ranges<UniformRange> = toml::from_str("a = 2\nb = [0.5, 1.5]").unwrap();
+        assert_eq!(values["a"], UniformRange::new(2.0, 2.0));
+        assert_eq!(values["b"], UniformRange::new(0.5, 1.5));
+        for bad in ["a = 'many'", "a = [1, 2, 3]"] {
+            let e = toml::from_str::<Ranges<CountRange>>(bad).unwrap_err();
+            assert!(
+                e.to_string().contains("a number or a [min, max] pair"),
+                "{bad}: {e}"
+            );
+        }
     }
 
     fn check_law(dist: Dist) {

@@ -52,9 +52,9 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
         &layout,
         spec,
         &reply.files,
-        &reply.notes,
+        &reply.report.notes,
         0.0,
-        &reply.timings,
+        &reply.report.timings,
     )
     .expect("finalize");
     let (left, _) =
@@ -67,7 +67,7 @@ pub fn render(service: &mut RenderService, spec: &SceneSpec) -> RenderedPair {
         dir,
         layout,
         entry,
-        skipped_assets: reply.skipped_assets.clone(),
+        skipped_assets: reply.report.skipped_assets.clone(),
     }
 }
 

@@ -29,9 +29,9 @@ pub fn run(spec: &Path, out: &Path, options: &WorkerOptions) -> anyhow::Result<(
         &layout,
         &spec,
         &reply.files,
-        &reply.notes,
+        &reply.report.notes,
         t0.elapsed().as_secs_f64(),
-        &reply.timings,
+        &reply.report.timings,
     )?;
     drop(rendered);
     let _ = std::fs::remove_dir(out.join(scratch::DATASET_SCRATCH_DIR));

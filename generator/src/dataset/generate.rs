@@ -29,7 +29,7 @@ use crate::render::FaultPlan;
 use crate::render::protocol::{WORKER_START_TIMING, is_wall_timing};
 use crate::render::runtime::stereogen_home;
 use crate::render::scratch;
-use crate::render::worker::{RenderService, Rendered, WorkerConfig, WorkerError, WorkerOptions};
+use crate::render::{RenderService, Rendered, WorkerConfig, WorkerError, WorkerOptions};
 
 #[derive(Debug, Clone)]
 pub struct GenerateOptions {
@@ -413,14 +413,14 @@ impl Run<'_> {
             &self.logs,
             self.layout,
             &self.seen_skipped,
-            &reply.skipped_assets,
+            &reply.report.skipped_assets,
             Some(spec.index),
         );
         let finished = finalize_sample(
             self.layout,
             spec,
             &reply.files,
-            &reply.notes,
+            &reply.report.notes,
             t0.elapsed().as_secs_f64(),
             timings,
         )
@@ -493,7 +493,7 @@ impl Run<'_> {
 /// [`WORKER_START_TIMING`] (where this render started a worker) and [`REQUEST_TIMING`], what of
 /// the render's `render_s` wall seconds neither the start nor a worker step accounts for.
 fn stage_timings(rendered: &Rendered, plan_s: f64, render_s: f64) -> BTreeMap<String, f64> {
-    let mut timings = rendered.reply.timings.clone();
+    let mut timings = rendered.reply.report.timings.clone();
     let worker_steps: f64 = timings
         .iter()
         .filter(|(k, _)| is_wall_timing(k))

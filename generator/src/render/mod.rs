@@ -6,11 +6,13 @@ pub mod protocol;
 pub mod runtime;
 pub mod scratch;
 pub mod scripts;
+pub mod service;
 pub mod worker;
 
 pub use faults::FaultPlan;
-pub use protocol::{Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request};
-pub use runtime::{BlenderRuntime, RuntimeError};
-pub use worker::{
-    ExportedGeometry, RenderService, Rendered, Worker, WorkerConfig, WorkerError, WorkerOptions,
+pub use protocol::{
+    Device, Fault, GeometryOutput, Hello, RenderOutput, Reply, Request, WorkerReport,
 };
+pub use runtime::{BlenderRuntime, RuntimeError};
+pub use service::{ExportedGeometry, RenderService, Rendered};
+pub use worker::{Worker, WorkerConfig, WorkerError, WorkerOptions};

@@ -56,10 +56,10 @@ impl std::fmt::Display for Device {
 /// it: a worker's first sample pays it.
 pub const WORKER_START_TIMING: &str = "worker_start_s";
 
-/// The names a worker reports its stages under (`timings` of [`RenderOutput`] and
-/// [`GeometryOutput`]): defined here once and sent to the worker when it starts (`--timing-keys`,
-/// see [`WorkerTimings::to_arg`]), so `blender_scripts/` use the names they are given and the
-/// readers of the manifest's `render_timings` (the estimate, the benches) agree with them.
+/// The names a worker reports its stages under (`timings` of a [`WorkerReport`]): defined here
+/// once and sent to the worker when it starts (`--timing-keys`, see [`WorkerTimings::to_arg`]),
+/// so `blender_scripts/` use the names they are given and the readers of the manifest's
+/// `render_timings` (the estimate, the benches) agree with them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct WorkerTimings {
     /// Clearing the previous scene.
@@ -216,8 +216,16 @@ pub struct RenderedFiles {
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderOutput {
     pub files: RenderedFiles,
-    /// Seconds per step, under the [`WORKER_TIMINGS`] keys `reset`, `build`, `colour`, `depth`
-    /// and `save` (and each step's CPU seconds where STEREOGEN_TIMINGS_CPU is set).
+    /// Timings under the [`WORKER_TIMINGS`] keys `reset`, `build`, `colour`, `depth` and `save`
+    /// (and each step's CPU seconds where STEREOGEN_TIMINGS_CPU is set).
+    #[serde(flatten)]
+    pub report: WorkerReport,
+}
+
+/// What a worker reports beside the files of a request it handled.
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct WorkerReport {
+    /// Seconds per step, under the [`WORKER_TIMINGS`] keys of the request's steps.
     #[serde(default)]
     pub timings: BTreeMap<String, f64>,
     #[serde(default)]
@@ -239,15 +247,9 @@ pub struct GeometryOutput {
     pub triangles: usize,
     /// Cycles renders the worker ran while handling the request: 0, as nothing is rendered.
     pub renders: u64,
-    /// Seconds per step, under the [`WORKER_TIMINGS`] keys `build` and `export`.
-    #[serde(default)]
-    pub timings: BTreeMap<String, f64>,
-    #[serde(default)]
-    pub rss_bytes: Option<u64>,
-    #[serde(default)]
-    pub skipped_assets: Vec<SkippedAsset>,
-    #[serde(default)]
-    pub notes: Vec<String>,
+    /// Timings under the [`WORKER_TIMINGS`] keys `build` and `export`.
+    #[serde(flatten)]
+    pub report: WorkerReport,
 }
 
 /// Why the worker could not render a spec.
@@ -290,7 +292,7 @@ mod tests {
         ))
         .unwrap();
         assert!(
-            matches!(ok, Reply::Ok(RenderOutput { ref timings, .. }) if timings["build_s"] == 0.5)
+            matches!(ok, Reply::Ok(RenderOutput { ref report, .. }) if report.timings["build_s"] == 0.5)
         );
         assert!(
             serde_json::from_str::<Reply>(r#"{"status":"ok"}"#).is_err(),

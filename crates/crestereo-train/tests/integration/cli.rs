@@ -2,6 +2,7 @@
 
 // The model crate's fixture helpers, not a second copy of them.
 use crate::network_fixtures;
+use std::path::Path;
 use std::process::Command;
 
 use network_fixtures::*;
@@ -65,72 +66,43 @@ fn infer_cli_errors_are_clear() {
     let e = fixtures().join("eval_cascade_1x128x192");
     let weights = fixtures().join("weights_seed0.pt");
     let out = dir.path().join("o.exr");
+    let infer_err = |left: &Path, right: &Path, out: &Path, weights: &Path| {
+        run_err(&[
+            "infer".as_ref(),
+            left.as_os_str(),
+            right.as_os_str(),
+            "-o".as_ref(),
+            out.as_os_str(),
+            "--weights".as_ref(),
+            weights.as_os_str(),
+        ])
+    };
     // mismatched sizes
     let small = dir.path().join("small.png");
     image::RgbImage::new(64, 32).save(&small).unwrap();
-    let msg = run_err(&[
-        "infer".as_ref(),
-        e.join("left.png").as_os_str(),
-        small.as_os_str(),
-        "-o".as_ref(),
-        out.as_os_str(),
-        "--weights".as_ref(),
-        weights.as_os_str(),
-    ]);
+    let msg = infer_err(&e.join("left.png"), &small, &out, &weights);
     assert!(msg.contains("192x128") && msg.contains("64x32"), "{msg}");
     // unreadable image
     let bogus = dir.path().join("bogus.png");
     std::fs::write(&bogus, b"not an image").unwrap();
-    let msg = run_err(&[
-        "infer".as_ref(),
-        bogus.as_os_str(),
-        e.join("right.png").as_os_str(),
-        "-o".as_ref(),
-        out.as_os_str(),
-        "--weights".as_ref(),
-        weights.as_os_str(),
-    ]);
+    let msg = infer_err(&bogus, &e.join("right.png"), &out, &weights);
     assert!(
         msg.contains("cannot read image") && msg.contains("bogus.png"),
         "{msg}"
     );
     // missing weights file
     let missing = dir.path().join("none.pt");
-    let msg = run_err(&[
-        "infer".as_ref(),
-        e.join("left.png").as_os_str(),
-        e.join("right.png").as_os_str(),
-        "-o".as_ref(),
-        out.as_os_str(),
-        "--weights".as_ref(),
-        missing.as_os_str(),
-    ]);
+    let msg = infer_err(&e.join("left.png"), &e.join("right.png"), &out, &missing);
     assert!(msg.contains("does not exist"), "{msg}");
     // a file that is not weights is named as such, not as a missing file
-    let msg = run_err(&[
-        "infer".as_ref(),
-        e.join("left.png").as_os_str(),
-        e.join("right.png").as_os_str(),
-        "-o".as_ref(),
-        out.as_os_str(),
-        "--weights".as_ref(),
-        bogus.as_os_str(),
-    ]);
+    let msg = infer_err(&e.join("left.png"), &e.join("right.png"), &out, &bogus);
     assert!(
         msg.contains("bogus.png") && msg.contains("is not a Burn record"),
         "{msg}"
     );
     // an output folder that does not exist is refused before the images are read
     let nowhere = dir.path().join("nowhere").join("disp.exr");
-    let msg = run_err(&[
-        "infer".as_ref(),
-        bogus.as_os_str(),
-        e.join("right.png").as_os_str(),
-        "-o".as_ref(),
-        nowhere.as_os_str(),
-        "--weights".as_ref(),
-        weights.as_os_str(),
-    ]);
+    let msg = infer_err(&bogus, &e.join("right.png"), &nowhere, &weights);
     assert!(
         msg.contains("nowhere") && msg.contains("does not exist") && !msg.contains("bogus"),
         "{msg}"
@@ -142,22 +114,21 @@ fn infer_cli_stages_and_padding() {
     let dir = tempfile::tempdir().unwrap();
     let e = fixtures().join("eval_cascade_1x128x192");
     let weights = fixtures().join("weights_seed0.pt");
-    let run =
-        |left: &std::path::Path, right: &std::path::Path, stages: &str, out: &std::path::Path| {
-            let status = bin()
-                .arg("infer")
-                .arg(left)
-                .arg(right)
-                .arg("-o")
-                .arg(out)
-                .arg("--weights")
-                .arg(&weights)
-                .args(["--stages", stages])
-                .status()
-                .unwrap();
-            assert!(status.success());
-            read_exr(out).unwrap()
-        };
+    let run = |left: &Path, right: &Path, stages: &str, out: &Path| {
+        let status = bin()
+            .arg("infer")
+            .arg(left)
+            .arg(right)
+            .arg("-o")
+            .arg(out)
+            .arg("--weights")
+            .arg(&weights)
+            .args(["--stages", stages])
+            .status()
+            .unwrap();
+        assert!(status.success());
+        read_exr(out).unwrap()
+    };
     // one stage = a single full-resolution pass without initialisation
     let (w, h, single) = run(
         &e.join("left.png"),
@@ -171,7 +142,7 @@ fn infer_cli_stages_and_padding() {
     println!("--stages 1 vs pred_single_pass_no_init: max|err| {err:.3e}");
     assert!(err <= 1e-3);
     // a size that is no multiple of 64 with three stages: padded, run, cropped back
-    let crop = |src: &std::path::Path, dst: &std::path::Path| {
+    let crop = |src: &Path, dst: &Path| {
         image::open(src)
             .unwrap()
             .crop_imm(0, 0, 150, 100)
@@ -386,7 +357,7 @@ fn eval_disturb_level_zero_equals_plain_eval_and_levels_are_reported() {
     let data = dir.path().join("data");
     crestereo_train::synthetic::write_crestereo_dataset(&data, 2, 128, 64, 0).unwrap();
     let weights = fixtures().join("weights_seed0.pt");
-    let eval = |json: &std::path::Path, extra: &[&str]| {
+    let eval = |json: &Path, extra: &[&str]| {
         bin()
             .arg("eval")
             .arg("--data")
@@ -399,7 +370,7 @@ fn eval_disturb_level_zero_equals_plain_eval_and_levels_are_reported() {
             .output()
             .unwrap()
     };
-    let read = |p: &std::path::Path| -> serde_json::Value {
+    let read = |p: &Path| -> serde_json::Value {
         serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
     };
     let plain_json = dir.path().join("plain.json");

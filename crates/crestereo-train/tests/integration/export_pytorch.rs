@@ -253,24 +253,16 @@ fn reference_weights_export_round_trips_and_pytorch_agrees() {
 
     // The same weights give the same bytes; an existing output needs --force.
     let first = std::fs::read(&pth).unwrap();
-    let again = crestereo(&[
+    let args = [
         os("export"),
         os("pytorch"),
         os("--weights"),
         os(&original),
         os("-o"),
         os(&pth),
-    ]);
-    assert!(!again.status.success());
-    ok(&[
-        os("export"),
-        os("pytorch"),
-        os("--weights"),
-        os(&original),
-        os("-o"),
-        os(&pth),
-        os("--force"),
-    ]);
+    ];
+    assert!(!crestereo(&args).status.success());
+    ok(&[&args[..], &[os("--force")]].concat());
     assert!(
         std::fs::read(&pth).unwrap() == first,
         "export is not deterministic"

@@ -18,3 +18,13 @@ mod export_pytorch;
 mod parallel;
 mod training;
 mod webdataset_stream;
+
+/// A run's `train_log.csv`, each row cut to its first five columns (step, samples, lr, loss,
+/// EPE): two runs that trained the same way have equal rows, however long each step took.
+fn loss_columns(run: &std::path::Path) -> Vec<String> {
+    std::fs::read_to_string(run.join("train_log.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| l.split(',').take(5).collect::<Vec<_>>().join(","))
+        .collect()
+}

@@ -7,6 +7,8 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use crate::loss_columns;
+
 use crestereo::weights::{load_record, named_parameters};
 use crestereo::{CREStereoConfig, CpuAutodiffBackend, CpuBackend};
 use crestereo_train::augment::AugmentConfig;
@@ -14,7 +16,7 @@ use crestereo_train::checkpoint::list_checkpoints;
 use crestereo_train::config::{DatasetEntry, TrainConfig};
 use crestereo_train::data::{Loader, MixedSource, Planner};
 use crestereo_train::synthetic::write_crestereo_dataset;
-use crestereo_train::train::{TrainOptions, train};
+use crestereo_train::train::{TrainOptions, TrainOutcome, train};
 
 fn dataset(dir: &Path, count: usize) {
     write_crestereo_dataset(dir, count, 128, 64, 11).unwrap();
@@ -44,6 +46,19 @@ fn tiny_config(data: &Path, steps: u64) -> TrainConfig {
     cfg.checkpoint.every = 5;
     cfg.checkpoint.keep = 2;
     cfg
+}
+
+/// Trains `cfg` on Flex with default options into a new temporary run folder.
+fn train_in_new_folder(cfg: &TrainConfig) -> (tempfile::TempDir, TrainOutcome) {
+    let run = tempfile::tempdir().unwrap();
+    let out = train::<CpuAutodiffBackend>(
+        cfg,
+        run.path(),
+        &TrainOptions::default(),
+        &Default::default(),
+    )
+    .unwrap();
+    (run, out)
 }
 
 fn weights(checkpoint: &Path) -> Vec<(String, Vec<f32>)> {
@@ -210,15 +225,8 @@ fn resumed_run_matches_a_straight_run_exactly() {
     }
     assert!(moved.is_finite() && moved > 0.0);
     // The logs continue the same curve: identical loss columns.
-    let log = |d: &Path| -> Vec<String> {
-        std::fs::read_to_string(d.join("train_log.csv"))
-            .unwrap()
-            .lines()
-            .map(|l| l.split(',').take(5).collect::<Vec<_>>().join(","))
-            .collect()
-    };
-    assert_eq!(log(straight.path()), log(split.path()));
-    assert_eq!(log(straight.path()).len(), 21);
+    assert_eq!(loss_columns(straight.path()), loss_columns(split.path()));
+    assert_eq!(loss_columns(straight.path()).len(), 21);
     // Checkpoints every 5 steps, the newest 2 kept, no temp directories left.
     let kept: Vec<u64> = list_checkpoints(straight.path())
         .unwrap()
@@ -318,14 +326,7 @@ fn non_finite_losses_skip_the_step_and_are_logged() {
     cfg.schedule.lr = 3e38;
     cfg.schedule.warmup_steps = 0;
     cfg.schedule.floor_fraction = 1.0;
-    let run = tempfile::tempdir().unwrap();
-    let out = train::<CpuAutodiffBackend>(
-        &cfg,
-        run.path(),
-        &TrainOptions::default(),
-        &Default::default(),
-    )
-    .unwrap();
+    let (run, out) = train_in_new_folder(&cfg);
     assert_eq!(out.step, 4);
     assert_eq!(out.skipped_steps, 3, "{out:?}");
     let csv = std::fs::read_to_string(run.path().join("train_log.csv")).unwrap();
@@ -369,14 +370,7 @@ fn overfits_a_single_batch() {
     cfg.schedule.warmup_steps = 0;
     cfg.schedule.decay_start = 200;
     cfg.checkpoint.every = 1000;
-    let run = tempfile::tempdir().unwrap();
-    let out = train::<CpuAutodiffBackend>(
-        &cfg,
-        run.path(),
-        &TrainOptions::default(),
-        &Default::default(),
-    )
-    .unwrap();
+    let (run, out) = train_in_new_folder(&cfg);
     let csv = std::fs::read_to_string(run.path().join("train_log.csv")).unwrap();
     let losses: Vec<f64> = csv
         .lines()
@@ -409,14 +403,7 @@ fn accumulating_two_halves_equals_one_full_batch() {
         cfg.augment = AugmentConfig::none([64, 128]);
         cfg.schedule.warmup_steps = 0;
         cfg.schedule.decay_start = 1;
-        let run = tempfile::tempdir().unwrap();
-        let out = train::<CpuAutodiffBackend>(
-            &cfg,
-            run.path(),
-            &TrainOptions::default(),
-            &Default::default(),
-        )
-        .unwrap();
+        let (_run, out) = train_in_new_folder(&cfg);
         (out.first_loss.unwrap(), weights(&out.checkpoint.unwrap()))
     };
     let (loss_full, full) = run_with(2, 1);

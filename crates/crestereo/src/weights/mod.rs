@@ -5,6 +5,7 @@ mod mpk;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use burn::module::Param;
 use burn::prelude::*;
 use burn::record::{FullPrecisionSettings, NamedMpkBytesRecorder, Recorder};
 use burn::store::{ModuleSnapshot, PytorchStore};
@@ -291,32 +292,13 @@ fn tensor_to_reference_layout<B: Backend, const D: usize>(
 
 /// Every parameter of the model with its reference key, in the reference layout.
 pub fn named_parameters<B: Backend>(model: &CREStereo<B>) -> Vec<NamedArray> {
-    struct V {
-        path: Vec<String>,
-        out: Vec<NamedArray>,
-    }
-    impl<B: Backend> burn::module::ModuleVisitor<B> for V {
-        fn enter_module(&mut self, name: &str, _c: &str) {
-            self.path.push(name.to_string());
-        }
-        fn exit_module(&mut self, _name: &str, _c: &str) {
-            self.path.pop();
-        }
-        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<B, D>>) {
-            let (shape, data) = tensor_to_reference_layout(param.val());
-            self.out.push(NamedArray {
-                name: reference_key(&self.path.join(".")),
-                shape,
-                data,
-            });
+    struct Values;
+    impl<B: Backend> ParameterView<B> for Values {
+        fn view<const D: usize>(&self, param: &Param<Tensor<B, D>>) -> (Vec<usize>, Vec<f32>) {
+            tensor_to_reference_layout(param.val())
         }
     }
-    let mut v = V {
-        path: Vec::new(),
-        out: Vec::new(),
-    };
-    model.visit(&mut v);
-    v.out
+    collect_named(model, Values)
 }
 
 /// Gradients of every parameter (reference keys and layout); parameters without a gradient
@@ -325,27 +307,44 @@ pub fn named_gradients<B: burn::tensor::backend::AutodiffBackend>(
     model: &CREStereo<B>,
     grads: &B::Gradients,
 ) -> Vec<NamedArray> {
-    struct V<'a, B: burn::tensor::backend::AutodiffBackend> {
+    struct Gradients<'a, B: burn::tensor::backend::AutodiffBackend>(&'a B::Gradients);
+    impl<B: burn::tensor::backend::AutodiffBackend> ParameterView<B> for Gradients<'_, B> {
+        fn view<const D: usize>(&self, param: &Param<Tensor<B, D>>) -> (Vec<usize>, Vec<f32>) {
+            let t = param.val();
+            match t.grad(self.0) {
+                Some(g) => tensor_to_reference_layout(g),
+                None => {
+                    let (shape, data) = tensor_to_reference_layout(t.inner());
+                    (shape, vec![0.0; data.len()])
+                }
+            }
+        }
+    }
+    collect_named(model, Gradients::<B>(grads))
+}
+
+/// What [`collect_named`] records of each parameter: its shape and values in the reference
+/// layout.
+trait ParameterView<B: Backend> {
+    fn view<const D: usize>(&self, param: &Param<Tensor<B, D>>) -> (Vec<usize>, Vec<f32>);
+}
+
+/// Visits every parameter of `model` in module order, naming each by its reference key.
+fn collect_named<B: Backend>(model: &CREStereo<B>, view: impl ParameterView<B>) -> Vec<NamedArray> {
+    struct Named<V> {
         path: Vec<String>,
-        grads: &'a B::Gradients,
+        view: V,
         out: Vec<NamedArray>,
     }
-    impl<B: burn::tensor::backend::AutodiffBackend> burn::module::ModuleVisitor<B> for V<'_, B> {
+    impl<B: Backend, V: ParameterView<B>> burn::module::ModuleVisitor<B> for Named<V> {
         fn enter_module(&mut self, name: &str, _c: &str) {
             self.path.push(name.to_string());
         }
         fn exit_module(&mut self, _name: &str, _c: &str) {
             self.path.pop();
         }
-        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<B, D>>) {
-            let t = param.val();
-            let (shape, data) = match t.grad(self.grads) {
-                Some(g) => tensor_to_reference_layout(g),
-                None => {
-                    let (shape, data) = tensor_to_reference_layout(t.inner());
-                    (shape, vec![0.0; data.len()])
-                }
-            };
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<B, D>>) {
+            let (shape, data) = self.view.view(param);
             self.out.push(NamedArray {
                 name: reference_key(&self.path.join(".")),
                 shape,
@@ -353,9 +352,9 @@ pub fn named_gradients<B: burn::tensor::backend::AutodiffBackend>(
             });
         }
     }
-    let mut v = V {
+    let mut v = Named {
         path: Vec::new(),
-        grads,
+        view,
         out: Vec::new(),
     };
     model.visit(&mut v);

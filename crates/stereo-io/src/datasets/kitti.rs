@@ -21,9 +21,7 @@
 use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
-use super::write::{
-    DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, write_png16,
-};
+use super::write::{DatasetWriter, WriteSummary, mkdir, place_png_pair, write_png16};
 use super::{DatasetFormat, DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
 use crate::disparity::{DisparityMap, LEFT_RIGHT_TOLERANCE_PX};
 use crate::error::{Error, Result};
@@ -173,23 +171,7 @@ impl DatasetWriter for KittiWriter {
             mkdir(&base.join(d))?;
             Ok(base.join(d).join(&name))
         };
-        let png = [ImageFile::PngRgb8];
-        place_image(
-            &s.meta.left_path,
-            &s.left,
-            &dir(f.left)?,
-            &png,
-            ImageEncoding::Lossless,
-            &mut self.summary,
-        )?;
-        place_image(
-            &s.meta.right_path,
-            &s.right,
-            &dir(f.right)?,
-            &png,
-            ImageEncoding::Lossless,
-            &mut self.summary,
-        )?;
+        place_png_pair(s, &dir(f.left)?, &dir(f.right)?, &mut self.summary)?;
         write_png16(
             &dir(f.disp_occ)?,
             &s.disp_left,

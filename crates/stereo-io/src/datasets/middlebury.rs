@@ -27,8 +27,7 @@ use std::path::{Path, PathBuf};
 
 use super::scan::{file_name, rel_id, require, walk};
 use super::write::{
-    DatasetWriter, ImageEncoding, ImageFile, WriteSummary, mkdir, place_image, under,
-    write_right_disparity,
+    DatasetWriter, WriteSummary, mkdir, place_png_pair, under, write_right_disparity,
 };
 use super::{DatasetFormat, DispKind, MaskKind, SampleFiles, SampleMeta, StereoSample};
 use crate::error::{Error, Result};
@@ -351,21 +350,10 @@ impl DatasetWriter for MiddleburyWriter {
         let calib =
             Calibration::of_sample(s).map_err(|m| Error::format(dir.join(CALIBRATION), m))?;
         mkdir(&dir)?;
-        let png = [ImageFile::PngRgb8];
-        place_image(
-            &s.meta.left_path,
-            &s.left,
+        place_png_pair(
+            s,
             &dir.join(LEFT_IMAGE),
-            &png,
-            ImageEncoding::Lossless,
-            &mut self.summary,
-        )?;
-        place_image(
-            &s.meta.right_path,
-            &s.right,
             &dir.join(RIGHT_IMAGE),
-            &png,
-            ImageEncoding::Lossless,
             &mut self.summary,
         )?;
         crate::pfm::write_disparity_pfm(&dir.join(LEFT_DISPARITY), &s.disp_left)?;

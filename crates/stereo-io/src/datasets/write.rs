@@ -281,6 +281,24 @@ pub(crate) fn place_image(
     }
 }
 
+/// Stores both views of `s` as lossless 8-bit PNGs at `left` and `right` (the layouts whose
+/// images are PNG: KITTI, Middlebury), each source file linked where it already is one.
+pub(crate) fn place_png_pair(
+    s: &StereoSample,
+    left: &Path,
+    right: &Path,
+    summary: &mut WriteSummary,
+) -> Result<()> {
+    let png = [ImageFile::PngRgb8];
+    for (source, pixels, dst) in [
+        (&s.meta.left_path, &s.left, left),
+        (&s.meta.right_path, &s.right, right),
+    ] {
+        place_image(source, pixels, dst, &png, ImageEncoding::Lossless, summary)?;
+    }
+    Ok(())
+}
+
 /// `map` with every valid value a 16-bit PNG at `scale` cannot hold made invalid; how many.
 pub(crate) fn representable(map: &DisparityMap, scale: f32) -> (DisparityMap, usize) {
     let max = 65535.5 / f64::from(scale);

@@ -9,6 +9,18 @@ use stereo_io::*;
 use crate::io_fixtures;
 use io_fixtures::*;
 
+/// The largest difference of one channel value between two images of the same size (what a
+/// JPEG changed).
+fn worst_difference(a: &RgbImage, b: &RgbImage) -> u8 {
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    a.data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| x.abs_diff(*y))
+        .max()
+        .unwrap()
+}
+
 /// A sample with a camera, built from pixels only (no source files to link).
 fn sample(seed: u8, with_right: bool) -> StereoSample {
     let meta = SampleMeta {
@@ -89,13 +101,7 @@ fn each_writer_round_trips_through_its_reader() {
             if format == WritableFormat::Crestereo {
                 // Real JPEG (quality 95, 4:4:4) of a 4x3 ramp with steps of 7 levels: within 16.
                 for (g, w) in [(&got.left, &want.left), (&got.right, &want.right)] {
-                    let worst = g
-                        .data
-                        .iter()
-                        .zip(&w.data)
-                        .map(|(a, b)| a.abs_diff(*b))
-                        .max()
-                        .unwrap();
+                    let worst = worst_difference(g, w);
                     assert!(
                         worst <= 16,
                         "{format} {i}: JPEG far from the pixels ({worst})"
@@ -363,14 +369,7 @@ fn crestereo_jpegs_are_real_jpegs_at_the_asked_quality() {
     let bytes = std::fs::read(t.path().join("pair000_left.jpg")).unwrap();
     assert_eq!(&bytes[..3], &[0xFF, 0xD8, 0xFF]);
     let back = open_dataset(t.path(), None).unwrap().sample(0).unwrap();
-    let worst = back
-        .left
-        .data
-        .iter()
-        .zip(&rgb(3).data)
-        .map(|(a, b)| a.abs_diff(*b))
-        .max()
-        .unwrap();
+    let worst = worst_difference(&back.left, &rgb(3));
     assert!(
         worst < 40,
         "JPEG at quality 95 is close to the pixels (worst {worst})"
@@ -418,13 +417,7 @@ fn sceneflow_and_middlebury_export_to_crestereo_and_read_back() {
         "meta.id is the sample's id in every layout"
     );
     for (g, w) in [(&got.left, rgb(1)), (&got.right, rgb(4))] {
-        let worst = g
-            .data
-            .iter()
-            .zip(&w.data)
-            .map(|(a, b)| a.abs_diff(*b))
-            .max()
-            .unwrap();
+        let worst = worst_difference(g, &w);
         assert!(worst <= 16, "JPEG far from the pixels ({worst})");
     }
     assert_disp_eq(&got.disp_left, &disp(1.0));

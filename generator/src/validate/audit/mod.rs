@@ -106,10 +106,10 @@ fn rebuild(
             reply.renders
         )));
     }
-    if reply.notes != entry.notes {
+    if reply.report.notes != entry.notes {
         return Err(Ok(format!(
             "the scene was built differently than when it was rendered: now {:?}, then {:?}",
-            reply.notes, entry.notes
+            reply.report.notes, entry.notes
         )));
     }
     let geometry = read_geometry(&reply.file).map_err(|e| Ok(format!("{e:#}")))?;

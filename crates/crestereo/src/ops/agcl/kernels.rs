@@ -101,6 +101,16 @@ fn offset_position(
     )
 }
 
+/// Group-wise correlation of one candidate: the mean product of `l` and `r` over each group of
+/// `cg` channels, group `g` written to `out[g * stride]`.
+#[inline]
+fn group_correlation(l: &[f32], r: &[f32], cg: usize, out: &mut [f32], stride: usize) {
+    for (g, (lg, rg)) in l.chunks_exact(cg).zip(r.chunks_exact(cg)).enumerate() {
+        let dot: f32 = lg.iter().zip(rg).map(|(a, b)| a * b).sum();
+        out[g * stride] = dot / cg as f32;
+    }
+}
+
 /// Offset correlation forward. `left`, `right`: (N, H, W, C); `flow`: (N, 2, H, W);
 /// `offset`: (N, 2K, H, W). Returns (N, H, W, G·K).
 pub fn offset_corr_forward(
@@ -140,15 +150,7 @@ pub fn offset_corr_forward(
                     for i in 0..c {
                         sample[i] = w0 * r0[i] + w1 * r1[i] + w2 * r2[i] + w3 * r3[i];
                     }
-                    for g in 0..g_num {
-                        let range = g * cg..(g + 1) * cg;
-                        let dot: f32 = l[range.clone()]
-                            .iter()
-                            .zip(&sample[range])
-                            .map(|(a, b)| a * b)
-                            .sum();
-                        out_row[x * gk + g * k_num + k] = dot / cg as f32;
-                    }
+                    group_correlation(l, &sample, cg, &mut out_row[x * gk + k..], k_num);
                 }
             }
         });
@@ -392,15 +394,7 @@ pub fn shift_corr_forward(left: &[f32], right: &[f32], d: Dims, spec: CorrSpec) 
                 for k in 0..k_num {
                     let q = shifted_pixel(&spec, k, x, y, h, w);
                     let r = &right[(n * hw + q) * c..][..c];
-                    for g in 0..g_num {
-                        let range = g * cg..(g + 1) * cg;
-                        let dot: f32 = l[range.clone()]
-                            .iter()
-                            .zip(&r[range])
-                            .map(|(a, b)| a * b)
-                            .sum();
-                        out_row[x * gk + g * k_num + k] = dot / cg as f32;
-                    }
+                    group_correlation(l, r, cg, &mut out_row[x * gk + k..], k_num);
                 }
             }
         });
