@@ -216,8 +216,9 @@ pub struct RenderedFiles {
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderOutput {
     pub files: RenderedFiles,
-    /// Timings under the [`WORKER_TIMINGS`] keys `reset`, `build`, `colour`, `depth` and `save`
-    /// (and each step's CPU seconds where STEREOGEN_TIMINGS_CPU is set).
+    /// Timings, memory, skipped assets and notes; the timings under the [`WORKER_TIMINGS`] keys
+    /// `reset`, `build`, `colour`, `depth` and `save` (and each step's CPU seconds where
+    /// STEREOGEN_TIMINGS_CPU is set).
     #[serde(flatten)]
     pub report: WorkerReport,
 }
@@ -247,7 +248,8 @@ pub struct GeometryOutput {
     pub triangles: usize,
     /// Cycles renders the worker ran while handling the request: 0, as nothing is rendered.
     pub renders: u64,
-    /// Timings under the [`WORKER_TIMINGS`] keys `build` and `export`.
+    /// Timings, memory, skipped assets and notes; the timings under the [`WORKER_TIMINGS`] keys
+    /// `build` and `export`.
     #[serde(flatten)]
     pub report: WorkerReport,
 }
