@@ -190,13 +190,7 @@ fn small_net() -> Shape {
             radii: vec![0.05; 2],
         });
     }
-    Shape::Skeleton {
-        strands,
-        strand_levels: Vec::new(),
-        sides: 6,
-        leaves: Vec::new(),
-        leaf_material: None,
-    }
+    Shape::net(strands)
 }
 
 fn tetrahedron() -> Shape {

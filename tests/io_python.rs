@@ -12,19 +12,14 @@ use serde_json::json;
 use stereo_io::*;
 
 use pinned_venv::{ensure_venv, run};
+use test_support::io_fixtures::{patterned_rgb, write_sample_images};
 use test_support::{
     pinned_venv,
     python_envs::{MATURIN_PINS, install_stereogen_module},
 };
 
 fn rgb(w: usize, h: usize, seed: u8) -> RgbImage {
-    RgbImage {
-        width: w,
-        height: h,
-        data: (0..w * h * 3)
-            .map(|i| (i as u8).wrapping_mul(31).wrapping_add(seed))
-            .collect(),
-    }
+    patterned_rgb(w, h, 31, seed)
 }
 
 fn disp(w: usize, h: usize, seed: f32) -> DisparityMap {
@@ -54,29 +49,18 @@ fn write_ours(root: &Path, folder: impl Fn(usize) -> String, w: usize, h: usize)
         let rel = folder(i);
         let cat = root.join(&rel);
         std::fs::create_dir_all(&cat).unwrap();
-        write_png_rgb(&cat.join(format!("{id}_left.png")), &rgb(w, h, i as u8)).unwrap();
-        write_png_rgb(
-            &cat.join(format!("{id}_right.png")),
-            &rgb(w, h, 50 + i as u8),
-        )
-        .unwrap();
         let meta = DisparityMeta {
             f_px: Some(80.0),
             baseline_m: Some(0.12),
             view: Some("left".into()),
         };
-        write_disparity_exr(
-            &cat.join(format!("{id}_left.disp.exr")),
-            &disp(w, h, 1.0 + i as f32),
+        write_sample_images(
+            &cat,
+            id,
+            [&rgb(w, h, i as u8), &rgb(w, h, 50 + i as u8)],
+            [&disp(w, h, 1.0 + i as f32), &disp(w, h, 2.0)],
             &meta,
-        )
-        .unwrap();
-        write_disparity_exr(
-            &cat.join(format!("{id}_right.disp.exr")),
-            &disp(w, h, 2.0),
-            &meta,
-        )
-        .unwrap();
+        );
         let files = json!({"left": format!("{rel}/{id}_left.png"), "right": format!("{rel}/{id}_right.png"), "disp_left": format!("{rel}/{id}_left.disp.exr"), "disp_right": format!("{rel}/{id}_right.disp.exr"), "scene": format!("{rel}/{id}.scene.json")});
         manifest += &(json!({"id": id, "category": "primitives", "index": i, "files": files, "width": w, "height": h, "f_px": 80.0, "baseline_m": 0.12, "cx": 2.5, "cy": 2.0}).to_string() + "\n");
     }

@@ -86,15 +86,6 @@ fn paint(discs: &[(f64, f64, f64)]) -> DisparityMap {
     m
 }
 
-fn summary(m: &DisparityMap) -> Option<DisparitySummary> {
-    m.stats().map(|s| DisparitySummary {
-        min: s.min,
-        max: s.max,
-        mean: s.mean,
-        valid_fraction: s.valid_pixels as f64 / m.data.len() as f64,
-    })
-}
-
 /// Writes a dataset and returns the number of content objects per category.
 fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
     let recipe = Recipe::preset("crestereo").unwrap();
@@ -176,8 +167,8 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
             baseline_m: 0.1,
             cx: W as f64 / 2.0,
             cy: H as f64 / 2.0,
-            disparity_left: summary(&left),
-            disparity_right: summary(&right),
+            disparity_left: DisparitySummary::of(&left),
+            disparity_right: DisparitySummary::of(&right),
             difficulty: None,
             render_seconds: 0.0,
             render_timings: BTreeMap::new(),

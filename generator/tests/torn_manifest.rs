@@ -17,13 +17,7 @@ const H: usize = 12;
 const FINISHED: u64 = 3;
 
 fn image(seed: u8) -> RgbImage {
-    RgbImage {
-        width: W,
-        height: H,
-        data: (0..W * H * 3)
-            .map(|i| (i as u8).wrapping_mul(13).wrapping_add(seed))
-            .collect(),
-    }
+    test_support::io_fixtures::patterned_rgb(W, H, 13, seed)
 }
 
 fn disparity(d: f32) -> DisparityMap {

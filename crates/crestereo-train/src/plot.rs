@@ -112,6 +112,18 @@ fn legend_mark(colour: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32
     move |(x, y)| PathElement::new([(x, y), (x + 18, y)], colour)
 }
 
+/// The chart's legend: its series' labels in a framed box.
+fn draw_legend<CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'_, BitMapBackend<'_>, CT>,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(err)
+}
+
 /// The training loss per step and its moving average, on a log axis.
 fn draw_loss(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
     let loss = &curves.loss;
@@ -148,12 +160,7 @@ fn draw_loss(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
         .map_err(err)?
         .label(format!("moving average ({smooth})"))
         .legend(legend_mark(averaged));
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(err)
+    draw_legend(&mut chart)
 }
 
 /// The training EPE (moving average) and the validation EPE.
@@ -199,23 +206,12 @@ fn draw_epe(area: &Area, curves: &RunCurves, smooth: usize) -> Result<()> {
             .draw_series(val.iter().map(|&p| Circle::new(p, 4, validation.filled())))
             .map_err(err)?;
     }
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(err)
+    draw_legend(&mut chart)
 }
 
 /// Writes a drawn RGB buffer as a PNG.
 fn write_rgb_png(out: &Path, buf: Vec<u8>, w: u32, h: u32) -> Result<()> {
-    let img = stereo_io::Image {
-        width: w as usize,
-        height: h as usize,
-        channels: 3,
-        samples: stereo_io::Samples::U8(buf),
-    };
-    stereo_io::write_png(out, &img)?;
+    stereo_io::write_png(out, &stereo_io::Image::rgb8(w as usize, h as usize, buf))?;
     Ok(())
 }
 

@@ -47,6 +47,25 @@ impl DisparityMap {
         }
     }
 
+    /// A map from its pixels' readings in row-major order: `Some(d)` a disparity, `None` no
+    /// ground truth (stored as 0).
+    pub fn from_readings(
+        width: usize,
+        height: usize,
+        readings: impl IntoIterator<Item = Option<f32>>,
+    ) -> Self {
+        let (data, valid) = readings
+            .into_iter()
+            .map(|r| (r.unwrap_or(0.0), r.is_some()))
+            .unzip();
+        Self {
+            width,
+            height,
+            data,
+            valid,
+        }
+    }
+
     /// Converts planar camera depth to disparity `d = f_px * B / Z`.
     ///
     /// Depth that is not finite, not positive, or at/after `background_depth` (Cycles writes

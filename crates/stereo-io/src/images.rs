@@ -29,6 +29,18 @@ pub struct Image {
     pub samples: Samples,
 }
 
+impl Image {
+    /// An 8-bit RGB image from its interleaved samples (row-major, three per pixel).
+    pub fn rgb8(width: usize, height: usize, samples: Vec<u8>) -> Self {
+        Image {
+            width,
+            height,
+            channels: 3,
+            samples: Samples::U8(samples),
+        }
+    }
+}
+
 pub(crate) fn image_err(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Image {
         path: path.to_path_buf(),

@@ -164,17 +164,8 @@ pub(crate) fn floats_to_disparity(
     data: Vec<f32>,
 ) -> Result<DisparityMap> {
     crate::disparity::refuse_nan(path, &data, width, " (use inf for no ground truth)")?;
-    let valid: Vec<bool> = data.iter().map(|d| d.is_finite()).collect();
-    let data = data
-        .into_iter()
-        .map(|d| if d.is_finite() { d } else { 0.0 })
-        .collect();
-    Ok(DisparityMap {
-        width,
-        height,
-        data,
-        valid,
-    })
+    let readings = data.into_iter().map(|d| d.is_finite().then_some(d));
+    Ok(DisparityMap::from_readings(width, height, readings))
 }
 
 /// Reads a disparity PFM. `inf` marks pixels without ground truth (Middlebury, ETH3D). A

@@ -42,17 +42,10 @@ fn png16_from_image(path: &Path, img: DynamicImage, scale: f32) -> Result<Dispar
             ));
         }
     };
-    let valid: Vec<bool> = raw.iter().map(|&v| v != 0).collect();
-    let data = raw
+    let readings = raw
         .iter()
-        .map(|&v| (f64::from(v) / f64::from(scale)) as f32)
-        .collect();
-    Ok(DisparityMap {
-        width,
-        height,
-        data,
-        valid,
-    })
+        .map(|&v| (v != 0).then(|| (f64::from(v) / f64::from(scale)) as f32));
+    Ok(DisparityMap::from_readings(width, height, readings))
 }
 
 /// Reads a 16-bit disparity PNG: `d = value / scale`, 0 = invalid.

@@ -302,18 +302,26 @@ impl<T: Copy> NumberOrPair<T> {
     }
 }
 
-impl From<NumberOrPair<u32>> for CountRange {
-    fn from(r: NumberOrPair<u32>) -> Self {
-        let [min, max] = r.bounds();
-        Self { min, max }
-    }
+/// The serde conversions of a `{ min, max }` range type: read from a number or a pair, written
+/// as a pair.
+macro_rules! range_conversions {
+    ($range:ident, $t:ty) => {
+        impl From<NumberOrPair<$t>> for $range {
+            fn from(r: NumberOrPair<$t>) -> Self {
+                let [min, max] = r.bounds();
+                Self { min, max }
+            }
+        }
+
+        impl From<$range> for [$t; 2] {
+            fn from(r: $range) -> Self {
+                [r.min, r.max]
+            }
+        }
+    };
 }
 
-impl From<CountRange> for [u32; 2] {
-    fn from(r: CountRange) -> Self {
-        [r.min, r.max]
-    }
-}
+range_conversions!(CountRange, u32);
 
 impl CountRange {
     pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> u32 {
@@ -339,18 +347,7 @@ pub struct UniformRange {
     pub max: f64,
 }
 
-impl From<NumberOrPair<f64>> for UniformRange {
-    fn from(r: NumberOrPair<f64>) -> Self {
-        let [min, max] = r.bounds();
-        Self { min, max }
-    }
-}
-
-impl From<UniformRange> for [f64; 2] {
-    fn from(r: UniformRange) -> Self {
-        [r.min, r.max]
-    }
-}
+range_conversions!(UniformRange, f64);
 
 impl UniformRange {
     pub const fn new(min: f64, max: f64) -> Self {

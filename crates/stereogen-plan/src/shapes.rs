@@ -150,11 +150,5 @@ pub fn net<R: Rng>(h: &HoleRecipe, rng: &mut R) -> Shape {
             });
         }
     }
-    Shape::Skeleton {
-        strands,
-        strand_levels: Vec::new(),
-        sides: 6,
-        leaves: Vec::new(),
-        leaf_material: None,
-    }
+    Shape::net(strands)
 }

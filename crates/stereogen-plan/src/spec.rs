@@ -134,6 +134,19 @@ pub enum Shape {
     },
 }
 
+impl Shape {
+    /// A net of hexagonal tubes along `strands` (all of one level, no leaves).
+    pub fn net(strands: Vec<Strand>) -> Self {
+        Shape::Skeleton {
+            strands,
+            strand_levels: Vec::new(),
+            sides: 6,
+            leaves: Vec::new(),
+            leaf_material: None,
+        }
+    }
+}
+
 /// A tube along a polyline, with a radius at every point (object space).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -65,20 +65,8 @@ pub fn reference_sample_points<B: Backend>(
         0,
     );
     let zero_row = (n * h * w) as i64;
-    let xs: Vec<f32> = x
-        .clone()
-        .detach()
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .unwrap();
-    let ys: Vec<f32> = y
-        .clone()
-        .detach()
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .unwrap();
+    let xs = values(x.clone().detach());
+    let ys = values(y.clone().detach());
     let np = n * p;
     let mut x0f = vec![0f32; np];
     let mut y0f = vec![0f32; np];
@@ -357,10 +345,7 @@ pub fn shift_corr_forward_and_gradients<B: TestDevice, A: TestDevice + AutodiffB
             assert!(err <= 1e-6, "{window:?} {label}: {err}");
         }
         let [n, _, h, w] = dims;
-        let weights = t4::<A>(
-            &inputs([n, groups * x.k, h, w], window, 43, false).left,
-            [n, groups * x.k, h, w],
-        );
+        let weights = output_weights::<A>([n, groups * x.k, h, w], window, 43);
         let grads_of = |which: Impl| -> Vec<Vec<f32>> {
             let l = t4::<A>(&x.left, dims).require_grad();
             let r = t4::<A>(&x.right, dims).require_grad();
@@ -374,6 +359,16 @@ pub fn shift_corr_forward_and_gradients<B: TestDevice, A: TestDevice + AutodiffB
         };
         assert_gradients_match(&format!("shift {window:?}"), &["left", "warped"], grads_of);
     }
+}
+
+/// Random weights of an op's output, of shape `dims`, so that the scalar a gradient check
+/// differentiates depends on every output element.
+fn output_weights<A: TestDevice>(
+    dims: [usize; 4],
+    window: SearchWindow,
+    seed: u64,
+) -> Tensor<A, 4> {
+    t4::<A>(&inputs(dims, window, seed, false).left, dims)
 }
 
 /// The gradients of the dispatched op and of the composed ops against those of the reference:
@@ -412,10 +407,7 @@ pub fn offset_corr_and_warp_gradients<A: TestDevice + AutodiffBackend>() {
     ] {
         let x = inputs(dims, window, 11, false);
         let [n, _, h, w] = dims;
-        let weights = t4::<A>(
-            &inputs([n, groups * x.k, h, w], window, 5, false).left,
-            [n, groups * x.k, h, w],
-        );
+        let weights = output_weights::<A>([n, groups * x.k, h, w], window, 5);
         let grads_of = |which: Impl| -> Vec<Vec<f32>> {
             let l = t4::<A>(&x.left, dims).require_grad();
             let r = t4::<A>(&x.right, dims).require_grad();

@@ -26,15 +26,6 @@ pub const VERIFY_TIMING: &str = "verify_s";
 /// Measuring the sample's [`Difficulty`] facts.
 pub const DIFFICULTY_TIMING: &str = "difficulty_s";
 
-fn summary(map: &DisparityMap) -> Option<DisparitySummary> {
-    map.stats().map(|s| DisparitySummary {
-        min: s.min,
-        max: s.max,
-        mean: s.mean,
-        valid_fraction: s.valid_pixels as f64 / map.data.len() as f64,
-    })
-}
-
 /// Reads a Cycles depth EXR and converts it to disparity with the spec's rig.
 pub fn disparity_from_depth_exr(path: &Path, spec: &SceneSpec) -> anyhow::Result<DisparityMap> {
     Ok(read_depth_pass(path, spec)?.0)
@@ -288,8 +279,8 @@ pub fn finalize_sample(
         baseline_m: spec.rig.baseline_m,
         cx,
         cy,
-        disparity_left: summary(&content.disp_left),
-        disparity_right: summary(&content.disp_right),
+        disparity_left: DisparitySummary::of(&content.disp_left),
+        disparity_right: DisparitySummary::of(&content.disp_right),
         difficulty: Some(difficulty),
         render_seconds: render_seconds
             + convert_s

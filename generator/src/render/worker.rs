@@ -257,7 +257,15 @@ impl Worker {
         fault: Option<Fault>,
         timeout: Duration,
     ) -> Result<RenderOutput, WorkerError> {
-        self.process.render(spec, out_dir, fault, timeout)
+        let request = Request::Render {
+            spec,
+            out_dir,
+            fault,
+        };
+        match self.process.exchange(&request, timeout)? {
+            (Reply::Ok(output), _) => Ok(output),
+            (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
+        }
     }
 
     /// Builds one spec and writes its evaluated geometry into `out_dir` (no render).
@@ -267,7 +275,11 @@ impl Worker {
         out_dir: &Path,
         timeout: Duration,
     ) -> Result<GeometryOutput, WorkerError> {
-        self.process.export_geometry(spec, out_dir, timeout)
+        let request = Request::ExportGeometry { spec, out_dir };
+        match self.process.exchange(&request, timeout)? {
+            (Reply::Geometry(output), _) => Ok(output),
+            (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
+        }
     }
 
     pub fn kill(&mut self) {
@@ -393,38 +405,6 @@ impl Process {
             }),
             Ok(reply) => Ok((reply, reply_line)),
             Err(e) => Err(WorkerError::Protocol(format!("{e} in {reply_line:?}"))),
-        }
-    }
-
-    fn render(
-        &mut self,
-        spec: &SceneSpec,
-        out_dir: &Path,
-        fault: Option<Fault>,
-        timeout: Duration,
-    ) -> Result<RenderOutput, WorkerError> {
-        match self.exchange(
-            &Request::Render {
-                spec,
-                out_dir,
-                fault,
-            },
-            timeout,
-        )? {
-            (Reply::Ok(output), _) => Ok(output),
-            (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
-        }
-    }
-
-    fn export_geometry(
-        &mut self,
-        spec: &SceneSpec,
-        out_dir: &Path,
-        timeout: Duration,
-    ) -> Result<GeometryOutput, WorkerError> {
-        match self.exchange(&Request::ExportGeometry { spec, out_dir }, timeout)? {
-            (Reply::Geometry(output), _) => Ok(output),
-            (_, line) => Err(WorkerError::Protocol(format!("unexpected reply {line:?}"))),
         }
     }
 

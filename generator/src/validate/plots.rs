@@ -135,13 +135,7 @@ fn render(
         draw(&root)?;
         root.present().map_err(plot_err)?;
     }
-    let img = stereo_io::Image {
-        width: w as usize,
-        height: h as usize,
-        channels: 3,
-        samples: stereo_io::Samples::U8(buf),
-    };
-    stereo_io::write_png(path, &img)?;
+    stereo_io::write_png(path, &stereo_io::Image::rgb8(w as usize, h as usize, buf))?;
     Ok(())
 }
 

@@ -161,20 +161,26 @@ pub fn bench_infer<B: Backend>(
     Ok(())
 }
 
+/// What `bench --device` times: the parts asked for, their sizes and the number of timed runs.
+pub struct DeviceBench<'a> {
+    pub train: bool,
+    pub infer: bool,
+    /// batch, height, width, iterations
+    pub train_size: &'a [usize],
+    /// height, width
+    pub infer_size: &'a [usize],
+    pub repeats: usize,
+}
+
 /// The chosen parts on backend `B`'s default device (CUDA GPU 0, or wgpu's default adapter),
 /// each in this process.
-fn run_on<B: AutodiffBackend>(
-    train: bool,
-    infer: bool,
-    ts: &[usize],
-    is: &[usize],
-    repeats: usize,
-) -> Result<()> {
+fn run_on<B: AutodiffBackend>(plan: &DeviceBench) -> Result<()> {
     let device = Default::default();
-    if train {
+    let (ts, is, repeats) = (plan.train_size, plan.infer_size, plan.repeats);
+    if plan.train {
         bench_train::<B>(ts[0], ts[1], ts[2], ts[3], repeats, &device)?;
     }
-    if infer {
+    if plan.infer {
         bench_infer::<B::InnerBackend>(is[0], is[1], repeats, &device)?;
     }
     Ok(())
@@ -182,34 +188,22 @@ fn run_on<B: AutodiffBackend>(
 
 /// `bench --device cuda`.
 #[cfg(feature = "cuda")]
-pub fn run_cuda(
-    train: bool,
-    infer: bool,
-    ts: &[usize],
-    is: &[usize],
-    repeats: usize,
-) -> Result<()> {
-    run_on::<crestereo::CudaAutodiffBackend>(train, infer, ts, is, repeats)
+pub fn run_cuda(plan: &DeviceBench) -> Result<()> {
+    run_on::<crestereo::CudaAutodiffBackend>(plan)
 }
 
 #[cfg(not(feature = "cuda"))]
-pub fn run_cuda(_: bool, _: bool, _: &[usize], _: &[usize], _: usize) -> Result<()> {
+pub fn run_cuda(_: &DeviceBench) -> Result<()> {
     anyhow::bail!("this build has no CUDA backend: rebuild with `--features cuda`")
 }
 
 /// `bench --device vulkan`.
 #[cfg(feature = "wgpu")]
-pub fn run_wgpu(
-    train: bool,
-    infer: bool,
-    ts: &[usize],
-    is: &[usize],
-    repeats: usize,
-) -> Result<()> {
-    run_on::<crestereo::WgpuAutodiffBackend>(train, infer, ts, is, repeats)
+pub fn run_wgpu(plan: &DeviceBench) -> Result<()> {
+    run_on::<crestereo::WgpuAutodiffBackend>(plan)
 }
 
 #[cfg(not(feature = "wgpu"))]
-pub fn run_wgpu(_: bool, _: bool, _: &[usize], _: &[usize], _: usize) -> Result<()> {
+pub fn run_wgpu(_: &DeviceBench) -> Result<()> {
     anyhow::bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`")
 }

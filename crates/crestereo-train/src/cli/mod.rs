@@ -327,10 +327,16 @@ fn run_bench(
         return bench_loader::run(&loader);
     }
     if device != DeviceKind::Cpu {
-        let (t, i) = (what != BenchWhat::Infer, what != BenchWhat::Train);
+        let plan = bench_device::DeviceBench {
+            train: what != BenchWhat::Infer,
+            infer: what != BenchWhat::Train,
+            train_size: &ts,
+            infer_size: &is,
+            repeats,
+        };
         return match device {
-            DeviceKind::Cuda => bench_device::run_cuda(t, i, &ts, &is, repeats),
-            _ => bench_device::run_wgpu(t, i, &ts, &is, repeats),
+            DeviceKind::Cuda => bench_device::run_cuda(&plan),
+            _ => bench_device::run_wgpu(&plan),
         };
     }
     if what != BenchWhat::All {

@@ -45,6 +45,15 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `eval` of the run's weights on `data` with a short inference (2 iterations, 1 stage), its
+/// report written to `json`.
+fn short_eval<'a>(data: &'a str, run: &'a Path, json: &'a Path) -> Vec<&'a str> {
+    let args = ["eval", "--data", data, "--weights", s(run), "--iters", "2"];
+    let mut v = args.to_vec();
+    v.extend(["--stages", "1", "--json", s(json)]);
+    v
+}
+
 #[test]
 fn train_then_eval_then_plot() {
     let dir = tempfile::tempdir().unwrap();
@@ -104,21 +113,9 @@ fn train_then_eval_then_plot() {
 
     let json = dir.path().join("eval.json");
     let fg = data.join("foreground");
-    let table = ok(&[
-        "eval",
-        "--data",
-        s(&data),
-        "--weights",
-        s(&run),
-        "--iters",
-        "2",
-        "--stages",
-        "1",
-        "--json",
-        s(&json),
-        "--fg-masks",
-        s(&fg),
-    ]);
+    let mut args = short_eval(s(&data), &run, &json);
+    args.extend(["--fg-masks", s(&fg)]);
+    let table = ok(&args);
     for label in [
         "EPE (AvgErr)",
         "Bad-2 %",
@@ -354,19 +351,7 @@ fn webdataset_splits_train_on_train_and_evaluate_on_val() {
     // Evaluation: `val` by default, the split named otherwise; the report's ids are its own.
     let eval_ids = |spec: &str| -> Vec<String> {
         let json = dir.path().join("eval.json");
-        let text = ok_logged(&[
-            "eval",
-            "--data",
-            spec,
-            "--weights",
-            s(&run),
-            "--iters",
-            "2",
-            "--stages",
-            "1",
-            "--json",
-            s(&json),
-        ]);
+        let text = ok_logged(&short_eval(spec, &run, &json));
         assert!(text.contains("webdataset split"), "{text}");
         let report: serde_json::Value =
             serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();

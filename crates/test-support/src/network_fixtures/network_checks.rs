@@ -9,6 +9,11 @@ use crestereo::weights::named_gradients;
 
 use super::*;
 
+/// The values of an intermediate the forward pass recorded.
+fn recorded<B: Backend, const D: usize>(t: &Option<Tensor<B, D>>) -> Vec<f32> {
+    values(t.clone().expect("recorded by the forward pass"))
+}
+
 pub fn train_forward_intermediates_predictions_and_loss<B: Backend>(device: &B::Device) {
     let m = model::<B>(device);
     let left = tensor::<B, 4>(&npy("train_b2_64x128/left.npy"), device);
@@ -19,81 +24,51 @@ pub fn train_forward_intermediates_predictions_and_loss<B: Backend>(device: &B::
 
     let tol = 1e-4;
     let t = "train_b2_64x128";
-    check(
-        "fnet_fmap1",
-        &values(trace.fmap1.clone().unwrap()),
-        &npy(&format!("{t}/fnet_fmap1.npy")).data,
-        tol,
-    );
-    check(
-        "fnet_fmap2",
-        &values(trace.fmap2.clone().unwrap()),
-        &npy(&format!("{t}/fnet_fmap2.npy")).data,
-        tol,
-    );
-    check(
-        "pos_encoding_pe",
-        &values(trace.pos_encoding.clone().unwrap()),
-        &npy(&format!("{t}/pos_encoding_pe.npy")).data,
-        tol,
-    );
-    check(
-        "conv_offset_16_raw",
-        &values(trace.conv_offset_16_raw.clone().unwrap()),
-        &npy(&format!("{t}/conv_offset_16_raw.npy")).data,
-        tol,
-    );
-    check(
-        "conv_offset_8_raw",
-        &values(trace.conv_offset_8_raw.clone().unwrap()),
-        &npy(&format!("{t}/conv_offset_8_raw.npy")).data,
-        tol,
-    );
-    check(
-        "selfatt_out_left_tokens",
-        &values(trace.selfatt_left_tokens.clone().unwrap()),
-        &npy(&format!("{t}/selfatt_out_left_tokens.npy")).data,
-        tol,
-    );
-    check(
-        "selfatt_out_right_tokens",
-        &values(trace.selfatt_right_tokens.clone().unwrap()),
-        &npy(&format!("{t}/selfatt_out_right_tokens.npy")).data,
-        tol,
-    );
-    check(
-        "crossatt_out_left_tokens_call0",
-        &values(trace.crossatt_left_tokens_call0.clone().unwrap()),
-        &npy(&format!("{t}/crossatt_out_left_tokens_call0.npy")).data,
-        tol,
-    );
-    check(
-        "crossatt_out_right_tokens_call0",
-        &values(trace.crossatt_right_tokens_call0.clone().unwrap()),
-        &npy(&format!("{t}/crossatt_out_right_tokens_call0.npy")).data,
-        tol,
-    );
+    // Each intermediate against the fixture file of its name.
+    let named = [
+        ("fnet_fmap1", recorded(&trace.fmap1)),
+        ("fnet_fmap2", recorded(&trace.fmap2)),
+        ("pos_encoding_pe", recorded(&trace.pos_encoding)),
+        ("conv_offset_16_raw", recorded(&trace.conv_offset_16_raw)),
+        ("conv_offset_8_raw", recorded(&trace.conv_offset_8_raw)),
+        (
+            "selfatt_out_left_tokens",
+            recorded(&trace.selfatt_left_tokens),
+        ),
+        (
+            "selfatt_out_right_tokens",
+            recorded(&trace.selfatt_right_tokens),
+        ),
+        (
+            "crossatt_out_left_tokens_call0",
+            recorded(&trace.crossatt_left_tokens_call0),
+        ),
+        (
+            "crossatt_out_right_tokens_call0",
+            recorded(&trace.crossatt_right_tokens_call0),
+        ),
+    ];
+    for (name, got) in &named {
+        check(name, got, &npy(&format!("{t}/{name}.npy")).data, tol);
+    }
     assert_eq!(trace.corr.len(), 20);
     let mut worst = 0f32;
     for i in 0..20 {
-        worst = worst.max(check(
-            &format!("corr/{i:02}"),
-            &values(trace.corr[i].clone()),
-            &npy(&format!("{t}/corr/{i:02}.npy")).data,
-            tol,
-        ));
-        worst = worst.max(check(
-            &format!("update/{i:02}_delta_flow"),
-            &values(trace.delta_flow[i].clone()),
-            &npy(&format!("{t}/update/{i:02}_delta_flow.npy")).data,
-            tol,
-        ));
-        worst = worst.max(check(
-            &format!("update/{i:02}_up_mask"),
-            &values(trace.up_mask[i].clone()),
-            &npy(&format!("{t}/update/{i:02}_up_mask.npy")).data,
-            tol,
-        ));
+        let named = [
+            (format!("corr/{i:02}"), values(trace.corr[i].clone())),
+            (
+                format!("update/{i:02}_delta_flow"),
+                values(trace.delta_flow[i].clone()),
+            ),
+            (
+                format!("update/{i:02}_up_mask"),
+                values(trace.up_mask[i].clone()),
+            ),
+        ];
+        for (name, got) in &named {
+            let want = npy(&format!("{t}/{name}.npy")).data;
+            worst = worst.max(check(name, got, &want, tol));
+        }
         let net = fixtures().join(format!("{t}/update/{i:02}_net.npy"));
         if net.exists() {
             let r = stereo_io::read_npy(&net).unwrap();

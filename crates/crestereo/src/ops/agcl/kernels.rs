@@ -80,25 +80,42 @@ fn rows_per_chunk(rows: usize) -> usize {
     crate::ops::threads::chunk_len(rows)
 }
 
-/// Sampling position of candidate `k` at pixel (x, y): `x + flow + window offset + learned
-/// offset`, summed in the reference's order.
-#[inline]
-#[allow(clippy::too_many_arguments)]
-fn offset_position(
-    spec: &CorrSpec,
-    k: usize,
-    x: usize,
-    y: usize,
-    fx: f32,
-    fy: f32,
-    ox: f32,
-    oy: f32,
-) -> (f32, f32) {
-    let (dx, dy) = spec.window_offset(k);
-    (
-        x as f32 + fx + dx as f32 + ox,
-        y as f32 + fy + dy as f32 + oy,
-    )
+/// Where the offset correlation samples the right map: candidate k of pixel (x, y) at
+/// `(x, y) + flow + window offset k + learned offset k`, summed in the reference's order.
+struct OffsetSampling<'a> {
+    spec: &'a CorrSpec,
+    /// The learned offsets, (N, 2K, H, W).
+    offset: &'a [f32],
+    k_num: usize,
+    h: usize,
+    w: usize,
+}
+
+impl<'a> OffsetSampling<'a> {
+    fn new(spec: &'a CorrSpec, offset: &'a [f32], d: Dims) -> Self {
+        let (k_num, h, w) = (spec.candidates(), d.h, d.w);
+        OffsetSampling {
+            spec,
+            offset,
+            k_num,
+            h,
+            w,
+        }
+    }
+
+    /// The bilinear footprint of candidate `k` of pixel (`x`, `y`) of image `n`, whose flow is
+    /// (`fx`, `fy`).
+    #[inline]
+    fn at(&self, n: usize, k: usize, x: usize, y: usize, fx: f32, fy: f32) -> Bilinear {
+        let (k_num, h, w) = (self.k_num, self.h, self.w);
+        let (hw, p) = (h * w, y * w + x);
+        let ox = self.offset[(n * 2 * k_num + 2 * k) * hw + p];
+        let oy = self.offset[(n * 2 * k_num + 2 * k + 1) * hw + p];
+        let (dx, dy) = self.spec.window_offset(k);
+        let px = x as f32 + fx + dx as f32 + ox;
+        let py = y as f32 + fy + dy as f32 + oy;
+        Bilinear::new(px, py, h, w)
+    }
 }
 
 /// Group-wise correlation of one candidate: the mean product of `l` and `r` over each group of
@@ -129,6 +146,7 @@ pub fn offset_corr_forward(
     let hw = h * w;
     let mut out = vec![0f32; d.n * hw * gk];
     let zeros = vec![0f32; c];
+    let sampling = OffsetSampling::new(&spec, offset, d);
     out.par_chunks_mut(w * gk)
         .enumerate()
         .for_each(|(row, out_row)| {
@@ -141,10 +159,7 @@ pub fn offset_corr_forward(
                 let fx = flow[(n * 2) * hw + p];
                 let fy = flow[(n * 2 + 1) * hw + p];
                 for k in 0..k_num {
-                    let ox = offset[(n * 2 * k_num + 2 * k) * hw + p];
-                    let oy = offset[(n * 2 * k_num + 2 * k + 1) * hw + p];
-                    let (px, py) = offset_position(&spec, k, x, y, fx, fy, ox, oy);
-                    let b = Bilinear::new(px, py, h, w);
+                    let b = sampling.at(n, k, x, y, fx, fy);
                     let [r0, r1, r2, r3] = b.corners(img, &zeros, c);
                     let [w0, w1, w2, w3] = b.weight;
                     for i in 0..c {
@@ -196,6 +211,7 @@ pub fn offset_corr_backward(
         offset: vec![0f32; nb * hw * 2 * k_num],
     };
     let zeros = vec![0f32; c];
+    let sampling = OffsetSampling::new(&spec, offset, d);
     let chunk = rows_per_chunk(rows);
     let right_size = if need_right { nb * hw * c } else { 0 };
     // One scatter buffer per fixed chunk of rows, the buffers added in chunk order: the bits
@@ -224,10 +240,7 @@ pub fn offset_corr_backward(
                     let fy = flow[(n * 2 + 1) * hw + p];
                     let (mut dfx, mut dfy) = (0f32, 0f32);
                     for k in 0..k_num {
-                        let ox = offset[(n * 2 * k_num + 2 * k) * hw + p];
-                        let oy = offset[(n * 2 * k_num + 2 * k + 1) * hw + p];
-                        let (px, py) = offset_position(&spec, k, x, y, fx, fy, ox, oy);
-                        let b = Bilinear::new(px, py, h, w);
+                        let b = sampling.at(n, k, x, y, fx, fy);
                         let [r0, r1, r2, r3] = b.corners(img, &zeros, c);
                         let [w0, w1, w2, w3] = b.weight;
                         let ([wx0, wx1], [wy0, wy1]) = (b.wx, b.wy);

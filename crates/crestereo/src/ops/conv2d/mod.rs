@@ -31,7 +31,7 @@ use burn::tensor::{TensorData, TensorMetadata, TensorPrimitive};
 use rayon::prelude::*;
 
 use crate::ops::dispatch::{Kernels, same};
-use views::{View, matmul_into};
+use views::{Threads, View, matmul_into};
 
 mod by_matmul;
 pub mod composed;
@@ -408,7 +408,7 @@ fn gemm_forward(x: &FlexTensor, w: &FlexTensor, g: &Geometry, use_: Use) -> Flex
             &unfolded
         };
         let (d, l, r) = (View::new(0, p, 1), View::new(0, k, 1), View::new(0, p, 1));
-        matmul_into((g.cout, p, k), y_b, d, false, w, l, cols, r);
+        matmul_into(Threads::Pool, (g.cout, p, k), y_b, d, false, w, l, cols, r);
     }
     FlexTensor::from_data(TensorData::new(y, [g.n, g.cout, g.ho, g.wo]))
 }
@@ -436,7 +436,17 @@ fn weight_grad(x: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
             View::new(b * g.cout * p, p, 1),
             View::new(0, 1, p),
         );
-        matmul_into((g.cout, k, p), &mut dw, d, b > 0, dys, l, &cols, r);
+        matmul_into(
+            Threads::Pool,
+            (g.cout, k, p),
+            &mut dw,
+            d,
+            b > 0,
+            dys,
+            l,
+            &cols,
+            r,
+        );
     }
     FlexTensor::from_data(TensorData::new(dw, [g.cout, g.cin, g.kh, g.kw]))
 }
@@ -463,7 +473,17 @@ fn input_grad(w: &FlexTensor, dy: &FlexTensor, g: &Geometry) -> FlexTensor {
             View::new(0, 1, k),
             View::new(b * g.cout * p, p, 1),
         );
-        matmul_into((k, p, g.cout), &mut cols, d, false, ws, l, dys, r);
+        matmul_into(
+            Threads::Pool,
+            (k, p, g.cout),
+            &mut cols,
+            d,
+            false,
+            ws,
+            l,
+            dys,
+            r,
+        );
         col2im(&cols, &mut dx, g, b);
     }
     FlexTensor::from_data(TensorData::new(dx, [g.n, g.cin, g.h, g.w]))

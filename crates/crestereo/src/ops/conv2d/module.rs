@@ -45,15 +45,7 @@ impl Conv2dConfig {
     pub fn init<B: Backend>(&self, device: &B::Device) -> Conv2d<B> {
         // Burn's initialiser (PyTorch's Kaiming-uniform weights and fan-in bias), then its
         // parameters moved into this module.
-        let burn::nn::conv::Conv2d {
-            weight,
-            bias,
-            stride,
-            kernel_size,
-            dilation,
-            groups,
-            padding,
-        } = burn::nn::conv::Conv2dConfig::new(self.channels, self.kernel_size)
+        let made = burn::nn::conv::Conv2dConfig::new(self.channels, self.kernel_size)
             .with_stride(self.stride)
             .with_dilation(self.dilation)
             .with_groups(self.groups)
@@ -61,13 +53,13 @@ impl Conv2dConfig {
             .with_bias(self.bias)
             .init(device);
         Conv2d {
-            weight,
-            bias,
-            stride,
-            kernel_size,
-            dilation,
-            groups,
-            padding,
+            weight: made.weight,
+            bias: made.bias,
+            stride: made.stride,
+            kernel_size: made.kernel_size,
+            dilation: made.dilation,
+            groups: made.groups,
+            padding: made.padding,
         }
     }
 }

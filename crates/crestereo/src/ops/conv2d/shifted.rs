@@ -23,7 +23,7 @@ use rayon::prelude::*;
 
 use super::Geometry;
 use super::scratch::Scratch;
-use super::views::{View, matmul_into};
+use super::views::{Threads, View, matmul_into};
 
 /// Below this many input channels each tap's product is too thin to beat one unfolded GEMM.
 const MIN_CIN: usize = 16;
@@ -142,6 +142,7 @@ pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry) -> Vec<f32> {
         let xp = padded_input(x, g, &p, b);
         for (t, (a, c)) in taps(g).enumerate() {
             matmul_into(
+                Threads::Pool,
                 (g.cout, p.span, g.cin),
                 &mut wide,
                 View::new(0, g.ho * p.wp, 1),
@@ -175,6 +176,7 @@ pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
         widen_output_grad(dy, g, &p, b, &mut dy_wide);
         for (a, c) in taps(g) {
             matmul_into(
+                Threads::Pool,
                 (g.cout, g.cin, p.span),
                 &mut dw,
                 weight_tap(g, a, c),
@@ -204,6 +206,7 @@ pub(super) fn input_grad(w: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
         for (a, c) in taps(g) {
             let tap = weight_tap(g, a, c);
             matmul_into(
+                Threads::Pool,
                 (g.cin, p.span, g.cout),
                 &mut dxp,
                 View::new(p.offset(g, a, c), p.plane(), 1),

@@ -1,8 +1,7 @@
 //! Matrix products on strided views of plain slices (the `gemm` crate Flex itself uses), for
 //! the convolution paths that multiply views of padded or transformed maps in place.
 
-pub(super) use gemm::Parallelism;
-use gemm::gemm;
+use gemm::{Parallelism, gemm};
 
 /// A strided matrix view into a slice: element (i, j) at `offset + i·rs + j·cs`.
 #[derive(Clone, Copy)]
@@ -22,32 +21,19 @@ impl View {
     }
 }
 
-/// `dst (m × n) = [dst +] lhs (m × k) · rhs (k × n)` on strided views, bounds checked; large
-/// products split over the thread pool.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn matmul_into(
-    (m, n, k): (usize, usize, usize),
-    dst: &mut [f32],
-    d: View,
-    accumulate: bool,
-    lhs: &[f32],
-    l: View,
-    rhs: &[f32],
-    r: View,
-) {
-    let parallelism = if m * n * k >= 1 << 18 {
-        Parallelism::Rayon(0)
-    } else {
-        Parallelism::None
-    };
-    matmul_with(parallelism, (m, n, k), dst, d, accumulate, lhs, l, rhs, r);
+/// How a matrix product uses threads.
+#[derive(Clone, Copy)]
+pub(super) enum Threads {
+    /// Large products (m·n·k ≥ 2^18) split over the thread pool, small ones on this thread.
+    Pool,
+    /// This thread only: for callers already parallel over blocks.
+    One,
 }
 
-/// [`matmul_into`] with the thread use chosen by the caller (`Parallelism::None` for callers
-/// already parallel over blocks).
+/// `dst (m × n) = [dst +] lhs (m × k) · rhs (k × n)` on strided views, bounds checked.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn matmul_with(
-    parallelism: Parallelism,
+pub(super) fn matmul_into(
+    threads: Threads,
     (m, n, k): (usize, usize, usize),
     dst: &mut [f32],
     d: View,
@@ -57,6 +43,10 @@ pub(super) fn matmul_with(
     rhs: &[f32],
     r: View,
 ) {
+    let parallelism = match threads {
+        Threads::Pool if m * n * k >= 1 << 18 => Parallelism::Rayon(0),
+        _ => Parallelism::None,
+    };
     if m == 0 || n == 0 || k == 0 {
         return;
     }

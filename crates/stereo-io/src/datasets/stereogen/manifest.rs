@@ -28,6 +28,18 @@ pub struct DisparitySummary {
     pub valid_fraction: f64,
 }
 
+impl DisparitySummary {
+    /// The summary of `map`'s valid pixels; `None` when it has none.
+    pub fn of(map: &crate::DisparityMap) -> Option<Self> {
+        map.stats().map(|s| DisparitySummary {
+            min: s.min,
+            max: s.max,
+            mean: s.mean,
+            valid_fraction: s.valid_pixels as f64 / map.data.len() as f64,
+        })
+    }
+}
+
 /// One finished sample, as one manifest line.
 ///
 /// Required in every line: the identity (`id`, `category`, `index`), the `files` and the camera

@@ -29,7 +29,7 @@ use rayon::prelude::*;
 
 use super::Geometry;
 use super::scratch::Scratch;
-use super::views::{Parallelism, View, matmul_with};
+use super::views::{Threads, View, matmul_into};
 use tiles::{
     Lanebuf, Lanes, SharedImage, Terms, TileTerms, apply, split_images, split_plane,
     transform_input, transform_output, transform_output_grad,
@@ -296,8 +296,8 @@ pub(super) fn forward(x: &[f32], w: &[f32], g: &Geometry, use_: Use) -> Vec<f32>
             let image = &split[b * g.cin * plane..][..g.cin * plane];
             transform_input(image, g, &plan, (t0, len), v, buf);
             for e in 0..xi {
-                matmul_with(
-                    Parallelism::None,
+                matmul_into(
+                    Threads::One,
                     (g.cout, len, g.cin),
                     m,
                     View::new(e * g.cout * bl, bl, 1),
@@ -364,8 +364,8 @@ pub(super) fn weight_grad(x: &[f32], dy: &[f32], g: &Geometry) -> Vec<f32> {
                 let dy_b = &dy[b * g.cout * g.ho * g.wo..][..g.cout * g.ho * g.wo];
                 transform_output_grad(dy_b, g, &plan, (t0, len), &mut dm, &mut buf);
                 for e in 0..xi {
-                    matmul_with(
-                        Parallelism::None,
+                    matmul_into(
+                        Threads::One,
                         (g.cout, g.cin, len),
                         &mut sum,
                         View::new(e * g.cin, xi * g.cin, 1),
