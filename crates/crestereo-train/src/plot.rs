@@ -113,8 +113,8 @@ fn legend_mark(colour: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32
 }
 
 /// The chart's legend: its series' labels in a framed box.
-fn draw_legend<CT: plotters::coord::CoordTranslate>(
-    chart: &mut ChartContext<'_, BitMapBackend<'_>, CT>,
+fn draw_legend<'a, 'b: 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'b>, CT>,
 ) -> Result<()> {
     chart
         .configure_series_labels()
