@@ -65,8 +65,22 @@ pub fn reference_sample_points<B: Backend>(
         0,
     );
     let zero_row = (n * h * w) as i64;
-    let xs = values(x.clone().detach());
-    let ys = values(y.clone().detach());
+    // Read to the host by hand, not through `values`: the host-read scan of
+    // crestereo's `agcl::host_read_scan_detects_the_replaced_sampler` must find these two reads.
+    let xs: Vec<f32> = x
+        .clone()
+        .detach()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
+    let ys: Vec<f32> = y
+        .clone()
+        .detach()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
     let np = n * p;
     let mut x0f = vec![0f32; np];
     let mut y0f = vec![0f32; np];
