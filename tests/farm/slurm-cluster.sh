@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A single-node Slurm cluster for trying `stereogen farm slurm` (and for tests/farm_slurm.rs):
+# A single-node Slurm cluster for trying `stereogen farm slurm` (and for tests/integration/farm_slurm.rs):
 # munged, slurmctld and slurmd from Debian's packages, started directly (no systemd), with every
 # file under one directory.
 #

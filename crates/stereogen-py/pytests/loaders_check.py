@@ -1,4 +1,4 @@
-"""Run by tests/python_wheel.rs in a fresh venv holding the `stereogen` wheel, PyTorch, `datasets`
+"""Run by tests/integration/python_wheel.rs in a fresh venv holding the `stereogen` wheel, PyTorch, `datasets`
 and `webdataset`:
 
     loaders_check.py torch|hub FOLDER SHARDS REFS

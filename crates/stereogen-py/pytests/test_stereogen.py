@@ -1,4 +1,4 @@
-"""pytest for the `stereogen` Python module, driven by the Rust test tests/io_python.rs.
+"""pytest for the `stereogen` Python module, driven by the Rust test tests/integration/io_python.rs.
 
 That test writes fixtures under $STEREOGEN_PY_FIXTURES, reads them with the Rust readers and
 saves what they returned as .npy files (loaded here with NumPy's own reader), so every check

@@ -1,9 +1,9 @@
-"""pytest for the `stereogen` module on a WebDataset export, driven by tests/export_webdataset.rs.
+"""pytest for the `stereogen` module on a WebDataset export, driven by tests/integration/export_webdataset.rs.
 
 That test renders a dataset with the real CLI, exports it with `stereogen export --format
 webdataset` and names both folders in the JSON file at $STEREOGEN_PY_WEBDATASET. The module must
 open the export the way it opens the source: the same samples (by id), the same arrays.
-Skipped when run without that fixture (tests/io_python.rs runs the rest of this folder).
+Skipped when run without that fixture (tests/integration/io_python.rs runs the rest of this folder).
 """
 
 import json
@@ -16,7 +16,7 @@ import pytest
 import stereogen
 
 if "STEREOGEN_PY_WEBDATASET" not in os.environ:
-    pytest.skip("run by tests/export_webdataset.rs", allow_module_level=True)
+    pytest.skip("run by tests/integration/export_webdataset.rs", allow_module_level=True)
 
 FIX = json.loads(pathlib.Path(os.environ["STEREOGEN_PY_WEBDATASET"]).read_text())
 ARRAYS = ["left", "right", "disp_left", "valid_left", "disp_right", "valid_right"]

@@ -11,6 +11,7 @@ pub mod pinned_venv;
 pub mod python_envs;
 pub mod run;
 pub mod small_fs;
+pub mod turns;
 pub mod zip_edit;
 
 #[cfg(feature = "generator")]

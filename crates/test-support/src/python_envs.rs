@@ -4,8 +4,10 @@
 //! is one copy of PyTorch), and venvs made anew for each run on top of it, so the wheel under test
 //! is installed into a fresh environment every time.
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::Mutex;
 
 pub use crate::pinned_venv;
 
@@ -43,14 +45,22 @@ pub const HUB_PINS: &[&str] = &[
     "xxhash==4.1.0",
 ];
 
-/// The venv with maturin that builds the module for the other Python tests (tests/io_python.rs).
+/// The venv with maturin that builds the module for the other Python tests (tests/integration/io_python.rs).
 pub const MATURIN_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
 
 /// Builds the `stereogen` Python module (crates/stereogen-py) with `venv`'s maturin and installs
 /// the wheel into `venv`. The build goes to `<target>/python-ext`, a cargo folder of its own:
 /// maturin's build environment would otherwise invalidate the workspace's pyo3 build, and one
 /// folder for every caller keeps the build incremental.
+///
+/// Once per venv in a test process: the end-to-end tests run side by side in one binary, and two
+/// `pip install`s into one venv at once would race (a second one would also be work for nothing).
 pub fn install_stereogen_module(venv: &Path) {
+    static INSTALLED: Mutex<BTreeSet<PathBuf>> = Mutex::new(BTreeSet::new());
+    let mut installed = INSTALLED.lock().unwrap_or_else(|p| p.into_inner());
+    if installed.contains(venv) {
+        return;
+    }
     let wheels = tempfile::tempdir().unwrap();
     pinned_venv::run(
         Command::new(venv.join("bin/maturin"))
@@ -80,6 +90,7 @@ pub fn install_stereogen_module(venv: &Path) {
             .arg(&wheel),
         "pip install wheel",
     );
+    installed.insert(venv.to_path_buf());
 }
 
 /// The base venvs: PyTorch's, and the one with `datasets`, `webdataset` and maturin on it.

@@ -8,6 +8,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
+use std::sync::MutexGuard;
 use std::time::{Duration, Instant};
 
 const SCRIPT: &str = concat!(
@@ -21,13 +22,19 @@ pub const ROUND_TIMEOUT: Duration = Duration::from_secs(600);
 pub struct Cluster {
     dir: PathBuf,
     conf: PathBuf,
+    /// This machine's node, one cluster at a time; released after the daemons are stopped
+    /// (fields drop after `Drop::drop`).
+    _node: MutexGuard<'static, ()>,
 }
 
 impl Cluster {
     /// Starts the cluster, or says why it cannot.
     pub fn start(dir: &Path) -> Result<Self, String> {
+        let node = crate::turns::slurm_node();
         // A port of our own, so a cluster left by another run does not answer.
         let port = 20_000 + std::process::id() % 20_000;
+        // The script installs Slurm with apt-get where it is missing.
+        let apt = crate::turns::apt();
         let o = Command::new("bash")
             .args([SCRIPT, "start"])
             .arg(dir)
@@ -36,9 +43,11 @@ impl Cluster {
             .stdin(Stdio::null())
             .output()
             .map_err(|e| format!("cannot run {SCRIPT}: {e}"))?;
+        drop(apt);
         let cluster = Self {
             dir: dir.to_path_buf(),
             conf: dir.join("slurm.conf"),
+            _node: node,
         };
         if !o.status.success() {
             return Err(format!(

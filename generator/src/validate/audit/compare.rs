@@ -11,7 +11,7 @@ use crate::plan::StereoRig;
 use crate::plan::rig::View;
 
 /// Rays this far (px) right, left, above and below a pixel centre decide whether the pixel lies
-/// at a silhouette (as in `tests/exactness.rs`).
+/// at a silhouette (as in `tests/integration/exactness.rs`).
 pub const SILHOUETTE_OFFSET_PX: f64 = 0.02;
 /// Disparity change (px per px) beyond which a surface counts as grazing, with the silhouettes:
 /// there the renderer's float32 ray arithmetic (~1e-4 px) alone moves the value by 1e-3 px.

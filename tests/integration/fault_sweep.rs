@@ -6,7 +6,7 @@
 //! worker process of any run left.
 //!
 //! `fault_sweep` is the CI variant (tiny images, about a minute or two). `fault_sweep_long` is
-//! `#[ignore]`d: `cargo test --release -p stereogen-e2e --test fault_sweep -- --ignored` (README,
+//! `#[ignore]`d: `cargo test --release -p stereogen-e2e --test integration fault_sweep -- --ignored` (README,
 //! "Fault sweep"); `STEREOGEN_SWEEP_SEED` picks other kill moments in both.
 
 use std::collections::BTreeSet;

@@ -199,7 +199,7 @@ fn report_from_shards(ours: &Path, shards: &Path) {
 }
 
 /// The Python module opens the export as it opens the source (pytest
-/// crates/stereogen-py/pytests/test_webdataset.py, in the venv of tests/io_python.rs).
+/// crates/stereogen-py/pytests/test_webdataset.py, in the venv of tests/integration/io_python.rs).
 fn python_reads_the_export(ours: &Path, shards: &Path, tmp: &Path) {
     use pinned_venv::{ensure_venv, run as run_checked};
     let venv = ensure_venv("venv-test", MATURIN_PINS);

@@ -405,7 +405,7 @@ fn subcommands(help: &str) -> Vec<(String, String)> {
 
 /// The reference pages: file name → content.
 fn reference_pages() -> BTreeMap<String, String> {
-    let note = "<!-- generated from `--help` by tests/guide.rs: run `STEREOGEN_BLESS_DOCS=1 cargo test --release -p stereogen-e2e --test guide reference` after `cargo build --release` to rewrite -->";
+    let note = "<!-- generated from `--help` by tests/integration/guide.rs: run `STEREOGEN_BLESS_DOCS=1 cargo test --release -p stereogen-e2e --test integration guide::reference` after `cargo build --release` to rewrite -->";
     let mut pages = BTreeMap::new();
     let mut index = format!(
         "# Command reference\n\n{note}\n\nEvery page is the command's `--help`, as the binary prints it.\n"

@@ -175,7 +175,7 @@ fn re_rendering_a_boolean_heavy_spec_stays_within_the_stated_bound() {
 /// recipe) for `STEREOGEN_RERENDER_COUNT` samples (20), then `render --spec` each sample's
 /// `scene.json.gz` into a fresh folder, and compare all five files. Prints a table and asserts
 /// the bound. Slow (a few minutes per sample pair at full size):
-/// `cargo test --release --workspace --test rerender_exact -- --ignored --nocapture`.
+/// `cargo test --release --workspace --test integration rerender_exact -- --ignored --nocapture`.
 #[test]
 #[ignore = "measurement: minutes per sample; run explicitly"]
 fn re_rendering_default_preset_samples_measured() {
