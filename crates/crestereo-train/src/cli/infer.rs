@@ -35,6 +35,27 @@ pub struct InferArgs {
 }
 
 pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
+    let (l, r) = read_inputs(a)?;
+    let weights = a.network.weights()?;
+    let model = CREStereoConfig::new().init::<B>(device);
+    let model = load_weights(model, weights_file(weights)?, device)?;
+    let t0 = Instant::now();
+    let opts = a.network.options();
+    let disp = infer_disparity(&model, &l, &r, opts, device)?;
+    eprintln!(
+        "inference {}x{} ({} stages, {} iters): {:.2}s",
+        l.width,
+        l.height,
+        opts.stages,
+        opts.iters,
+        t0.elapsed().as_secs_f64()
+    );
+    write_outputs(a, &disp)
+}
+
+/// The two images, after refusing (before the slow part, and in the tests without the network)
+/// an output whose format or folder will not do.
+fn read_inputs(a: &InferArgs) -> Result<(BgrImage, BgrImage)> {
     // Refuse an unknown output format before the slow part.
     let output: &Path = &a.output;
     if DisparityFormat::from_path(output).is_none() {
@@ -58,21 +79,7 @@ pub fn infer<B: Backend>(a: &InferArgs, device: &B::Device) -> Result<()> {
             r.height
         );
     }
-    let weights = a.network.weights()?;
-    let model = CREStereoConfig::new().init::<B>(device);
-    let model = load_weights(model, weights_file(weights)?, device)?;
-    let t0 = Instant::now();
-    let opts = a.network.options();
-    let disp = infer_disparity(&model, &l, &r, opts, device)?;
-    eprintln!(
-        "inference {}x{} ({} stages, {} iters): {:.2}s",
-        l.width,
-        l.height,
-        opts.stages,
-        opts.iters,
-        t0.elapsed().as_secs_f64()
-    );
-    write_outputs(a, &disp)
+    Ok((l, r))
 }
 
 /// Refuses, before the slow part, an output whose folder is missing or not writable: creates and
@@ -140,9 +147,7 @@ mod tests {
     #[test]
     fn an_unknown_output_format_is_refused_before_anything_is_read() {
         let dir = tempfile::tempdir().unwrap();
-        let err =
-            infer::<crestereo::CpuBackend>(&args(dir.path(), "disp.tiff"), &Default::default())
-                .unwrap_err();
+        let err = read_inputs(&args(dir.path(), "disp.tiff")).unwrap_err();
         let msg = format!("{err:#}");
         assert!(
             msg.contains("disp.tiff") && msg.contains("extension"),
@@ -159,10 +164,7 @@ mod tests {
         ] {
             let mut a = args(dir.path(), output);
             a.viz = Some(dir.path().join(viz));
-            let msg = format!(
-                "{:#}",
-                infer::<crestereo::CpuBackend>(&a, &Default::default()).unwrap_err()
-            );
+            let msg = format!("{:#}", read_inputs(&a).unwrap_err());
             assert!(
                 msg.contains("nowhere") && msg.contains("does not exist"),
                 "{msg}"

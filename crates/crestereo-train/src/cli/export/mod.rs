@@ -4,7 +4,7 @@
 mod onnx;
 mod pytorch;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use crestereo::weights::load_weights;
@@ -45,10 +45,9 @@ fn check_output(path: &Path, force: bool) -> Result<()> {
     check_writable(path)
 }
 
-/// The model with `weights` (anything `crestereo infer` takes) on the CPU; a file that does not
-/// fit is named in one line (the loaders explain a misfit over several: the first says what is
-/// wrong).
-fn load_model(weights: &Path) -> Result<CREStereo<CpuBackend>> {
+/// The weights file that `weights` names (anything `crestereo infer` takes), refused in one line
+/// where there is none: checked before the slow part, and in the tests without the network.
+fn existing_weights_file(weights: &Path) -> Result<PathBuf> {
     let file = weights_file(weights)?;
     if !file.is_file() {
         bail!(
@@ -56,9 +55,15 @@ fn load_model(weights: &Path) -> Result<CREStereo<CpuBackend>> {
             file.display()
         );
     }
+    Ok(file)
+}
+
+/// The model with the weights `file` on the CPU; a file that does not fit is named in one line
+/// (the loaders explain a misfit over several: the first says what is wrong).
+fn load_model(file: &Path) -> Result<CREStereo<CpuBackend>> {
     let device = Default::default();
     let model = CREStereoConfig::new().init::<CpuBackend>(&device);
-    load_weights(model, &file, &device).map_err(|e| {
+    load_weights(model, file, &device).map_err(|e| {
         let text = format!("{e:#}");
         let first = text
             .lines()

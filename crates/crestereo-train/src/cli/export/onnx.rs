@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use crestereo::export::export_onnx;
 
-use super::{check_output, load_model};
+use super::{check_output, existing_weights_file, load_model};
 use crate::cli::network_args::NetworkArgs;
 
 #[derive(Debug, clap::Args)]
@@ -40,7 +40,7 @@ pub fn run(a: &OnnxArgs) -> Result<()> {
     opts.check_size(size)?;
     let weights = a.network.weights()?;
     check_output(&a.output, a.force)?;
-    let model = load_model(weights)?;
+    let model = load_model(&existing_weights_file(weights)?)?;
     let t0 = Instant::now();
     let export = export_onnx(&model, size, opts)?;
     stereo_io::write_bytes_atomically(&a.output, &export.bytes)

@@ -6,7 +6,7 @@ use anyhow::{Result, bail};
 use crestereo::weights::named_parameters;
 use stereo_io::pth::write_state_dict;
 
-use super::{check_output, load_model};
+use super::{check_output, existing_weights_file, load_model};
 use crate::cli::network_args::required_weights;
 
 #[derive(Debug, clap::Args)]
@@ -24,20 +24,9 @@ pub struct PytorchArgs {
 }
 
 pub fn run(args: &PytorchArgs) -> Result<()> {
-    // Everything that can be refused without reading the weights is refused first.
-    let weights = required_weights(args.weights.as_deref())?;
+    let file = refuse_early(args)?;
+    let model = load_model(&file)?;
     let output = &args.output;
-    if !matches!(
-        output.extension().and_then(|e| e.to_str()),
-        Some("pth" | "pt")
-    ) {
-        bail!(
-            "cannot write {}: the output must end in .pth or .pt (weights are read by their extension)",
-            output.display()
-        );
-    }
-    check_output(output, args.force)?;
-    let model = load_model(weights)?;
     let tensors = named_parameters(&model);
     // The output may have appeared while the weights were read.
     if !args.force && output.exists() {
@@ -56,6 +45,23 @@ pub fn run(args: &PytorchArgs) -> Result<()> {
     Ok(())
 }
 
+/// Everything that can be refused without reading the weights, refused first; the weights file.
+fn refuse_early(args: &PytorchArgs) -> Result<PathBuf> {
+    let weights = required_weights(args.weights.as_deref())?;
+    let output = &args.output;
+    if !matches!(
+        output.extension().and_then(|e| e.to_str()),
+        Some("pth" | "pt")
+    ) {
+        bail!(
+            "cannot write {}: the output must end in .pth or .pt (weights are read by their extension)",
+            output.display()
+        );
+    }
+    check_output(output, args.force)?;
+    existing_weights_file(weights)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -71,7 +77,7 @@ mod tests {
                 output,
                 force,
             };
-            format!("{:#}", run(&args).unwrap_err())
+            format!("{:#}", refuse_early(&args).unwrap_err())
         };
         let msg = err(existing.clone(), false);
         assert!(
