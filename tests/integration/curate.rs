@@ -20,7 +20,8 @@ const SEED: u64 = 3;
 const COUNT: u64 = 6;
 /// Fine-tuning steps on the five consistent samples (64×48, batch 2, no augmentation).
 const STEPS: u64 = 200;
-/// The re-render bounds of tests/integration/rerender_exact.rs (README, "How exact is the disparity?").
+/// The re-render bounds of tests/integration/rerender_exact.rs (README, "How exact is the
+/// disparity?").
 const DISPARITY_BOUND_PX: f32 = 5e-4;
 const IMAGE_BOUND_LEVELS: u8 = 4;
 

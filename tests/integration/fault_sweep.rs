@@ -6,8 +6,8 @@
 //! worker process of any run left.
 //!
 //! `fault_sweep` is the CI variant (tiny images, about a minute or two). `fault_sweep_long` is
-//! `#[ignore]`d: `cargo test --release -p stereogen-e2e --test integration fault_sweep -- --ignored` (README,
-//! "Fault sweep"); `STEREOGEN_SWEEP_SEED` picks other kill moments in both.
+//! `#[ignore]`d: `cargo test --release -p stereogen-e2e --test integration fault_sweep --
+//! --ignored` (README, "Fault sweep"); `STEREOGEN_SWEEP_SEED` picks other kill moments in both.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};

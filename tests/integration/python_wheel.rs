@@ -17,8 +17,8 @@ use python_envs::{base_venvs, fresh_venv, pinned_venv::run, python_home, repo_ro
 use test_support::python_envs;
 
 /// The wheel, built once per test run with the guide's command into `<target>/python-wheel`
-/// (by the maturin and for the Python of tests/integration/io_python.rs, in its cargo folder: one build of
-/// the module serves both).
+/// (by the maturin and for the Python of tests/integration/io_python.rs, in its cargo folder: one
+/// build of the module serves both).
 fn wheel() -> &'static PathBuf {
     static WHEEL: OnceLock<PathBuf> = OnceLock::new();
     WHEEL.get_or_init(|| {

@@ -1,5 +1,5 @@
-"""Run by tests/integration/python_wheel.rs in a fresh venv holding the `stereogen` wheel, PyTorch, `datasets`
-and `webdataset`:
+"""Run by tests/integration/python_wheel.rs in a fresh venv holding the `stereogen` wheel,
+PyTorch, `datasets` and `webdataset`:
 
     loaders_check.py torch|hub FOLDER SHARDS REFS
 

@@ -1,4 +1,5 @@
-"""pytest for the `stereogen` module on a WebDataset export, driven by tests/integration/export_webdataset.rs.
+"""pytest for the `stereogen` module on a WebDataset export, driven by
+tests/integration/export_webdataset.rs.
 
 That test renders a dataset with the real CLI, exports it with `stereogen export --format
 webdataset` and names both folders in the JSON file at $STEREOGEN_PY_WEBDATASET. The module must

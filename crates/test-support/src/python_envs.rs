@@ -45,7 +45,8 @@ pub const HUB_PINS: &[&str] = &[
     "xxhash==4.1.0",
 ];
 
-/// The venv with maturin that builds the module for the other Python tests (tests/integration/io_python.rs).
+/// The venv with maturin that builds the module for the other Python tests
+/// (tests/integration/io_python.rs).
 pub const MATURIN_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==2.4.6"];
 
 /// Builds the `stereogen` Python module (crates/stereogen-py) with `venv`'s maturin and installs
