@@ -8,6 +8,7 @@
 
 pub mod blender_env;
 pub mod cache;
+pub mod folder;
 pub mod meshes;
 pub mod objaverse;
 pub mod pack;
@@ -47,6 +48,16 @@ fn hash_files<'a>(
     }
 }
 
+/// [`hash_files`] of a mesh folder's index (a mesh file has nothing to add to its path).
+fn hash_meshes(h: &mut Sha256, what: &str, root: &Path, meshes: &[MeshAsset]) {
+    hash_files(
+        h,
+        what,
+        root,
+        meshes.iter().map(|m| (m.path.as_path(), String::new())),
+    );
+}
+
 /// Indexes the folders a recipe names and, when `sources.builtin_pack` is set, the built-in pack
 /// (its photos stand in for an unset `textures`, its meshes for unset `shapenet` and `meshes`).
 /// An empty index means the planner's procedural shapes and textures. Folder indexes are cached
@@ -56,23 +67,13 @@ pub fn index_sources(sources: &SourcesRecipe, home: &Path) -> anyhow::Result<Ass
     let mut h = Sha256::new();
     if let Some(root) = &sources.shapenet {
         let (found, skipped) = meshes::index_shapenet(root, &sources.shapenet_synsets, home)?;
-        hash_files(
-            &mut h,
-            "shapenet",
-            root,
-            found.iter().map(|m| (m.path.as_path(), String::new())),
-        );
+        hash_meshes(&mut h, "shapenet", root, &found);
         index.shapenet = found;
         index.skipped.extend(skipped);
     }
     if let Some(root) = &sources.meshes {
         let (found, skipped) = meshes::index_mesh_folder(root, home)?;
-        hash_files(
-            &mut h,
-            "meshes",
-            root,
-            found.iter().map(|m| (m.path.as_path(), String::new())),
-        );
+        hash_meshes(&mut h, "meshes", root, &found);
         index.meshes = found;
         index.skipped.extend(skipped);
     }

@@ -9,6 +9,7 @@ use stereogen_plan::assets::SkippedAsset;
 use walkdir::WalkDir;
 
 use super::cache::{cached, tree_stamp};
+use super::folder::{check_root, folder_key, index_files};
 
 pub use stereogen_plan::assets::MeshAsset;
 
@@ -55,16 +56,6 @@ fn taxonomy(root: &Path) -> BTreeMap<String, String> {
         .collect()
 }
 
-fn check_root(root: &Path, what: &str) -> anyhow::Result<()> {
-    if !root.is_dir() {
-        bail!(
-            "{what} folder {} does not exist or is not a directory",
-            root.display()
-        );
-    }
-    Ok(())
-}
-
 /// Indexes `<synset>/<model>/model.obj` (v1) and `<synset>/<model>/models/model_normalized.obj` (v2).
 pub fn index_shapenet(
     root: &Path,
@@ -72,13 +63,7 @@ pub fn index_shapenet(
     home: &Path,
 ) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
     check_root(root, "ShapeNet")?;
-    let key = format!(
-        "{}|{}",
-        root.canonicalize()
-            .unwrap_or_else(|_| root.to_path_buf())
-            .display(),
-        synsets.join(",")
-    );
+    let key = format!("{}|{}", folder_key(root), synsets.join(","));
     let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) = cached(
         home,
         "shapenet",
@@ -199,40 +184,21 @@ pub fn index_mesh_folder(
     root: &Path,
     home: &Path,
 ) -> anyhow::Result<(Vec<MeshAsset>, Vec<SkippedAsset>)> {
-    check_root(root, "mesh")?;
-    let key = root
-        .canonicalize()
-        .unwrap_or_else(|_| root.to_path_buf())
-        .display()
-        .to_string();
-    let (found, skipped): (Vec<MeshAsset>, Vec<SkippedAsset>) =
-        // "meshes-obj-checked": indexes cached before OBJ files were checked are not reused.
-        cached(home, "meshes-obj-checked", &key, &tree_stamp(root), || {
-            let mut found = Vec::new();
-            let mut skipped = Vec::new();
-            for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
-                let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
-                if !entry.file_type().is_file() || !has_mesh_extension(entry.path()) {
-                    continue;
-                }
-                if skipped_as_empty(&entry, &mut skipped) {
-                    continue;
-                }
-                if let Err(reason) = check_fetched(entry.path()).and_then(|()| check_obj(entry.path())) {
-                    skipped.push(SkippedAsset {
-                        path: entry.path().to_path_buf(),
-                        reason,
-                    });
-                    continue;
-                }
-                found.push(MeshAsset {
-                    path: entry.path().to_path_buf(),
-                    synset: None,
-                    label: None,
-                });
-            }
-            Ok((found, skipped))
-        })?;
+    // "meshes-obj-checked": indexes cached before OBJ files were checked are not reused.
+    let (found, skipped) = index_files(root, home, "mesh", "meshes-obj-checked", |entry| {
+        let path = entry.path();
+        if !entry.file_type().is_file() || !has_mesh_extension(path) {
+            return None;
+        }
+        let usable = check_not_empty(entry)
+            .and_then(|()| check_fetched(path))
+            .and_then(|()| check_obj(path));
+        Some(usable.map(|()| MeshAsset {
+            path: path.to_path_buf(),
+            synset: None,
+            label: None,
+        }))
+    })?;
     if found.is_empty() {
         bail!(
             "mesh folder {} holds no {} files",
@@ -246,14 +212,22 @@ pub fn index_mesh_folder(
 /// Whether `entry` is an empty file (or one whose size cannot be read), which is then listed
 /// in `skipped` instead of being indexed: Blender would fail on it at render time.
 fn skipped_as_empty(entry: &walkdir::DirEntry, skipped: &mut Vec<SkippedAsset>) -> bool {
-    let empty = entry.metadata().map(|m| m.len()).unwrap_or(0) == 0;
-    if empty {
-        skipped.push(SkippedAsset {
-            path: entry.path().to_path_buf(),
-            reason: "empty file".into(),
-        });
+    let Err(reason) = check_not_empty(entry) else {
+        return false;
+    };
+    skipped.push(SkippedAsset {
+        path: entry.path().to_path_buf(),
+        reason,
+    });
+    true
+}
+
+/// An empty file (or one whose size cannot be read) is refused: Blender would fail on it.
+fn check_not_empty(entry: &walkdir::DirEntry) -> Result<(), String> {
+    match entry.metadata().map(|m| m.len()).unwrap_or(0) {
+        0 => Err("empty file".into()),
+        _ => Ok(()),
     }
-    empty
 }
 
 #[cfg(test)]

@@ -3,11 +3,10 @@
 
 use std::path::Path;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use stereogen_plan::assets::{SkippedAsset, TextureAsset};
-use walkdir::WalkDir;
 
-use super::cache::{cached, tree_stamp};
+use super::folder::index_files;
 
 /// Extensions Blender loads as textures.
 pub const TEXTURE_EXTENSIONS: &[&str] = &[
@@ -39,60 +38,35 @@ pub fn index_textures(
     root: &Path,
     home: &Path,
 ) -> anyhow::Result<(Vec<TextureAsset>, Vec<SkippedAsset>)> {
-    if !root.is_dir() {
-        bail!(
-            "texture folder {} does not exist or is not a directory",
-            root.display()
+    let (found, skipped) = index_files(root, home, "texture", "photos", |entry| {
+        let ext = entry
+            .path()
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if !entry.file_type().is_file()
+            || !ext
+                .as_deref()
+                .is_some_and(|e| TEXTURE_EXTENSIONS.contains(&e))
+        {
+            return None;
+        }
+        // image cannot probe every format Blender reads (EXR/HDR/TGA need features we do not build).
+        let probed = matches!(
+            ext.as_deref(),
+            Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp")
         );
-    }
-    let key = root
-        .canonicalize()
-        .unwrap_or_else(|_| root.to_path_buf())
-        .display()
-        .to_string();
-    let (found, skipped): (Vec<TextureAsset>, Vec<SkippedAsset>) =
-        cached(home, "photos", &key, &tree_stamp(root), || {
-            let mut found = Vec::new();
-            let mut skipped = Vec::new();
-            for entry in WalkDir::new(root).follow_links(true).sort_by_file_name() {
-                let entry = entry.with_context(|| format!("cannot walk {}", root.display()))?;
-                let ext = entry
-                    .path()
-                    .extension()
-                    .and_then(|e| e.to_str())
-                    .map(str::to_ascii_lowercase);
-                if !entry.file_type().is_file()
-                    || !ext
-                        .as_deref()
-                        .is_some_and(|e| TEXTURE_EXTENSIONS.contains(&e))
-                {
-                    continue;
-                }
-                // image cannot probe every format Blender reads (EXR/HDR/TGA need features we do not build).
-                let mut size = None;
-                if matches!(
-                    ext.as_deref(),
-                    Some("png" | "jpg" | "jpeg" | "tif" | "tiff" | "bmp" | "webp")
-                ) {
-                    match probe(entry.path()) {
-                        Ok((w, h)) => size = Some([w, h]),
-                        Err(reason) => {
-                            skipped.push(SkippedAsset {
-                                path: entry.path().to_path_buf(),
-                                // Decoders end some messages with a newline.
-                                reason: reason.trim().to_string(),
-                            });
-                            continue;
-                        }
-                    }
-                }
-                found.push(TextureAsset {
-                    path: entry.path().to_path_buf(),
-                    size,
-                });
-            }
-            Ok((found, skipped))
-        })?;
+        let size = match probed.then(|| probe(entry.path())) {
+            None => None,
+            Some(Ok((w, h))) => Some([w, h]),
+            // Decoders end some messages with a newline.
+            Some(Err(reason)) => return Some(Err(reason.trim().to_string())),
+        };
+        Some(Ok(TextureAsset {
+            path: entry.path().to_path_buf(),
+            size,
+        }))
+    })?;
     if found.is_empty() {
         bail!(
             "texture folder {} holds no readable images ({})",
