@@ -506,6 +506,11 @@ impl TrainConfig {
 mod tests {
     use super::*;
 
+    /// The message of the error `text` is refused with.
+    fn parse_error(text: &str) -> String {
+        parse(text).unwrap_err().to_string()
+    }
+
     fn parse(text: &str) -> Result<TrainConfig> {
         parse_config(text)
     }
@@ -527,30 +532,22 @@ mod tests {
 
     #[test]
     fn bad_keys_and_values_are_named() {
-        let e = parse("stepz = 3\n[[datasets]]\npath = \"a\"\n")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error("stepz = 3\n[[datasets]]\npath = \"a\"\n");
         assert!(e.contains("stepz"), "{e}");
-        let e = parse("[[datasets]]\npath = \"a\"\nweight = -1\n")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error("[[datasets]]\npath = \"a\"\nweight = -1\n");
         assert!(e.contains("datasets[0].weight"), "{e}");
-        let e = parse("[[datasets]]\npath = \"a\"\nformat = \"nope\"\n")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error("[[datasets]]\npath = \"a\"\nformat = \"nope\"\n");
         assert!(e.contains("datasets[0].format"), "{e}");
         // Typed when read: the entry it is in, counted, and the validation table too.
-        let e =
-            parse("[[datasets]]\npath = \"a\"\n[[datasets]]\npath = \"b\"\nformat = \"kitty\"\n")
-                .unwrap_err()
-                .to_string();
+        let e = parse_error(
+            "[[datasets]]\npath = \"a\"\n[[datasets]]\npath = \"b\"\nformat = \"kitty\"\n",
+        );
         assert!(
             e.contains("datasets[1].format") && e.contains("kitty"),
             "{e}"
         );
-        let e = parse("[[datasets]]\npath = \"a\"\n[validation]\npath = \"v\"\nformat = \"x\"\n")
-            .unwrap_err()
-            .to_string();
+        let e =
+            parse_error("[[datasets]]\npath = \"a\"\n[validation]\npath = \"v\"\nformat = \"x\"\n");
         assert!(
             e.contains("validation.format") && e.contains("line 5"),
             "{e}"
@@ -560,19 +557,14 @@ mod tests {
             cfg.datasets[0].format,
             Some(stereo_io::DatasetFormat::WebDataset)
         );
-        let e = parse("iters = 3\n[[datasets]]\npath = \"a\"\n")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error("iters = 3\n[[datasets]]\npath = \"a\"\n");
         assert!(e.contains("iters"), "{e}");
-        let e = parse("[augment]\ncrop = [100, 128]\n[[datasets]]\npath = \"a\"\n")
-            .unwrap_err()
-            .to_string();
+        let e = parse_error("[augment]\ncrop = [100, 128]\n[[datasets]]\npath = \"a\"\n");
         assert!(e.contains("multiples of 16"), "{e}");
-        let e = parse("").unwrap_err().to_string();
+        let e = parse_error("");
         assert!(e.contains("no training data"), "{e}");
-        let e = parse("steps = 100\n[schedule]\ndecay_start = 500\n[[datasets]]\npath = \"a\"\n")
-            .unwrap_err()
-            .to_string();
+        let e =
+            parse_error("steps = 100\n[schedule]\ndecay_start = 500\n[[datasets]]\npath = \"a\"\n");
         assert!(e.contains("schedule"), "{e}");
     }
 

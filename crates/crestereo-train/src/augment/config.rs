@@ -135,90 +135,32 @@ fn check_range(name: &str, range: [f64; 2], min: f64, strict: bool) -> Result<()
 mod tests {
     use super::*;
 
+    /// Sets a field of a valid config to a value it refuses.
+    type Spoil = fn(&mut AugmentConfig);
+
     #[test]
     fn configs_validate_and_parse() {
         assert_eq!(AugmentConfig::default().validate(), Ok(()));
         assert_eq!(AugmentConfig::none([64, 128]).validate(), Ok(()));
-        let bad = [
-            (
-                AugmentConfig {
-                    crop: [0, 512],
-                    ..Default::default()
-                },
-                "crop",
-            ),
-            (
-                AugmentConfig {
-                    swap_prob: 1.5,
-                    ..Default::default()
-                },
-                "swap_prob",
-            ),
-            (
-                AugmentConfig {
-                    occlusion_prob: f64::NAN,
-                    ..Default::default()
-                },
-                "occlusion_prob",
-            ),
-            (
-                AugmentConfig {
-                    scale: [1.0, 0.6],
-                    ..Default::default()
-                },
-                "scale",
-            ),
-            (
-                AugmentConfig {
-                    scale: [0.0, 0.6],
-                    ..Default::default()
-                },
-                "scale",
-            ),
-            (
-                AugmentConfig {
-                    gamma: [0.0, 1.2],
-                    ..Default::default()
-                },
-                "gamma",
-            ),
-            (
-                AugmentConfig {
-                    brightness: [-0.1, 1.2],
-                    ..Default::default()
-                },
-                "brightness",
-            ),
-            (
-                AugmentConfig {
-                    occlusion_half_size: [100.0, 50.0],
-                    ..Default::default()
-                },
-                "occlusion_half_size",
-            ),
-            (
-                AugmentConfig {
-                    rotation_deg: -1.0,
-                    ..Default::default()
-                },
-                "rotation_deg",
-            ),
-            (
-                AugmentConfig {
-                    vertical_shift_px: f64::INFINITY,
-                    ..Default::default()
-                },
-                "vertical_shift_px",
-            ),
-            (
-                AugmentConfig {
-                    max_disp: 0.0,
-                    ..Default::default()
-                },
-                "max_disp",
-            ),
+        // Each field with a value it refuses, set on the defaults.
+        let bad: [(&str, Spoil); 11] = [
+            ("crop", |c| c.crop = [0, 512]),
+            ("swap_prob", |c| c.swap_prob = 1.5),
+            ("occlusion_prob", |c| c.occlusion_prob = f64::NAN),
+            ("scale", |c| c.scale = [1.0, 0.6]),
+            ("scale", |c| c.scale = [0.0, 0.6]),
+            ("gamma", |c| c.gamma = [0.0, 1.2]),
+            ("brightness", |c| c.brightness = [-0.1, 1.2]),
+            ("occlusion_half_size", |c| {
+                c.occlusion_half_size = [100.0, 50.0]
+            }),
+            ("rotation_deg", |c| c.rotation_deg = -1.0),
+            ("vertical_shift_px", |c| c.vertical_shift_px = f64::INFINITY),
+            ("max_disp", |c| c.max_disp = 0.0),
         ];
-        for (cfg, field) in bad {
+        for (field, spoil) in bad {
+            let mut cfg = AugmentConfig::default();
+            spoil(&mut cfg);
             let err = cfg.validate().expect_err(field);
             assert!(err.contains(field), "{err}");
         }

@@ -72,7 +72,7 @@ mod tests {
 
     #[test]
     fn crop_has_the_requested_size_and_stays_inside() {
-        let img = planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64));
+        let img = noise_image();
         for frac in [0.0, 0.3, 0.999_999] {
             let top = crop_offset(H, 16, frac);
             let left = crop_offset(W, 20, frac);

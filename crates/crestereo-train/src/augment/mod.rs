@@ -204,6 +204,15 @@ mod tests {
     use super::test_support::*;
     use super::*;
 
+    /// The test scene at its full size through `params`, then through the identity (what
+    /// `params` is compared with).
+    fn full_size_run(params: &AugmentParams) -> (TrainSample, TrainSample) {
+        let scene = two_plane_scene(W, H);
+        let cfg = AugmentConfig::none([H, W]);
+        let plain = augment(&scene, &cfg, &AugmentParams::identity([0.0, 0.0]));
+        (augment(&scene, &cfg, params), plain)
+    }
+
     #[test]
     fn the_test_scene_is_itself_consistent() {
         let scene = two_plane_scene(W, H);
@@ -213,9 +222,6 @@ mod tests {
 
     #[test]
     fn warp_shifts_only_the_right_image() {
-        let scene = two_plane_scene(W, H);
-        let cfg = AugmentConfig::none([H, W]);
-        let plain = augment(&scene, &cfg, &AugmentParams::identity([0.0, 0.0]));
         let params = AugmentParams {
             right_warp: Some(RightWarp {
                 angle_deg: 0.0,
@@ -224,7 +230,7 @@ mod tests {
             }),
             ..AugmentParams::identity([0.0, 0.0])
         };
-        let warped = augment(&scene, &cfg, &params);
+        let (warped, plain) = full_size_run(&params);
         assert_eq!(warped.left, plain.left);
         assert_eq!(warped.disp, plain.disp);
         let plane = W * H;
@@ -272,9 +278,6 @@ mod tests {
 
     #[test]
     fn left_and_right_get_their_own_factors() {
-        let scene = two_plane_scene(W, H);
-        let cfg = AugmentConfig::none([H, W]);
-        let plain = augment(&scene, &cfg, &AugmentParams::identity([0.0, 0.0]));
         let brighter = Photometric {
             brightness: 1.1,
             ..Photometric::IDENTITY
@@ -283,7 +286,7 @@ mod tests {
             left_photometric: brighter,
             ..AugmentParams::identity([0.0, 0.0])
         };
-        let s = augment(&scene, &cfg, &params);
+        let (s, plain) = full_size_run(&params);
         assert_ne!(s.left, plain.left);
         assert_eq!(s.right, plain.right);
 
@@ -326,9 +329,6 @@ mod tests {
 
     #[test]
     fn occlusion_touches_only_the_right_image() {
-        let scene = two_plane_scene(W, H);
-        let cfg = AugmentConfig::none([H, W]);
-        let plain = augment(&scene, &cfg, &AugmentParams::identity([0.0, 0.0]));
         let occlusion = OcclusionBox {
             half_size: [5.0, 5.0],
             centre_frac: [0.5, 0.5],
@@ -337,7 +337,7 @@ mod tests {
             occlusion: Some(occlusion),
             ..AugmentParams::identity([0.0, 0.0])
         };
-        let s = augment(&scene, &cfg, &params);
+        let (s, plain) = full_size_run(&params);
         assert_eq!(
             (&s.left, &s.disp, &s.valid),
             (&plain.left, &plain.disp, &plain.valid)

@@ -53,7 +53,7 @@ mod tests {
 
     #[test]
     fn occlusion_fills_a_box_with_the_mean_colour() {
-        let img = planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64));
+        let img = noise_image();
         let mut out = img.clone();
         let occlusion = OcclusionBox {
             half_size: [10.7, 12.2],

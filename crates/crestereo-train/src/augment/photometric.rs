@@ -136,7 +136,7 @@ mod tests {
 
     #[test]
     fn photometric_output_is_clamped() {
-        let mut img = planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64));
+        let mut img = noise_image();
         photometric(
             &mut img,
             &Photometric {

@@ -88,7 +88,7 @@ mod tests {
     #[test]
     fn rescale_scales_disparity_and_keeps_the_pair_matched() {
         let d = 10;
-        let left = planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64));
+        let left = noise_image();
         // x_right = x_left − d, so the right image at x shows the left image's x + d.
         let right = planar_from_fn(W, H, |c, x, y| noise(x as i64 + d, y as i64, c as u64));
         let disp = constant_disparity(W, H, d as f32);
@@ -121,7 +121,7 @@ mod tests {
 
     #[test]
     fn rescale_by_one_is_the_identity() {
-        let img = planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64));
+        let img = noise_image();
         assert_eq!(rescale_image(&img, 1.0), img);
         let scene = two_plane_scene(W, H);
         let disp = rescale_disparity(&scene.disp_left, 1.0, 256.0);

@@ -34,6 +34,11 @@ pub(super) fn planar_from_fn(
     img
 }
 
+/// A W×H image of [`noise`], each channel salted with its index.
+pub(super) fn noise_image() -> BgrImage {
+    planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64))
+}
+
 pub(super) fn at(img: &BgrImage, c: usize, x: usize, y: usize) -> f32 {
     img.data[c * img.width * img.height + y * img.width + x]
 }

@@ -77,14 +77,19 @@ mod tests {
     use super::*;
     use crate::augment::test_support::*;
 
+    /// A warp that shifts rows by `shift_y` and turns nothing.
+    fn shift_only(centre_frac: [f64; 2], shift_y: f64) -> RightWarp {
+        RightWarp {
+            angle_deg: 0.0,
+            centre_frac,
+            shift_y,
+        }
+    }
+
     #[test]
     fn vertical_shift_of_one_pixel_moves_rows_down() {
-        let img = planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64));
-        let warp = RightWarp {
-            angle_deg: 0.0,
-            centre_frac: [0.3, 0.7],
-            shift_y: 1.0,
-        };
+        let img = noise_image();
+        let warp = shift_only([0.3, 0.7], 1.0);
         let out = warp_right(&img, &warp);
         for c in 0..3 {
             for x in 0..W {
@@ -98,12 +103,8 @@ mod tests {
 
     #[test]
     fn warp_without_rotation_or_shift_is_the_identity() {
-        let img = planar_from_fn(W, H, |c, x, y| noise(x as i64, y as i64, c as u64));
-        let warp = RightWarp {
-            angle_deg: 0.0,
-            centre_frac: [0.25, 0.9],
-            shift_y: 0.0,
-        };
+        let img = noise_image();
+        let warp = shift_only([0.25, 0.9], 0.0);
         assert_eq!(warp_right(&img, &warp), img);
     }
 
