@@ -27,21 +27,17 @@ fn check_scale(path: &Path, scale: f32) -> Result<()> {
     Ok(())
 }
 
+/// The error for a disparity PNG of another colour type: `rule` says what it must be.
+fn wrong_colour(path: &Path, rule: &str, img: &DynamicImage) -> Error {
+    Error::format(path, format!("{rule}, this one is {:?}", img.color()))
+}
+
 fn png16_from_image(path: &Path, img: DynamicImage, scale: f32) -> Result<DisparityMap> {
     check_scale(path, scale)?;
     let (width, height) = (img.width() as usize, img.height() as usize);
-    let raw = match img {
-        DynamicImage::ImageLuma16(b) => b.into_raw(),
-        other => {
-            return Err(Error::format(
-                path,
-                format!(
-                    "a scaled disparity PNG must be 16-bit grey, this one is {:?}",
-                    other.color()
-                ),
-            ));
-        }
-    };
+    let raw = img
+        .as_luma16()
+        .ok_or_else(|| wrong_colour(path, "a scaled disparity PNG must be 16-bit grey", &img))?;
     let readings = raw
         .iter()
         .map(|&v| (v != 0).then(|| (f64::from(v) / f64::from(scale)) as f32));
@@ -116,18 +112,9 @@ pub fn write_disparity_png16(path: &Path, map: &DisparityMap, scale: f32) -> Res
 pub fn read_disparity_sintel(path: &Path) -> Result<DisparityMap> {
     let img = decode(path)?;
     let (width, height) = (img.width() as usize, img.height() as usize);
-    let rgb = match img {
-        DynamicImage::ImageRgb8(b) => b.into_raw(),
-        other => {
-            return Err(Error::format(
-                path,
-                format!(
-                    "a Sintel disparity PNG must be 8-bit RGB, this one is {:?}",
-                    other.color()
-                ),
-            ));
-        }
-    };
+    let rgb = img
+        .as_rgb8()
+        .ok_or_else(|| wrong_colour(path, "a Sintel disparity PNG must be 8-bit RGB", &img))?;
     let data: Vec<f32> = rgb
         .chunks_exact(3)
         .map(|p| {

@@ -179,6 +179,15 @@ pub fn create_writer(
 mod tests {
     use super::*;
 
+    /// The export name of a sample of `format` with this id and no other metadata.
+    fn name_of(format: DatasetFormat, id: &str) -> String {
+        let meta = SampleMeta {
+            id: id.into(),
+            ..Default::default()
+        };
+        export_name(format, &meta)
+    }
+
     #[test]
     fn names_keep_our_categories_and_flatten_other_ids() {
         let mut meta = SampleMeta {
@@ -187,20 +196,15 @@ mod tests {
         };
         meta.extra.insert("category".into(), "tree".into());
         assert_eq!(export_name(DatasetFormat::Stereogen, &meta), "tree/0000003");
-        let meta = SampleMeta {
-            id: "FlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png".into(),
-            ..Default::default()
-        };
         assert_eq!(
-            export_name(DatasetFormat::SceneFlow, &meta),
+            name_of(
+                DatasetFormat::SceneFlow,
+                "FlyingThings3D/frames_cleanpass/TRAIN/A/0000/left/0006.png"
+            ),
             "FlyingThings3D_frames_cleanpass_TRAIN_A_0000_left_0006"
         );
-        let meta = SampleMeta {
-            id: "trainingF/Adirondack".into(),
-            ..Default::default()
-        };
         assert_eq!(
-            export_name(DatasetFormat::Middlebury, &meta),
+            name_of(DatasetFormat::Middlebury, "trainingF/Adirondack"),
             "trainingF_Adirondack"
         );
     }

@@ -163,47 +163,47 @@ fn state_dict_pickle(tensors: &[NamedArray]) -> Vec<u8> {
     p.proto2();
     // OrderedDict()
     p.global("collections", "OrderedDict");
-    p.empty_tuple();
-    p.reduce();
+    p.op(op::EMPTY_TUPLE);
+    p.op(op::REDUCE);
     p.memoize();
     for (b, batch) in tensors.chunks(BATCH).enumerate() {
-        p.mark();
+        p.op(op::MARK);
         for (i, t) in batch.iter().enumerate() {
             let storage = b * BATCH + i; // the storage's record: data/<storage>
             p.unicode(&t.name);
             p.memoize();
             p.global("torch._utils", "_rebuild_tensor_v2");
-            p.mark();
+            p.op(op::MARK);
             {
                 // persistent_load(('storage', torch.FloatStorage, '<n>', 'cpu', numel))
-                p.mark();
+                p.op(op::MARK);
                 p.memoized_unicode("storage");
                 p.global("torch", "FloatStorage");
                 p.unicode(&storage.to_string());
                 p.memoize();
                 p.memoized_unicode("cpu");
                 p.int(t.data.len() as i64);
-                p.tuple_from_mark();
+                p.op(op::TUPLE);
                 p.memoize();
-                p.binpersid();
+                p.op(op::BINPERSID);
                 // storage_offset, size, stride, requires_grad, backward_hooks
                 p.int(0);
                 p.int_tuple(t.shape.iter().map(|&d| d as i64));
                 p.int_tuple(contiguous_strides(&t.shape));
-                p.new_false();
+                p.op(op::NEWFALSE);
                 p.global("collections", "OrderedDict");
-                p.empty_tuple();
-                p.reduce();
+                p.op(op::EMPTY_TUPLE);
+                p.op(op::REDUCE);
                 p.memoize();
             }
-            p.tuple_from_mark();
+            p.op(op::TUPLE);
             p.memoize();
-            p.reduce();
+            p.op(op::REDUCE);
             p.memoize();
         }
-        p.setitems();
+        p.op(op::SETITEMS);
     }
-    p.stop();
+    p.op(op::STOP);
     p.out
 }
 
@@ -225,41 +225,26 @@ struct Pickler {
     next_memo: u32,
 }
 
+/// The opcodes that take no argument, by their names in Python's `pickletools`.
+mod op {
+    pub const STOP: u8 = b'.';
+    pub const MARK: u8 = b'(';
+    pub const EMPTY_TUPLE: u8 = b')';
+    pub const TUPLE: u8 = b't';
+    pub const REDUCE: u8 = b'R';
+    pub const SETITEMS: u8 = b'u';
+    pub const BINPERSID: u8 = b'Q';
+    pub const NEWFALSE: u8 = 0x89;
+}
+
 impl Pickler {
     fn proto2(&mut self) {
         self.out.extend([0x80, 2]); // PROTO 2
     }
 
-    fn stop(&mut self) {
-        self.out.push(b'.'); // STOP
-    }
-
-    fn mark(&mut self) {
-        self.out.push(b'('); // MARK
-    }
-
-    fn empty_tuple(&mut self) {
-        self.out.push(b')'); // EMPTY_TUPLE
-    }
-
-    fn tuple_from_mark(&mut self) {
-        self.out.push(b't'); // TUPLE
-    }
-
-    fn reduce(&mut self) {
-        self.out.push(b'R'); // REDUCE
-    }
-
-    fn setitems(&mut self) {
-        self.out.push(b'u'); // SETITEMS
-    }
-
-    fn binpersid(&mut self) {
-        self.out.push(b'Q'); // BINPERSID
-    }
-
-    fn new_false(&mut self) {
-        self.out.push(0x89); // NEWFALSE
+    /// An opcode that takes no argument ([`op`]).
+    fn op(&mut self, code: u8) {
+        self.out.push(code);
     }
 
     /// Stores the top of the stack in the next memo slot (BINPUT / LONG_BINPUT); returns the slot.
@@ -286,16 +271,23 @@ impl Pickler {
 
     /// `module.name` (GLOBAL the first time, then from the memo).
     fn global(&mut self, module: &str, name: &str) {
-        let key = format!("global {module}\n{name}");
+        self.once(format!("global {module}\n{name}"), |p| {
+            p.out.push(b'c'); // GLOBAL
+            p.out.extend(module.as_bytes());
+            p.out.push(b'\n');
+            p.out.extend(name.as_bytes());
+            p.out.push(b'\n');
+        });
+    }
+
+    /// Writes what `write` writes and memoizes it the first time `key` comes, then takes it
+    /// from the memo.
+    fn once(&mut self, key: String, write: impl FnOnce(&mut Self)) {
         if let Some(&i) = self.memo.get(&key) {
             self.get(i);
             return;
         }
-        self.out.push(b'c'); // GLOBAL
-        self.out.extend(module.as_bytes());
-        self.out.push(b'\n');
-        self.out.extend(name.as_bytes());
-        self.out.push(b'\n');
+        write(self);
         let i = self.memoize();
         self.memo.insert(key, i);
     }
@@ -308,14 +300,7 @@ impl Pickler {
 
     /// A string written once and then taken from the memo.
     fn memoized_unicode(&mut self, s: &str) {
-        let key = format!("str {s}");
-        if let Some(&i) = self.memo.get(&key) {
-            self.get(i);
-            return;
-        }
-        self.unicode(s);
-        let i = self.memoize();
-        self.memo.insert(key, i);
+        self.once(format!("str {s}"), |p| p.unicode(s));
     }
 
     fn int(&mut self, v: i64) {
@@ -348,18 +333,18 @@ impl Pickler {
     fn int_tuple(&mut self, values: impl IntoIterator<Item = i64>) {
         let values: Vec<i64> = values.into_iter().collect();
         if values.is_empty() {
-            self.empty_tuple();
+            self.op(op::EMPTY_TUPLE);
         } else if values.len() <= 3 {
             for v in &values {
                 self.int(*v);
             }
             self.out.push([0x85, 0x86, 0x87][values.len() - 1]); // TUPLE1..3
         } else {
-            self.mark();
+            self.op(op::MARK);
             for v in &values {
                 self.int(*v);
             }
-            self.tuple_from_mark();
+            self.op(op::TUPLE);
         }
         self.memoize();
     }
