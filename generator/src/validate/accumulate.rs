@@ -261,18 +261,23 @@ mod tests {
         m
     }
 
-    #[test]
-    fn counts_valid_invalid_and_bands() {
-        let b = Binning {
+    /// Ten 1-px display and coverage bins over 0..10 px (the law's support), two row bands.
+    fn binning_0_to_10(fine_bins: usize, cols: usize, content_min: f64) -> Binning {
+        Binning {
             hi: 10.0,
-            fine_bins: 100,
+            fine_bins,
             support: (0.0, 10.0),
             display_bins: 10,
             coverage_bins: 10,
             rows: 2,
-            cols: 4,
-            content_min: 2.0,
-        };
+            cols,
+            content_min,
+        }
+    }
+
+    #[test]
+    fn counts_valid_invalid_and_bands() {
+        let b = binning_0_to_10(100, 4, 2.0);
         let mut acc = PixelAcc::new(&b, Some(&[0.0, 5.0, 10.0]), None);
         // 4x2 map: top row valid with disparity x+1 (1..4), bottom row invalid except x=3 (NaN).
         let m = map(4, 2, |x, y| {
@@ -312,16 +317,7 @@ mod tests {
 
     #[test]
     fn bands_follow_relative_position() {
-        let b = Binning {
-            hi: 10.0,
-            fine_bins: 10,
-            support: (0.0, 10.0),
-            display_bins: 10,
-            coverage_bins: 10,
-            rows: 2,
-            cols: 2,
-            content_min: 0.0,
-        };
+        let b = binning_0_to_10(10, 2, 0.0);
         let mut acc = PixelAcc::new(&b, None, None);
         // A 6x3 map: rows 0 and 1 go to band 0 (y*2/3 = 0, 0), row 2 to band 1.
         acc.add_map(1, &map(6, 3, |_, y| Some(y as f32)));

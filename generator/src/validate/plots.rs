@@ -91,6 +91,21 @@ fn line_key(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)>
     move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style)
 }
 
+/// Draws `points` joined by a line in `style`, with its legend entry: `label` by a line key.
+fn draw_line(
+    chart: &mut Chart,
+    points: impl IntoIterator<Item = (f64, f64)>,
+    style: ShapeStyle,
+    label: impl Into<String>,
+) -> anyhow::Result<()> {
+    chart
+        .draw_series(LineSeries::new(points, style))
+        .map_err(plot_err)?
+        .label(label)
+        .legend(line_key(style));
+    Ok(())
+}
+
 /// A legend key: a small filled box in the series' style.
 fn box_key(style: ShapeStyle) -> impl Fn((i32, i32)) -> Rectangle<(i32, i32)> {
     move |(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], style)
@@ -253,18 +268,20 @@ fn draw_panel(area: &Area, p: &Panel) -> anyhow::Result<()> {
             .legend(box_key(PIXEL.mix(0.55).filled()));
     }
     if let Some((bars, label)) = &p.outline {
-        chart
-            .draw_series(LineSeries::new(step_line(bars), OBJECT.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(label.as_str())
-            .legend(line_key(OBJECT.stroke_width(2)));
+        draw_line(
+            &mut chart,
+            step_line(bars),
+            OBJECT.stroke_width(2),
+            label.as_str(),
+        )?;
     }
     if !law_pts.is_empty() {
-        chart
-            .draw_series(LineSeries::new(law_pts, LAW.stroke_width(2)))
-            .map_err(plot_err)?
-            .label("recipe law (density)")
-            .legend(line_key(LAW.stroke_width(2)));
+        draw_line(
+            &mut chart,
+            law_pts,
+            LAW.stroke_width(2),
+            "recipe law (density)",
+        )?;
     }
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
@@ -365,22 +382,10 @@ fn coverage_panel(
         .map_err(plot_err)?
         .label("p5-p95")
         .legend(box_key(PIXEL.mix(0.3).filled()));
-    chart
-        .draw_series(LineSeries::new(
-            have.iter().map(|b| (mid(b), b.p50.unwrap())),
-            PIXEL.stroke_width(2),
-        ))
-        .map_err(plot_err)?
-        .label("median")
-        .legend(line_key(PIXEL.stroke_width(2)));
-    chart
-        .draw_series(LineSeries::new(
-            have.iter().filter_map(|b| b.mean.map(|m| (mid(b), m))),
-            BLACK.stroke_width(1),
-        ))
-        .map_err(plot_err)?
-        .label("mean")
-        .legend(line_key(BLACK.into()));
+    let median = have.iter().map(|b| (mid(b), b.p50.unwrap()));
+    draw_line(&mut chart, median, PIXEL.stroke_width(2), "median")?;
+    let mean = have.iter().filter_map(|b| b.mean.map(|m| (mid(b), m)));
+    draw_line(&mut chart, mean, BLACK.stroke_width(1), "mean")?;
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
@@ -403,30 +408,19 @@ fn valid_panel(
     for (c, color, width) in groups {
         let p = c.pixels.as_ref().expect("filtered");
         let bands = if rows { &p.rows } else { &p.cols };
-        chart
-            .draw_series(LineSeries::new(
-                bands
-                    .iter()
-                    .map(|b| (0.5 * (b.from + b.to), b.content_fraction)),
-                color.stroke_width(width),
-            ))
-            .map_err(plot_err)?
-            .label(format!("{} content", c.name))
-            .legend(line_key(color.stroke_width(width)));
+        let content = bands
+            .iter()
+            .map(|b| (0.5 * (b.from + b.to), b.content_fraction));
+        let label = format!("{} content", c.name);
+        draw_line(&mut chart, content, color.stroke_width(width), label)?;
     }
     if let Some(p) = &report.overall.pixels {
         let grey = RGBColor(150, 150, 150);
         let bands = if rows { &p.rows } else { &p.cols };
-        chart
-            .draw_series(LineSeries::new(
-                bands
-                    .iter()
-                    .map(|b| (0.5 * (b.from + b.to), b.valid_fraction)),
-                grey.stroke_width(2),
-            ))
-            .map_err(plot_err)?
-            .label("all valid")
-            .legend(line_key(grey.stroke_width(2)));
+        let valid = bands
+            .iter()
+            .map(|b| (0.5 * (b.from + b.to), b.valid_fraction));
+        draw_line(&mut chart, valid, grey.stroke_width(2), "all valid")?;
     }
     draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 12)
 }

@@ -202,6 +202,17 @@ impl SampleAudit {
 }
 
 /// The terminal summary: the categories, the overall line, failing samples by name, the verdict.
+impl AuditReport {
+    /// What each sample was audited at: "every pixel" or "N pixels".
+    pub fn pixels_per_sample(&self) -> String {
+        if self.pixels_requested == "every" {
+            "every pixel".to_string()
+        } else {
+            format!("{} pixels", self.pixels_requested)
+        }
+    }
+}
+
 pub fn summary_lines(report: &AuditReport) -> Vec<String> {
     let w = crate::validate::name_column_width(report.categories.iter().map(|c| c.name.as_str()));
     let mut lines = vec![format!(
@@ -209,11 +220,7 @@ pub fn summary_lines(report: &AuditReport) -> Vec<String> {
         report.dataset,
         report.samples.len(),
         report.manifest_samples,
-        if report.pixels_requested == "every" {
-            "every pixel".to_string()
-        } else {
-            format!("{} pixels", report.pixels_requested)
-        },
+        report.pixels_per_sample(),
         report.seed
     )];
     if report.unfinished_manifest_line {

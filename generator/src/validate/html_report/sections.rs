@@ -257,11 +257,7 @@ pub fn audit_section(a: &AuditReport) -> AuditSection {
             "{} of {} samples, {} per sample, seed {}; bars: ≥ {}% of non-silhouette pixels within 0.01 px, ≤ {} flying pixels, ≤ {} checksum mismatches{per_mpx}",
             a.samples.len(),
             a.manifest_samples,
-            if a.pixels_requested == "every" {
-                "every pixel".to_string()
-            } else {
-                format!("{} pixels", a.pixels_requested)
-            },
+            a.pixels_per_sample(),
             a.seed,
             100.0 * a.bars.min_share_within_0_01,
             a.bars.max_flying,
