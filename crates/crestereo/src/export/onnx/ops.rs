@@ -31,24 +31,26 @@ impl Graph {
         self.binary("Div", a, b)
     }
 
-    pub fn add_scalar(&mut self, x: &Value, v: f32) -> Value {
+    /// `op_type` of `x` and the constant `v`.
+    fn binary_scalar(&mut self, op_type: &str, x: &Value, v: f32) -> Value {
         let s = self.scalar(v);
-        self.add(x, &s)
+        self.binary(op_type, x, &s)
+    }
+
+    pub fn add_scalar(&mut self, x: &Value, v: f32) -> Value {
+        self.binary_scalar("Add", x, v)
     }
 
     pub fn sub_scalar(&mut self, x: &Value, v: f32) -> Value {
-        let s = self.scalar(v);
-        self.sub(x, &s)
+        self.binary_scalar("Sub", x, v)
     }
 
     pub fn mul_scalar(&mut self, x: &Value, v: f32) -> Value {
-        let s = self.scalar(v);
-        self.mul(x, &s)
+        self.binary_scalar("Mul", x, v)
     }
 
     pub fn div_scalar(&mut self, x: &Value, v: f32) -> Value {
-        let s = self.scalar(v);
-        self.div(x, &s)
+        self.binary_scalar("Div", x, v)
     }
 
     pub fn relu(&mut self, x: &Value) -> Value {

@@ -149,17 +149,27 @@ mod tests {
         Tensor::random(shape, Distribution::Normal(0.0, 1.0), device)
     }
 
+    /// A GRU small enough for quick tests: 16 hidden channels, 24 input channels.
+    fn small_gru<B: Backend>(device: &B::Device) -> SepConvGru<B> {
+        SepConvGruConfig::new()
+            .with_hidden_dim(16)
+            .with_input_dim(24)
+            .init(device)
+    }
+
+    /// A hidden state (in tanh's range) and an input for [`small_gru`].
+    fn hidden_and_input<B: Backend>(device: &B::Device) -> (Tensor<B, 4>, Tensor<B, 4>) {
+        let h = random::<B>([2, 16, 9, 11], device).tanh();
+        (h, random::<B>([2, 24, 9, 11], device))
+    }
+
     /// The GRU with its Flex gate kernels (plain Flex) against the composed gates (taken under
     /// autodiff), same weights and inputs.
     #[test]
     fn flex_gates_match_the_composed_ops() {
         let device = Default::default();
-        let gru = SepConvGruConfig::new()
-            .with_hidden_dim(16)
-            .with_input_dim(24)
-            .init::<CpuAutodiffBackend>(&device);
-        let h = random::<CpuBackend>([2, 16, 9, 11], &device).tanh();
-        let x = random::<CpuBackend>([2, 24, 9, 11], &device);
+        let gru = small_gru::<CpuAutodiffBackend>(&device);
+        let (h, x) = hidden_and_input::<CpuBackend>(&device);
         let q = &gru.valid().convq1;
         let zr = random::<CpuBackend>([2, 32, 9, 11], &device).mul_scalar(2.0);
         let kernel = gates(zr.clone(), h.clone(), x.clone(), q);
@@ -175,10 +185,7 @@ mod tests {
     fn autodiff_gates_match_the_composed_ops_and_their_gradients() {
         type A = CpuAutodiffBackend;
         let device = Default::default();
-        let gru = SepConvGruConfig::new()
-            .with_hidden_dim(16)
-            .with_input_dim(24)
-            .init::<A>(&device);
+        let gru = small_gru::<A>(&device);
         let inputs = (
             random::<CpuBackend>([2, 32, 9, 11], &device).mul_scalar(2.0),
             random::<CpuBackend>([2, 16, 9, 11], &device).tanh(),
@@ -215,12 +222,8 @@ mod tests {
     fn emitted_gru_matches_forward() {
         use crate::export::onnx::eval::{assert_emit_matches, run_emitted};
         let device = Default::default();
-        let gru = SepConvGruConfig::new()
-            .with_hidden_dim(16)
-            .with_input_dim(24)
-            .init::<CpuBackend>(&device);
-        let h = random::<CpuBackend>([2, 16, 9, 11], &device).tanh();
-        let x = random::<CpuBackend>([2, 24, 9, 11], &device);
+        let gru = small_gru::<CpuBackend>(&device);
+        let (h, x) = hidden_and_input::<CpuBackend>(&device);
         let out = run_emitted(&[h.to_data(), x.to_data()], |g, v| {
             vec![gru.emit(g, &v[0], &v[1])]
         });
