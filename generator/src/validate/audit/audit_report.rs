@@ -201,7 +201,6 @@ impl SampleAudit {
     }
 }
 
-/// The terminal summary: the categories, the overall line, failing samples by name, the verdict.
 impl AuditReport {
     /// What each sample was audited at: "every pixel" or "N pixels".
     pub fn pixels_per_sample(&self) -> String {
@@ -213,6 +212,7 @@ impl AuditReport {
     }
 }
 
+/// The terminal summary: the categories, the overall line, failing samples by name, the verdict.
 pub fn summary_lines(report: &AuditReport) -> Vec<String> {
     let w = crate::validate::name_column_width(report.categories.iter().map(|c| c.name.as_str()));
     let mut lines = vec![format!(
