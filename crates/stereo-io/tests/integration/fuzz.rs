@@ -102,6 +102,27 @@ fn run_all(bytes: &[u8]) -> std::result::Result<(), TestCaseError> {
     Ok(())
 }
 
+/// Runs [`cases`] cases of `strategy` through `test` (no failures persisted), then reports the
+/// decoders' results so far, labelled `what`.
+fn run_cases<S: Strategy>(
+    what: &str,
+    strategy: &S,
+    test: impl Fn(S::Value) -> std::result::Result<(), TestCaseError>,
+) {
+    let mut runner = TestRunner::new(Config {
+        cases: cases(),
+        failure_persistence: None,
+        ..Config::default()
+    });
+    runner.run(strategy, test).unwrap();
+    eprintln!(
+        "{what}: {} cases; decoder results so far: {} ok, {} errors",
+        cases(),
+        OK.load(Ordering::Relaxed),
+        ERR.load(Ordering::Relaxed)
+    );
+}
+
 #[test]
 fn readers_never_panic_on_mutated_files() {
     let (exr, pfm, png, npy) = valid_files();
@@ -110,58 +131,32 @@ fn readers_never_panic_on_mutated_files() {
     decode_pfm(&pfm, Path::new("a.pfm")).unwrap();
     decode_disparity_png16(&png, Path::new("a.png"), 32.0).unwrap();
     stereo_io::npy::decode_npy(&npy, Path::new("a.npy")).unwrap();
-    let mut runner = TestRunner::new(Config {
-        cases: cases(),
-        failure_persistence: None,
-        ..Config::default()
-    });
     let strategy = (
         0usize..4,
         prop::collection::vec((any::<usize>(), any::<u8>()), 0..8),
         prop::option::of(any::<usize>()),
         prop::option::of((any::<usize>(), prop::collection::vec(any::<u8>(), 1..16))),
     );
-    runner
-        .run(&strategy, |(which, edits, cut, insert)| {
-            let base = [&exr, &pfm, &png, &npy][which];
-            run_all(&mutate(base, &edits, cut, insert))
-        })
-        .unwrap();
-    eprintln!(
-        "mutated: {} cases; decoder results so far: {} ok, {} errors",
-        cases(),
-        OK.load(Ordering::Relaxed),
-        ERR.load(Ordering::Relaxed)
-    );
+    run_cases("mutated", &strategy, |(which, edits, cut, insert)| {
+        let base = [&exr, &pfm, &png, &npy][which];
+        run_all(&mutate(base, &edits, cut, insert))
+    });
 }
 
 #[test]
 fn readers_never_panic_on_random_bytes() {
-    let mut runner = TestRunner::new(Config {
-        cases: cases(),
-        failure_persistence: None,
-        ..Config::default()
-    });
     // Random tails after each format's magic, so the parsers get past the first check.
     let strategy = (0usize..5, prop::collection::vec(any::<u8>(), 0..512));
-    runner
-        .run(&strategy, |(prefix, tail)| {
-            let magic: &[u8] = [
-                &b""[..],
-                b"\x76\x2f\x31\x01",
-                b"Pf\n",
-                b"\x89PNG\r\n\x1a\n",
-                b"\x93NUMPY\x01\x00",
-            ][prefix];
-            let mut bytes = magic.to_vec();
-            bytes.extend_from_slice(&tail);
-            run_all(&bytes)
-        })
-        .unwrap();
-    eprintln!(
-        "random: {} cases; decoder results so far: {} ok, {} errors",
-        cases(),
-        OK.load(Ordering::Relaxed),
-        ERR.load(Ordering::Relaxed)
-    );
+    run_cases("random", &strategy, |(prefix, tail)| {
+        let magic: &[u8] = [
+            &b""[..],
+            b"\x76\x2f\x31\x01",
+            b"Pf\n",
+            b"\x89PNG\r\n\x1a\n",
+            b"\x93NUMPY\x01\x00",
+        ][prefix];
+        let mut bytes = magic.to_vec();
+        bytes.extend_from_slice(&tail);
+        run_all(&bytes)
+    });
 }
