@@ -177,6 +177,16 @@ fn a_failed_rewrite_keeps_the_old_file_whole() {
     assert_eq!(names(fs.path()), vec!["left.png"]);
 }
 
+/// Export to the CREStereo layout with lossless images, the source's layout detected.
+fn lossless_crestereo_export() -> ExportOptions {
+    ExportOptions {
+        from: None,
+        to: WritableFormat::Crestereo,
+        images: ImageEncoding::Lossless,
+        read: Default::default(),
+    }
+}
+
 /// A CREStereo-layout dataset of `n` samples with incompressible images.
 fn source_dataset(root: &Path, n: usize) {
     let mut w = create_writer(WritableFormat::Crestereo, root, ImageEncoding::Lossless).unwrap();
@@ -204,12 +214,7 @@ fn re_exporting_into_the_same_folder_is_idempotent_and_leaves_no_temp_links() {
     let src = t.path().join("src");
     source_dataset(&src, 4);
     let out = t.path().join("out");
-    let opts = ExportOptions {
-        from: None,
-        to: WritableFormat::Crestereo,
-        images: ImageEncoding::Lossless,
-        read: Default::default(),
-    };
+    let opts = lossless_crestereo_export();
     let first = export_dataset(&src, &out, &opts).unwrap();
     let listing = names(&out);
     let bytes: Vec<Vec<u8>> = listing
@@ -242,12 +247,7 @@ fn an_export_onto_a_full_disk_leaves_whole_samples_and_says_so() {
     source_dataset(&src, 12);
     // The source is on another filesystem: every file is copied, and the disk fills mid-way.
     let out = fs.path().join("out");
-    let opts = ExportOptions {
-        from: None,
-        to: WritableFormat::Crestereo,
-        images: ImageEncoding::Lossless,
-        read: Default::default(),
-    };
+    let opts = lossless_crestereo_export();
     let filler = fs.fill_leaving(200 * 1024);
     let e = export_dataset(&src, &out, &opts).unwrap_err().to_string();
     assert!(
