@@ -56,17 +56,7 @@ fn files(dir: &Path) -> Vec<(String, usize, u64)> {
 }
 
 fn gnu_tar(args: &[&str], shard: &Path) -> Vec<u8> {
-    let out = Command::new("tar")
-        .args(args)
-        .arg(shard)
-        .output()
-        .expect("GNU tar");
-    assert!(
-        out.status.success(),
-        "tar {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out.stdout
+    test_support::run_ok(Command::new("tar").args(args).arg(shard)).stdout
 }
 
 #[test]
