@@ -7,12 +7,12 @@
 //! bit-identically.
 
 use std::path::Path;
-use std::process::Command;
 
 use stereo_io::*;
 
 use crate::pinned_venv;
-use pinned_venv::{ensure_venv, run};
+use crate::python_script_json;
+use pinned_venv::ensure_venv;
 
 const PINS: &[&str] = &[
     "opencv-python-headless==5.0.0.93",
@@ -135,16 +135,7 @@ fn every_export_target_reads_back_through_opencv_and_pillow() {
         }
     }
     let out = t.path().join("read");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/independent_readers.py");
-    let facts = run(
-        Command::new(venv.join("bin/python"))
-            .arg(&script)
-            .arg(&exports)
-            .arg(&out),
-        "independent_readers.py",
-    );
-    let facts: serde_json::Value =
-        serde_json::from_str(facts.trim()).unwrap_or_else(|e| panic!("{e}: {facts}"));
+    let facts = python_script_json(&venv, "independent_readers.py", &exports, &out);
     // The category-listing loaders see every sample of ours.
     assert_eq!(facts["crestereo_listed_by_category"], 2, "{facts}");
 

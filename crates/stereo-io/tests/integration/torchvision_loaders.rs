@@ -8,12 +8,12 @@
 //! (torch 2.15.0; torchvision asks for 2.14): the dataset classes are Python and Pillow.
 
 use std::path::Path;
-use std::process::Command;
 
 use stereo_io::*;
 
 use crate::pinned_venv;
-use pinned_venv::{ensure_venv, ensure_venv_on, run};
+use crate::python_script_json;
+use pinned_venv::{ensure_venv, ensure_venv_on};
 
 /// The trainer's PyTorch parity venv (`crates/crestereo-train/tests/integration/export_pytorch.rs`): reused.
 const TORCH_PINS: &[&str] = &["torch==2.15.0", "numpy==2.4.6"];
@@ -99,16 +99,7 @@ fn torchvision_stereo_datasets_open_our_exports_and_read_what_we_read() {
         assert!(notes.is_empty(), "{format}: {notes:?}");
     }
     let out = t.path().join("read");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/torchvision_loaders.py");
-    let found = run(
-        Command::new(venv.join("bin/python"))
-            .arg(&script)
-            .arg(&exports)
-            .arg(&out),
-        "torchvision_loaders.py",
-    );
-    let found: serde_json::Value =
-        serde_json::from_str(found.trim()).unwrap_or_else(|e| panic!("{e}: {found}"));
+    let found = python_script_json(&venv, "torchvision_loaders.py", &exports, &out);
 
     for (folder, format) in layouts {
         let listed = found[folder].as_array().unwrap();

@@ -3,13 +3,14 @@
 //! interrupted export resumed to the same bytes, an existing export refused without `force`.
 
 use std::fs;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use stereo_io::*;
 
 use crate::io_fixtures;
 use crate::pinned_venv;
+use crate::python_script_json;
 use io_fixtures::*;
 
 /// The readers nobody here wrote: the `webdataset` package, Pillow, OpenEXR.
@@ -172,12 +173,23 @@ fn shards_hold_every_sample_as_the_source_has_it() {
 /// A split is opened on its own: `open_splits` reads the named splits' shards only (in index
 /// order, whatever the order asked), `open` every split, and a split the export lacks is an
 /// error listing those it has.
+/// The error `r` must be, as text (an `Ok` fails the test).
+fn error_text<T>(r: Result<T>) -> String {
+    r.err().expect("an error").to_string()
+}
+
+/// Our tiny dataset written to `dir/ours` and exported with [`opts`] to `dir/wds`; returns both.
+fn exported_ours(dir: &Path) -> (PathBuf, PathBuf) {
+    let (source, out) = (dir.join("ours"), dir.join("wds"));
+    our_dataset(&mkdir(&source));
+    export(&source, &out, &opts(false)).unwrap();
+    (source, out)
+}
+
 #[test]
 fn splits_open_on_their_own() {
     let t = tempfile::tempdir().unwrap();
-    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
-    our_dataset(&mkdir(&source));
-    export(&source, &out, &opts(false)).unwrap();
+    let (_, out) = exported_ours(t.path());
     assert_eq!(WebDataset::split_names(&out).unwrap(), ["train", "val"]);
     let ids = |ds: &WebDataset| -> Vec<String> {
         (0..ds.len())
@@ -213,33 +225,25 @@ fn splits_open_on_their_own() {
     // Streaming numbers the shards of the opened splits only.
     assert_eq!(val.shard_samples().iter().sum::<usize>(), val.len());
     assert_eq!(val.shard_reader(0).unwrap().read(&val, 0).unwrap().index, 0);
-    let e = WebDataset::open_splits(&out, &["test"])
-        .err()
-        .unwrap()
-        .to_string();
+    let e = error_text(WebDataset::open_splits(&out, &["test"]));
     assert!(
         e.contains("no split \"test\"") && e.contains("its splits: train, val"),
         "{e}"
     );
     let none: [&str; 0] = [];
-    let e = WebDataset::open_splits(&out, &none)
-        .err()
-        .unwrap()
-        .to_string();
+    let e = error_text(WebDataset::open_splits(&out, &none));
     assert!(e.contains("no split asked for"), "{e}");
 }
 
 #[test]
 fn a_shard_cut_short_is_named_not_read_as_fewer_samples() {
     let t = tempfile::tempdir().unwrap();
-    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
-    our_dataset(&mkdir(&source));
-    export(&source, &out, &opts(false)).unwrap();
+    let (_, out) = exported_ours(t.path());
     let shard = out.join("train-000001.tar");
     let bytes = fs::read(&shard).unwrap();
     // Cut at a block boundary (what a killed copy leaves): tar itself would read fewer members.
     fs::write(&shard, &bytes[..bytes.len() / 1024 * 512]).unwrap();
-    let e = open_dataset(&out, None).err().unwrap().to_string();
+    let e = error_text(open_dataset(&out, None));
     assert!(
         e.contains("train-000001.tar") && e.contains("cut short"),
         "{e}"
@@ -247,10 +251,7 @@ fn a_shard_cut_short_is_named_not_read_as_fewer_samples() {
     // An export that never wrote its index is not a dataset at all.
     fs::remove_file(out.join("train.index.json")).unwrap();
     fs::remove_file(out.join("val.index.json")).unwrap();
-    let e = open_dataset(&out, Some(DatasetFormat::WebDataset))
-        .err()
-        .unwrap()
-        .to_string();
+    let e = error_text(open_dataset(&out, Some(DatasetFormat::WebDataset)));
     assert!(e.contains("did not finish"), "{e}");
 }
 
@@ -297,19 +298,9 @@ fn an_interrupted_export_resumes_from_its_last_whole_shard() {
 fn the_webdataset_package_reads_our_shards_as_we_read_the_source() {
     let venv = pinned_venv::ensure_venv("venv-webdataset", PYTHON_PINS);
     let t = tempfile::tempdir().unwrap();
-    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
-    our_dataset(&mkdir(&source));
-    export(&source, &out, &opts(false)).unwrap();
+    let (source, out) = exported_ours(t.path());
     let read = t.path().join("read");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/webdataset_reader.py");
-    let keys = pinned_venv::run(
-        Command::new(venv.join("bin/python"))
-            .arg(&script)
-            .arg(&out)
-            .arg(&read),
-        "webdataset_reader.py",
-    );
-    let keys: serde_json::Value = serde_json::from_str(keys.trim()).unwrap();
+    let keys = python_script_json(&venv, "webdataset_reader.py", &out, &read);
     let keys = keys.as_array().unwrap();
     assert_eq!(keys.len(), IDS, "every sample, once");
     let ours = open_dataset(&source, None).unwrap();
