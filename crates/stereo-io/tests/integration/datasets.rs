@@ -406,11 +406,7 @@ fn our_line(id: &str) -> String {
 fn our_manifest_layout_and_its_errors() {
     let t = tempfile::tempdir().unwrap();
     let cat = mkdir(&t.path().join("primitives"));
-    let meta = DisparityMeta {
-        f_px: Some(64.0),
-        baseline_m: Some(0.1),
-        view: Some("left".into()),
-    };
+    let meta = left_view_meta(64.0, 0.1);
     for id in ["0000000", "0000001"] {
         write_png_rgb(&cat.join(format!("{id}_left.png")), &rgb(1)).unwrap();
         write_png_rgb(&cat.join(format!("{id}_right.png")), &rgb(2)).unwrap();
@@ -453,20 +449,13 @@ const LINE_BEFORE_RENDER_TIMINGS: &str = r#"{"id":"0000000","category":"primitiv
 fn a_manifest_from_before_render_timings_still_reads() {
     let t = tempfile::tempdir().unwrap();
     let cat = mkdir(&t.path().join("primitives"));
-    write_png_rgb(&cat.join("0000000_left.png"), &rgb(1)).unwrap();
-    write_png_rgb(&cat.join("0000000_right.png"), &rgb(2)).unwrap();
-    write_disparity_exr(
-        &cat.join("0000000_left.disp.exr"),
-        &disp(0.1),
+    write_sample_images(
+        &cat,
+        "0000000",
+        [&rgb(1), &rgb(2)],
+        [&disp(0.1), &disp(0.2)],
         &DisparityMeta::default(),
-    )
-    .unwrap();
-    write_disparity_exr(
-        &cat.join("0000000_right.disp.exr"),
-        &disp(0.2),
-        &DisparityMeta::default(),
-    )
-    .unwrap();
+    );
     write_ours(t.path(), &[format!("{LINE_BEFORE_RENDER_TIMINGS}\n")]);
     let entries = Manifest::read(&t.path().join("manifest.jsonl")).unwrap();
     assert_eq!(entries.len(), 1);

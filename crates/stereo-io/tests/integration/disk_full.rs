@@ -12,6 +12,8 @@ use std::path::Path;
 use stereo_io::datasets::export::EXPORT_INDEX_FILE;
 use stereo_io::*;
 
+use crate::io_fixtures::left_view_meta;
+
 /// An image that does not compress (so its PNG is about as large as its pixels).
 fn noise(width: usize, height: usize, seed: u64) -> RgbImage {
     let mut x = seed
@@ -143,11 +145,7 @@ fn a_filling_disk_never_leaves_a_short_image_or_exr() {
         *d = (i as f32 * 0.618_034).fract() * 100.0;
         map.valid[i] = true;
     }
-    let meta = DisparityMeta {
-        f_px: Some(100.0),
-        baseline_m: Some(0.1),
-        view: Some("left".into()),
-    };
+    let meta = left_view_meta(100.0, 0.1);
     sweep_fill_levels(
         &fs,
         "disp.exr",

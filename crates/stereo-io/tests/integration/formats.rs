@@ -5,6 +5,8 @@ use std::path::Path;
 
 use stereo_io::*;
 
+use crate::io_fixtures::left_view_meta;
+
 fn sample_map(w: usize, h: usize) -> DisparityMap {
     let mut m = DisparityMap::new(w, h);
     for (i, (d, v)) in m.data.iter_mut().zip(m.valid.iter_mut()).enumerate() {
@@ -226,11 +228,7 @@ fn npy_round_trip_and_numpy_compatible_header() {
 fn generic_entry_points_dispatch_on_the_file_name() {
     let dir = tempfile::tempdir().unwrap();
     let map = sample_map(4, 4);
-    let meta = DisparityMeta {
-        f_px: Some(700.0),
-        baseline_m: Some(0.1),
-        view: Some("left".into()),
-    };
+    let meta = left_view_meta(700.0, 0.1);
     for name in ["a.exr", "a.pfm", "a.npy"] {
         let p = dir.path().join(name);
         write_disparity(&p, &map, &meta, None).unwrap();

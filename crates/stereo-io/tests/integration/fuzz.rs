@@ -9,6 +9,8 @@ use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
 use stereo_io::*;
 
+use crate::io_fixtures::left_view_meta;
+
 fn cases() -> u32 {
     std::env::var("STEREO_IO_FUZZ_CASES")
         .ok()
@@ -23,11 +25,7 @@ fn valid_files() -> (Vec<u8>, Vec<u8>, Vec<u8>, Vec<u8>) {
         *v = i % 5 != 0;
         *d = if *v { i as f32 * 0.75 } else { 0.0 };
     }
-    let meta = DisparityMeta {
-        f_px: Some(100.0),
-        baseline_m: Some(0.1),
-        view: Some("left".into()),
-    };
+    let meta = left_view_meta(100.0, 0.1);
     let (e, p, n) = (
         dir.path().join("a.exr"),
         dir.path().join("a.pfm"),

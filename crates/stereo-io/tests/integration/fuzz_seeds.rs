@@ -58,11 +58,7 @@ fn write_seeds() {
     put("pth", "stored.pth", &stored);
     put("pth", "deflated.pth", &deflated(&stored));
     // Disparity files as the generator and the exporters write them.
-    let meta = DisparityMeta {
-        f_px: Some(64.0),
-        baseline_m: Some(0.1),
-        view: Some("left".into()),
-    };
+    let meta = left_view_meta(64.0, 0.1);
     let exr = dir.path().join("d.exr");
     write_disparity_exr(&exr, &disp(2.0), &meta).unwrap();
     put("exr_disparity", "disp.exr", &fs::read(&exr).unwrap());
