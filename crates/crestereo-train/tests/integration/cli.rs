@@ -179,19 +179,14 @@ fn bench_loader_prints_a_rate_per_thread_count() {
         .output()
         .unwrap();
     assert!(synth.status.success(), "{synth:?}");
-    let out = bin()
-        .args(["bench", "--what", "loader", "--loader-threads", "2,1,2"])
-        .args(["--samples", "3", "--data"])
-        .arg(format!("{}:crestereo", data.display()))
-        .env("CRESTEREO_LOG", "warn")
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(
-        out.status.success(),
-        "{text}{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = test_support::run_ok(
+        bin()
+            .args(["bench", "--what", "loader", "--loader-threads", "2,1,2"])
+            .args(["--samples", "3", "--data"])
+            .arg(format!("{}:crestereo", data.display()))
+            .env("CRESTEREO_LOG", "warn"),
     );
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
     println!("{text}");
     assert!(text.contains("crop 384x512"), "{text}");
     let lines: Vec<&str> = text.lines().filter(|l| l.starts_with("threads ")).collect();

@@ -31,15 +31,10 @@ pub const STEPS: &str = "3";
 pub fn fine_tune(dir: &Path, reference: &Path) -> PathBuf {
     let (data, run) = (dir.join("data"), dir.join("run"));
     let crestereo = |args: &[&std::ffi::OsStr]| {
-        let o = Command::new(env!("CARGO_BIN_EXE_crestereo"))
-            .args(args)
-            .env("RAYON_NUM_THREADS", "2")
-            .output()
-            .expect("run crestereo");
-        assert!(
-            o.status.success(),
-            "crestereo {args:?} failed:\n{}",
-            String::from_utf8_lossy(&o.stderr)
+        test_support::run_ok(
+            Command::new(env!("CARGO_BIN_EXE_crestereo"))
+                .args(args)
+                .env("RAYON_NUM_THREADS", "2"),
         );
     };
     let os = |s: &'static str| std::ffi::OsStr::new(s);
