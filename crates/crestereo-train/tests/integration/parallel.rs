@@ -73,7 +73,16 @@ fn rank(cfg: &Path, run: &Path, rank: usize, port: u16, extra: &[&str]) -> Child
         .unwrap()
 }
 
-fn wait_ok(children: Vec<Child>) {
+/// Both ranks of a two-process run on a fresh block of loopback ports, rank r with `extra[r]`.
+fn both_ranks(cfg: &Path, run: &Path, extra: [&[&str]; 2]) -> [Child; 2] {
+    let port = free_master_port();
+    [
+        rank(cfg, run, 0, port, extra[0]),
+        rank(cfg, run, 1, port, extra[1]),
+    ]
+}
+
+fn wait_ok(children: impl IntoIterator<Item = Child>) {
     for c in children {
         let o = c.wait_with_output().unwrap();
         assert!(o.status.success(), "a rank failed:\n{}", text(&o));
@@ -103,12 +112,8 @@ fn two_processes_train_as_one_with_the_whole_batch() {
     let (one, two) = (dir.path().join("one"), dir.path().join("two"));
     let o = train(&cfg, &one, &["--threads", "2"]).output().unwrap();
     assert!(o.status.success(), "{}", text(&o));
-    let port = free_master_port();
     let t0 = Instant::now();
-    wait_ok(vec![
-        rank(&cfg, &two, 0, port, &[]),
-        rank(&cfg, &two, 1, port, &[]),
-    ]);
+    wait_ok(both_ranks(&cfg, &two, [&[], &[]]));
     eprintln!("two processes: {:.1} s", t0.elapsed().as_secs_f64());
     assert_follows(
         &one,
@@ -169,15 +174,9 @@ fn a_killed_rank_stops_the_other_and_resume_continues_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = setup(dir.path(), 8);
     let (straight, broken) = (dir.path().join("straight"), dir.path().join("broken"));
-    let port = free_master_port();
-    wait_ok(vec![
-        rank(&cfg, &straight, 0, port, &[]),
-        rank(&cfg, &straight, 1, port, &[]),
-    ]);
+    wait_ok(both_ranks(&cfg, &straight, [&[], &[]]));
 
-    let port = free_master_port();
-    let r0 = rank(&cfg, &broken, 0, port, &[]);
-    let mut r1 = rank(&cfg, &broken, 1, port, &[]);
+    let [r0, mut r1] = both_ranks(&cfg, &broken, [&[], &[]]);
     wait_for(
         &broken.join("checkpoints/step-00000003/state.json"),
         Duration::from_secs(300),
@@ -203,11 +202,7 @@ fn a_killed_rank_stops_the_other_and_resume_continues_exactly() {
 
     // Resume: the two ranks continue from the newest whole checkpoint and end as the
     // straight run did.
-    let port = free_master_port();
-    wait_ok(vec![
-        rank(&cfg, &broken, 0, port, &["--resume"]),
-        rank(&cfg, &broken, 1, port, &["--resume"]),
-    ]);
+    wait_ok(both_ranks(&cfg, &broken, [&["--resume"], &["--resume"]]));
     assert_eq!(losses(&straight), losses(&broken));
     assert_eq!(weights(&straight, 8), weights(&broken, 8));
 }
@@ -217,9 +212,7 @@ fn sigterm_stops_every_rank_after_a_common_step() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = setup(dir.path(), 12);
     let run = dir.path().join("run");
-    let port = free_master_port();
-    let r0 = rank(&cfg, &run, 0, port, &[]);
-    let r1 = rank(&cfg, &run, 1, port, &[]);
+    let [r0, r1] = both_ranks(&cfg, &run, [&[], &[]]);
     wait_for(
         &run.join("checkpoints/step-00000002/state.json"),
         Duration::from_secs(300),
@@ -248,11 +241,7 @@ fn sigterm_stops_every_rank_after_a_common_step() {
         text(&o0)
     );
     // Requeued: the same command with --resume finishes the run.
-    let port = free_master_port();
-    wait_ok(vec![
-        rank(&cfg, &run, 0, port, &["--resume"]),
-        rank(&cfg, &run, 1, port, &["--resume"]),
-    ]);
+    wait_ok(both_ranks(&cfg, &run, [&["--resume"], &["--resume"]]));
     assert_eq!(losses(&run).last().unwrap().0, 12);
 }
 
@@ -261,24 +250,15 @@ fn mismatched_ranks_are_refused_before_any_step() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = setup(dir.path(), 2);
     let run = dir.path().join("run");
-    let port = free_master_port();
-    let r0 = rank(&cfg, &run, 0, port, &[]);
     // Rank 1 with another seed: another run.
-    let r1 = rank(&cfg, &run, 1, port, &["--seed", "6"]);
+    let [r0, r1] = both_ranks(&cfg, &run, [&[], &["--seed", "6"]]);
     let (o0, o1) = (
         r0.wait_with_output().unwrap(),
         r1.wait_with_output().unwrap(),
     );
     assert!(!o0.status.success() && !o1.status.success());
-    assert!(
-        text(&o0).contains("rank 1 runs another config"),
-        "{}",
-        text(&o0)
-    );
-    assert!(
-        text(&o1).contains("rank 0 refused the run"),
-        "{}",
-        text(&o1)
-    );
+    let (said0, said1) = (text(&o0), text(&o1));
+    assert!(said0.contains("rank 1 runs another config"), "{said0}");
+    assert!(said1.contains("rank 0 refused the run"), "{said1}");
     assert!(!run.join("checkpoints").exists() || losses(&run).is_empty());
 }
