@@ -26,12 +26,7 @@ fn dataset(dir: &Path, count: usize) {
 /// accumulated, 2 iterations.
 fn tiny_config(data: &Path, steps: u64) -> TrainConfig {
     let mut cfg = TrainConfig {
-        datasets: vec![DatasetEntry {
-            path: data.to_path_buf(),
-            format: None,
-            weight: 1.0,
-            splits: None,
-        }],
+        datasets: vec![DatasetEntry::new(data.to_path_buf())],
         steps,
         batch_size: 1,
         accumulate: 2,

@@ -267,10 +267,8 @@ fn streamed_samples_match_a_resume_other_threads_and_random_access() {
     let data = shards(dir.path(), 12);
     let source = Arc::new(
         MixedSource::open(&[DatasetEntry {
-            path: data.clone(),
             format: Some(stereo_io::DatasetFormat::WebDataset),
-            weight: 1.0,
-            splits: None,
+            ..DatasetEntry::new(data.clone())
         }])
         .unwrap(),
     );
@@ -350,15 +348,7 @@ fn streamed_samples_match_a_resume_other_threads_and_random_access() {
 fn streaming_off_reads_the_webdataset_by_seeking_in_a_full_shuffle() {
     let dir = tempfile::tempdir().unwrap();
     let data = shards(dir.path(), 8);
-    let source = Arc::new(
-        MixedSource::open(&[DatasetEntry {
-            path: data,
-            format: None,
-            weight: 1.0,
-            splits: None,
-        }])
-        .unwrap(),
-    );
+    let source = Arc::new(MixedSource::open(&[DatasetEntry::new(data)]).unwrap());
     let off = source.stream_layouts(&StreamSettings {
         streams: 0,
         shuffle_buffer: 10,
