@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::render::scratch;
-use test_support::{generate_cmd, sha256_hex, write_tiny_recipe};
+use test_support::{assert_listed_file_intact, generate_cmd, write_tiny_recipe};
 
 use test_support::small_fs_or_skip;
 
@@ -269,13 +269,7 @@ fn assert_manifest_sound(out: &Path) -> BTreeSet<u64> {
         assert!(indices.insert(e.index), "index {} listed twice", e.index);
         for (key, rel) in e.files.all() {
             let path = layout.abs(rel);
-            assert!(path.is_file(), "{} is listed but missing", path.display());
-            assert_eq!(
-                sha256_hex(&path),
-                e.sha256[key],
-                "{} does not match its manifest checksum",
-                path.display()
-            );
+            assert_listed_file_intact(&path, &e.sha256[key]);
             match key {
                 "left" | "right" => {
                     let img = stereo_io::read_rgb(&path).unwrap_or_else(|err| panic!("{err}"));

@@ -263,15 +263,7 @@ pub fn generate_tiny_preset(
     seed: u64,
 ) -> PathBuf {
     let (mut c, out) = tiny_generate(dir, preset, name, count);
-    let o = c
-        .args(["--seed", &seed.to_string()])
-        .output()
-        .expect("run stereogen");
-    assert!(
-        o.status.success(),
-        "generate {preset} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    run_ok(c.args(["--seed", &seed.to_string()]));
     out
 }
 
@@ -293,22 +285,25 @@ pub fn generate_failed_dataset(dir: &std::path::Path, name: &str) -> PathBuf {
 /// SHA-256 of a file as lowercase hex, recomputed with coreutils' `sha256sum`: independent of the
 /// generator's own hashing, so the manifest's checksums are checked by code nobody here wrote.
 pub fn sha256_hex(path: &std::path::Path) -> String {
-    let out = std::process::Command::new("sha256sum")
-        .arg(path)
-        .output()
-        .expect("sha256sum");
-    assert!(
-        out.status.success(),
-        "sha256sum {}: {}",
-        path.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = run_ok(std::process::Command::new("sha256sum").arg(path));
     String::from_utf8(out.stdout)
         .unwrap()
         .split_whitespace()
         .next()
         .unwrap()
         .to_string()
+}
+
+/// Asserts that `path`, a file a manifest lists, is there and that its SHA-256 (by
+/// [`sha256_hex`]) is `want`, the checksum the manifest recorded.
+pub fn assert_listed_file_intact(path: &std::path::Path, want: &str) {
+    assert!(path.is_file(), "{} is listed but missing", path.display());
+    assert_eq!(
+        sha256_hex(path),
+        want,
+        "{} does not match its manifest checksum",
+        path.display()
+    );
 }
 
 /// A farm output of `count` samples of the tiny `crestereo` recipe (seed 9) in two shards, each
