@@ -20,8 +20,9 @@ use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
 use stereogen::dataset::Manifest;
+use test_support::files::write_replaced;
 use test_support::{
-    farm_cmd, output_text as text, stereogen_bin, stereogen_cmd, write_tiny_recipe,
+    farm_cmd, output_text as text, run_fails, stereogen_bin, stereogen_cmd, write_tiny_recipe,
 };
 
 /// The `--webdataset` options the farms here are written with (DIR is `OUT/wds`); a size in
@@ -164,27 +165,19 @@ fn every_farm_passes_the_webdataset_options_to_its_merge_step() {
         ),
         ("openjd", out.join("shards/wds"), "a folder of their own"),
     ] {
-        let o = farm_cmd(scheduler, &recipe, &out, 4, 2)
-            .arg("--webdataset")
-            .arg(&dir_arg)
-            .output()
-            .unwrap();
+        let said = run_fails(
+            farm_cmd(scheduler, &recipe, &out, 4, 2)
+                .arg("--webdataset")
+                .arg(&dir_arg),
+        );
         assert!(
-            !o.status.success() && text(&o).contains(why),
-            "{scheduler} --webdataset {}: {}",
-            dir_arg.display(),
-            text(&o)
+            said.contains(why),
+            "{scheduler} --webdataset {}: {said}",
+            dir_arg.display()
         );
     }
-    let o = farm_cmd("slurm", &recipe, &out, 4, 2)
-        .args(SHARDS)
-        .output()
-        .unwrap();
-    assert!(
-        !o.status.success() && text(&o).contains("need --webdataset"),
-        "{}",
-        text(&o)
-    );
+    let said = run_fails(farm_cmd("slurm", &recipe, &out, 4, 2).args(SHARDS));
+    assert!(said.contains("need --webdataset"), "{said}");
 }
 
 #[test]
@@ -289,13 +282,7 @@ fn kubernetes_jobs_validate_and_their_commands_render_and_merge() {
     );
     // The validator does reject a Job with a misspelt field.
     let bad = dir.path().join("bad.yaml");
-    std::fs::write(
-        &bad,
-        std::fs::read_to_string(&render)
-            .unwrap()
-            .replace("completionMode:", "completionMod:"),
-    )
-    .unwrap();
+    write_replaced(&render, &bad, "completionMode:", "completionMod:");
     let o = Command::new(bin.join("kubernetes-validate"))
         .arg("--strict")
         .arg(&bad)
@@ -477,16 +464,12 @@ fn a_farm_task_asks_for_8_cores_and_names_its_threads_by_default() {
         &["--time-limit", "90"],
     );
     assert!(k8s.contains("activeDeadlineSeconds: 5400\n"), "{k8s}");
-    let o = stereogen_cmd(["farm", "slurm", "--count", "4", "--tasks", "2", "--out"])
-        .arg(&out)
-        .args(["--time-limit", "soon"])
-        .output()
-        .unwrap();
-    assert!(
-        !o.status.success() && text(&o).contains("Slurm's MM"),
-        "{}",
-        text(&o)
+    let said = run_fails(
+        stereogen_cmd(["farm", "slurm", "--count", "4", "--tasks", "2", "--out"])
+            .arg(&out)
+            .args(["--time-limit", "soon"]),
     );
+    assert!(said.contains("Slurm's MM"), "{said}");
 }
 
 /// `--estimate` renders two samples here and sets each scheduler's time limit of the render

@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 
 use stereogen::dataset::{DatasetLayout, Manifest};
 use stereogen::plan::recipe::PRESETS;
-use test_support::{sha256_hex, stereogen_cmd, write_tiny_recipe};
+use test_support::files::write_replaced;
+use test_support::{assert_listed_file_intact, stereogen_cmd, write_tiny_recipe};
 
 /// The default preset shrunk so a sample renders in about a second.
 fn tiny_recipe(dir: &Path) -> PathBuf {
@@ -48,13 +49,7 @@ fn assert_complete_dataset(out: &Path, count: u64) {
     for e in &entries {
         for (key, rel) in e.files.all() {
             let path = layout.abs(rel);
-            assert!(path.is_file(), "{} missing", path.display());
-            assert_eq!(
-                sha256_hex(&path),
-                e.sha256[key],
-                "{} does not match its manifest checksum",
-                path.display()
-            );
+            assert_listed_file_intact(&path, &e.sha256[key]);
         }
         stereo_io::read_disparity_exr(&layout.abs(&e.files.disp_left)).expect("readable disparity");
     }
@@ -125,16 +120,28 @@ fn killed_run_resumes_to_a_complete_dataset() {
     );
 }
 
+/// [`generate_cmd`] run with `extra` flags and the worker made to fail as
+/// `STEREOGEN_FAULT=fault` says; returns the output and its stderr.
+fn generate_with_fault(
+    recipe: &Path,
+    out: &Path,
+    count: u64,
+    fault: &str,
+    extra: &[&str],
+) -> (Output, String) {
+    let mut c = generate_cmd(recipe, out, count);
+    c.env("STEREOGEN_FAULT", fault).args(extra);
+    let o = run(c);
+    let err = stderr(&o);
+    (o, err)
+}
+
 #[test]
 fn crashed_and_hung_workers_are_restarted_and_the_run_completes() {
     let dir = tempfile::tempdir().unwrap();
     let recipe = tiny_recipe(dir.path());
     let out = dir.path().join("data");
-    let mut c = generate_cmd(&recipe, &out, 4);
-    c.env("STEREOGEN_FAULT", "crash@1,hang@2")
-        .args(["--timeout", "20"]);
-    let o = run(c);
-    let err = stderr(&o);
+    let (o, err) = generate_with_fault(&recipe, &out, 4, "crash@1,hang@2", &["--timeout", "20"]);
     assert!(o.status.success(), "{err}");
     assert!(
         err.contains("killed by signal 11"),
@@ -153,11 +160,7 @@ fn a_sample_that_always_crashes_is_recorded_and_the_rest_finish() {
     let dir = tempfile::tempdir().unwrap();
     let recipe = tiny_recipe(dir.path());
     let out = dir.path().join("data");
-    let mut c = generate_cmd(&recipe, &out, 3);
-    c.env("STEREOGEN_FAULT", "crash-always@1")
-        .args(["--retries", "1"]);
-    let o = run(c);
-    let err = stderr(&o);
+    let (o, err) = generate_with_fault(&recipe, &out, 3, "crash-always@1", &["--retries", "1"]);
     assert!(!o.status.success());
     assert!(
         err.lines()
@@ -194,32 +197,23 @@ fn assert_one_line_error(c: Command, expect: &str) {
 fn bad_input_gives_one_clear_line() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("data");
+    // The default recipe with one edit, written as dir/NAME.
+    let recipe_with = |name: &str, pattern: &str, with: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, DEFAULT_RECIPE_TOML.replace(pattern, with)).unwrap();
+        path
+    };
 
-    let unknown = dir.path().join("unknown.toml");
-    std::fs::write(
-        &unknown,
-        DEFAULT_RECIPE_TOML.replace("[render]", "[render]\nspp = 8"),
-    )
-    .unwrap();
+    let unknown = recipe_with("unknown.toml", "[render]", "[render]\nspp = 8");
     assert_one_line_error(generate_cmd(&unknown, &out, 1), "unknown field `spp`");
 
-    let missing = dir.path().join("missing.toml");
-    std::fs::write(
-        &missing,
-        DEFAULT_RECIPE_TOML.replace("baseline_m = ", "# baseline_m = "),
-    )
-    .unwrap();
+    let missing = recipe_with("missing.toml", "baseline_m = ", "# baseline_m = ");
     assert_one_line_error(
         generate_cmd(&missing, &out, 1),
         "missing field `baseline_m`",
     );
 
-    let range = dir.path().join("range.toml");
-    std::fs::write(
-        &range,
-        DEFAULT_RECIPE_TOML.replace("samples = 32", "samples = 0"),
-    )
-    .unwrap();
+    let range = recipe_with("range.toml", "samples = 32", "samples = 0");
     assert_one_line_error(generate_cmd(&range, &out, 1), "`render.samples` is invalid");
 
     assert_one_line_error(
@@ -259,13 +253,7 @@ fn a_dataset_refuses_another_seed_or_recipe() {
         "was generated with --seed 5",
     );
     let other = dir.path().join("other.toml");
-    std::fs::write(
-        &other,
-        std::fs::read_to_string(&recipe)
-            .unwrap()
-            .replace("samples = 2\n", "samples = 3\n"),
-    )
-    .unwrap();
+    write_replaced(&recipe, &other, "samples = 2\n", "samples = 3\n");
     assert_one_line_error(
         generate_cmd(&other, &out, 1),
         "was generated with another recipe",

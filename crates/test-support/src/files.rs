@@ -1,4 +1,4 @@
-//! Reading a folder back in tests.
+//! Reading a folder back in tests, and writing an edited copy of a file.
 
 use std::path::{Path, PathBuf};
 
@@ -26,4 +26,13 @@ pub fn walk(dir: &Path) -> Vec<PathBuf> {
         .filter(|e| !e.file_type().is_dir())
         .map(walkdir::DirEntry::into_path)
         .collect()
+}
+
+/// Writes `to`: the text file `from` with every `pattern` replaced by `with` (a file made
+/// invalid, or different, in one place).
+pub fn write_replaced(from: &Path, to: &Path, pattern: &str, with: &str) {
+    let text = std::fs::read_to_string(from)
+        .unwrap_or_else(|e| panic!("read {}: {e}", from.display()))
+        .replace(pattern, with);
+    std::fs::write(to, text).unwrap_or_else(|e| panic!("write {}: {e}", to.display()));
 }
