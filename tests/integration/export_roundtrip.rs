@@ -7,14 +7,15 @@ use std::path::{Path, PathBuf};
 use test_support::files::walk;
 
 use stereo_io::{DatasetFormat, DisparityMap, open_dataset};
-use test_support::export_cmd;
+use test_support::{export_cmd, run_ok};
 
 fn generate(dir: &Path) -> PathBuf {
     test_support::generate_tiny_dataset(dir, "ours", 2, 3)
 }
 
-fn export(data: &Path, format: &str, out: &Path, extra: &[&str]) -> std::process::Output {
-    export_cmd(data, format, out).args(extra).output().unwrap()
+/// `stereogen export` of `data` as `format` into `out` with `extra` flags; asserts it succeeded.
+fn export_ok(data: &Path, format: &str, out: &Path, extra: &[&str]) -> std::process::Output {
+    run_ok(export_cmd(data, format, out).args(extra))
 }
 
 /// Same validity everywhere, and values within `tol` on valid pixels.
@@ -79,12 +80,7 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
     ];
     for (format, expect, tol) in layouts {
         let out = dir.path().join(format);
-        let o = export(&data, format, &out, &[]);
-        assert!(
-            o.status.success(),
-            "export {format}: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
+        export_ok(&data, format, &out, &[]);
         let back = open_dataset(&out, None).unwrap();
         assert_eq!(
             back.format(),
@@ -153,18 +149,17 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
             }
         }
         // Exporting again over a finished export succeeds (every file is replaced atomically).
-        assert!(export(&data, format, &out, &[]).status.success());
+        export_ok(&data, format, &out, &[]);
     }
 
     // A dataset that is not ours: the Middlebury export, written as CREStereo's layout.
     let out = dir.path().join("middlebury_to_crestereo");
-    let o = export(
+    let o = export_ok(
         &dir.path().join("middlebury"),
         "crestereo",
         &out,
         &["--from-format", "middlebury"],
     );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let back = open_dataset(&out, None).unwrap();
     assert_eq!(
         (back.format(), back.len()),
@@ -196,7 +191,7 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
     }
     // Middlebury -> KITTI 2012, the variant named explicitly (our export is "-perfect" only).
     let out = dir.path().join("middlebury_to_kitti2012");
-    let o2 = export(
+    export_ok(
         &dir.path().join("middlebury"),
         "kitti2012",
         &out,
@@ -206,11 +201,6 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
             "--middlebury-variant",
             "perfect",
         ],
-    );
-    assert!(
-        o2.status.success(),
-        "{}",
-        String::from_utf8_lossy(&o2.stderr)
     );
     let kitti = open_dataset(&out, None).unwrap();
     assert_eq!(
@@ -238,12 +228,14 @@ fn export_to_crestereo_kitti_and_middlebury_reads_back_within_quantisation() {
         );
         assert_close(&got.disp_left, &want.disp_left, 0.5 / 256.0, line);
     }
-    let bad = export(
+    let bad = export_cmd(
         &dir.path().join("middlebury"),
         "kitti2012",
         &dir.path().join("x"),
-        &["--middlebury-variant", "exact"],
-    );
+    )
+    .args(["--middlebury-variant", "exact"])
+    .output()
+    .unwrap();
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(
         !bad.status.success() && err.contains("perfect, imperfect or both"),
@@ -263,13 +255,12 @@ fn crestereo_export_follows_the_official_loader_paths_and_jpeg_option() {
     let dir = tempfile::tempdir().unwrap();
     let data = generate(dir.path());
     let out = dir.path().join("cre");
-    let o = export(
+    export_ok(
         &data,
         "crestereo",
         &out,
         &["--jpeg-quality", "90", "--jpeg-chroma", "4:2:0"],
     );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // The official CREStereo loader: glob("**/*_left.jpg"), prefix = path[:rfind("_")],
     // then prefix + "_right.jpg", "_left.disp.png", "_right.disp.png" (cv2 IMREAD_UNCHANGED / 32).
     let lefts: Vec<PathBuf> = walk(&out)
@@ -306,12 +297,9 @@ fn crestereo_export_follows_the_official_loader_paths_and_jpeg_option() {
             "{category}/ exists even without samples"
         );
     }
-    let o = export(
-        &dir.path().join("nothing"),
-        "kitti",
-        &dir.path().join("k"),
-        &[],
-    );
+    let o = export_cmd(&dir.path().join("nothing"), "kitti", &dir.path().join("k"))
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         !o.status.success() && err.contains("nothing") && err.contains("manifest.jsonl"),

@@ -15,35 +15,21 @@ use std::time::{Duration, Instant};
 use stereogen::dataset::{DatasetLayout, Manifest};
 use test_support::files::walk;
 use test_support::slurm_cluster::{Cluster, ROUND_TIMEOUT, cluster_or_skip};
-use test_support::{farm_cmd, stats_cmd, write_tiny_recipe};
+use test_support::{farm_cmd, run_ok, stats_cmd, write_tiny_recipe};
 
 /// `stereogen farm slurm` for `count` samples in `tasks` tasks, at most 2 at once; `extra` added.
 fn write_job_files(recipe: &Path, out: &Path, count: u64, tasks: u64, extra: &[&OsStr]) {
-    let o = farm_cmd("slurm", recipe, out, count, tasks)
-        .args(["--max-parallel", "2", "--seed", "3"])
-        .args(extra)
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "farm slurm: {}",
-        String::from_utf8_lossy(&o.stderr)
+    run_ok(
+        farm_cmd("slurm", recipe, out, count, tasks)
+            .args(["--max-parallel", "2", "--seed", "3"])
+            .args(extra),
     );
 }
 
 /// Runs `submit.sh`; returns the render array's and the merge job's ids.
 fn submit(cluster: &Cluster, out: &Path) -> (String, String) {
-    let o = cluster
-        .cmd("bash")
-        .arg(out.join("jobs/submit.sh"))
-        .output()
-        .unwrap();
+    let o = run_ok(cluster.cmd("bash").arg(out.join("jobs/submit.sh")));
     let text = String::from_utf8_lossy(&o.stdout).into_owned();
-    assert!(
-        o.status.success(),
-        "submit.sh: {text}{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
     // "render array: 12  merge and check: 13"
     let words: Vec<&str> = text.split_whitespace().collect();
     let after = |w: &str| {
@@ -166,6 +152,18 @@ fn stats_check(out: &Path) -> Output {
         .unwrap()
 }
 
+/// Asserts that the merge-and-check job `merge` completed; `what` names it in the message, which
+/// shows the job and its log.
+fn assert_merge_completed(cluster: &Cluster, out: &Path, merge: &str, what: &str) {
+    let merge_job = cluster.job(merge);
+    assert_eq!(
+        merge_job.get("JobState").map(String::as_str),
+        Some("COMPLETED"),
+        "{what}: {merge_job:?}\n{}",
+        merge_log(out, merge)
+    );
+}
+
 #[test]
 fn a_slurm_array_renders_merges_and_survives_preemption() {
     let t0 = Instant::now();
@@ -183,13 +181,7 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     write_job_files(&recipe, &out, count, tasks, &shard_args);
     let (render, merge) = submit(&cluster, &out);
     cluster.wait_for_empty_queue("first farm");
-    let merge_job = cluster.job(&merge);
-    assert_eq!(
-        merge_job.get("JobState").map(String::as_str),
-        Some("COMPLETED"),
-        "merge job: {merge_job:?}\n{}",
-        merge_log(&out, &merge)
-    );
+    assert_merge_completed(&cluster, &out, &merge, "merge job");
     assert!(
         merge_log(&out, &merge).contains("stereogen farm: merge and check passed"),
         "{}",
@@ -259,13 +251,7 @@ fn a_slurm_array_renders_merges_and_survives_preemption() {
     cluster.wait_for_empty_queue("preempted farm");
     let (_, merge) = submit(&cluster, &out);
     cluster.wait_for_empty_queue("re-submitted farm");
-    let merge_job = cluster.job(&merge);
-    assert_eq!(
-        merge_job.get("JobState").map(String::as_str),
-        Some("COMPLETED"),
-        "merge after re-submission: {merge_job:?}\n{}",
-        merge_log(&out, &merge)
-    );
+    assert_merge_completed(&cluster, &out, &merge, "merge after re-submission");
     assert_complete_farm(&out, count, tasks);
     assert!(stats_check(&out).status.success());
     eprintln!(

@@ -9,7 +9,7 @@ use stereo_io::datasets::stereogen::read_skipped_assets;
 use stereogen::assets::{AssetIndex, MeshAsset};
 use stereogen::dataset::{Manifest, read_scene_spec};
 use stereogen::plan::{Recipe, Shape, plan_scene};
-use test_support::{generate_cmd, stereogen_cmd, write_tiny_recipe};
+use test_support::{generate_cmd, run_ok, stereogen_cmd, write_tiny_recipe};
 
 /// A tetrahedron around the origin, stretched by `k` so the files differ.
 fn tetrahedron(k: usize) -> String {
@@ -121,16 +121,7 @@ fn generate_with_a_mesh_folder_renders_its_meshes_and_lists_its_broken_files() {
     let (meshes, broken) = mesh_folder(dir.path());
     let recipe = write_tiny_recipe(dir.path(), "crestereo");
     let out = dir.path().join("data");
-    let o = generate_cmd(&recipe, &out, 4)
-        .arg("--meshes")
-        .arg(&meshes)
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "generate: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    run_ok(generate_cmd(&recipe, &out, 4).arg("--meshes").arg(&meshes));
 
     // The broken files are listed as skipped, with a reason each.
     let skipped = read_skipped_assets(&out.join("skipped_assets.jsonl"))
@@ -188,16 +179,11 @@ fn generate_with_a_mesh_folder_renders_its_meshes_and_lists_its_broken_files() {
         let spec_file = dir.path().join(format!("{}-without.scene.json", e.id));
         std::fs::write(&spec_file, without.to_json()).unwrap();
         let rerender = dir.path().join(format!("without-{}", e.id));
-        let o = stereogen_cmd(["render", "--threads", "1", "--spec"])
-            .arg(&spec_file)
-            .arg("--out")
-            .arg(&rerender)
-            .output()
-            .unwrap();
-        assert!(
-            o.status.success(),
-            "render: {}",
-            String::from_utf8_lossy(&o.stderr)
+        run_ok(
+            stereogen_cmd(["render", "--threads", "1", "--spec"])
+                .arg(&spec_file)
+                .arg("--out")
+                .arg(&rerender),
         );
         let (with, _) = stereo_io::read_disparity_exr(&out.join(&e.files.disp_left)).unwrap();
         let (bare, _) = stereo_io::read_disparity_exr(&rerender.join(&e.files.disp_left)).unwrap();

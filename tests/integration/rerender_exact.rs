@@ -9,7 +9,7 @@ use stereogen::assets::AssetIndex;
 use stereogen::plan::recipe::DEFAULT_PRESET;
 use stereogen::plan::{Modifier, Recipe, SceneSpec, plan_scene};
 use stereogen::render::RenderService;
-use test_support::{render, worker_config};
+use test_support::{render, run_ok, worker_config};
 
 /// Builds a spec's scene inside Blender (no render) and prints one line per mesh object: its
 /// name and a hash of its evaluated vertices and face corners, in Blender's order.
@@ -64,17 +64,12 @@ fn boolean_heavy_spec() -> SceneSpec {
 fn mesh_hashes(spec_path: &Path, probe: &Path) -> Vec<String> {
     let cfg = worker_config();
     let scripts = cfg.script.parent().unwrap().to_string_lossy().into_owned();
-    let out = cfg
-        .runtime
-        .command(probe, &[scripts, spec_path.to_string_lossy().into_owned()])
-        .output()
-        .expect("run the mesh probe");
-    let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "mesh probe failed: {}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = run_ok(
+        &mut cfg
+            .runtime
+            .command(probe, &[scripts, spec_path.to_string_lossy().into_owned()]),
     );
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
     let lines: Vec<String> = text
         .lines()
         .filter(|l| l.starts_with("MESH "))
