@@ -12,7 +12,7 @@ use serde_json::json;
 use stereo_io::*;
 
 use pinned_venv::{ensure_venv, run};
-use test_support::io_fixtures::{patterned_rgb, write_sample_images};
+use test_support::io_fixtures::{left_view_meta, patterned_rgb, write_sample_images};
 use test_support::{
     pinned_venv,
     python_envs::{MATURIN_PINS, install_stereogen_module},
@@ -49,11 +49,7 @@ fn write_ours(root: &Path, folder: impl Fn(usize) -> String, w: usize, h: usize)
         let rel = folder(i);
         let cat = root.join(&rel);
         std::fs::create_dir_all(&cat).unwrap();
-        let meta = DisparityMeta {
-            f_px: Some(80.0),
-            baseline_m: Some(0.12),
-            view: Some("left".into()),
-        };
+        let meta = left_view_meta(80.0, 0.12);
         write_sample_images(
             &cat,
             id,

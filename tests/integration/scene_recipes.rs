@@ -199,24 +199,18 @@ fn reflective_scenes_hold_metal_and_glass_with_first_surface_ground_truth() {
 
     // A glass pane and a mirror, each half of the view, in front of a textured wall: the ground
     // truth is the first surface the ray meets, not what is seen through or in it.
-    let glass = MaterialSpec {
-        class: MaterialClass::Glass,
-        base: BaseColor::Flat { color: [0.95; 3] },
+    // Perfectly smooth and flat-coloured, `grey` on every channel.
+    let smooth = |class: MaterialClass, grey: f64, metallic: f64, transmission: f64| MaterialSpec {
+        class,
+        base: BaseColor::Flat { color: [grey; 3] },
         roughness: 0.0,
-        metallic: 0.0,
-        transmission: 1.0,
+        metallic,
+        transmission,
         ior: 1.5,
-        pass_index: MaterialClass::Glass.pass_index(),
+        pass_index: class.pass_index(),
     };
-    let mirror = MaterialSpec {
-        class: MaterialClass::Metallic,
-        base: BaseColor::Flat { color: [0.9; 3] },
-        roughness: 0.0,
-        metallic: 1.0,
-        transmission: 0.0,
-        ior: 1.5,
-        pass_index: MaterialClass::Metallic.pass_index(),
-    };
+    let glass = smooth(MaterialClass::Glass, 0.95, 0.0, 1.0);
+    let mirror = smooth(MaterialClass::Metallic, 0.9, 1.0, 0.0);
     let pane = object(
         "glass",
         Shape::Plane,
