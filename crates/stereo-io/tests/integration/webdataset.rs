@@ -170,9 +170,6 @@ fn shards_hold_every_sample_as_the_source_has_it() {
     assert_eq!(files(&out), files(&again));
 }
 
-/// A split is opened on its own: `open_splits` reads the named splits' shards only (in index
-/// order, whatever the order asked), `open` every split, and a split the export lacks is an
-/// error listing those it has.
 /// The error `r` must be, as text (an `Ok` fails the test).
 fn error_text<T>(r: Result<T>) -> String {
     r.err().expect("an error").to_string()
@@ -186,6 +183,9 @@ fn exported_ours(dir: &Path) -> (PathBuf, PathBuf) {
     (source, out)
 }
 
+/// A split is opened on its own: `open_splits` reads the named splits' shards only (in index
+/// order, whatever the order asked), `open` every split, and a split the export lacks is an
+/// error listing those it has.
 #[test]
 fn splits_open_on_their_own() {
     let t = tempfile::tempdir().unwrap();
