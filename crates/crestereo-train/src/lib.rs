@@ -1,6 +1,8 @@
-//! Training and evaluation of CREStereo; the `crestereo` command line is the binary's own
-//! (`src/main.rs`, `src/cli/`), as the generator's is.
+//! Training and evaluation of CREStereo, and the `crestereo` command line.
 //!
+//! - [`cli`]: the command line's arguments and commands, generic over the backend; the binary
+//!   (`src/main.rs`) only picks the backend. Every backend's copy of the network is compiled
+//!   there once, not a second time for the unit tests of a binary.
 //! - [`config`]: the training config (TOML), defaulting to the paper's recipe.
 //! - [`data`]: datasets mixed by weight, decoded and augmented ahead of the step, deterministic.
 //! - [`augment`]: the reference augmentation, one unit per transform.
@@ -14,6 +16,7 @@
 
 pub mod augment;
 pub mod checkpoint;
+pub mod cli;
 pub mod config;
 pub mod data;
 pub mod disturb;

@@ -5,7 +5,8 @@ use std::time::Instant;
 use anyhow::Result;
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
-use crestereo::{CREStereoConfig, CpuAutodiffBackend, CpuBackend, InferenceOptions, sequence_loss};
+use burn::tensor::backend::AutodiffBackend;
+use crestereo::{CREStereoConfig, InferenceOptions, sequence_loss};
 
 pub fn peak_rss_mib() -> f64 {
     std::fs::read_to_string("/proc/self/status")
@@ -53,8 +54,8 @@ fn random_images<B: Backend>(
     (l, r)
 }
 
-pub fn bench_train(n: usize, h: usize, w: usize, iters: usize) -> Result<()> {
-    type B = CpuAutodiffBackend;
+/// One training step on `B`'s default device (the binary runs it on the CPU backend).
+pub fn bench_train<B: AutodiffBackend>(n: usize, h: usize, w: usize, iters: usize) -> Result<()> {
     let device = Default::default();
     let model = CREStereoConfig::new().init::<B>(&device);
     let mut optim = AdamConfig::new()
@@ -86,8 +87,8 @@ pub fn bench_train(n: usize, h: usize, w: usize, iters: usize) -> Result<()> {
     Ok(())
 }
 
-pub fn bench_infer(h: usize, w: usize) -> Result<()> {
-    type B = CpuBackend;
+/// One two-pass inference on `B`'s default device (the binary runs it on the CPU backend).
+pub fn bench_infer<B: Backend>(h: usize, w: usize) -> Result<()> {
     let device = Default::default();
     let model = CREStereoConfig::new().init::<B>(&device);
     let (l, r) = random_images::<B>(1, h, w, &device);

@@ -4,18 +4,15 @@
 //! bench so `bench/compare.py` and `bench/gpu_run.sh` parse both. Peak device memory is not
 //! visible through Burn's backend API: `gpu_run.sh` polls `nvidia-smi` around the process.
 
-// Only `run_cuda` and `run_wgpu` call these; without a GPU feature they are unused.
-#![cfg_attr(not(any(feature = "cuda", feature = "wgpu")), allow(dead_code))]
-
 use std::time::Instant;
 
+use crate::host_reads;
 use anyhow::Result;
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use burn::tensor::backend::AutodiffBackend;
 use burn::tensor::ops::PadMode;
 use crestereo::{CREStereo, CREStereoConfig, InferenceOptions, sequence_loss};
-use crestereo_train::host_reads;
 
 fn sync<B: Backend>(device: &B::Device) {
     B::sync(device).expect("device sync");
@@ -174,7 +171,7 @@ pub struct DeviceBench<'a> {
 
 /// The chosen parts on backend `B`'s default device (CUDA GPU 0, or wgpu's default adapter),
 /// each in this process.
-fn run_on<B: AutodiffBackend>(plan: &DeviceBench) -> Result<()> {
+pub fn run_on<B: AutodiffBackend>(plan: &DeviceBench) -> Result<()> {
     let device = Default::default();
     let (ts, is, repeats) = (plan.train_size, plan.infer_size, plan.repeats);
     if plan.train {
@@ -184,26 +181,4 @@ fn run_on<B: AutodiffBackend>(plan: &DeviceBench) -> Result<()> {
         bench_infer::<B::InnerBackend>(is[0], is[1], repeats, &device)?;
     }
     Ok(())
-}
-
-/// `bench --device cuda`.
-#[cfg(feature = "cuda")]
-pub fn run_cuda(plan: &DeviceBench) -> Result<()> {
-    run_on::<crestereo::CudaAutodiffBackend>(plan)
-}
-
-#[cfg(not(feature = "cuda"))]
-pub fn run_cuda(_: &DeviceBench) -> Result<()> {
-    anyhow::bail!("this build has no CUDA backend: rebuild with `--features cuda`")
-}
-
-/// `bench --device vulkan`.
-#[cfg(feature = "wgpu")]
-pub fn run_wgpu(plan: &DeviceBench) -> Result<()> {
-    run_on::<crestereo::WgpuAutodiffBackend>(plan)
-}
-
-#[cfg(not(feature = "wgpu"))]
-pub fn run_wgpu(_: &DeviceBench) -> Result<()> {
-    anyhow::bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`")
 }

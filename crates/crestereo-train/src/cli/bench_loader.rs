@@ -19,9 +19,9 @@ use anyhow::{Context, Result, bail};
 use crestereo::CpuBackend;
 
 use super::train::parse_data;
-use crestereo_train::augment::TrainSample;
-use crestereo_train::config::TrainConfig;
-use crestereo_train::data::{MixedSource, collate};
+use crate::augment::TrainSample;
+use crate::config::TrainConfig;
+use crate::data::{MixedSource, collate};
 
 /// Samples per optimiser step the printed step rate assumes.
 const STEP_BATCH: usize = 8;
@@ -75,7 +75,7 @@ fn time_loader(
     cfg.loader.workers = workers;
     cfg.loader.prefetch = cfg.loader.prefetch.max(2 * workers);
     let prefetch = cfg.loader.prefetch;
-    let mut loader = crestereo_train::train::start_loader(&cfg, source.clone(), 0);
+    let mut loader = crate::train::start_loader(&cfg, source.clone(), 0);
     loader.next_batch(workers)?;
     let mut kept = Vec::with_capacity(STEP_BATCH);
     let t0 = Instant::now();

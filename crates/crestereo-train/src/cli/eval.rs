@@ -7,9 +7,9 @@ use burn::prelude::*;
 use crestereo::{CREStereo, CREStereoConfig};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crestereo_train::checkpoint::weights_file;
-use crestereo_train::disturb::{self, Disturbance};
-use crestereo_train::eval::{EvalOptions, EvalReport, ImageResult, evaluate};
+use crate::checkpoint::weights_file;
+use crate::disturb::{self, Disturbance};
+use crate::eval::{EvalOptions, EvalReport, ImageResult, evaluate};
 
 use super::network_args::NetworkArgs;
 
@@ -89,7 +89,7 @@ pub(super) fn load_model<B: Backend>(a: &ModelArgs, device: &B::Device) -> Resul
             }
         }
         (None, Some(seed)) => Evaluated {
-            model: crestereo_train::train::seeded_model::<B>(seed, device),
+            model: crate::train::seeded_model::<B>(seed, device),
             weights: format!("untrained (seed {seed})"),
             file: None,
         },
@@ -127,11 +127,11 @@ pub(super) fn open_dataset(
         }
         (x, y) => x.or(y),
     };
-    crestereo_train::data::open_data(
+    crate::data::open_data(
         &at.path,
         format,
         at.splits.as_deref(),
-        crestereo_train::data::SplitUse::Eval,
+        crate::data::SplitUse::Eval,
         "--data",
     )
 }
@@ -214,7 +214,7 @@ pub fn run<B: Backend>(a: &EvalArgs, device: &B::Device) -> Result<()> {
             .with_context(|| format!("cannot write {}", table.display()))?;
         let plot = a.json.with_extension("disturb.png");
         let baseline = disturb::headline(report.mean_nonocc, report.mean_all).map(|h| h.1.epe);
-        crestereo_train::plot::plot_disturbance(rows, baseline, &plot)?;
+        crate::plot::plot_disturbance(rows, baseline, &plot)?;
         print!("{}", disturb::disturbance_table(rows));
         eprintln!("wrote {} and {}", table.display(), plot.display());
     }

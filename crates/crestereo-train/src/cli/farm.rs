@@ -2,8 +2,8 @@
 
 use std::path::PathBuf;
 
+use crate::parallel::slurm::SlurmJob;
 use anyhow::{Context, Result, bail};
-use crestereo_train::parallel::slurm::SlurmJob;
 
 #[derive(Debug, clap::Subcommand)]
 pub enum FarmCommand {

@@ -10,7 +10,7 @@ use crestereo::{BgrImage, CREStereoConfig, infer_disparity};
 use stereo_io::colormap::{DisparityRange, colourise_with_bar};
 use stereo_io::{DisparityFormat, DisparityMap, DisparityMeta};
 
-use crestereo_train::checkpoint::weights_file;
+use crate::checkpoint::weights_file;
 
 use super::network_args::NetworkArgs;
 

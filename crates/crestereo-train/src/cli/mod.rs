@@ -1,25 +1,29 @@
 //! The `crestereo` command line: `infer`, `train`, `eval`, `export`, `plot` and `bench`.
+//!
+//! Every command here is generic over the backend; the binary (`src/main.rs`) parses the
+//! arguments with [`main_with`] and binds each command to the backend `--device` names. That is
+//! the one place the network is compiled for every backend: the library and its unit tests
+//! compile none of them.
 
-mod bench;
-mod bench_device;
-mod bench_loader;
-mod devices;
-mod eval;
-mod export;
-mod farm;
-mod infer;
+pub mod bench;
+pub mod bench_device;
+pub mod bench_loader;
+pub mod devices;
+pub mod eval;
+pub mod export;
+pub mod farm;
+pub mod infer;
 #[cfg(feature = "kernel-cache")]
-mod kernel_cache;
-mod network_args;
-mod score;
-mod train;
-mod warmup;
+pub mod kernel_cache;
+pub mod network_args;
+pub mod score;
+pub mod train;
+pub mod warmup;
 
 use std::process::ExitCode;
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
-use crestereo::{CpuAutodiffBackend, CpuBackend};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -27,15 +31,15 @@ use crestereo::{CpuAutodiffBackend, CpuBackend};
     version,
     about = "CREStereo stereo matching on Burn: inference, training, evaluation"
 )]
-struct Cli {
+pub struct Cli {
     #[command(subcommand)]
-    command: Command,
+    pub command: Command,
 }
 
 #[derive(Subcommand, Debug)]
 // Parsed once at start-up and matched once: the size of the largest variant costs nothing.
 #[allow(clippy::large_enum_variant)]
-enum Command {
+pub enum Command {
     /// Estimate the disparity of a rectified pair (left view).
     Infer {
         #[command(flatten)]
@@ -130,17 +134,17 @@ enum Command {
 }
 
 #[derive(Debug, clap::Args)]
-struct BackendArgs {
+pub struct BackendArgs {
     /// CPU threads for tensor work (0 = all cores).
     #[arg(long, default_value_t = 0)]
-    threads: usize,
+    pub threads: usize,
     /// Backend, chosen at run time.
     #[arg(long, value_enum, default_value_t = DeviceKind::Cpu)]
-    device: DeviceKind,
+    pub device: DeviceKind,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
-enum DeviceKind {
+pub enum DeviceKind {
     /// Flex CPU backend.
     Cpu,
     /// CUDA GPU 0 (needs a build with `--features cuda`).
@@ -153,7 +157,7 @@ enum DeviceKind {
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
-enum BenchWhat {
+pub enum BenchWhat {
     All,
     Train,
     Infer,
@@ -184,189 +188,12 @@ fn set_threads(n: usize) {
     }
 }
 
-/// Runs `$body` with `B` bound to the chosen backend (`$ad` for autodiff, `$plain` otherwise).
-macro_rules! with_backend {
-    ($kind:expr, $ad:tt, |$b:ident| $body:expr) => {
-        match $kind {
-            DeviceKind::Cpu => {
-        type $b = with_backend!(@cpu $ad);
-                $body
-            }
-            #[cfg(feature = "cuda")]
-            DeviceKind::Cuda => {
-        type $b = with_backend!(@cuda $ad);
-                $body
-            }
-            #[cfg(not(feature = "cuda"))]
-            DeviceKind::Cuda => {
-                bail!("this build has no CUDA backend: rebuild with `--features cuda`")
-            }
-            #[cfg(feature = "wgpu")]
-            DeviceKind::Vulkan => {
-        type $b = with_backend!(@wgpu $ad);
-                $body
-            }
-            #[cfg(not(feature = "wgpu"))]
-            DeviceKind::Vulkan => {
-                bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`")
-            }
-        }
-    };
-    (@cpu true) => {
-        CpuAutodiffBackend
-    };
-    (@cpu false) => {
-        CpuBackend
-    };
-    (@cuda true) => {
-        crestereo::CudaAutodiffBackend
-    };
-    (@cuda false) => {
-        crestereo::CudaBackend
-    };
-    (@wgpu true) => {
-        crestereo::WgpuAutodiffBackend
-    };
-    (@wgpu false) => {
-        crestereo::WgpuBackend
-    };
-}
-
-fn run(cli: Cli, cache: Option<std::path::PathBuf>) -> Result<()> {
-    match cli.command {
-        Command::Infer { args, backend } => {
-            with_backend!(backend.device, false, |B| infer::infer::<B>(
-                &args,
-                &Default::default()
-            ))
-        }
-        Command::Train { args, backend } => {
-            let devices = args
-                .devices
-                .as_deref()
-                .map(|d| devices::parse_devices(d, backend.device))
-                .transpose()?;
-            let kind = devices.as_ref().map_or(backend.device, |d| d.kind);
-            with_backend!(kind, true, |B| train::run::<B>(
-                &args,
-                &Default::default(),
-                devices.as_ref()
-            ))
-        }
-        Command::Eval { args, backend } => {
-            with_backend!(backend.device, false, |B| eval::run::<B>(
-                &args,
-                &Default::default()
-            ))
-        }
-        Command::Score { args, backend } => {
-            with_backend!(backend.device, false, |B| score::run::<B>(
-                &args,
-                &Default::default()
-            ))
-        }
-        Command::Warmup { args, backend } => {
-            // The CPU backend compiles nothing: no cache to speak of.
-            let cache = cache
-                .as_deref()
-                .filter(|_| backend.device != DeviceKind::Cpu);
-            with_backend!(backend.device, true, |B| warmup::run::<B>(
-                &args,
-                &Default::default(),
-                cache
-            ))
-        }
-        Command::Farm(command) => farm::run(&command),
-        Command::Export(command) => export::run(&command),
-        Command::Plot { run, out, smooth } => {
-            crestereo_train::plot::plot_run(&run, &out, smooth)?;
-            eprintln!("wrote {}", out.display());
-            Ok(())
-        }
-        Command::Synth {
-            out,
-            count,
-            size,
-            seed,
-        } => {
-            let [h, w] = train::parse_crop(&size)?;
-            crestereo_train::synthetic::write_crestereo_dataset(&out, count, w, h, seed)?;
-            eprintln!("wrote {count} pairs of {w}x{h} to {}", out.display());
-            Ok(())
-        }
-        Command::Bench {
-            what,
-            threads,
-            train_size,
-            infer_size,
-            device,
-            repeats,
-            loader,
-        } => run_bench(
-            what, threads, train_size, infer_size, device, repeats, loader,
-        ),
-    }
-}
-
-/// `crestereo bench`: one part in this process, or both in child processes.
-fn run_bench(
-    what: BenchWhat,
-    threads: usize,
-    train_size: Option<Vec<usize>>,
-    infer_size: Option<Vec<usize>>,
-    device: DeviceKind,
-    repeats: usize,
-    loader: bench_loader::LoaderBenchArgs,
-) -> Result<()> {
-    let ts = train_size.unwrap_or_else(|| vec![2, 384, 512, 10]);
-    let is = infer_size.unwrap_or_else(|| vec![480, 640]);
-    if ts.len() != 4 || is.len() != 2 {
-        bail!("--train-size takes batch,height,width,iters and --infer-size height,width");
-    }
-    if what == BenchWhat::Loader {
-        return bench_loader::run(&loader);
-    }
-    if device != DeviceKind::Cpu {
-        let plan = bench_device::DeviceBench {
-            train: what != BenchWhat::Infer,
-            infer: what != BenchWhat::Train,
-            train_size: &ts,
-            infer_size: &is,
-            repeats,
-        };
-        return match device {
-            DeviceKind::Cuda => bench_device::run_cuda(&plan),
-            _ => bench_device::run_wgpu(&plan),
-        };
-    }
-    if what != BenchWhat::All {
-        println!("{}", bench::cpu_line());
-    }
-    match what {
-        BenchWhat::Train => bench::bench_train(ts[0], ts[1], ts[2], ts[3]),
-        BenchWhat::Infer => bench::bench_infer(is[0], is[1]),
-        BenchWhat::Loader => unreachable!("timed above"),
-        BenchWhat::All => {
-            // Separate processes, so each peak RSS is its own.
-            let exe = std::env::current_exe()?;
-            let ts: Vec<String> = ts.iter().map(|v| v.to_string()).collect();
-            let is: Vec<String> = is.iter().map(|v| v.to_string()).collect();
-            for w in ["train", "infer"] {
-                let status = std::process::Command::new(&exe)
-                    .args(["bench", "--what", w, "--threads", &threads.to_string()])
-                    .args(["--train-size", &ts.join(","), "--infer-size", &is.join(",")])
-                    .status()?;
-                if !status.success() {
-                    bail!("bench {w} failed");
-                }
-            }
-            Ok(())
-        }
-    }
-}
-
-/// The whole program: parse, run, print the error chain on failure.
-pub fn main() -> ExitCode {
+/// The whole program around `run`, the binary's choice of backend for each command: logging, the
+/// arguments, the kernel cache and the thread pool set up; `run` on a pool thread; its error
+/// chain printed (exit 1), or the exit code of an interrupted run (75).
+pub fn main_with(
+    run: impl FnOnce(Cli, Option<std::path::PathBuf>) -> Result<()> + Send,
+) -> ExitCode {
     use tracing_subscriber::prelude::*;
     let log = tracing_subscriber::fmt::layer()
         .with_writer(std::io::stderr)
@@ -385,7 +212,7 @@ pub fn main() -> ExitCode {
     // every event to the log.
     tracing_subscriber::registry()
         .with(log)
-        .with(crestereo_train::host_reads::layer())
+        .with(crate::host_reads::layer())
         .init();
     let cli = Cli::parse();
     if let Command::Warmup { args, .. } = &cli.command
@@ -415,12 +242,9 @@ pub fn main() -> ExitCode {
     // The whole command on a pool thread: each kernel then starts without a cold hand-over.
     match crestereo::ops::threads::on_pool(|| run(cli, cache)) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e)
-            if e.downcast_ref::<crestereo_train::interrupt::Interrupted>()
-                .is_some() =>
-        {
+        Err(e) if e.downcast_ref::<crate::interrupt::Interrupted>().is_some() => {
             eprintln!("{e}");
-            ExitCode::from(crestereo_train::interrupt::EXIT_INTERRUPTED)
+            ExitCode::from(crate::interrupt::EXIT_INTERRUPTED)
         }
         Err(e) => {
             eprintln!("error: {e:#}");

@@ -1,12 +1,12 @@
-//! `crestereo score`: weights × dataset → one line of scores per sample (`crestereo_train::score`).
+//! `crestereo score`: weights × dataset → one line of scores per sample (`crate::score`).
 
 use std::path::PathBuf;
 
 use anyhow::Result;
 use burn::prelude::*;
 
-use crestereo_train::eval::EvalOptions;
-use crestereo_train::score::{ScoreHeader, score, weights_fingerprint};
+use crate::eval::EvalOptions;
+use crate::score::{ScoreHeader, score, weights_fingerprint};
 
 use super::eval::{ModelArgs, load_model, open_dataset, progress_bar, show_progress};
 

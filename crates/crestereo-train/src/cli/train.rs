@@ -1,15 +1,15 @@
-//! `crestereo train`: a config file and/or flags → [`crestereo_train::train::train`].
+//! `crestereo train`: a config file and/or flags → [`crate::train::train`].
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use burn::tensor::backend::AutodiffBackend;
 
-use crestereo_train::config::{DatasetEntry, TrainConfig, ValidationSettings};
-use crestereo_train::interrupt::Interrupted;
-use crestereo_train::parallel::topology::{ProcessFlags, process_env, resolve};
-use crestereo_train::parallel::{ParallelOptions, default_timeouts, train_parallel};
-use crestereo_train::train::{TrainOptions, TrainOutcome, train};
+use crate::config::{DatasetEntry, TrainConfig, ValidationSettings};
+use crate::interrupt::Interrupted;
+use crate::parallel::topology::{ProcessFlags, process_env, resolve};
+use crate::parallel::{ParallelOptions, default_timeouts, train_parallel};
+use crate::train::{TrainOptions, TrainOutcome, train};
 
 use super::devices::{DeviceList, FromDeviceIndex};
 
@@ -316,7 +316,7 @@ where
             a.out.display()
         );
     }
-    crestereo_train::interrupt::install().context("cannot install the SIGTERM/SIGINT handlers")?;
+    crate::interrupt::install().context("cannot install the SIGTERM/SIGINT handlers")?;
     let opts = TrainOptions {
         resume: a.resume,
         progress: !a.no_progress,
@@ -338,10 +338,10 @@ where
         };
         train_parallel::<B>(&cfg, &a.out, &opts, &list, &options)?
     } else {
-        crestereo_train::oom::on_device(
+        crate::oom::on_device(
             || train::<B>(&cfg, &a.out, &opts, device),
             "training",
-            crestereo_train::oom::TRAINING_ADVICE,
+            crate::oom::TRAINING_ADVICE,
         )?
     };
     if leads {

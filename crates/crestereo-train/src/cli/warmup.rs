@@ -7,12 +7,12 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::config::TrainConfig;
 use anyhow::{Context, Result};
 use burn::optim::{AdamConfig, GradientsParams, Optimizer};
 use burn::prelude::*;
 use burn::tensor::backend::AutodiffBackend;
 use crestereo::{CREStereoConfig, InferenceOptions, sequence_loss};
-use crestereo_train::config::TrainConfig;
 
 use super::bench_device::{infer_padded, random_batch};
 
@@ -80,7 +80,7 @@ pub fn run<B: AutodiffBackend>(
 ) -> Result<()> {
     let cfg = TrainConfig::from_file(&a.config)?;
     cfg.validate()?;
-    crestereo_train::train::check_batch_split(&cfg, a.replicas.max(1))?;
+    crate::train::check_batch_split(&cfg, a.replicas.max(1))?;
     let level = std::env::var("CRESTEREO_AUTOTUNE_LEVEL").unwrap_or_else(|_| "balanced".into());
     let before = census(cache);
     let started = Instant::now();
@@ -94,13 +94,13 @@ pub fn run<B: AutodiffBackend>(
     let micro = cfg.batch_size / a.replicas.max(1);
     let [h, w] = cfg.augment.crop;
     let t0 = Instant::now();
-    crestereo_train::oom::on_device(
+    crate::oom::on_device(
         || training_step::<B>(micro, h, w, cfg.iters, device),
         &format!(
             "a training step of {micro} × {h}x{w} at {} iterations",
             cfg.iters
         ),
-        crestereo_train::oom::TRAINING_ADVICE,
+        crate::oom::TRAINING_ADVICE,
     )?;
     println!(
         "  training step, {micro} per replica at {h}x{w}, {} iterations: {:.1} s",
@@ -109,7 +109,7 @@ pub fn run<B: AutodiffBackend>(
     );
     let mut sizes: Vec<(usize, usize, InferenceOptions)> = Vec::new();
     // The validation images' sizes (decoded: a dataset states no sizes of its own).
-    if let Some(v) = crestereo_train::train::Validation::open(&cfg)? {
+    if let Some(v) = crate::train::Validation::open(&cfg)? {
         let eval = v.options();
         let opts = InferenceOptions {
             iters: eval.iters,
@@ -139,7 +139,7 @@ pub fn run<B: AutodiffBackend>(
     }
     for (sh, sw, opts) in sizes {
         let t0 = Instant::now();
-        crestereo_train::oom::on_device(
+        crate::oom::on_device(
             || inference::<B::InnerBackend>(sh, sw, opts, device),
             &format!("inference at {sh}x{sw}"),
             "infer smaller images (or with fewer --iters/--stages)",
@@ -179,7 +179,7 @@ fn training_step<B: AutodiffBackend>(
     let grads = GradientsParams::from_grads(loss.backward(), &model);
     let model = optim.step(1e-4, model, grads);
     // Waits for the device: the step's kernels have run (and been compiled and tuned).
-    let _ = crestereo_train::parallel::flat::flatten_parameters::<B, _>(&model)
+    let _ = crate::parallel::flat::flatten_parameters::<B, _>(&model)
         .slice(0..1)
         .into_data();
     Ok(())

@@ -7,11 +7,12 @@ mod pytorch;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
+use burn::prelude::Backend;
 use crestereo::weights::load_weights;
-use crestereo::{CREStereo, CREStereoConfig, CpuBackend};
+use crestereo::{CREStereo, CREStereoConfig};
 
+use crate::checkpoint::weights_file;
 use crate::cli::infer::check_writable;
-use crestereo_train::checkpoint::weights_file;
 
 #[derive(Debug, clap::Subcommand)]
 pub enum ExportCommand {
@@ -23,10 +24,11 @@ pub enum ExportCommand {
     Pytorch(pytorch::PytorchArgs),
 }
 
-pub fn run(command: &ExportCommand) -> Result<()> {
+/// The command with the model on `B` (the binary exports from the CPU backend).
+pub fn run<B: Backend>(command: &ExportCommand, device: &B::Device) -> Result<()> {
     match command {
-        ExportCommand::Onnx(args) => onnx::run(args),
-        ExportCommand::Pytorch(args) => pytorch::run(args),
+        ExportCommand::Onnx(args) => onnx::run::<B>(args, device),
+        ExportCommand::Pytorch(args) => pytorch::run::<B>(args, device),
     }
 }
 
@@ -58,12 +60,11 @@ fn existing_weights_file(weights: &Path) -> Result<PathBuf> {
     Ok(file)
 }
 
-/// The model with the weights `file` on the CPU; a file that does not fit is named in one line
+/// The model with the weights `file` on `device`; a file that does not fit is named in one line
 /// (the loaders explain a misfit over several: the first says what is wrong).
-fn load_model(file: &Path) -> Result<CREStereo<CpuBackend>> {
-    let device = Default::default();
-    let model = CREStereoConfig::new().init::<CpuBackend>(&device);
-    load_weights(model, file, &device).map_err(|e| {
+fn load_model<B: Backend>(file: &Path, device: &B::Device) -> Result<CREStereo<B>> {
+    let model = CREStereoConfig::new().init::<B>(device);
+    load_weights(model, file, device).map_err(|e| {
         let text = format!("{e:#}");
         let first = text
             .lines()

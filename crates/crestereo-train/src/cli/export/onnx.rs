@@ -34,13 +34,13 @@ fn parse_size(s: &str) -> Result<[usize; 2]> {
     }
 }
 
-pub fn run(a: &OnnxArgs) -> Result<()> {
+pub fn run<B: burn::prelude::Backend>(a: &OnnxArgs, device: &B::Device) -> Result<()> {
     let size = parse_size(&a.size)?;
     let opts = a.network.options();
     opts.check_size(size)?;
     let weights = a.network.weights()?;
     check_output(&a.output, a.force)?;
-    let model = load_model(&existing_weights_file(weights)?)?;
+    let model = load_model::<B>(&existing_weights_file(weights)?, device)?;
     let t0 = Instant::now();
     let export = export_onnx(&model, size, opts)?;
     stereo_io::write_bytes_atomically(&a.output, &export.bytes)

@@ -23,9 +23,9 @@ pub struct PytorchArgs {
     pub force: bool,
 }
 
-pub fn run(args: &PytorchArgs) -> Result<()> {
+pub fn run<B: burn::prelude::Backend>(args: &PytorchArgs, device: &B::Device) -> Result<()> {
     let file = refuse_early(args)?;
-    let model = load_model(&file)?;
+    let model = load_model::<B>(&file, device)?;
     let output = &args.output;
     let tensors = named_parameters(&model);
     // The output may have appeared while the weights were read.
