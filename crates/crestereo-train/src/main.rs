@@ -12,6 +12,12 @@ use crestereo_train::cli::{
     farm, infer, score, train, warmup,
 };
 
+/// What a command asking for a backend this build left out says (the dispatch and `bench`).
+#[cfg(not(feature = "cuda"))]
+const NO_CUDA: &str = "this build has no CUDA backend: rebuild with `--features cuda`";
+#[cfg(not(feature = "wgpu"))]
+const NO_WGPU: &str = "this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`";
+
 fn main() -> ExitCode {
     crestereo_train::cli::main_with(run)
 }
@@ -31,7 +37,7 @@ macro_rules! with_backend {
             }
             #[cfg(not(feature = "cuda"))]
             DeviceKind::Cuda => {
-                bail!("this build has no CUDA backend: rebuild with `--features cuda`")
+                bail!(NO_CUDA)
             }
             #[cfg(feature = "wgpu")]
             DeviceKind::Vulkan => {
@@ -40,7 +46,7 @@ macro_rules! with_backend {
             }
             #[cfg(not(feature = "wgpu"))]
             DeviceKind::Vulkan => {
-                bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`")
+                bail!(NO_WGPU)
             }
         }
     };
@@ -172,12 +178,12 @@ fn run_bench(
             DeviceKind::Cuda => bench_device::run_on::<crestereo::CudaAutodiffBackend>(&plan),
             #[cfg(not(feature = "cuda"))]
             DeviceKind::Cuda => {
-                bail!("this build has no CUDA backend: rebuild with `--features cuda`")
+                bail!(NO_CUDA)
             }
             #[cfg(feature = "wgpu")]
             _ => bench_device::run_on::<crestereo::WgpuAutodiffBackend>(&plan),
             #[cfg(not(feature = "wgpu"))]
-            _ => bail!("this build has no wgpu/Vulkan backend: rebuild with `--features vulkan`"),
+            _ => bail!(NO_WGPU),
         };
     }
     if what != BenchWhat::All {
