@@ -7,6 +7,7 @@ use serde::Serialize;
 
 use super::cost::{Measurement, SampleCost, median};
 use crate::farm::TimeLimit;
+use crate::plan::recipe::CategoryRecipe;
 use crate::plan::{Recipe, scene_category};
 use crate::render::Device;
 
@@ -162,6 +163,126 @@ fn category_counts(recipe: &Recipe, seed: u64, start: u64, count: u64) -> Vec<u6
     }
 }
 
+/// How a measured sample's time carries over to a worker of the target: the renders' share scales
+/// with the worker's cores (CPU; a GPU's renders do not), the rest of the sample stays serial.
+struct WorkerScale {
+    /// Cores (CPU) or GPUs of one worker of the target.
+    per_worker: f64,
+    /// Factor on the render seconds.
+    render: f64,
+}
+
+impl WorkerScale {
+    fn new(m: &Measurement, target: Target) -> Self {
+        let per_worker = target.units / target.workers.max(1) as f64;
+        let render = match m.device {
+            Device::Cpu => m.units_per_worker / per_worker,
+            Device::Gpu => 1.0,
+        };
+        Self { per_worker, render }
+    }
+
+    /// Wall seconds of the sample on a worker of the target.
+    fn wall(&self, s: &SampleCost) -> f64 {
+        (s.seconds - s.parallel_seconds) + s.parallel_seconds * self.render
+    }
+
+    /// Its device seconds there (core- or GPU-seconds).
+    fn device_seconds(&self, s: &SampleCost) -> f64 {
+        self.wall(s) * self.per_worker
+    }
+}
+
+/// The measured samples of one category.
+fn measured_in<'a>(m: &'a Measurement, category: &str) -> Vec<&'a SampleCost> {
+    m.samples
+        .iter()
+        .filter(|s| s.category == category)
+        .collect()
+}
+
+/// The relative spread of a sample's device seconds, pooled over the categories measured twice
+/// or more (it stands in for a category measured once); with no category measured twice, the
+/// spread over all samples (categories mixed: larger).
+fn pooled_relative_spread(m: &Measurement, recipe: &Recipe, scale: &WorkerScale) -> Option<f64> {
+    let (mut sum, mut degrees) = (0.0, 0.0);
+    for c in &recipe.categories {
+        let v: Vec<f64> = measured_in(m, &c.name)
+            .into_iter()
+            .map(|s| scale.device_seconds(s))
+            .collect();
+        if v.len() > 1 {
+            let sp = Spread::of(&v);
+            let var = v.iter().map(|x| (x - sp.mean).powi(2)).sum::<f64>();
+            sum += var / (sp.mean * sp.mean);
+            degrees += (v.len() - 1) as f64;
+        }
+    }
+    if degrees > 0.0 {
+        Some((sum / degrees).sqrt())
+    } else {
+        let all: Vec<f64> = m.samples.iter().map(|s| scale.device_seconds(s)).collect();
+        let sp = Spread::of(&all);
+        sp.sem.map(|sem| sem * (all.len() as f64).sqrt() / sp.mean)
+    }
+}
+
+/// One category's share of the run, with the sums the run's totals add up.
+struct CategoryShare {
+    estimate: CategoryEstimate,
+    /// Device seconds of its samples, and their standard error.
+    device_s: f64,
+    device_s_sem: f64,
+    /// Bytes of its manifest lines.
+    manifest_bytes: f64,
+}
+
+/// Projects `samples` samples of `category`; a category nobody measured takes every measured
+/// sample's costs.
+fn category_share(
+    m: &Measurement,
+    category: &CategoryRecipe,
+    samples: u64,
+    scale: &WorkerScale,
+    pooled: Option<f64>,
+) -> CategoryShare {
+    let mean = |v: &[u64]| v.iter().sum::<u64>() as f64 / v.len().max(1) as f64;
+    let measured = measured_in(m, &category.name);
+    let pick: Vec<&SampleCost> = if measured.is_empty() {
+        m.samples.iter().collect()
+    } else {
+        measured.clone()
+    };
+    let ds: Vec<f64> = pick.iter().map(|s| scale.device_seconds(s)).collect();
+    let sp = Spread::of(&ds);
+    let sem = sp
+        .sem
+        .or_else(|| pooled.map(|cv| cv * sp.mean / (ds.len() as f64).sqrt()))
+        .unwrap_or(0.0);
+    let f = mean(&pick.iter().map(|s| s.files).collect::<Vec<_>>());
+    let b = mean(&pick.iter().map(|s| s.bytes).collect::<Vec<_>>());
+    let mb = mean(&pick.iter().map(|s| s.manifest_bytes).collect::<Vec<_>>());
+    let nf = samples as f64;
+    CategoryShare {
+        estimate: CategoryEstimate {
+            name: category.name.clone(),
+            weight: category.weight,
+            samples,
+            measured: measured.len(),
+            seconds: (!measured.is_empty())
+                .then(|| Spread::of(&measured.iter().map(|s| s.seconds).collect::<Vec<_>>())),
+            device_seconds: (!measured.is_empty()).then_some(sp),
+            hours: nf * sp.mean / 3600.0,
+            hours_sem: nf * sem / 3600.0,
+            files: (nf * f).round() as u64,
+            bytes: (nf * (b + mb)).round() as u64,
+        },
+        device_s: nf * sp.mean,
+        device_s_sem: nf * sem,
+        manifest_bytes: nf * mb,
+    }
+}
+
 /// Projects a measurement onto `count` samples from `start` run as `target`.
 pub fn project(
     m: &Measurement,
@@ -171,82 +292,23 @@ pub fn project(
     count: u64,
     target: Target,
 ) -> Estimate {
-    let per_worker = target.units / target.workers.max(1) as f64;
-    // Wall seconds of a sample on a worker of the target, and its device seconds.
-    let wall = |s: &SampleCost| {
-        let scale = match m.device {
-            Device::Cpu => m.units_per_worker / per_worker,
-            Device::Gpu => 1.0,
-        };
-        (s.seconds - s.parallel_seconds) + s.parallel_seconds * scale
-    };
+    let scale = WorkerScale::new(m, target);
+    let pooled = pooled_relative_spread(m, recipe, &scale);
     let counts = category_counts(recipe, seed, start, count);
-    // The relative spread pooled over categories measured twice or more, for those measured once.
-    let mut pooled = (0.0, 0.0);
-    let by_cat = |name: &str| -> Vec<&SampleCost> {
-        m.samples.iter().filter(|s| s.category == name).collect()
-    };
-    for c in &recipe.categories {
-        let v: Vec<f64> = by_cat(&c.name)
-            .into_iter()
-            .map(|s| wall(s) * per_worker)
-            .collect();
-        if v.len() > 1 {
-            let sp = Spread::of(&v);
-            let var = v.iter().map(|x| (x - sp.mean).powi(2)).sum::<f64>();
-            pooled.0 += var / (sp.mean * sp.mean);
-            pooled.1 += (v.len() - 1) as f64;
-        }
-    }
-    // With no category measured twice, the spread over all samples (categories mixed: larger).
-    let pooled_cv = if pooled.1 > 0.0 {
-        Some((pooled.0 / pooled.1).sqrt())
-    } else {
-        let all: Vec<f64> = m.samples.iter().map(|s| wall(s) * per_worker).collect();
-        let sp = Spread::of(&all);
-        sp.sem.map(|sem| sem * (all.len() as f64).sqrt() / sp.mean)
-    };
-    let mean = |v: &[u64]| v.iter().sum::<u64>() as f64 / v.len().max(1) as f64;
-    let mut categories = Vec::new();
+    let shares: Vec<CategoryShare> = recipe
+        .categories
+        .iter()
+        .zip(&counts)
+        .map(|(c, &n)| category_share(m, c, n, &scale, pooled))
+        .collect();
     let (mut sample_ds, mut var_ds, mut files, mut bytes) = (0.0, 0.0, 0u64, 0u64);
     let mut manifest_bytes = 0.0;
-    for (c, &n) in recipe.categories.iter().zip(&counts) {
-        let measured = by_cat(&c.name);
-        let pick: Vec<&SampleCost> = if measured.is_empty() {
-            m.samples.iter().collect()
-        } else {
-            measured.clone()
-        };
-        let ds: Vec<f64> = pick.iter().map(|s| wall(s) * per_worker).collect();
-        let sp = Spread::of(&ds);
-        let sem = sp
-            .sem
-            .or_else(|| pooled_cv.map(|cv| cv * sp.mean / (ds.len() as f64).sqrt()))
-            .unwrap_or(0.0);
-        let f = mean(&pick.iter().map(|s| s.files).collect::<Vec<_>>());
-        let b = mean(&pick.iter().map(|s| s.bytes).collect::<Vec<_>>());
-        let mb = mean(&pick.iter().map(|s| s.manifest_bytes).collect::<Vec<_>>());
-        let nf = n as f64;
-        sample_ds += nf * sp.mean;
-        var_ds += (nf * sem).powi(2);
-        manifest_bytes += nf * mb;
-        let cat_files = (nf * f).round() as u64;
-        let cat_bytes = (nf * (b + mb)).round() as u64;
-        files += cat_files;
-        bytes += cat_bytes;
-        categories.push(CategoryEstimate {
-            name: c.name.clone(),
-            weight: c.weight,
-            samples: n,
-            measured: measured.len(),
-            seconds: (!measured.is_empty())
-                .then(|| Spread::of(&measured.iter().map(|s| s.seconds).collect::<Vec<_>>())),
-            device_seconds: (!measured.is_empty()).then_some(sp),
-            hours: nf * sp.mean / 3600.0,
-            hours_sem: nf * sem / 3600.0,
-            files: cat_files,
-            bytes: cat_bytes,
-        });
+    for s in &shares {
+        sample_ds += s.device_s;
+        var_ds += s.device_s_sem.powi(2);
+        manifest_bytes += s.manifest_bytes;
+        files += s.estimate.files;
+        bytes += s.estimate.bytes;
     }
     // Per task: dataset.json and its manifest; more than one task: the merged manifest too.
     files += target.tasks * m.dataset_files;
@@ -257,8 +319,8 @@ pub fn project(
     }
     let fixed_hours = target.tasks as f64 * m.task_fixed_s * target.units / 3600.0;
     let task_samples = count.div_ceil(target.tasks);
-    let per_sample_wall = sample_ds / count as f64 / per_worker;
-    let per_sample_wall_sem = var_ds.sqrt() / count as f64 / per_worker;
+    let per_sample_wall = sample_ds / count as f64 / scale.per_worker;
+    let per_sample_wall_sem = var_ds.sqrt() / count as f64 / scale.per_worker;
     let workers = target.workers.max(1) as f64;
     let task_wall = m.task_fixed_s + task_samples as f64 * per_sample_wall / workers;
     let task = TaskEstimate {
@@ -295,7 +357,7 @@ pub fn project(
         .into(),
         seconds: Spread::of(&m.samples.iter().map(|s| s.seconds).collect::<Vec<_>>()),
         measured: m.clone(),
-        categories,
+        categories: shares.into_iter().map(|s| s.estimate).collect(),
         sample_hours: sample_ds / 3600.0,
         fixed_hours,
         hours: sample_ds / 3600.0 + fixed_hours,
