@@ -40,22 +40,20 @@ impl Estimate {
                 own.join(", ")
             ));
         }
-        let counted = |n: usize, what: &str| {
-            if n > 0 {
-                format!(", {n} {what}")
-            } else {
-                String::new()
-            }
-        };
-        out.push(format!(
-            "measured here: {} sample(s) with {} worker(s) × {} thread(s) on {}{}{}",
+        let mut measured = format!(
+            "measured here: {} sample(s) with {} worker(s) × {} thread(s) on {}",
             m.samples.len(),
             m.workers,
             m.threads,
-            m.machine,
-            counted(m.failed, "failed"),
-            counted(m.worker_restarts as usize, "worker restart(s)")
-        ));
+            m.machine
+        );
+        if m.failed > 0 {
+            measured += &format!(", {} failed", m.failed);
+        }
+        if m.worker_restarts > 0 {
+            measured += &format!(", {} worker restart(s)", m.worker_restarts);
+        }
+        out.push(measured);
         let starts: Vec<String> = m.worker_start_s.iter().map(|s| format!("{s:.1}")).collect();
         out.push(format!(
             "per task, once: {:.1} s wall (asset index, dataset, shutdown, and worker start-up, Blender import: {} s per worker)",
