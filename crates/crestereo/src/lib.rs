@@ -76,14 +76,6 @@ pub use ops::dispatch::WgpuBackend;
 #[cfg(feature = "wgpu")]
 pub type WgpuAutodiffBackend = burn::backend::Autodiff<WgpuBackend>;
 
-/// `t` in float dtype `dtype` (constants made in float32 join a float64 network this way).
-pub(crate) fn float_like<B: burn::prelude::Backend, const D: usize>(
-    t: burn::prelude::Tensor<B, D>,
-    dtype: burn::tensor::DType,
-) -> burn::prelude::Tensor<B, D> {
-    if t.dtype() == dtype { t } else { t.cast(dtype) }
-}
-
 /// Helpers of the unit tests that compare a kernel with the composed ops it replaces.
 #[cfg(test)]
 mod test_util {

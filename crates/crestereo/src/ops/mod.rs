@@ -11,3 +11,11 @@ pub(crate) mod norm;
 pub mod simd;
 pub mod threads;
 pub mod upsample;
+
+/// `t` in float dtype `dtype` (constants made in float32 join a float64 network this way).
+pub(crate) fn float_like<B: burn::prelude::Backend, const D: usize>(
+    t: burn::prelude::Tensor<B, D>,
+    dtype: burn::tensor::DType,
+) -> burn::prelude::Tensor<B, D> {
+    if t.dtype() == dtype { t } else { t.cast(dtype) }
+}

@@ -314,7 +314,7 @@ impl<B: Backend> CREStereo<B> {
     ) -> (Tensor<B, 4>, Tensor<B, 4>) {
         let [_, _, h, w] = left.dims();
         let table = self.pos_encoding.table_tensor::<B>(h, w, &left.device());
-        let table = crate::float_like(table, left.dtype());
+        let table = crate::ops::float_like(table, left.dtype());
         observer.positional_encoding(&table);
         let (left, right) = self.self_att_fn.forward_self(
             to_tokens(self.pos_encoding.add(left, &table)),

@@ -63,7 +63,10 @@ fn pixel_grid<B: Backend>(h: usize, w: usize, like: &Tensor<B, 4>) -> (Tensor<B,
         .float()
         .reshape([1, 1, h, 1])
         .expand([1, 1, h, w]);
-    (crate::float_like(xs, dtype), crate::float_like(ys, dtype))
+    (
+        crate::ops::float_like(xs, dtype),
+        crate::ops::float_like(ys, dtype),
+    )
 }
 
 /// Window offsets (dx, dy) of the candidates as (1, K, 1, 1) tensors, on `like`'s device in
@@ -79,7 +82,7 @@ fn window_offsets<B: Backend>(spec: CorrSpec, like: &Tensor<B, 4>) -> (Tensor<B,
         .unzip();
     let t = |v: Vec<f32>| {
         let t = Tensor::<B, 1>::from_floats(v.as_slice(), device).reshape([1, k, 1, 1]);
-        crate::float_like(t, like.dtype())
+        crate::ops::float_like(t, like.dtype())
     };
     (t(dx), t(dy))
 }

@@ -90,11 +90,11 @@ impl<B: Backend> Conv2d<B> {
         );
         let padding = self.symmetric_padding().expect("symmetric padding");
         let dtype = x.dtype();
-        let weight = crate::float_like(self.weight.val(), dtype);
+        let weight = crate::ops::float_like(self.weight.val(), dtype);
         let bias = self
             .bias
             .as_ref()
-            .map(|b| crate::float_like(b.val(), dtype));
+            .map(|b| crate::ops::float_like(b.val(), dtype));
         super::by_matmul::conv2d_by_matmul(x, weight, bias, padding, self.dilation)
     }
 

@@ -56,7 +56,7 @@ pub fn resize_bilinear_align_corners<B: Backend>(
             TensorData::new(linear_weights(n_in, n_out), [n_out, n_in]),
             &device,
         );
-        crate::float_like(m, dtype).transpose()
+        crate::ops::float_like(m, dtype).transpose()
     };
     let rw = matrix(w, wo);
     let y = x.reshape([n * c * h, w]).matmul(rw).reshape([n * c, h, wo]);
