@@ -1,32 +1,33 @@
 #!/usr/bin/env bash
-# CREStereo on a CUDA machine without Rust or network: the kernel warm-up (cold, then warm),
-# parity against the fixtures, one-GPU training through the collective against the plain run,
-# then Burn (CUDA) and PyTorch (CUDA) timed on the same GPU, with peak GPU memory.
+# CREStereo on a CUDA machine without Rust or network, in the order a short device call can
+# afford: the cold warm-up (time, kernel count by family and cause), parity against the
+# fixtures, warm inference and a training step timed against PyTorch on the same GPU with peak
+# memory, then one-GPU training through the collective against the plain run.
 #
 #   gpu_run.sh BIN FIXTURES_DIR TORCH_REFERENCE_PY [OUT_DIR] [DATA_DIR]
 #
 # BIN: the stripped `crestereo` binary built with `--features cuda` (x86-64).
 # FIXTURES_DIR: needs weights_seed0.pt and eval_cascade_1x128x192/{left.png,right.png,pred_full.npy}.
 # TORCH_REFERENCE_PY: crates/crestereo/bench/torch_reference.py (needs python3 with torch, numpy).
-# OUT_DIR (default $OUT): summary.txt, results.json, the logs and the predictions.
+# OUT_DIR (default $OUT): summary.txt, results.json, census.json, the logs and the predictions.
 # DATA_DIR (optional): a small training dataset (any layout `crestereo train --data` reads, e.g.
 #   `crestereo synth --out D --count 64 --size 384x512`): 200 training steps on CUDA with their loss.
-# SIZES (env, default "paper8 paper hd small", most wanted first): which sizes to time (hd =
-#   1088x1920 inference, paper8 = the paper crop at batch 8). REPEATS (env, default 3).
+# SIZES (env, default "infer384 hd paper", most wanted first): what to time — infer384 = inference
+#   1x384x512, hd = inference 1x1088x1920 (both two-pass, 20 iterations), paper = a training step
+#   2x384x512 at 10 iterations (Burn at --precision f32 against PyTorch with TF32 off, then Burn at
+#   tf32 against PyTorch's defaults), small = 1x192x256 training and 256x320 inference.
+# REPEATS (env, default 3). PRECISIONS (env, default "f32 tf32"): the Burn precisions timed.
 # DEV (env, default cuda): the device of every part (`cpu` runs the script's logic on a machine
 #   without a GPU; its figures then mean nothing).
 # DEADLINE_S (env, default 480): the script's budget in seconds; a part that cannot start in
 #   time is skipped and said so, a running one is stopped at the deadline (what it wrote stays).
+# COMPILE_S (env, default 240): how long part 1's cold warm-up may run.
 # KERNELS_IN (env, optional): an earlier run's OUT_DIR/kernels.txz (the path without the .00,
-#   .01, ... suffix of its parts; a gzip archive is read too) from the same binary and AUTOTUNE
-#   level.
-#   A cold start compiles for many minutes (on an H100 a first training step's warm-up had not
-#   finished after 506 s), more than one device call may have: every run leaves the kernels it
-#   compiled, and the autotune results, in OUT_DIR/kernels.txz.*, and the next run starts from
-#   them, so runs in separate calls (or sessions) go on where the last one stopped.
-# COMPILE_S (env, default: all but the last 90 s): how long part 1's parallel cold compile may run.
-# COMPILE_LOG (env, optional): CubeCL's log of the parity part in OUT_DIR/cubecl_parity.log
-#   (every kernel's source as compiled, and the autotune results).
+#   .01, ... suffix of its parts; a gzip archive is read too) from the same binary: every run
+#   leaves the kernels it compiled, and the autotune results, in OUT_DIR/kernels.txz.*, and the
+#   next run starts from them.
+# COMPILE_LOG (env, optional): CubeCL's log of the cold warm-up in OUT_DIR/cubecl_warmup.log
+#   (every kernel's source as compiled).
 # The whole script is made to fit one device call of at most 8 minutes on an H100/H200.
 set -uo pipefail
 BIN=$1
@@ -34,7 +35,8 @@ FIX=$2
 REF=$3
 OUT=${4:-${OUT:?give OUT_DIR or set OUT}}
 DATA=${5:-}
-SIZES=${SIZES:-paper8 paper hd small}
+SIZES=${SIZES:-infer384 hd paper}
+PRECISIONS=${PRECISIONS:-f32 tf32}
 REPEATS=${REPEATS:-3}
 DEADLINE=$(( $(date +%s) + ${DEADLINE_S:-480} ))
 mkdir -p "$OUT"
@@ -50,13 +52,13 @@ in_time() {
 }
 chmod +x "$BIN" 2>/dev/null || true
 DEV=${DEV:-cuda}
-# AUTOTUNE (env, default minimal): CubeCL's autotune level for every part. At balanced a cold
-# start compiles every candidate of every tuned kernel, and did not finish a first inference
-# within 400 s on an H200; minimal takes CubeCL's first candidate and compiles only that.
+# AUTOTUNE (env, default minimal): CubeCL's autotune level for every part (what is left of
+# autotuning at --precision f32: reductions and fused element-wise kernels; at tf32 matrix
+# products and convolutions too).
 export CRESTEREO_AUTOTUNE_LEVEL=${AUTOTUNE:-minimal}
 WORK=$(mktemp -d)
 # The kernel cache: CRESTEREO_KERNEL_CACHE's folder holds one folder per build of the binary,
-# named by its size and modification time, which the carried cache restores.
+# named by a hash of its bytes (a copy finds it), with a folder per GPU architecture inside.
 export CRESTEREO_KERNEL_CACHE=${CRESTEREO_KERNEL_CACHE:-$HOME/.cache/stereogen/kernels}
 KC=$CRESTEREO_KERNEL_CACHE
 SHA=$(sha256sum "$BIN" | cut -d' ' -f1)
@@ -140,112 +142,65 @@ if [ -n "${KERNELS_IN:-}" ]; then
     rm -rf "$WORK/in"
 fi
 
-# --- 1. the cold compile, in parallel. CubeCL compiles a process's kernels one after another
-# (about a second each from cold on an H100), so every part below that needs kernels starts at
-# once, each from its own copy of the cache; when they end (or at COMPILE_S), the entries each
-# one added are appended to the cache (CubeCL's cache files are append-only: JSON lines and CBOR
-# records). The driver's cache of the kernels' machine code (CUDA_CACHE_PATH) is kept in the same
-# folder and travels with it. These parts' own figures are taken while the others compile: the
-# warm-up is repeated warm and the timing (part 4) runs alone, from the merged cache.
-say "== cold compile: these parts at once, each from a copy of the cache ($(census))"
-SYN=$WORK/synth
-in_time "$BIN" synth --out "$SYN" --count 8 --size 256x320 >"$OUT/synth.log" 2>&1 || say "synth FAILED"
-CFG=$WORK/small.toml
-cat >"$CFG" <<TOML
-seed = 0
-steps = 5
-batch_size = 1
-accumulate = 1
-iters = 4
-[schedule]
-lr = 0.00002
-warmup_steps = 0
-decay_start = 5
-[augment]
-crop = [192, 256]
-[checkpoint]
-every = 5
-keep = 1
-[log]
-tensorboard = false
-[[datasets]]
-path = "$SYN"
-TOML
+# --- 1. the cold warm-up: one `crestereo warmup` compiles every kernel the later parts need
+# (the fixture's inference, the timed sizes, the paper's training step), with the kernel census.
+# At --precision f32 matrix products and convolutions run one fixed kernel per shape class, so
+# nothing is compiled for autotuning them. The CPU prediction for part 2 runs beside it.
 E=$FIX/eval_cascade_1x128x192
 mkdir -p "${KC:?}"
-export CUDA_CACHE_PATH=$KC/nv CUDA_CACHE_MAXSIZE=4294967296
-COMPILE_END=$(( $(date +%s) + ${COMPILE_S:-$(( $(left) - 90 ))} ))
-[ "$COMPILE_END" -gt "$DEADLINE" ] && COMPILE_END=$DEADLINE
-JOBS=() PIDS=() STARTS=()
-# job NAME CMD...: CMD in the background on its own copy of the cache, stopped at COMPILE_END.
-job() {
-    local name=$1; shift
-    local kc=${WORK:?}/kc_$name
-    mkdir -p "$kc" && cp -r "${KC:?}/." "$kc/" && rm -rf "${kc:?}/nv"
-    (
-        export CRESTEREO_KERNEL_CACHE=$kc
-        # COMPILE_LOG=1: CubeCL's own log of the parity part (each kernel's source, the autotune).
-        if [ "$name" = parity ] && [ -n "${COMPILE_LOG:-}" ]; then
-            export CUBECL_DEBUG_LOG=$OUT/cubecl_parity.log
-        fi
-        l=$(( COMPILE_END - $(date +%s) ))
-        [ "$l" -lt 15 ] && exit 124
-        exec timeout --kill-after=5 "$l" "$@"
-    ) >"$OUT/$name.log" 2>&1 &
-    JOBS+=("$name") PIDS+=($!) STARTS+=("$(date +%s.%N)")
-}
-job parity "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$DEV.exr" --pfm "$OUT/pred_$DEV.pfm" \
-    --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device "$DEV"
-job plain bash -c '"$1" train --device "$2" --config "$3" --out "$4" --no-progress &&
-    "$1" export pytorch --weights "$4" -o "$4.pth"' _ "$BIN" "$DEV" "$CFG" "$WORK/plain"
-job warmup "$BIN" warmup --device "$DEV" --config "$CFG" --infer-size 128x192 --infer-size 256x320
-# The shapes part 4 times, a bench each (their kernels overlap, their autotune results do not).
-for size in $SIZES; do
-    case $size in
-        small) job bench_train_small "$BIN" bench --device "$DEV" --what train --repeats 1 --train-size 1,192,256,4
-               job bench_infer_small "$BIN" bench --device "$DEV" --what infer --repeats 1 --infer-size 256,320 ;;
-        paper) job bench_train_paper "$BIN" bench --device "$DEV" --what train --repeats 1 --train-size 2,384,512,10
-               job bench_infer_paper "$BIN" bench --device "$DEV" --what infer --repeats 1 --infer-size 480,640 ;;
-        hd) job bench_infer_hd "$BIN" bench --device "$DEV" --what infer --repeats 1 --infer-size 1088,1920 ;;
-    esac
-done
-# The CPU's prediction for the parity check, at low priority beside the compiling parts.
+export CUDA_CACHE_PATH=${CUDA_CACHE_PATH:-$KC/nv} CUDA_CACHE_MAXSIZE=4294967296
 CPU_PID=
 if [ "$DEV" != cpu ]; then
     nice -n 15 "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_cpu.exr" --pfm "$OUT/pred_cpu.pfm" \
         --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device cpu >"$OUT/infer_cpu.log" 2>&1 &
     CPU_PID=$!
 fi
-for i in "${!JOBS[@]}"; do
-    wait "${PIDS[$i]}"; rc=$?
-    wall=$(python3 -c "import time; print(f'{time.time() - ${STARTS[$i]}:.1f}')")
-    case $rc in 0) st=finished ;; 124|137) st="stopped at the compile deadline" ;; *) st="FAILED (exit $rc)" ;; esac
-    say "-- ${JOBS[$i]}: $st after $wall s; its cache: $(KC=$WORK/kc_${JOBS[$i]} census)"
-    grep -E "^(warm-up|  |train step|inference)" "$OUT/${JOBS[$i]}.log" | sed 's/^/   /' | tee -a "$SUMMARY"
-    case $rc in 0|124|137) ;; *) tail -5 "$OUT/${JOBS[$i]}.log" | sed 's/^/   | /' | tee -a "$SUMMARY" ;; esac
+WARM_ARGS=(warmup --device "$DEV" --crop 384x512 --batch-size 2 --iters 10 --infer-size 128x192)
+for size in $SIZES; do
+    case $size in
+        infer384) WARM_ARGS+=(--infer-size 384x512) ;;
+        hd) WARM_ARGS+=(--infer-size 1088x1920) ;;
+        small) WARM_ARGS+=(--infer-size 256x320) ;;
+    esac
 done
-[ -n "$CPU_PID" ] && wait "$CPU_PID"
-# The merge: what each copy holds beyond the cache it started from, appended file by file.
-(cd "$KC" && find . -type f -not -path './nv/*' -printf '%P %s\n') >"$WORK/seed_sizes"
-for name in "${JOBS[@]}"; do
-    kc=$WORK/kc_$name
-    [ -d "$kc" ] || continue
-    (cd "$kc" && find . -type f -printf '%P\n') | while read -r rel; do
-        seed=$(awk -v p="$rel" '$1 == p { print $2 }' "$WORK/seed_sizes")
-        mkdir -p "$(dirname "$KC/$rel")"
-        tail -c +$(( ${seed:-0} + 1 )) "$kc/$rel" >>"$KC/$rel"
-    done
-done
-say "-- merged cache: $(census)"
-# The warm-up again, from the merged cache: what a later process pays.
+say "== cold warm-up ($(census) in the cache): crestereo ${WARM_ARGS[*]}"
 start=$(date +%s.%N)
-in_time "$BIN" warmup --device "$DEV" --config "$CFG" --infer-size 128x192 --infer-size 256x320 \
-    >"$OUT/warmup_warm.log" 2>&1 || say "warmup (warm) FAILED or unfinished (see warmup_warm.log)"
-say "-- warm-up from the merged cache: wall $(python3 -c "import time; print(f'{time.time() - $start:.1f}')") s; cache: $(census)"
-grep -E "^(warm-up|  )" "$OUT/warmup_warm.log" | sed 's/^/   /' | tee -a "$SUMMARY"
+limit=${COMPILE_S:-240}
+[ "$limit" -gt "$(left)" ] && limit=$(left)
+(
+    [ -n "${COMPILE_LOG:-}" ] && export CUBECL_DEBUG_LOG=$OUT/cubecl_warmup.log
+    CRESTEREO_KERNEL_CENSUS=$OUT/census.json exec timeout --kill-after=5 "$limit" "$BIN" "${WARM_ARGS[@]}"
+) >"$OUT/warmup_cold.log" 2>&1
+rc=$?
+wall=$(python3 -c "import time; print(f'{time.time() - $start:.1f}')")
+case $rc in 0) st=finished ;; 124|137) st="stopped at COMPILE_S ($limit s)" ;; *) st="FAILED (exit $rc)" ;; esac
+say "-- cold warm-up $st after $wall s; cache: $(census)"
+grep -E "^(warm-up|  |kernel)" "$OUT/warmup_cold.log" | sed 's/^/   /' | tee -a "$SUMMARY"
+case $rc in 0|124|137) ;; *) tail -5 "$OUT/warmup_cold.log" | sed 's/^/   | /' | tee -a "$SUMMARY" ;; esac
+# Tensor-core (TF32) kernels must not be compiled at --precision f32.
+if [ -s "$OUT/census.json" ]; then
+    python3 - "$OUT/census.json" <<'PY' | tee -a "$SUMMARY"
+import json, sys
+c = json.load(open(sys.argv[1]))
+tc = [k for k in c["kernels"] if any(s in k["key"].lower() for s in ("cmma", "mma", "tf32"))]
+print(f"   census: {c['total']['run']} run + {c['total']['tuning']} tuning = "
+      f"{c['total']['run'] + c['total']['tuning']} kernels, {c['tunings']} autotunings; "
+      f"tensor-core kernels: {len(tc)}" + (" (FAIL at f32)" if tc else ""))
+for fam, n in sorted(c["by_family"].items()):
+    print(f"     {fam:<28} run {n['run']:>4}  tuning {n['tuning']:>4}")
+PY
+fi
+[ -n "$CPU_PID" ] && wait "$CPU_PID"
+# A warm process from the filled cache, end to end: what every later job pays.
+start=$(date +%s.%N)
+in_time "$BIN" infer "$E/left.png" "$E/right.png" -o "$OUT/pred_$DEV.exr" --pfm "$OUT/pred_$DEV.pfm" \
+    --weights "$FIX/weights_seed0.pt" --iters 20 --stages 2 --device "$DEV" >"$OUT/parity.log" 2>&1 \
+    || say "infer --device $DEV FAILED (see parity.log)"
+say "-- warm process: crestereo infer of the fixture pair (two-pass, 20 iterations), $(python3 -c \
+    "import time; print(f'{time.time() - $start:.1f}')") s end to end; cache: $(census)"
 
-# --- 2. parity: the CLI's two-pass inference on the fixture PNGs (part 1), CUDA and CPU, vs
-# pred_full.npy
+# --- 2. parity: the CLI's two-pass inference on the fixture PNGs (part 1's warm process and the
+# CPU's), vs pred_full.npy
 say "== parity (eval_cascade_1x128x192, two-pass, 20 iters) vs pred_full.npy"
 python3 - "$OUT" "$E/pred_full.npy" "$DEV" <<'EOF' | tee -a "$SUMMARY"
 import sys, numpy as np
@@ -278,12 +233,107 @@ if [ ! -s "$OUT/pred_$DEV.pfm" ]; then
     exit 1
 fi
 
-# --- 3. one replica through the collective (`--devices DEV:0`) against the plain run, and the
-# plain run twice (whether the backend itself repeats its bits): 5 steps of the small config.
+# --- 3. timing and peak GPU memory, each run in its own process while nvidia-smi polls. Burn
+# at each of PRECISIONS; PyTorch with TF32 off beside f32, at its defaults (TF32 in cuDNN
+# convolutions) beside tf32.
+poll_start() {
+    if command -v nvidia-smi >/dev/null; then
+        nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 50 >"$1" & POLL=$!
+    else echo 0 >"$1"; POLL=; fi
+}
+poll_stop() { [ -n "$POLL" ] && { kill "$POLL" 2>/dev/null; wait "$POLL" 2>/dev/null; }; }
+peak() { sort -n "$1" | tail -1 | grep . || echo 0; }
+BASE=$(nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits 2>/dev/null | head -1)
+BASE=${BASE:-0}
+say "== timing (device sync around every clock reading; warm-up then median of $REPEATS)"
+say "   GPU memory in use before the runs: $BASE MiB (subtracted from the nvidia-smi peaks)"
+echo "[" >"$OUT/results.json"
+first=1
+for size in $SIZES; do
+    case $size in
+        small) TS="1 192 256 4"; IS="256 320"; WHATS="train infer" ;;
+        paper) TS="2 384 512 10"; IS=""; WHATS="train" ;;
+        infer384) TS=""; IS="384 512"; WHATS="infer" ;;
+        hd) TS=""; IS="1088 1920"; WHATS="infer" ;;
+        *) say "unknown size $size"; continue ;;
+    esac
+    for what in $WHATS; do
+        if [ $what = train ]; then S=$TS; else S=$IS; fi
+        csv=$(echo $S | tr ' ' ',')
+        for prec in $PRECISIONS; do
+            tf32=off; [ "$prec" = tf32 ] && tf32=default
+            tag=${what}_${size}_$prec
+            poll_start "$OUT/mem_burn_$tag.txt"
+            CRESTEREO_PRECISION=$prec in_time "$BIN" bench --device "$DEV" --what $what --repeats "$REPEATS" \
+                $([ $what = train ] && echo --train-size || echo --infer-size) "$csv" \
+                >"$OUT/burn_$tag.log" 2>&1 || say "burn $tag FAILED"
+            poll_stop
+            poll_start "$OUT/mem_torch_$tag.txt"
+            CRESTEREO_TORCH_DEVICE=$DEV CRESTEREO_TORCH_REPEATS=$REPEATS CRESTEREO_TORCH_TF32=$tf32 \
+                in_time python3 "$REF" bench 8 $what $S >"$OUT/torch_$tag.log" 2>&1 || say "torch $tag FAILED"
+            poll_stop
+            b=$(grep -E "^(train step|inference)" "$OUT/burn_$tag.log" | tail -1)
+            t=$(grep -E "^torch" "$OUT/torch_$tag.log" | tail -1)
+            bm=$(( $(peak "$OUT/mem_burn_$tag.txt") - BASE ))
+            tm=$(( $(peak "$OUT/mem_torch_$tag.txt") - BASE ))
+            say "-- $what $size ($S): burn --precision $prec, torch TF32 $tf32"
+            say "   burn : $b | nvidia-smi peak $bm MiB"
+            say "   torch: $t | nvidia-smi peak $tm MiB"
+            python3 - "$what" "$size" "$b" "$t" "$bm" "$tm" "$first" "$prec" "$tf32" >>"$OUT/results.json" <<'EOF'
+import json, re, sys
+what, size, b, t, bm, tm, first, prec, tf32 = sys.argv[1:]
+def total(line):
+    m = re.search(r"total incl\. Adam ([\d.]+)s", line) or re.search(r"\): ([\d.]+)s", line)
+    return float(m.group(1)) if m else None
+def part(line, name):
+    m = re.search(name + r" ([\d.]+)s", line)
+    return float(m.group(1)) if m else None
+r = {"what": what, "size": size, "burn_precision": prec, "torch_tf32": tf32,
+     "burn_s": total(b), "torch_s": total(t),
+     "burn_gpu_peak_mib": int(bm), "torch_gpu_peak_mib": int(tm)}
+m = re.search(r"max_memory_allocated (\d+) MiB", t)
+r["torch_max_memory_allocated_mib"] = int(m.group(1)) if m else None
+if what == "train":
+    for k in ("forward", "backward"):
+        r[f"burn_{k}_s"], r[f"torch_{k}_s"] = part(b, k), part(t, k)
+if r["burn_s"] and r["torch_s"]:
+    r["ratio_time"] = r["burn_s"] / r["torch_s"]
+r["ratio_gpu_peak"] = int(bm) / max(int(tm), 1)
+print(("" if first == "1" else ",") + json.dumps(r))
+EOF
+            first=0
+        done
+    done
+done
+echo "]" >>"$OUT/results.json"
+
+# --- 4. one replica through the collective (`--devices DEV:0`) against the plain run, and the
+# plain run twice (whether the backend itself repeats its bits): 5 steps of a small config.
 say "== one device through the collective vs the plain run (5 steps, batch 1, 192x256, 4 iterations)"
-# The plain run itself was part 1's (cold); these two start from the merged cache.
-cp "$WORK/plain/train_log.csv" "$OUT/train_log_plain.csv" 2>/dev/null
-for run in plain_again collective; do
+SYN=$WORK/synth
+in_time "$BIN" synth --out "$SYN" --count 8 --size 256x320 >"$OUT/synth.log" 2>&1 || say "synth FAILED"
+CFG=$WORK/small.toml
+cat >"$CFG" <<TOML
+seed = 0
+steps = 5
+batch_size = 1
+accumulate = 1
+iters = 4
+[schedule]
+lr = 0.00002
+warmup_steps = 0
+decay_start = 5
+[augment]
+crop = [192, 256]
+[checkpoint]
+every = 5
+keep = 1
+[log]
+tensorboard = false
+[[datasets]]
+path = "$SYN"
+TOML
+for run in plain plain_again collective; do
     extra=""
     [ $run = collective ] && extra="--devices $DEV:0"
     in_time "$BIN" train --device "$DEV" --config "$CFG" --out "$WORK/$run" --no-progress $extra \
@@ -316,73 +366,6 @@ for run in ("plain_again", "collective"):
     print(f"   {run} vs plain: {len(l)} steps, losses {dl:.3e}, weights {(num / den) ** 0.5:.3e} "
           f"(relative){' - bit-identical' if same else ''}")
 EOF
-
-# --- 4. timing and peak GPU memory, each run in its own process while nvidia-smi polls
-poll_start() {
-    if command -v nvidia-smi >/dev/null; then
-        nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 50 >"$1" & POLL=$!
-    else echo 0 >"$1"; POLL=; fi
-}
-poll_stop() { [ -n "$POLL" ] && { kill "$POLL" 2>/dev/null; wait "$POLL" 2>/dev/null; }; }
-peak() { sort -n "$1" | tail -1 | grep . || echo 0; }
-BASE=$(nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits 2>/dev/null | head -1)
-BASE=${BASE:-0}
-say "== timing (device sync around every clock reading; warm-up then median of $REPEATS)"
-say "   GPU memory in use before the runs: $BASE MiB (subtracted from the nvidia-smi peaks)"
-echo "[" >"$OUT/results.json"
-first=1
-for size in $SIZES; do
-    case $size in
-        small) TS="1 192 256 4"; IS="256 320"; WHATS="train infer" ;;
-        paper) TS="2 384 512 10"; IS="480 640"; WHATS="train infer" ;;
-        paper8) TS="8 384 512 10"; IS=""; WHATS="train" ;;
-        hd) TS=""; IS="1088 1920"; WHATS="infer" ;;
-        *) say "unknown size $size"; continue ;;
-    esac
-    for what in $WHATS; do
-        if [ $what = train ]; then S=$TS; else S=$IS; fi
-        csv=$(echo $S | tr ' ' ',')
-        poll_start "$OUT/mem_burn_${what}_$size.txt"
-        in_time "$BIN" bench --device "$DEV" --what $what --repeats "$REPEATS" \
-            $([ $what = train ] && echo --train-size || echo --infer-size) "$csv" \
-            >"$OUT/burn_${what}_$size.log" 2>&1 || say "burn $what $size FAILED"
-        poll_stop
-        poll_start "$OUT/mem_torch_${what}_$size.txt"
-        CRESTEREO_TORCH_DEVICE=$DEV CRESTEREO_TORCH_REPEATS=$REPEATS \
-            in_time python3 "$REF" bench 8 $what $S >"$OUT/torch_${what}_$size.log" 2>&1 || say "torch $what $size FAILED"
-        poll_stop
-        b=$(grep -E "^(train step|inference)" "$OUT/burn_${what}_$size.log" | tail -1)
-        t=$(grep -E "^torch" "$OUT/torch_${what}_$size.log" | tail -1)
-        bm=$(( $(peak "$OUT/mem_burn_${what}_$size.txt") - BASE ))
-        tm=$(( $(peak "$OUT/mem_torch_${what}_$size.txt") - BASE ))
-        say "-- $what $size ($S)"
-        say "   burn : $b | nvidia-smi peak $bm MiB"
-        say "   torch: $t | nvidia-smi peak $tm MiB"
-        python3 - "$what" "$size" "$b" "$t" "$bm" "$tm" "$first" >>"$OUT/results.json" <<'EOF'
-import json, re, sys
-what, size, b, t, bm, tm, first = sys.argv[1:]
-def total(line):
-    m = re.search(r"total incl\. Adam ([\d.]+)s", line) or re.search(r"\): ([\d.]+)s", line)
-    return float(m.group(1)) if m else None
-def part(line, name):
-    m = re.search(name + r" ([\d.]+)s", line)
-    return float(m.group(1)) if m else None
-r = {"what": what, "size": size, "burn_s": total(b), "torch_s": total(t),
-     "burn_gpu_peak_mib": int(bm), "torch_gpu_peak_mib": int(tm)}
-m = re.search(r"max_memory_allocated (\d+) MiB", t)
-r["torch_max_memory_allocated_mib"] = int(m.group(1)) if m else None
-if what == "train":
-    for k in ("forward", "backward"):
-        r[f"burn_{k}_s"], r[f"torch_{k}_s"] = part(b, k), part(t, k)
-if r["burn_s"] and r["torch_s"]:
-    r["ratio_time"] = r["burn_s"] / r["torch_s"]
-r["ratio_gpu_peak"] = int(bm) / max(int(tm), 1)
-print(("" if first == "1" else ",") + json.dumps(r))
-EOF
-        first=0
-    done
-done
-echo "]" >>"$OUT/results.json"
 
 # --- 5. 200 training steps on the carried data (paper crop, batch 8) with their loss
 if [ -n "$DATA" ]; then

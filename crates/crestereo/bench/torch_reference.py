@@ -359,7 +359,15 @@ def bench(argv):
     sizes = [int(v) for v in argv[2:]]
     torch.set_num_threads(threads)
     torch.manual_seed(0)
-    print(f"{'port ' + PORT if PORT else 'reference'}: {capability()}", flush=True)
+    # CRESTEREO_TORCH_TF32=off: no TensorFloat-32 anywhere (the float32 that `crestereo
+    # --precision f32` computes in); unset or `default`: PyTorch's defaults (TF32 in cuDNN
+    # convolutions, none in matrix products).
+    if os.environ.get("CRESTEREO_TORCH_TF32", "default") == "off":
+        torch.backends.cudnn.allow_tf32 = False
+        torch.backends.cuda.matmul.allow_tf32 = False
+    b = torch.backends
+    tf32 = f"cudnn.allow_tf32 {b.cudnn.allow_tf32}, matmul.allow_tf32 {b.cuda.matmul.allow_tf32}"
+    print(f"{'port ' + PORT if PORT else 'reference'}: {capability()}; {tf32}", flush=True)
     if what == "train":
         bench_train(threads, *(sizes or [2, 384, 512, 10]))
     else:

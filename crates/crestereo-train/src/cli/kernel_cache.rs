@@ -6,14 +6,31 @@
 //! (`compilation.cache`), and its autotune results in the `target/` folder of the working
 //! directory's Cargo project (or the user cache folder outside one).
 //!
-//! Both go to one folder per build of this binary: a kernel's cache key is its id, not its
-//! source, so a rebuilt binary with a changed kernel body must not find the old one. A
-//! `cubecl.toml` / `burn.toml` in the working directory or above leaves CubeCL's configuration
-//! to that file; `CRESTEREO_KERNEL_CACHE=off` turns the caches off, any other value names the
-//! parent folder (default: `$XDG_CACHE_HOME/stereogen/kernels`, else `~/.cache/stereogen/kernels`).
+//! Layout, under the parent folder (`CRESTEREO_KERNEL_CACHE`, default
+//! `$XDG_CACHE_HOME/stereogen/kernels`, else `~/.cache/stereogen/kernels`):
+//!
+//! ```text
+//! <version>-<content hash of the binary>/   one build of `crestereo`
+//!     sm_90/ …   CubeCL's compiled kernels (PTX) and autotune results for one CUDA architecture
+//!     spirv/     the same for Vulkan (SPIR-V is not tied to one GPU)
+//!     cuda-jit/  NVIDIA's own cache of machine code made from the PTX (CUDA_CACHE_PATH)
+//!     */census/  what each accounted run compiled (`crestereo warmup`, CRESTEREO_KERNEL_CENSUS)
+//! ```
+//!
+//! The build folder is named after a hash of the executable's bytes, not its size and time: a
+//! kernel's cache key is its id, not its source, so a rebuilt binary with a changed kernel body
+//! must not find the old one, while a *copy* of the same binary (a cluster image, another node's
+//! install, a job's scratch copy) must find the kernels its twin compiled. PTX is compiled for
+//! one architecture (`--gpu-architecture=sm_XX`), so each architecture has its own folder: a
+//! folder shared by H100 and A100 nodes serves both. NVIDIA's driver turns the PTX into machine
+//! code at load time and keeps that in `CUDA_CACHE_PATH` (by default a 256 MiB folder in the
+//! user's home); it is pointed into the same build folder (unless already set) so that one
+//! `crestereo warmup` on one node fills everything a later job on any node needs.
+//!
+//! A `cubecl.toml` / `burn.toml` in the working directory or above leaves CubeCL's configuration
+//! to that file; `CRESTEREO_KERNEL_CACHE=off` turns the caches off.
 
 use std::path::{Path, PathBuf};
-use std::time::UNIX_EPOCH;
 
 use cubecl_common::config::RuntimeConfig;
 use cubecl_runtime::config::CubeClRuntimeConfig;
@@ -23,31 +40,124 @@ use cubecl_runtime::config::cache::CacheConfig;
 /// Build folders kept beside the current one (the newest first); older ones are removed.
 const KEEP_BUILDS: usize = 3;
 
-/// Sets CubeCL's configuration before any GPU use; returns the cache folder, or `None` when the
-/// caches stay off or a CubeCL config file decides. Must run before the first backend call.
-pub fn configure() -> Option<PathBuf> {
-    let setting = std::env::var_os("CRESTEREO_KERNEL_CACHE");
-    if setting.as_deref().is_some_and(|s| s == "off") || config_file_above_cwd() {
+/// The GPU a command will run on, as far as the cache layout needs to know it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GpuTarget {
+    /// CUDA device `ordinal` (its architecture names the kernel folder).
+    Cuda { ordinal: usize },
+    /// wgpu with SPIR-V kernels.
+    Vulkan,
+}
+
+/// Where this process's kernels go.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CacheFolders {
+    /// `<parent>/<version>-<hash>`: everything this build of the binary caches.
+    pub build: PathBuf,
+    /// `<build>/sm_XX` or `<build>/spirv`: CubeCL's compiled kernels and autotune results.
+    pub device: PathBuf,
+}
+
+/// Sets CubeCL's configuration before any GPU use; returns the cache folders, or `None` when
+/// the caches stay off or a CubeCL config file decides. `census` turns on the compilation log
+/// [`super::kernel_census`] reads (it needs no cache folder). Must run before the first backend
+/// call, and while this is the only thread (it may set `CUDA_CACHE_PATH`).
+pub fn configure(target: GpuTarget, census: bool) -> Option<CacheFolders> {
+    if config_file_above_cwd() {
+        if census {
+            tracing::warn!(
+                "a cubecl.toml or burn.toml above the working folder decides CubeCL's settings: no kernel census"
+            );
+        }
         return None;
     }
-    let parent = setting.map(PathBuf::from).or_else(default_parent)?;
-    let dir = parent.join(build_id()?);
-    if let Err(e) = std::fs::create_dir_all(&dir) {
-        tracing::warn!(
-            "kernel cache {} not usable ({e}); kernels compile every run",
-            dir.display()
-        );
+    let folders = folders(target);
+    if folders.is_none() && !census {
         return None;
     }
-    prune_old_builds(&parent, &dir);
     let mut config = CubeClRuntimeConfig::from_current_dir().override_from_env();
-    config.compilation.cache = Some(CacheConfig::File(dir.clone()));
-    config.autotune.cache = CacheConfig::File(dir.clone());
+    if let Some(f) = &folders {
+        config.compilation.cache = Some(CacheConfig::File(f.device.clone()));
+        config.autotune.cache = CacheConfig::File(f.device.clone());
+    }
     if let Some(level) = autotune_level() {
         config.autotune.level = level;
     }
+    if census {
+        super::kernel_census::configure(&mut config);
+    }
     CubeClRuntimeConfig::set(config);
-    Some(dir)
+    folders
+}
+
+/// Makes (and prunes around) this build's folders; `None` when the caches are off or the folder
+/// cannot be made.
+fn folders(target: GpuTarget) -> Option<CacheFolders> {
+    let setting = std::env::var_os("CRESTEREO_KERNEL_CACHE");
+    if setting.as_deref().is_some_and(|s| s == "off") {
+        return None;
+    }
+    let parent = setting.map(PathBuf::from).or_else(default_parent)?;
+    let build = parent.join(build_id()?);
+    if target != GpuTarget::Vulkan && std::env::var_os("CUDA_CACHE_PATH").is_none() {
+        // SAFETY: start-up, before any other thread exists (see `configure`); read by the CUDA
+        // driver when it initialises, below or at the first kernel.
+        unsafe {
+            std::env::set_var("CUDA_CACHE_PATH", build.join("cuda-jit"));
+            // The driver's default limit (256 MiB) holds a fraction of a training run's kernels.
+            if std::env::var_os("CUDA_CACHE_MAXSIZE").is_none() {
+                std::env::set_var("CUDA_CACHE_MAXSIZE", "4294967296");
+            }
+        }
+    }
+    let device = build.join(device_folder(target));
+    if let Err(e) = std::fs::create_dir_all(&device) {
+        tracing::warn!(
+            "kernel cache {} not usable ({e}); kernels compile every run",
+            device.display()
+        );
+        return None;
+    }
+    prune_old_builds(&parent, &build);
+    Some(CacheFolders { build, device })
+}
+
+/// `sm_<major><minor>` of a CUDA device (`cuda` when the driver cannot say), `spirv` for Vulkan.
+fn device_folder(target: GpuTarget) -> String {
+    match target {
+        GpuTarget::Vulkan => "spirv".into(),
+        GpuTarget::Cuda { ordinal } => cuda_architecture(ordinal)
+            .map(|(major, minor)| format!("sm_{major}{minor}"))
+            .unwrap_or_else(|| "cuda".into()),
+    }
+}
+
+/// The compute capability of CUDA device `ordinal`, asked of the driver (the same numbers
+/// CubeCL compiles for).
+#[cfg(feature = "cuda")]
+fn cuda_architecture(ordinal: usize) -> Option<(i32, i32)> {
+    use cudarc::driver::result;
+    use cudarc::driver::sys::CUdevice_attribute::{
+        CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MAJOR, CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MINOR,
+    };
+    result::init().ok()?;
+    let device = result::device::get(i32::try_from(ordinal).ok()?).ok()?;
+    // SAFETY: `device` is a valid device handle from `cuDeviceGet`; the attributes are
+    // read-only properties.
+    unsafe {
+        let major =
+            result::device::get_attribute(device, CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MAJOR)
+                .ok()?;
+        let minor =
+            result::device::get_attribute(device, CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MINOR)
+                .ok()?;
+        Some((major, minor))
+    }
+}
+
+#[cfg(not(feature = "cuda"))]
+fn cuda_architecture(_ordinal: usize) -> Option<(i32, i32)> {
+    None
 }
 
 /// `CRESTEREO_AUTOTUNE_LEVEL`: minimal, balanced (CubeCL's default), extensive or full.
@@ -84,16 +194,38 @@ fn default_parent() -> Option<PathBuf> {
     Some(base.join("stereogen").join("kernels"))
 }
 
-/// `<version>-<size>-<mtime>` of the running executable: a new build gets a new folder.
+/// `<version>-<hash>` of the running executable: the first 16 hex digits of the SHA-256 of its
+/// bytes, so that a rebuilt binary gets a new folder and a copied one finds its twin's.
 fn build_id() -> Option<String> {
-    let meta = std::fs::metadata(std::env::current_exe().ok()?).ok()?;
-    let mtime = meta.modified().ok()?.duration_since(UNIX_EPOCH).ok()?;
-    Some(format!(
-        "{}-{}-{}",
-        env!("CARGO_PKG_VERSION"),
-        meta.len(),
-        mtime.as_secs()
-    ))
+    let exe = std::env::current_exe().ok()?;
+    match content_hash(&exe) {
+        Ok(hash) => Some(format!("{}-{hash}", env!("CARGO_PKG_VERSION"))),
+        Err(e) => {
+            tracing::warn!(
+                "cannot read {} to name its kernel cache ({e}); kernels compile every run",
+                exe.display()
+            );
+            None
+        }
+    }
+}
+
+/// The first 16 hex digits of the SHA-256 of the file at `path`.
+pub fn content_hash(path: &Path) -> std::io::Result<String> {
+    use sha2::{Digest, Sha256};
+    use std::io::Read;
+    let mut file = std::fs::File::open(path)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    let digest = hasher.finalize();
+    Ok(digest[..8].iter().map(|b| format!("{b:02x}")).collect())
 }
 
 fn config_file_above_cwd() -> bool {

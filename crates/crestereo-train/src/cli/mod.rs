@@ -15,6 +15,7 @@ pub mod farm;
 pub mod infer;
 #[cfg(feature = "kernel-cache")]
 pub mod kernel_cache;
+pub mod kernel_census;
 pub mod network_args;
 pub mod score;
 pub mod train;
@@ -69,8 +70,9 @@ pub enum Command {
         #[command(flatten)]
         backend: BackendArgs,
     },
-    /// Compile and autotune every GPU kernel a training config's shapes need into the kernel
-    /// cache, and say how many and how long (prepare a cluster image or a shared cache once).
+    /// Compile every GPU kernel a training config's shapes need into the kernel cache, and say
+    /// how many, how long and which (the kernel census, by family and cause), to prepare a
+    /// cluster image or a shared cache once.
     Warmup {
         #[command(flatten)]
         args: warmup::WarmupArgs,
@@ -141,6 +143,31 @@ pub struct BackendArgs {
     /// Backend, chosen at run time.
     #[arg(long, value_enum, default_value_t = DeviceKind::Cpu)]
     pub device: DeviceKind,
+    /// Matrix products and convolutions on a GPU: `f32` (default) runs them in full float32
+    /// through one fixed kernel per shape (no autotuning: a cold start compiles what runs, and
+    /// the disparity agrees with the CPU's to 1e-3 px); `tf32` hands them to Burn's autotuned
+    /// kernels, which use TensorFloat-32 tensor cores on NVIDIA GPUs (10-bit mantissa). Also
+    /// CRESTEREO_PRECISION. The CPU backend always computes in float32.
+    #[arg(long, value_enum, default_value_t = PrecisionArg::F32)]
+    pub precision: PrecisionArg,
+}
+
+/// `--precision`.
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
+pub enum PrecisionArg {
+    /// Full float32, one fixed kernel per shape class.
+    F32,
+    /// TensorFloat-32 on NVIDIA tensor cores (Burn's autotuned kernels).
+    Tf32,
+}
+
+impl From<PrecisionArg> for crestereo::ops::matmul::Precision {
+    fn from(p: PrecisionArg) -> Self {
+        match p {
+            PrecisionArg::F32 => crestereo::ops::matmul::Precision::F32,
+            PrecisionArg::Tf32 => crestereo::ops::matmul::Precision::Tf32,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
@@ -178,6 +205,48 @@ impl Command {
             _ => 0,
         }
     }
+
+    /// The `--precision` this command was given, if it takes one.
+    fn precision(&self) -> Option<PrecisionArg> {
+        match self {
+            Command::Infer { backend, .. }
+            | Command::Train { backend, .. }
+            | Command::Warmup { backend, .. }
+            | Command::Eval { backend, .. }
+            | Command::Score { backend, .. } => Some(backend.precision),
+            _ => None,
+        }
+    }
+
+    /// The GPU this command runs on, if any (the kernel cache's folder depends on it).
+    #[cfg(feature = "kernel-cache")]
+    fn gpu_target(&self) -> Option<kernel_cache::GpuTarget> {
+        use kernel_cache::GpuTarget;
+        let (kind, ordinal) = match self {
+            Command::Train { args, backend } => match args.devices.as_deref() {
+                Some(spec) => {
+                    let list = devices::parse_devices(spec, backend.device).ok()?;
+                    let first = match list.devices.first() {
+                        Some(devices::DeviceIndex::Index(i)) => *i,
+                        _ => 0,
+                    };
+                    (list.kind, first)
+                }
+                None => (backend.device, 0),
+            },
+            Command::Infer { backend, .. }
+            | Command::Warmup { backend, .. }
+            | Command::Eval { backend, .. }
+            | Command::Score { backend, .. } => (backend.device, 0),
+            Command::Bench { device, .. } => (*device, 0),
+            _ => return None,
+        };
+        match kind {
+            DeviceKind::Cpu => None,
+            DeviceKind::Cuda => Some(GpuTarget::Cuda { ordinal }),
+            DeviceKind::Vulkan => Some(GpuTarget::Vulkan),
+        }
+    }
 }
 
 fn set_threads(n: usize) {
@@ -207,14 +276,20 @@ pub fn main_with(
                     "info,cubecl_runtime=warn,burn_collective=warn,burn_collective::global::orchestrator=off,burn_communication=warn".into()
                 }),
         );
+    let cli = Cli::parse();
+    let warmup = matches!(cli.command, Command::Warmup { .. });
+    // `warmup` always takes the kernel census; other GPU commands when asked. Its layer listens
+    // at trace level, so it is only there when wanted (every `log::trace!` of wgpu would reach it).
+    let census_file = kernel_census::requested();
+    let census_wanted = warmup || census_file.is_some();
     // Each layer has its own filter: the log's leaves the fusion backend's read spans to the
     // counter (`bench --device cuda` prints them per training step), the counter's leaves
     // every event to the log.
     tracing_subscriber::registry()
         .with(log)
         .with(crate::host_reads::layer())
+        .with(census_wanted.then(kernel_census::layer))
         .init();
-    let cli = Cli::parse();
     if let Command::Warmup { args, .. } = &cli.command
         && let Some(level) = &args.autotune_level
     {
@@ -227,7 +302,15 @@ pub fn main_with(
         unsafe { std::env::set_var("CRESTEREO_AUTOTUNE_LEVEL", level) };
     }
     #[cfg(feature = "kernel-cache")]
-    let cache = kernel_cache::configure();
+    let cache = match cli.command.gpu_target() {
+        Some(target) => {
+            if census_wanted {
+                kernel_census::start();
+            }
+            kernel_cache::configure(target, census_wanted).map(|f| f.device)
+        }
+        None => None,
+    };
     #[cfg(not(feature = "kernel-cache"))]
     let cache: Option<std::path::PathBuf> = None;
     if let Some(dir) = &cache {
@@ -239,8 +322,49 @@ pub fn main_with(
         return ExitCode::FAILURE;
     }
     set_threads(cli.command.threads());
+    // --precision, else CRESTEREO_PRECISION where the flag was left at its default (or the
+    // command has none), else float32.
+    use crestereo::ops::matmul::{Precision, set_precision};
+    let from_env = match std::env::var("CRESTEREO_PRECISION")
+        .ok()
+        .map(|v| v.parse::<Precision>())
+    {
+        Some(Err(e)) => {
+            eprintln!("error: CRESTEREO_PRECISION: {e}");
+            return ExitCode::FAILURE;
+        }
+        Some(Ok(p)) => Some(p),
+        None => None,
+    };
+    match (cli.command.precision(), from_env) {
+        (Some(PrecisionArg::F32) | None, Some(env)) => set_precision(env),
+        (Some(flag), _) => set_precision(flag.into()),
+        (None, None) => {}
+    }
     // The whole command on a pool thread: each kernel then starts without a cold hand-over.
-    match crestereo::ops::threads::on_pool(|| run(cli, cache)) {
+    let census_dir = cache.clone();
+    let outcome = crestereo::ops::threads::on_pool(|| run(cli, cache));
+    // `warmup` writes and prints its own census (by phase); the others' goes where asked.
+    if !warmup
+        && kernel_census::active()
+        && let Some(file) = census_file
+    {
+        let path = file.or_else(|| {
+            census_dir
+                .as_deref()
+                .map(|d| kernel_census::beside_cache(d, "run"))
+        });
+        match path {
+            Some(path) => match kernel_census::snapshot().write(&path) {
+                Ok(()) => eprintln!("kernel census: {}", path.display()),
+                Err(e) => eprintln!("warning: kernel census not written: {e:#}"),
+            },
+            None => eprintln!(
+                "warning: CRESTEREO_KERNEL_CENSUS=1 but no kernel cache folder to write it beside; name a file instead"
+            ),
+        }
+    }
+    match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if e.downcast_ref::<crate::interrupt::Interrupted>().is_some() => {
             eprintln!("{e}");

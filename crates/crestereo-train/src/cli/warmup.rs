@@ -1,8 +1,10 @@
-//! `crestereo warmup`: compiles and autotunes, into the kernel cache, every GPU kernel a
-//! training config's shapes need (a training step at the per-replica batch and crop, the
-//! validation images' sizes, and any inference sizes named), and says how many and how long —
-//! so a cluster image or a shared cache folder is prepared once per build instead of by the
-//! first minutes of every job.
+//! `crestereo warmup`: compiles (and, where something is still autotuned, autotunes) into the
+//! kernel cache every GPU kernel a training config's shapes need (a training step at the
+//! per-replica batch and crop, the validation images' sizes, and any inference sizes named),
+//! and says how many, how long and which: the kernel census of this process
+//! ([`super::kernel_census`]), per phase and by family and cause, printed and written as JSON
+//! beside the cache — so a cluster image or a shared cache folder is prepared once per build
+//! instead of by the first minutes of every job, and a change that compiles more shows.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -15,16 +17,30 @@ use burn::tensor::backend::AutodiffBackend;
 use crestereo::{CREStereoConfig, InferenceOptions, sequence_loss};
 
 use super::bench_device::{infer_padded, random_batch};
+use super::kernel_census;
 
 #[derive(Debug, clap::Args)]
 pub struct WarmupArgs {
     /// The training config whose shapes to prepare: crop, batch per replica, iterations, and
-    /// the validation set's image sizes.
+    /// the validation set's image sizes. Without it: the paper's training step (batch 2 of
+    /// 384x512 at 10 iterations), or what --crop, --batch-size and --iters say.
     #[arg(long)]
-    pub config: PathBuf,
+    pub config: Option<PathBuf>,
     /// Replicas the global batch will be split over (the number of --devices times processes).
     #[arg(long, default_value_t = 1)]
     pub replicas: usize,
+    /// Training crop HxW (overrides the config's).
+    #[arg(long, value_name = "HxW")]
+    pub crop: Option<String>,
+    /// Samples per training pass, before the split over --replicas (overrides the config's).
+    #[arg(long)]
+    pub batch_size: Option<usize>,
+    /// Refinement iterations of the training step (overrides the config's).
+    #[arg(long)]
+    pub iters: Option<usize>,
+    /// Prepare no training step: only the inference sizes.
+    #[arg(long)]
+    pub no_training_step: bool,
     /// Inference sizes to prepare too, HxW, repeatable (what `crestereo infer` or `eval` will
     /// see), two-pass at 20 iterations as `infer` runs by default.
     #[arg(long = "infer-size", value_name = "HxW")]
@@ -39,19 +55,22 @@ pub struct WarmupArgs {
 /// The kernel cache's entries: compiled kernels and autotune results (one line each in CubeCL's
 /// append-only files).
 #[derive(Debug, Clone, Copy, Default)]
-struct Census {
+struct CacheEntries {
     kernels: usize,
     tuned: usize,
 }
 
-fn census(dir: Option<&Path>) -> Census {
-    fn walk(dir: &Path, inside_autotune: bool, c: &mut Census) {
+fn cache_entries(dir: Option<&Path>) -> CacheEntries {
+    fn walk(dir: &Path, inside_autotune: bool, c: &mut CacheEntries) {
         let Ok(entries) = std::fs::read_dir(dir) else {
             return;
         };
         for e in entries.flatten() {
             let path = e.path();
             let name = e.file_name().to_string_lossy().into_owned();
+            if name == "census" {
+                continue;
+            }
             let autotune = inside_autotune || name.contains("autotune");
             if path.is_dir() {
                 walk(&path, autotune, c);
@@ -65,11 +84,34 @@ fn census(dir: Option<&Path>) -> Census {
             }
         }
     }
-    let mut c = Census::default();
+    let mut c = CacheEntries::default();
     if let Some(d) = dir {
         walk(d, false, &mut c);
     }
     c
+}
+
+/// The config whose shapes the warm-up prepares: the file's, or the defaults, with the
+/// command line's overrides.
+fn warmup_config(a: &WarmupArgs) -> Result<TrainConfig> {
+    let mut cfg = match &a.config {
+        Some(path) => {
+            let cfg = TrainConfig::from_file(path)?;
+            cfg.validate()?;
+            cfg
+        }
+        None => TrainConfig::default(),
+    };
+    if let Some(crop) = &a.crop {
+        cfg.augment.crop = super::train::parse_crop(crop)?;
+    }
+    if let Some(b) = a.batch_size {
+        cfg.batch_size = b;
+    }
+    if let Some(i) = a.iters {
+        cfg.iters = i;
+    }
+    Ok(cfg)
 }
 
 /// Runs the warm-up on `device` of backend `B`; `cache` is the kernel cache folder in use.
@@ -78,11 +120,10 @@ pub fn run<B: AutodiffBackend>(
     device: &B::Device,
     cache: Option<&Path>,
 ) -> Result<()> {
-    let cfg = TrainConfig::from_file(&a.config)?;
-    cfg.validate()?;
+    let cfg = warmup_config(a)?;
     crate::train::check_batch_split(&cfg, a.replicas.max(1))?;
     let level = std::env::var("CRESTEREO_AUTOTUNE_LEVEL").unwrap_or_else(|_| "balanced".into());
-    let before = census(cache);
+    let before = cache_entries(cache);
     let started = Instant::now();
     println!(
         "warm-up on {} (autotune level {level}); kernel cache: {}",
@@ -91,25 +132,87 @@ pub fn run<B: AutodiffBackend>(
             .display()
             .to_string())
     );
-    let micro = cfg.batch_size / a.replicas.max(1);
-    let [h, w] = cfg.augment.crop;
-    let t0 = Instant::now();
-    crate::oom::on_device(
-        || training_step::<B>(micro, h, w, cfg.iters, device),
-        &format!(
-            "a training step of {micro} × {h}x{w} at {} iterations",
-            cfg.iters
-        ),
-        crate::oom::TRAINING_ADVICE,
-    )?;
+    let mut phases = Vec::new();
+    if !a.no_training_step {
+        let micro = cfg.batch_size / a.replicas.max(1);
+        let [h, w] = cfg.augment.crop;
+        let phase = format!("training step {micro}x{h}x{w}, {} iterations", cfg.iters);
+        kernel_census::set_phase(&phase);
+        let t0 = Instant::now();
+        crate::oom::on_device(
+            || training_step::<B>(micro, h, w, cfg.iters, device),
+            &format!(
+                "a training step of {micro} × {h}x{w} at {} iterations",
+                cfg.iters
+            ),
+            crate::oom::TRAINING_ADVICE,
+        )?;
+        println!("  {phase}: {:.1} s", t0.elapsed().as_secs_f64());
+        phases.push(phase);
+    }
+    for (sh, sw, opts) in inference_sizes(a, &cfg)? {
+        let phase = format!(
+            "inference {sh}x{sw}, {} iterations, {} stage(s)",
+            opts.iters, opts.stages
+        );
+        kernel_census::set_phase(&phase);
+        let t0 = Instant::now();
+        crate::oom::on_device(
+            || inference::<B::InnerBackend>(sh, sw, opts, device),
+            &format!("inference at {sh}x{sw}"),
+            "infer smaller images (or with fewer --iters/--stages)",
+        )?;
+        println!("  {phase}: {:.1} s", t0.elapsed().as_secs_f64());
+        phases.push(phase);
+    }
+    let after = cache_entries(cache);
     println!(
-        "  training step, {micro} per replica at {h}x{w}, {} iterations: {:.1} s",
-        cfg.iters,
-        t0.elapsed().as_secs_f64()
+        "warm-up done in {:.1} s: {} compiled kernels ({} new), {} autotune results ({} new) in the cache",
+        started.elapsed().as_secs_f64(),
+        after.kernels,
+        after.kernels.saturating_sub(before.kernels),
+        after.tuned,
+        after.tuned.saturating_sub(before.tuned)
     );
+    report_census(&phases, cache)
+}
+
+/// Prints what this process compiled, per phase and in all, and writes the census JSON (to
+/// CRESTEREO_KERNEL_CENSUS=FILE, else beside the kernel cache).
+fn report_census(phases: &[String], cache: Option<&Path>) -> Result<()> {
+    if !kernel_census::active() {
+        return Ok(());
+    }
+    let census = kernel_census::snapshot();
+    println!(
+        "kernels compiled by this process (run: launched by the work; tuning: compiled while autotuning):"
+    );
+    for phase in phases {
+        let part = census.phase(phase);
+        println!("  {phase}: {} kernels", part.total.total());
+    }
+    print!("{}", census.table());
+    let path = match kernel_census::requested() {
+        Some(Some(file)) => Some(file),
+        _ => cache.map(|d| kernel_census::beside_cache(d, "warmup")),
+    };
+    if let Some(path) = path {
+        census.write(&path)?;
+        println!("kernel census: {}", path.display());
+    }
+    Ok(())
+}
+
+/// The inference sizes to prepare: the validation images' (decoded: a dataset states no sizes
+/// of its own) and the ones named.
+fn inference_sizes(
+    a: &WarmupArgs,
+    cfg: &TrainConfig,
+) -> Result<Vec<(usize, usize, InferenceOptions)>> {
     let mut sizes: Vec<(usize, usize, InferenceOptions)> = Vec::new();
-    // The validation images' sizes (decoded: a dataset states no sizes of its own).
-    if let Some(v) = crate::train::Validation::open(&cfg)? {
+    if a.config.is_some()
+        && let Some(v) = crate::train::Validation::open(cfg)?
+    {
         let eval = v.options();
         let opts = InferenceOptions {
             iters: eval.iters,
@@ -137,30 +240,7 @@ pub fn run<B: AutodiffBackend>(
             },
         ));
     }
-    for (sh, sw, opts) in sizes {
-        let t0 = Instant::now();
-        crate::oom::on_device(
-            || inference::<B::InnerBackend>(sh, sw, opts, device),
-            &format!("inference at {sh}x{sw}"),
-            "infer smaller images (or with fewer --iters/--stages)",
-        )?;
-        println!(
-            "  inference at {sh}x{sw}, {} iterations, {} stage(s): {:.1} s",
-            opts.iters,
-            opts.stages,
-            t0.elapsed().as_secs_f64()
-        );
-    }
-    let after = census(cache);
-    println!(
-        "warm-up done in {:.1} s: {} compiled kernels ({} new), {} autotune results ({} new) in the cache",
-        started.elapsed().as_secs_f64(),
-        after.kernels,
-        after.kernels.saturating_sub(before.kernels),
-        after.tuned,
-        after.tuned.saturating_sub(before.tuned)
-    );
-    Ok(())
+    Ok(sizes)
 }
 
 /// One training step on random data of the run's shapes: forward, sequence loss, backward, Adam.

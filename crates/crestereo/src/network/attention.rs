@@ -1,6 +1,8 @@
 //! LoFTR linear attention and encoder layer (self / cross), as used by CREStereo.
 
 use burn::nn::{LayerNorm, LayerNormConfig, Linear, LinearConfig};
+
+use crate::ops::matmul::{linear, matmul};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
@@ -41,10 +43,10 @@ impl LinearAttention {
         let q = elu_plus_one(q).permute([0, 2, 1, 3]); // n h l d
         let k = elu_plus_one(k).permute([0, 2, 1, 3]); // n h s d
         let v = v.div_scalar(s).permute([0, 2, 1, 3]); // n h s v
-        let kv = k.clone().swap_dims(2, 3).matmul(v); // n h d v
+        let kv = matmul(k.clone().swap_dims(2, 3), v); // n h d v
         let k_sum = k.sum_dim(2).swap_dims(2, 3); // n h d 1
-        let z = q.clone().matmul(k_sum).add_scalar(self.eps).recip(); // n h l 1
-        let out = q.matmul(kv).mul(z).mul_scalar(s); // n h l v
+        let z = matmul(q.clone(), k_sum).add_scalar(self.eps).recip(); // n h l 1
+        let out = matmul(q, kv).mul(z).mul_scalar(s); // n h l v
         out.permute([0, 2, 1, 3])
     }
 }
@@ -113,16 +115,16 @@ impl<B: Backend> LoFTREncoderLayer<B> {
         let [n, l, c] = x.dims();
         let s = source.dims()[1];
         let (h, d) = (self.nhead, c / self.nhead);
-        let q = self.q_proj.forward(x.clone()).reshape([n, l, h, d]);
-        let k = self.k_proj.forward(source.clone()).reshape([n, s, h, d]);
-        let v = self.v_proj.forward(source).reshape([n, s, h, d]);
+        let q = linear(&self.q_proj, x.clone()).reshape([n, l, h, d]);
+        let k = linear(&self.k_proj, source.clone()).reshape([n, s, h, d]);
+        let v = linear(&self.v_proj, source).reshape([n, s, h, d]);
         let message = self.attention.forward(q, k, v).reshape([n, l, c]);
-        let message = self.norm1.forward(self.merge.forward(message));
-        let hidden = relu(
-            self.mlp1
-                .forward(crate::ops::channels::cat(vec![x.clone(), message], 2)),
-        );
-        let message = self.mlp2.forward(hidden);
+        let message = self.norm1.forward(linear(&self.merge, message));
+        let hidden = relu(linear(
+            &self.mlp1,
+            crate::ops::channels::cat(vec![x.clone(), message], 2),
+        ));
+        let message = linear(&self.mlp2, hidden);
         x + self.norm2.forward(message)
     }
 

@@ -65,11 +65,17 @@ impl Conv2dConfig {
 }
 
 impl<B: Backend> Conv2d<B> {
-    /// The convolution of `x` (N, C_in, H, W): a kernel where one applies; on wgpu a stride-1
-    /// convolution as one matrix product over the unfolded input ([`Self::forward_by_matmul`]);
-    /// else Burn's convolution.
+    /// The convolution of `x` (N, C_in, H, W): a kernel where one applies; on a CubeCL backend
+    /// at the default float32 precision every groups-1 convolution, and on wgpu at any
+    /// precision the stride-1 ones, as one matrix product over the unfolded input
+    /// ([`Self::forward_by_matmul`]); else Burn's convolution (autotuned on CubeCL backends,
+    /// TF32 on NVIDIA tensor cores: `--precision tf32`).
     pub fn forward(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        match kernels_f32(&[&x, &self.weight.val()]) {
+        let w = self.weight.val();
+        if self.groups == 1 && crate::ops::matmul::runs_fixed_f32(&[&x, &w]) {
+            return self.forward_by_matmul(x);
+        }
+        match kernels_f32(&[&x, &w]) {
             choice @ (Kernels::Flex | Kernels::AutodiffFlex) if super::kernels_apply(self) => {
                 super::kernel_forward(self, x, choice)
             }
@@ -81,13 +87,10 @@ impl<B: Backend> Conv2d<B> {
         }
     }
 
-    /// A stride-1, groups-1 convolution as one matrix product over the input unfolded from
-    /// shifted slices (Burn tensor ops; any backend). Panics on other strides or groups.
+    /// A groups-1 convolution as one matrix product over the input unfolded from shifted (and
+    /// stepped) slices (Burn tensor ops; any backend). Panics on other groups.
     pub fn forward_by_matmul(&self, x: Tensor<B, 4>) -> Tensor<B, 4> {
-        assert!(
-            self.stride == [1, 1] && self.groups == 1,
-            "forward_by_matmul: stride 1, groups 1 only"
-        );
+        assert!(self.groups == 1, "forward_by_matmul: groups 1 only");
         let padding = self.symmetric_padding().expect("symmetric padding");
         let dtype = x.dtype();
         let weight = crate::ops::float_like(self.weight.val(), dtype);
@@ -95,7 +98,7 @@ impl<B: Backend> Conv2d<B> {
             .bias
             .as_ref()
             .map(|b| crate::ops::float_like(b.val(), dtype));
-        super::by_matmul::conv2d_by_matmul(x, weight, bias, padding, self.dilation)
+        super::by_matmul::conv2d_by_matmul(x, weight, bias, padding, self.stride, self.dilation)
     }
 
     /// (top = bottom, left = right) of an explicit symmetric or valid padding.

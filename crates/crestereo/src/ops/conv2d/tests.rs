@@ -260,29 +260,35 @@ fn stacked_convolutions_match_separate_ones() {
     }
 }
 
-/// The matrix-product composition (the wgpu path) against Burn's convolution: forward and the
-/// gradients of input, weight and bias, stride 1 with paddings, dilation and separable kernels.
+/// The matrix-product composition (the CubeCL path) against Burn's convolution: forward and the
+/// gradients of input, weight and bias, with paddings, dilation, separable kernels and the
+/// encoder's strided convolutions (7×7/2, 3×3/2, 1×1/2, odd and even sizes).
 #[test]
 fn matmul_composition_matches_burn_forward_and_gradients() {
-    // (cin, cout, kernel, padding, dilation, h, w)
+    // (cin, cout, kernel, padding, dilation, stride, h, w)
     let cases = [
-        (3, 4, [3, 3], [1, 1], [1, 1], 5, 7),
-        (4, 2, [1, 1], [0, 0], [1, 1], 3, 4),
-        (5, 3, [1, 5], [0, 2], [1, 1], 4, 6),
-        (5, 3, [5, 1], [2, 0], [1, 1], 6, 4),
-        (2, 3, [3, 3], [2, 2], [2, 2], 4, 5),
-        (2, 2, [7, 7], [3, 3], [1, 1], 3, 3),
+        (3, 4, [3, 3], [1, 1], [1, 1], 1, 5, 7),
+        (4, 2, [1, 1], [0, 0], [1, 1], 1, 3, 4),
+        (5, 3, [1, 5], [0, 2], [1, 1], 1, 4, 6),
+        (5, 3, [5, 1], [2, 0], [1, 1], 1, 6, 4),
+        (2, 3, [3, 3], [2, 2], [2, 2], 1, 4, 5),
+        (2, 2, [7, 7], [3, 3], [1, 1], 1, 3, 3),
+        (3, 4, [7, 7], [3, 3], [1, 1], 2, 9, 12),
+        (4, 3, [3, 3], [1, 1], [1, 1], 2, 8, 7),
+        (4, 3, [1, 1], [0, 0], [1, 1], 2, 6, 5),
     ];
     let device = Default::default();
-    for (cin, cout, kernel, [ph, pw], dilation, h, w) in cases {
+    for (cin, cout, kernel, [ph, pw], dilation, stride, h, w) in cases {
         let conv = Conv2dConfig::new([cin, cout], kernel)
+            .with_stride([stride, stride])
             .with_dilation(dilation)
             .with_padding(PaddingConfig2d::Explicit(ph, pw, ph, pw))
             .init::<Ad>(&device);
         let x = Tensor::<Ad, 4>::random([2, cin, h, w], Distribution::Normal(0.0, 1.0), &device)
             .require_grad();
-        let case =
-            format!("cin {cin} cout {cout} kernel {kernel:?} pad {ph},{pw} dil {dilation:?}");
+        let case = format!(
+            "cin {cin} cout {cout} kernel {kernel:?} pad {ph},{pw} dil {dilation:?} stride {stride}"
+        );
         let (ours, theirs) = (
             conv.forward_by_matmul(x.clone()),
             composed::conv2d(&conv, x.clone()),

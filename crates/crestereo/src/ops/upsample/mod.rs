@@ -59,12 +59,10 @@ pub fn resize_bilinear_align_corners<B: Backend>(
         crate::ops::float_like(m, dtype).transpose()
     };
     let rw = matrix(w, wo);
-    let y = x.reshape([n * c * h, w]).matmul(rw).reshape([n * c, h, wo]);
+    let y = crate::ops::matmul::matmul(x.reshape([n * c * h, w]), rw).reshape([n * c, h, wo]);
     // height: (N·C·Wo, H) @ (H, Ho)
     let rh = matrix(h, ho);
-    y.swap_dims(1, 2)
-        .reshape([n * c * wo, h])
-        .matmul(rh)
+    crate::ops::matmul::matmul(y.swap_dims(1, 2).reshape([n * c * wo, h]), rh)
         .reshape([n, c, wo, ho])
         .swap_dims(2, 3)
 }
