@@ -201,14 +201,14 @@ fn training_steps_lower_the_loss_without_host_reads() {
 /// Kernels a cold `crestereo infer --device vulkan` (two-pass, 20 iterations, the fixture pair's
 /// 128×192) may compile on lavapipe: every kernel of the work and of its autotunings, at
 /// CubeCL's minimal autotune level. Measured: 173 with Burn's autotuned matrix products and
-/// convolutions (`--precision tf32`, the path before the fixed float32 kernel), 151 and 152 at
+/// convolutions (`--precision tf32`, the path before the fixed float32 kernel), 151 or 152 at
 /// the default `f32` (what autotuning and fusion compile varies by a kernel or two from run to
 /// run, hence the few kernels of margin). A change that compiles more fails here; lower the
 /// figure when one compiles fewer.
 const INFER_KERNEL_BUDGET: usize = 156;
 /// The same for one training step (batch 1 of 64×128, 2 iterations, Adam) from an empty cache:
-/// 391 at `tf32`, 318 at `f32`.
-const TRAIN_KERNEL_BUDGET: usize = 325;
+/// 391 at `tf32`, 318 to 321 at `f32` (four runs).
+const TRAIN_KERNEL_BUDGET: usize = 330;
 
 /// Compiled-kernel count of CubeCL's own compilation log (`CUBECL_DEBUG_LOG`).
 fn compiled_in_log(log: &Path) -> usize {

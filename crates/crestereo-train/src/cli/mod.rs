@@ -144,10 +144,10 @@ pub struct BackendArgs {
     #[arg(long, value_enum, default_value_t = DeviceKind::Cpu)]
     pub device: DeviceKind,
     /// Matrix products and convolutions on a GPU: `f32` (default) runs them in full float32
-    /// through one fixed kernel per shape (no autotuning: a cold start compiles what runs, and
-    /// the disparity agrees with the CPU's to 1e-3 px); `tf32` hands them to Burn's autotuned
-    /// kernels, which use TensorFloat-32 tensor cores on NVIDIA GPUs (10-bit mantissa). Also
-    /// CRESTEREO_PRECISION. The CPU backend always computes in float32.
+    /// through one fixed kernel per shape (no autotuning of them, so a cold start compiles only
+    /// what runs; nothing rounded to a 10-bit mantissa); `tf32` hands them to Burn's autotuned
+    /// kernels, which use TensorFloat-32 tensor cores on NVIDIA GPUs. Also CRESTEREO_PRECISION.
+    /// The CPU backend always computes in float32.
     #[arg(long, value_enum, default_value_t = PrecisionArg::F32)]
     pub precision: PrecisionArg,
 }

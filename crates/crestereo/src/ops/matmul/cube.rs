@@ -110,7 +110,7 @@ mod fusion {
             let client = lhs.client.clone();
             let dtype = lhs.dtype;
             // (…, M, K) × (…, K, N) → (…, M, N); the batch dimensions are equal (see `matmul`).
-            let mut dims = TensorMetadata::shape(&lhs).to_vec();
+            let mut dims: Vec<usize> = TensorMetadata::shape(&lhs).as_slice().into();
             let n = *TensorMetadata::shape(&rhs)
                 .as_slice()
                 .last()
