@@ -198,6 +198,77 @@ fn training_steps_lower_the_loss_without_host_reads() {
     );
 }
 
+/// The default precision is in force on the wgpu backend: matrix products take the fixed float32
+/// kernel (`crestereo::ops::matmul`), plain and under autodiff, and agree with Flex's to float32
+/// rounding, forward and gradients (shapes that are no multiple of any tile, batch broadcast).
+#[test]
+fn fixed_f32_matmul_matches_the_cpu() {
+    if !lavapipe() {
+        return;
+    }
+    use burn::backend::Flex;
+    use burn::tensor::Distribution;
+    use crestereo::ops::matmul::{Precision, matmul, precision, runs_fixed_f32};
+    assert_eq!(precision(), Precision::F32, "float32 is the default");
+    let cpu = Default::default();
+    let l = Tensor::<Flex, 3>::random([2, 37, 53], Distribution::Normal(0.0, 1.0), &cpu);
+    let r = Tensor::<Flex, 3>::random([1, 53, 29], Distribution::Normal(0.0, 1.0), &cpu);
+    let up = Tensor::<Flex, 3>::random([2, 37, 29], Distribution::Normal(0.0, 1.0), &cpu);
+    let on = |t: &Tensor<Flex, 3>| Tensor::<Wa, 3>::from_data(t.to_data(), &DEVICE);
+    let (gl, gr) = (on(&l).require_grad(), on(&r).require_grad());
+    assert!(
+        runs_fixed_f32(&[&gl, &gr]),
+        "autodiff wgpu: not the fixed kernel"
+    );
+    let plain = (on(&l).inner(), on(&r).inner());
+    assert!(
+        runs_fixed_f32(&[&plain.0, &plain.1]),
+        "wgpu: not the fixed kernel"
+    );
+    let y = matmul(gl.clone(), gr.clone());
+    let grads = (y.clone() * on(&up)).sum().backward();
+    let (al, ar) = (
+        Tensor::<Autodiff<Flex>, 3>::from_data(l.to_data(), &cpu).require_grad(),
+        Tensor::<Autodiff<Flex>, 3>::from_data(r.to_data(), &cpu).require_grad(),
+    );
+    let y_cpu = al.clone().matmul(ar.clone());
+    let g_cpu = (y_cpu.clone() * Tensor::from_data(up.to_data(), &cpu))
+        .sum()
+        .backward();
+    let max_rel = |a: TensorData, b: TensorData| {
+        let (a, b) = (a.to_vec::<f32>().unwrap(), b.to_vec::<f32>().unwrap());
+        let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+        a.iter()
+            .zip(&b)
+            .fold(0f32, |m, (x, y)| m.max((x - y).abs()))
+            / scale
+    };
+    let checks = [
+        ("product", max_rel(y.into_data(), y_cpu.into_data())),
+        (
+            "d lhs",
+            max_rel(
+                gl.grad(&grads).unwrap().into_data(),
+                al.grad(&g_cpu).unwrap().into_data(),
+            ),
+        ),
+        (
+            "d rhs",
+            max_rel(
+                gr.grad(&grads).unwrap().into_data(),
+                ar.grad(&g_cpu).unwrap().into_data(),
+            ),
+        ),
+    ];
+    for (what, err) in checks {
+        println!(
+            "fixed float32 matmul on lavapipe vs Flex, {what}: max |diff| / max |value| = {err:.2e}"
+        );
+        // TF32 (10-bit mantissa) would be ~1e-3 here; float32 sums of 53 or 74 terms stay ~1e-6.
+        assert!(err <= 1e-5, "{what}: {err}");
+    }
+}
+
 /// Kernels a cold `crestereo infer --device vulkan` (two-pass, 20 iterations, the fixture pair's
 /// 128×192) may compile on lavapipe: every kernel of the work and of its autotunings, at
 /// CubeCL's minimal autotune level. Measured: 173 with Burn's autotuned matrix products and
@@ -363,8 +434,16 @@ fn warmup_accounts_for_every_kernel_of_a_training_step() {
         "{stdout}"
     );
     // <cache>/<version>-<hash>/spirv/census/warmup-*.json
-    let builds: Vec<_> = std::fs::read_dir(&cache).unwrap().flatten().collect();
+    let builds: Vec<_> = std::fs::read_dir(&cache)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name() != "binaries")
+        .collect();
     assert_eq!(builds.len(), 1, "one build folder");
+    assert!(
+        cache.join("binaries").read_dir().unwrap().count() == 1,
+        "the binary's hash is kept for its next start"
+    );
     let census_dir = builds[0].path().join("spirv").join("census");
     let files: Vec<_> = std::fs::read_dir(&census_dir)
         .unwrap_or_else(|e| panic!("{}: {e}", census_dir.display()))

@@ -15,6 +15,7 @@
 //!     spirv/     the same for Vulkan (SPIR-V is not tied to one GPU)
 //!     cuda-jit/  NVIDIA's own cache of machine code made from the PTX (CUDA_CACHE_PATH)
 //!     */census/  what each accounted run compiled (`crestereo warmup`, CRESTEREO_KERNEL_CENSUS)
+//! binaries/      the hash of each copy of a binary seen, under its size, time and inode
 //! ```
 //!
 //! The build folder is named after a hash of the executable's bytes, not its size and time: a
@@ -98,7 +99,7 @@ fn folders(target: GpuTarget) -> Option<CacheFolders> {
         return None;
     }
     let parent = setting.map(PathBuf::from).or_else(default_parent)?;
-    let build = parent.join(build_id()?);
+    let build = parent.join(build_id(&parent)?);
     if target != GpuTarget::Vulkan && std::env::var_os("CUDA_CACHE_PATH").is_none() {
         // SAFETY: start-up, before any other thread exists (see `configure`); read by the CUDA
         // driver when it initialises, below or at the first kernel.
@@ -195,11 +196,29 @@ fn default_parent() -> Option<PathBuf> {
 }
 
 /// `<version>-<hash>` of the running executable: the first 16 hex digits of the SHA-256 of its
-/// bytes, so that a rebuilt binary gets a new folder and a copied one finds its twin's.
-fn build_id() -> Option<String> {
+/// bytes, so that a rebuilt binary gets a new folder and a copied one finds its twin's. Hashing
+/// a release binary with debug information (~400 MB) takes about a second, so the hash is kept
+/// in `<parent>/binaries/` under the file's size, modification time (ns) and inode: each copy
+/// of a binary is hashed once, its later starts read the hash back.
+fn build_id(parent: &Path) -> Option<String> {
     let exe = std::env::current_exe().ok()?;
+    let memo = memo_path(parent, &exe);
+    if let Some(hash) = memo
+        .as_deref()
+        .and_then(|m| std::fs::read_to_string(m).ok())
+        .filter(|h| h.len() == 16 && h.bytes().all(|b| b.is_ascii_hexdigit()))
+    {
+        return Some(format!("{}-{hash}", env!("CARGO_PKG_VERSION")));
+    }
     match content_hash(&exe) {
-        Ok(hash) => Some(format!("{}-{hash}", env!("CARGO_PKG_VERSION"))),
+        Ok(hash) => {
+            if let Some(m) = memo {
+                // Best effort: a read-only shared folder only costs the hash next time.
+                let _ = std::fs::create_dir_all(parent.join("binaries"))
+                    .and_then(|()| std::fs::write(&m, &hash));
+            }
+            Some(format!("{}-{hash}", env!("CARGO_PKG_VERSION")))
+        }
         Err(e) => {
             tracing::warn!(
                 "cannot read {} to name its kernel cache ({e}); kernels compile every run",
@@ -208,6 +227,21 @@ fn build_id() -> Option<String> {
             None
         }
     }
+}
+
+/// `<parent>/binaries/<size>-<mtime ns>-<inode>`: where the hash of this copy of the binary is
+/// kept.
+fn memo_path(parent: &Path, exe: &Path) -> Option<PathBuf> {
+    use std::os::unix::fs::MetadataExt;
+    let meta = std::fs::metadata(exe).ok()?;
+    let key = format!(
+        "{}-{}{:09}-{}",
+        meta.len(),
+        meta.mtime(),
+        meta.mtime_nsec(),
+        meta.ino()
+    );
+    Some(parent.join("binaries").join(key))
 }
 
 /// The first 16 hex digits of the SHA-256 of the file at `path`.
@@ -252,7 +286,7 @@ fn prune_old_builds(parent: &Path, current: &Path) {
     };
     let mut builds: Vec<(std::time::SystemTime, PathBuf)> = entries
         .filter_map(|e| e.ok())
-        .filter(|e| e.path() != current && e.path().is_dir())
+        .filter(|e| e.path() != current && e.path().is_dir() && e.file_name() != "binaries")
         .filter_map(|e| Some((e.metadata().ok()?.modified().ok()?, e.path())))
         .collect();
     builds.sort_by_key(|b| std::cmp::Reverse(b.0));
