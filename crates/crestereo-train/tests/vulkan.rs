@@ -67,6 +67,17 @@ fn lavapipe() -> bool {
             // SAFETY: no other thread reads the environment here (the OnceLock serialises).
             unsafe { std::env::set_var("CUBECL_AUTOTUNE_LEVEL", "minimal") };
         }
+        if present() {
+            // CubeCL keeps autotune results in the `target/` folder beside the nearest
+            // Cargo.toml of the working directory, i.e. inside this crate's sources when cargo
+            // runs the tests: this process's go to cargo's scratch folder for tests instead.
+            use cubecl_common::config::RuntimeConfig;
+            use cubecl_runtime::config::{CubeClRuntimeConfig, cache::CacheConfig};
+            let mut config = CubeClRuntimeConfig::from_current_dir().override_from_env();
+            config.autotune.cache =
+                CacheConfig::File(Path::new(env!("CARGO_TARGET_TMPDIR")).join("cubecl"));
+            CubeClRuntimeConfig::set(config);
+        }
         match (present(), required) {
             (true, _) => true,
             (false, true) => panic!(
