@@ -80,11 +80,10 @@ census() {
 finish() {
     if [ -d "$KC" ]; then
         echo "$SHA" >"$WORK/BINARY_SHA256"
-        stat -c %Y "$BIN" >"$WORK/BINARY_MTIME"
         rm -f "$OUT"/kernels.txz* "$OUT"/.kernels_part.*
         # The cache folder is stored as `kernels`, whatever CRESTEREO_KERNEL_CACHE is named here.
         if tar cf - --exclude="$(basename "$KC")/nv" --transform "s,^$(basename "$KC"),kernels," \
-            -C "$WORK" BINARY_SHA256 BINARY_MTIME -C "$(dirname "$KC")" "$(basename "$KC")" | xz -9 -T0 |
+            -C "$WORK" BINARY_SHA256 -C "$(dirname "$KC")" "$(basename "$KC")" | xz -9 -T0 |
             split -b 15m -d - "$OUT/.kernels_part."; then
             n=$(ls "$OUT"/.kernels_part.* | wc -l)
             if [ "$n" -le "${KERNEL_PARTS:-4}" ]; then
@@ -133,7 +132,6 @@ if [ -n "${KERNELS_IN:-}" ]; then
     unpack() { if [ "$(head -c 6 "${parts[0]}" | od -An -tx1 | tr -d ' ')" = fd377a585a00 ]; then
         xz -dc -T0; else gzip -dc; fi; }
     if cat "${parts[@]}" | unpack | tar x -C "$WORK/in" && [ "$(cat "$WORK/in/BINARY_SHA256")" = "$SHA" ]; then
-        touch -d "@$(cat "$WORK/in/BINARY_MTIME")" "$BIN"
         mkdir -p "$KC" && cp -r "$WORK/in/kernels/." "$KC/"
         say "kernel cache from $KERNELS_IN: $(census)"
     else

@@ -50,20 +50,12 @@ pub enum GpuTarget {
     Vulkan,
 }
 
-/// Where this process's kernels go.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct CacheFolders {
-    /// `<parent>/<version>-<hash>`: everything this build of the binary caches.
-    pub build: PathBuf,
-    /// `<build>/sm_XX` or `<build>/spirv`: CubeCL's compiled kernels and autotune results.
-    pub device: PathBuf,
-}
-
-/// Sets CubeCL's configuration before any GPU use; returns the cache folders, or `None` when
-/// the caches stay off or a CubeCL config file decides. `census` turns on the compilation log
+/// Sets CubeCL's configuration before any GPU use; returns the folder CubeCL's compiled kernels
+/// and autotune results go to (`<parent>/<version>-<hash>/<arch>`), or `None` when the caches
+/// stay off or a CubeCL config file decides. `census` turns on the compilation log
 /// [`super::kernel_census`] reads (it needs no cache folder). Must run before the first backend
 /// call, and while this is the only thread (it may set `CUDA_CACHE_PATH`).
-pub fn configure(target: GpuTarget, census: bool) -> Option<CacheFolders> {
+pub fn configure(target: GpuTarget, census: bool) -> Option<PathBuf> {
     if config_file_above_cwd() {
         if census {
             tracing::warn!(
@@ -72,14 +64,14 @@ pub fn configure(target: GpuTarget, census: bool) -> Option<CacheFolders> {
         }
         return None;
     }
-    let folders = folders(target);
-    if folders.is_none() && !census {
+    let folder = device_folder_of_this_build(target);
+    if folder.is_none() && !census {
         return None;
     }
     let mut config = CubeClRuntimeConfig::from_current_dir().override_from_env();
-    if let Some(f) = &folders {
-        config.compilation.cache = Some(CacheConfig::File(f.device.clone()));
-        config.autotune.cache = CacheConfig::File(f.device.clone());
+    if let Some(f) = &folder {
+        config.compilation.cache = Some(CacheConfig::File(f.clone()));
+        config.autotune.cache = CacheConfig::File(f.clone());
     }
     if let Some(level) = autotune_level() {
         config.autotune.level = level;
@@ -88,12 +80,12 @@ pub fn configure(target: GpuTarget, census: bool) -> Option<CacheFolders> {
         super::kernel_census::configure(&mut config);
     }
     CubeClRuntimeConfig::set(config);
-    folders
+    folder
 }
 
-/// Makes (and prunes around) this build's folders; `None` when the caches are off or the folder
-/// cannot be made.
-fn folders(target: GpuTarget) -> Option<CacheFolders> {
+/// Makes (and prunes around) this build's folder for `target`'s kernels; `None` when the caches
+/// are off or the folder cannot be made.
+fn device_folder_of_this_build(target: GpuTarget) -> Option<PathBuf> {
     let setting = std::env::var_os("CRESTEREO_KERNEL_CACHE");
     if setting.as_deref().is_some_and(|s| s == "off") {
         return None;
@@ -111,7 +103,7 @@ fn folders(target: GpuTarget) -> Option<CacheFolders> {
             }
         }
     }
-    let device = build.join(device_folder(target));
+    let device = build.join(architecture_folder(target));
     if let Err(e) = std::fs::create_dir_all(&device) {
         tracing::warn!(
             "kernel cache {} not usable ({e}); kernels compile every run",
@@ -120,11 +112,11 @@ fn folders(target: GpuTarget) -> Option<CacheFolders> {
         return None;
     }
     prune_old_builds(&parent, &build);
-    Some(CacheFolders { build, device })
+    Some(device)
 }
 
 /// `sm_<major><minor>` of a CUDA device (`cuda` when the driver cannot say), `spirv` for Vulkan.
-fn device_folder(target: GpuTarget) -> String {
+fn architecture_folder(target: GpuTarget) -> String {
     match target {
         GpuTarget::Vulkan => "spirv".into(),
         GpuTarget::Cuda { ordinal } => cuda_architecture(ordinal)
@@ -245,7 +237,7 @@ fn memo_path(parent: &Path, exe: &Path) -> Option<PathBuf> {
 }
 
 /// The first 16 hex digits of the SHA-256 of the file at `path`.
-pub fn content_hash(path: &Path) -> std::io::Result<String> {
+fn content_hash(path: &Path) -> std::io::Result<String> {
     use sha2::{Digest, Sha256};
     use std::io::Read;
     let mut file = std::fs::File::open(path)?;

@@ -111,16 +111,9 @@ impl Census {
         }
     }
 
-    /// The kernels compiled in `phase` only.
-    pub fn phase(&self, phase: &str) -> Census {
-        Census::from_kernels(
-            self.kernels
-                .iter()
-                .filter(|k| k.phase == phase)
-                .cloned()
-                .collect(),
-            self.tunings,
-        )
+    /// How many kernels were compiled in `phase`.
+    pub fn count_in(&self, phase: &str) -> usize {
+        self.kernels.iter().filter(|k| k.phase == phase).count()
     }
 
     /// A table: one line per family (run, tuning, all), then the total.
@@ -319,7 +312,7 @@ impl Recorder {
                 Some(k) => {
                     self.open.remove(&k);
                 }
-                // A key printed differently: close the oldest guess, never leave it open.
+                // A key printed differently: close one open tuning, never leave them all open.
                 None => {
                     if let Some(k) = self.open.iter().next().cloned() {
                         self.open.remove(&k);

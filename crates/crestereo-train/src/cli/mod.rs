@@ -193,29 +193,29 @@ pub enum BenchWhat {
 }
 
 impl Command {
-    /// The `--threads` this command was given (0 or none: one per core).
-    fn threads(&self) -> usize {
+    /// The `--threads`, `--device` and `--precision` of the commands that run the network.
+    fn backend(&self) -> Option<&BackendArgs> {
         match self {
             Command::Infer { backend, .. }
             | Command::Train { backend, .. }
             | Command::Warmup { backend, .. }
             | Command::Eval { backend, .. }
-            | Command::Score { backend, .. } => backend.threads,
+            | Command::Score { backend, .. } => Some(backend),
+            _ => None,
+        }
+    }
+
+    /// The `--threads` this command was given (0 or none: one per core).
+    fn threads(&self) -> usize {
+        match self {
             Command::Bench { threads, .. } => *threads,
-            _ => 0,
+            other => other.backend().map_or(0, |b| b.threads),
         }
     }
 
     /// The `--precision` this command was given, if it takes one.
     fn precision(&self) -> Option<PrecisionArg> {
-        match self {
-            Command::Infer { backend, .. }
-            | Command::Train { backend, .. }
-            | Command::Warmup { backend, .. }
-            | Command::Eval { backend, .. }
-            | Command::Score { backend, .. } => Some(backend.precision),
-            _ => None,
-        }
+        self.backend().map(|b| b.precision)
     }
 
     /// The GPU this command runs on, if any (the kernel cache's folder depends on it).
@@ -223,23 +223,23 @@ impl Command {
     fn gpu_target(&self) -> Option<kernel_cache::GpuTarget> {
         use kernel_cache::GpuTarget;
         let (kind, ordinal) = match self {
-            Command::Train { args, backend } => match args.devices.as_deref() {
-                Some(spec) => {
-                    let list = devices::parse_devices(spec, backend.device).ok()?;
-                    let first = match list.devices.first() {
-                        Some(devices::DeviceIndex::Index(i)) => *i,
-                        _ => 0,
-                    };
-                    (list.kind, first)
-                }
-                None => (backend.device, 0),
-            },
-            Command::Infer { backend, .. }
-            | Command::Warmup { backend, .. }
-            | Command::Eval { backend, .. }
-            | Command::Score { backend, .. } => (backend.device, 0),
+            Command::Train {
+                args:
+                    train::TrainArgs {
+                        devices: Some(spec),
+                        ..
+                    },
+                backend,
+            } => {
+                let list = devices::parse_devices(spec, backend.device).ok()?;
+                let first = match list.devices.first() {
+                    Some(devices::DeviceIndex::Index(i)) => *i,
+                    _ => 0,
+                };
+                (list.kind, first)
+            }
             Command::Bench { device, .. } => (*device, 0),
-            _ => return None,
+            other => (other.backend()?.device, 0),
         };
         match kind {
             DeviceKind::Cpu => None,
@@ -307,7 +307,7 @@ pub fn main_with(
             if census_wanted {
                 kernel_census::start();
             }
-            kernel_cache::configure(target, census_wanted).map(|f| f.device)
+            kernel_cache::configure(target, census_wanted)
         }
         None => None,
     };

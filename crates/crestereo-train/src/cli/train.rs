@@ -45,15 +45,10 @@ pub struct TrainArgs {
     /// Stop after this step, with a checkpoint, leaving the schedule as if the run went on.
     #[arg(long)]
     pub stop_at: Option<u64>,
-    #[arg(long)]
-    pub batch_size: Option<usize>,
+    #[command(flatten)]
+    pub shape: StepShapeArgs,
     #[arg(long)]
     pub accumulate: Option<usize>,
-    /// Training crop, HxW (multiples of 16).
-    #[arg(long, value_name = "HxW")]
-    pub crop: Option<String>,
-    #[arg(long)]
-    pub iters: Option<usize>,
     #[arg(long)]
     pub lr: Option<f64>,
     #[arg(long)]
@@ -172,6 +167,36 @@ pub(super) fn parse_data(spec: &str) -> Result<DatasetEntry> {
     })
 }
 
+/// The shape of a training step, as flags over a config's (`train` and `warmup`).
+#[derive(Debug, Default, clap::Args)]
+pub struct StepShapeArgs {
+    /// Samples per forward/backward pass (before the split over replicas).
+    #[arg(long)]
+    pub batch_size: Option<usize>,
+    /// Training crop, HxW (multiples of 16).
+    #[arg(long, value_name = "HxW")]
+    pub crop: Option<String>,
+    /// Refinement iterations of a training step.
+    #[arg(long)]
+    pub iters: Option<usize>,
+}
+
+impl StepShapeArgs {
+    /// Sets the config's batch, crop and iterations where a flag names them.
+    pub fn apply(&self, cfg: &mut TrainConfig) -> Result<()> {
+        if let Some(b) = self.batch_size {
+            cfg.batch_size = b;
+        }
+        if let Some(c) = &self.crop {
+            cfg.augment.crop = parse_crop(c)?;
+        }
+        if let Some(i) = self.iters {
+            cfg.iters = i;
+        }
+        Ok(())
+    }
+}
+
 pub fn parse_crop(s: &str) -> Result<[usize; 2]> {
     let (h, w) = s
         .split_once(['x', 'X'])
@@ -254,9 +279,8 @@ fn apply_recipe_flags(cfg: &mut TrainConfig, a: &TrainArgs) -> Result<()> {
         };
     }
     set!(cfg.steps, a.steps);
-    set!(cfg.batch_size, a.batch_size);
+    a.shape.apply(cfg)?;
     set!(cfg.accumulate, a.accumulate);
-    set!(cfg.iters, a.iters);
     set!(cfg.gamma, a.gamma);
     set!(cfg.seed, a.seed);
     set!(cfg.schedule.lr, a.lr);
@@ -267,9 +291,6 @@ fn apply_recipe_flags(cfg: &mut TrainConfig, a: &TrainArgs) -> Result<()> {
     set!(cfg.webdataset.shuffle_buffer, a.shuffle_buffer);
     set!(cfg.checkpoint.every, a.checkpoint_every);
     set!(cfg.checkpoint.keep, a.keep);
-    if let Some(c) = &a.crop {
-        cfg.augment.crop = parse_crop(c)?;
-    }
     if let Some(w) = &a.init_weights {
         cfg.init_weights = Some(std::path::absolute(w)?);
     }

@@ -29,15 +29,9 @@ pub struct WarmupArgs {
     /// Replicas the global batch will be split over (the number of --devices times processes).
     #[arg(long, default_value_t = 1)]
     pub replicas: usize,
-    /// Training crop HxW (overrides the config's).
-    #[arg(long, value_name = "HxW")]
-    pub crop: Option<String>,
-    /// Samples per training pass, before the split over --replicas (overrides the config's).
-    #[arg(long)]
-    pub batch_size: Option<usize>,
-    /// Refinement iterations of the training step (overrides the config's).
-    #[arg(long)]
-    pub iters: Option<usize>,
+    // --batch-size, --crop, --iters: the training step's shape, over the config's.
+    #[command(flatten)]
+    pub shape: super::train::StepShapeArgs,
     /// Prepare no training step: only the inference sizes.
     #[arg(long)]
     pub no_training_step: bool,
@@ -102,15 +96,7 @@ fn warmup_config(a: &WarmupArgs) -> Result<TrainConfig> {
         }
         None => TrainConfig::default(),
     };
-    if let Some(crop) = &a.crop {
-        cfg.augment.crop = super::train::parse_crop(crop)?;
-    }
-    if let Some(b) = a.batch_size {
-        cfg.batch_size = b;
-    }
-    if let Some(i) = a.iters {
-        cfg.iters = i;
-    }
+    a.shape.apply(&mut cfg)?;
     Ok(cfg)
 }
 
@@ -188,8 +174,7 @@ fn report_census(phases: &[String], cache: Option<&Path>) -> Result<()> {
         "kernels compiled by this process (run: launched by the work; tuning: compiled while autotuning):"
     );
     for phase in phases {
-        let part = census.phase(phase);
-        println!("  {phase}: {} kernels", part.total.total());
+        println!("  {phase}: {} kernels", census.count_in(phase));
     }
     print!("{}", census.table());
     let path = match kernel_census::requested() {

@@ -88,16 +88,20 @@ pub fn precision() -> Precision {
 /// Whether backend `B`'s matrix products run through the fixed float32 kernel here (a CubeCL
 /// backend with the network's kernels, float32 tensors, [`Precision::F32`]).
 pub fn runs_fixed_f32<B: Backend, const D: usize>(tensors: &[&Tensor<B, D>]) -> bool {
-    precision() == Precision::F32 && is_cube(kernels_f32(tensors))
+    fixed_family(tensors).is_some()
 }
 
-fn is_cube(k: Kernels) -> bool {
-    match k {
+/// The CubeCL kernel family the fixed kernel runs on for these tensors, if it runs.
+fn fixed_family<B: Backend, const D: usize>(tensors: &[&Tensor<B, D>]) -> Option<Kernels> {
+    if precision() != Precision::F32 {
+        return None;
+    }
+    match kernels_f32(tensors) {
         #[cfg(feature = "cuda")]
-        Kernels::Cuda | Kernels::AutodiffCuda => true,
+        k @ (Kernels::Cuda | Kernels::AutodiffCuda) => Some(k),
         #[cfg(feature = "wgpu")]
-        Kernels::Wgpu | Kernels::AutodiffWgpu => true,
-        _ => false,
+        k @ (Kernels::Wgpu | Kernels::AutodiffWgpu) => Some(k),
+        _ => None,
     }
 }
 
@@ -108,13 +112,22 @@ pub trait MatmulOps: Backend {
 }
 
 /// `lhs · rhs` (batched over the leading dimensions, as `Tensor::matmul`): the fixed float32
-/// kernel on CubeCL backends under [`Precision::F32`], Burn's `matmul` elsewhere. The batch
-/// dimensions are broadcast and flattened into one, so the kernel always sees rank 3 with equal
-/// batches (one kernel variant per shape class, whatever the caller's rank).
+/// kernel on CubeCL backends under [`Precision::F32`], Burn's `matmul` elsewhere.
 pub fn matmul<B: Backend, const D: usize>(lhs: Tensor<B, D>, rhs: Tensor<B, D>) -> Tensor<B, D> {
-    if !runs_fixed_f32(&[&lhs, &rhs]) {
-        return lhs.matmul(rhs);
+    match fixed_family(&[&lhs, &rhs]) {
+        Some(family) => fixed_matmul(family, lhs, rhs),
+        None => lhs.matmul(rhs),
     }
+}
+
+/// The fixed kernel on `family`. The batch dimensions are broadcast and flattened into one, so
+/// the kernel always sees rank 3 with equal batches (one kernel variant per shape class,
+/// whatever the caller's rank).
+fn fixed_matmul<B: Backend, const D: usize>(
+    family: Kernels,
+    lhs: Tensor<B, D>,
+    rhs: Tensor<B, D>,
+) -> Tensor<B, D> {
     let (lhs, rhs) = equal_batches(lhs, rhs);
     let (l, r) = (lhs.dims(), rhs.dims());
     let batch: usize = l[..D - 2].iter().product();
@@ -124,12 +137,12 @@ pub fn matmul<B: Backend, const D: usize>(lhs: Tensor<B, D>, rhs: Tensor<B, D>) 
     out[D - 1] = n;
     let lhs: Tensor<B, 3> = lhs.reshape([batch, m, k]);
     let rhs: Tensor<B, 3> = rhs.reshape([batch, k, n]);
-    fixed_f32(lhs, rhs).reshape(out)
+    on_family(family, lhs, rhs).reshape(out)
 }
 
-/// The fixed kernel on the concrete backend behind `B` (a CubeCL kernel family: see
-/// [`runs_fixed_f32`]).
-fn fixed_f32<B: Backend>(lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) -> Tensor<B, 3> {
+/// [`MatmulOps::f32_matmul`] on the concrete backend behind `B` (`family`, from
+/// [`fixed_family`]).
+fn on_family<B: Backend>(family: Kernels, lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) -> Tensor<B, 3> {
     #[cfg(feature = "cube")]
     {
         use crate::ops::dispatch::same;
@@ -146,7 +159,7 @@ fn fixed_f32<B: Backend>(lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) -> Tensor<B, 3> {
                 )))
             };
         }
-        match kernels_f32(&[&lhs, &rhs]) {
+        match family {
             #[cfg(feature = "cuda")]
             Kernels::Cuda => return on!(crate::ops::dispatch::CudaBackend),
             #[cfg(feature = "cuda")]
@@ -162,7 +175,9 @@ fn fixed_f32<B: Backend>(lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) -> Tensor<B, 3> {
             _ => {}
         }
     }
-    lhs.matmul(rhs)
+    #[cfg(not(feature = "cube"))]
+    let _ = (lhs, rhs);
+    unreachable!("the fixed float32 matmul has no kernel for {family:?}")
 }
 
 /// A [`burn::nn::Linear`] applied to `x` (…, in): with the fixed kernel where [`matmul`] takes
@@ -172,15 +187,15 @@ pub fn linear<B: Backend, const D: usize>(
     x: Tensor<B, D>,
 ) -> Tensor<B, D> {
     let w = crate::ops::float_like(layer.weight.val(), x.dtype());
-    if !runs_fixed_f32(&[&w.clone().unsqueeze::<D>(), &x]) {
+    let Some(family) = fixed_family(&[&w.clone().unsqueeze::<D>(), &x]) else {
         // Burn's own forward, bit for bit what the CPU parity was measured with.
         return layer.forward(x);
-    }
+    };
     let dims = x.dims();
     let cin = dims[D - 1];
     let rows: usize = dims[..D - 1].iter().product();
     let cout = w.dims()[1];
-    let y = matmul(x.reshape([1, rows, cin]), w.reshape([1, cin, cout]));
+    let y = fixed_matmul(family, x.reshape([1, rows, cin]), w.reshape([1, cin, cout]));
     let y = match &layer.bias {
         Some(b) => {
             let dtype = y.dtype();
