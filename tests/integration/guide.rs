@@ -163,15 +163,35 @@ fn the_readme_test_command_is_ci_run() {
         .into_iter()
         .find(|b| b.run.as_deref() == Some("setup"))
         .expect("the set-up block");
-    let readme_cmd = setup
+    // Command 1 runs the demo (`cargo run ... generate`); command 2 is the test command.
+    let commands: Vec<&str> = setup
         .code
         .lines()
-        .find(|l| l.starts_with("export CARGO_TARGET_DIR="))
-        .expect("the test command");
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .collect();
+    assert_eq!(commands.len(), 2, "two commands: {commands:?}");
     let ci = read(".ci/run");
-    let export = ci.lines().find(|l| l.starts_with("export ")).unwrap();
-    let cmd = ci.lines().find(|l| l.starts_with("cargo fmt")).unwrap();
-    assert_eq!(readme_cmd, format!("{export}; {cmd}"));
+    let last = ci
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .unwrap();
+    assert_eq!(
+        last.strip_prefix("exec "),
+        Some(commands[1]),
+        ".ci/run: {last}"
+    );
+    // And the script it names is there and runs every phase.
+    let script = read(commands[1]);
+    for phase in [
+        "cargo fmt --all --check",
+        "cargo clippy --workspace --all-targets --release",
+        "cargo test --workspace --release --no-run",
+        "cargo test --workspace --release",
+        "fuzz/run 30",
+    ] {
+        assert!(script.contains(phase), "{} lacks {phase}", commands[1]);
+    }
 }
 
 /// GitHub's anchor of a heading: lower case, letters, digits, `-`, `_` and spaces kept, spaces
@@ -504,9 +524,13 @@ fn guide_commands_run_as_written() {
             .current_dir(work.path())
             .env("PATH", &path)
             .env("VIRTUAL_ENV", &venv)
-            .env("CARGO_TARGET_DIR", target_dir().join("python-guide"))
+            // The cargo folder of the tests' other maturin builds: the README's wheel block
+            // then compiles only what its interpreter changes (pyo3 and the module).
+            .env("CARGO_TARGET_DIR", target_dir().join("python-ext"))
             .env("HF_HUB_OFFLINE", "1")
             .env("HF_DATASETS_OFFLINE", "1")
+            // tests/run's test runner sets it for libtest; the wheel block's cargo must not see it.
+            .env_remove("RUSTC_BOOTSTRAP")
             .env_remove("STEREOGEN_FAULT")
             .env_remove("STEREOGEN_SHARD")
             .stdin(std::process::Stdio::null())
@@ -536,6 +560,11 @@ fn guide_commands_run_as_written() {
                 std::fs::write(&file, &b.code).unwrap();
                 run(&what, Command::new(venv.join("bin/python")).arg(&file));
             } else {
+                // A block that builds the wheel takes the cargo folder's turn.
+                let _turn = b
+                    .code
+                    .contains("maturin build")
+                    .then(test_support::turns::python_ext);
                 run(
                     &what,
                     Command::new("bash").args(["-euo", "pipefail", "-c", &b.code]),

@@ -52,7 +52,8 @@ pub const MATURIN_PINS: &[&str] = &["maturin==1.16.0", "pytest==9.0.2", "numpy==
 /// Builds the `stereogen` Python module (crates/stereogen-py) with `venv`'s maturin and installs
 /// the wheel into `venv`. The build goes to `<target>/python-ext`, a cargo folder of its own:
 /// maturin's build environment would otherwise invalidate the workspace's pyo3 build, and one
-/// folder for every caller keeps the build incremental.
+/// folder for every maturin build of the tests (this, the wheel tests, the README's wheel block;
+/// one at a time, `turns::python_ext`) compiles the module's crates once per run.
 ///
 /// Once per venv in a test process: the end-to-end tests run side by side in one binary, and two
 /// `pip install`s into one venv at once would race (a second one would also be work for nothing).
@@ -63,6 +64,7 @@ pub fn install_stereogen_module(venv: &Path) {
         return;
     }
     let wheels = tempfile::tempdir().unwrap();
+    let _turn = crate::turns::python_ext();
     pinned_venv::run(
         Command::new(venv.join("bin/maturin"))
             .args([
@@ -77,7 +79,10 @@ pub fn install_stereogen_module(venv: &Path) {
             .arg(venv.join("bin/python"))
             .arg("--out")
             .arg(wheels.path())
-            .env("CARGO_TARGET_DIR", target_dir().join("python-ext")),
+            .env("CARGO_TARGET_DIR", target_dir().join("python-ext"))
+            // tests/run's test runner sets it for libtest; pyo3's and proc-macro2's build
+            // scripts would see a nightly compiler and rebuild differently.
+            .env_remove("RUSTC_BOOTSTRAP"),
         "maturin build",
     );
     let wheel = std::fs::read_dir(wheels.path())

@@ -200,9 +200,11 @@ pub(crate) fn from_autodiff_flex<B: Backend, const D: usize>(
     Tensor::from_primitive(TensorPrimitive::Float(same(t)))
 }
 
-/// Runs `$kernel` with the type alias `$I` bound to the concrete backend behind `$B` when
-/// `$choice` names a kernel family of backends implementing the AGCL kernels, `$composed`
-/// otherwise.
+/// Runs `$kernel` with `$I` bound to the concrete backend behind `$B` when `$choice` names a
+/// kernel family of backends implementing the AGCL kernels, `$composed` otherwise. On a GPU
+/// family `$I` is that backend's module of entry points (`ops::compiled`), whose functions have
+/// the trait methods' names: the kernels are compiled in this crate once, not in every crate
+/// that instantiates the network.
 macro_rules! on_kernel_backend {
     ($choice:expr, |$I:ident| $kernel:expr, composed => $composed:expr) => {{
         use $crate::ops::dispatch::Kernels;
@@ -217,22 +219,22 @@ macro_rules! on_kernel_backend {
             }
             #[cfg(feature = "cuda")]
             Kernels::Cuda => {
-                type $I = $crate::ops::dispatch::CudaBackend;
+                use $crate::ops::compiled::cuda as $I;
                 $kernel
             }
             #[cfg(feature = "cuda")]
             Kernels::AutodiffCuda => {
-                type $I = burn::backend::Autodiff<$crate::ops::dispatch::CudaBackend>;
+                use $crate::ops::compiled::autodiff_cuda as $I;
                 $kernel
             }
             #[cfg(feature = "wgpu")]
             Kernels::Wgpu => {
-                type $I = $crate::ops::dispatch::WgpuBackend;
+                use $crate::ops::compiled::wgpu as $I;
                 $kernel
             }
             #[cfg(feature = "wgpu")]
             Kernels::AutodiffWgpu => {
-                type $I = burn::backend::Autodiff<$crate::ops::dispatch::WgpuBackend>;
+                use $crate::ops::compiled::autodiff_wgpu as $I;
                 $kernel
             }
             Kernels::Composed => $composed,

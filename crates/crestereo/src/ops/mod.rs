@@ -6,6 +6,8 @@
 
 pub mod agcl;
 pub(crate) mod channels;
+#[cfg(feature = "cube")]
+mod compiled;
 pub mod conv2d;
 pub mod dispatch;
 pub mod matmul;

@@ -151,9 +151,11 @@ fn on_family<B: Backend>(family: Kernels, lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) 
         let back = |p: FloatTensor<B>| -> Tensor<B, 3> {
             Tensor::from_primitive(TensorPrimitive::Float(p))
         };
+        // Each backend's product through its entry point in `ops::compiled` (compiled in this
+        // crate once, not in every crate that instantiates the network).
         macro_rules! on {
-            ($I:ty) => {
-                back(same(<$I as MatmulOps>::f32_matmul(
+            ($module:ident) => {
+                back(same(crate::ops::compiled::$module::f32_matmul(
                     same(prim(lhs)),
                     same(prim(rhs)),
                 )))
@@ -161,17 +163,13 @@ fn on_family<B: Backend>(family: Kernels, lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) 
         }
         match family {
             #[cfg(feature = "cuda")]
-            Kernels::Cuda => return on!(crate::ops::dispatch::CudaBackend),
+            Kernels::Cuda => return on!(cuda),
             #[cfg(feature = "cuda")]
-            Kernels::AutodiffCuda => {
-                return on!(burn::backend::Autodiff<crate::ops::dispatch::CudaBackend>);
-            }
+            Kernels::AutodiffCuda => return on!(autodiff_cuda),
             #[cfg(feature = "wgpu")]
-            Kernels::Wgpu => return on!(crate::ops::dispatch::WgpuBackend),
+            Kernels::Wgpu => return on!(wgpu),
             #[cfg(feature = "wgpu")]
-            Kernels::AutodiffWgpu => {
-                return on!(burn::backend::Autodiff<crate::ops::dispatch::WgpuBackend>);
-            }
+            Kernels::AutodiffWgpu => return on!(autodiff_wgpu),
             _ => {}
         }
     }
