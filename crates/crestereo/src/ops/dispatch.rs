@@ -159,6 +159,23 @@ pub fn kernels_f32<B: Backend, const D: usize>(tensors: &[&Tensor<B, D>]) -> Ker
     kernels::<B>(&tensors[0].device())
 }
 
+/// A tensor (or a kernel's result) on its way to or from a kernel's entry point
+/// (`ops::compiled`), its type erased: generic code hands a GPU backend's tensors across without
+/// naming their type, so it does not compile their drop (see `ops::compiled`).
+pub(crate) type Erased = Box<dyn Any>;
+
+/// `value` as an [`Erased`].
+pub(crate) fn erase<S: 'static>(value: S) -> Erased {
+    Box::new(value)
+}
+
+/// The value of type `T` inside `value` (checked at run time).
+pub(crate) fn unerase<T: 'static>(value: Erased) -> T {
+    *value
+        .downcast::<T>()
+        .unwrap_or_else(|_| unreachable!("kernel dispatch: backend types differ"))
+}
+
 /// Moves a value between two type names of the same type (checked at run time).
 pub(crate) fn same<S: 'static, T: 'static>(value: S) -> T {
     *(Box::new(value) as Box<dyn Any>)
@@ -200,21 +217,21 @@ pub(crate) fn from_autodiff_flex<B: Backend, const D: usize>(
     Tensor::from_primitive(TensorPrimitive::Float(same(t)))
 }
 
-/// Runs `$kernel` with `$I` bound to the concrete backend behind `$B` when `$choice` names a
-/// kernel family of backends implementing the AGCL kernels, `$composed` otherwise. On a GPU
-/// family `$I` is that backend's module of entry points (`ops::compiled`), whose functions have
-/// the trait methods' names: the kernels are compiled in this crate once, not in every crate
-/// that instantiates the network.
+/// Runs `$kernel` with `$I` bound to the module of entry points (`ops::compiled`) of the
+/// concrete backend behind `$B` when `$choice` names a kernel family of backends implementing
+/// the AGCL kernels, `$composed` otherwise. The entry points have the `AgclOps` methods' names
+/// and take and give the tensors erased ([`erase`], [`unerase`]): the kernels are compiled in
+/// this crate once, not in every crate that instantiates the network.
 macro_rules! on_kernel_backend {
     ($choice:expr, |$I:ident| $kernel:expr, composed => $composed:expr) => {{
         use $crate::ops::dispatch::Kernels;
         match $choice {
             Kernels::Flex => {
-                type $I = burn::backend::Flex;
+                use $crate::ops::compiled::flex as $I;
                 $kernel
             }
             Kernels::AutodiffFlex => {
-                type $I = burn::backend::Autodiff<burn::backend::Flex>;
+                use $crate::ops::compiled::autodiff_flex as $I;
                 $kernel
             }
             #[cfg(feature = "cuda")]

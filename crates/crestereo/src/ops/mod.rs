@@ -6,7 +6,6 @@
 
 pub mod agcl;
 pub(crate) mod channels;
-#[cfg(feature = "cube")]
 mod compiled;
 pub mod conv2d;
 pub mod dispatch;

@@ -33,7 +33,7 @@ use burn::prelude::*;
 use burn::tensor::TensorPrimitive;
 use burn::tensor::ops::FloatTensor;
 
-use crate::ops::dispatch::{kernels_f32, on_kernel_backend, same};
+use crate::ops::dispatch::{erase, kernels_f32, on_kernel_backend, unerase};
 
 /// Static parameters of an offset correlation: channel groups and the search window's
 /// half-extent (candidates ordered row-major, dy outer, dx inner).
@@ -135,11 +135,11 @@ pub fn offset_corr<B: Backend>(
         "AGCL: channels not divisible by groups"
     );
     let choice = kernels_f32(&[&left, &right, &flow, &offset]);
-    on_kernel_backend!(choice, |I| tensor(same(I::agcl_offset_corr(
-        same(prim(left)),
-        same(prim(right)),
-        same(prim(flow)),
-        same(prim(offset)),
+    on_kernel_backend!(choice, |I| tensor(unerase(I::agcl_offset_corr(
+        erase(prim(left)),
+        erase(prim(right)),
+        erase(prim(flow)),
+        erase(prim(offset)),
         spec
     ))), composed => composed::offset_corr(left, right, flow, offset, spec))
 }
@@ -149,7 +149,7 @@ pub fn warp<B: Backend>(right: Tensor<B, 4>, flow: Tensor<B, 4>) -> Tensor<B, 4>
     let [n, _, h, w] = right.dims();
     assert_eq!(flow.dims(), [n, 2, h, w], "AGCL warp: flow shape");
     let choice = kernels_f32(&[&right, &flow]);
-    on_kernel_backend!(choice, |I| tensor(same(I::agcl_warp(same(prim(right)), same(prim(flow))))),
+    on_kernel_backend!(choice, |I| tensor(unerase(I::agcl_warp(erase(prim(right)), erase(prim(flow))))),
         composed => composed::warp(right, flow))
 }
 
@@ -172,8 +172,8 @@ pub fn offset_corr_backward<B: Backend>(
         prim(offset),
         prim(grad),
     );
-    let grads: [Option<FloatTensor<B>>; 4] = on_kernel_backend!(choice, |I| same(
-        I::agcl_offset_corr_backward(same(l), same(r), same(f), same(o), same(g), spec, [true; 4])
+    let grads: [Option<FloatTensor<B>>; 4] = on_kernel_backend!(choice, |I| unerase(
+        I::agcl_offset_corr_backward(erase(l), erase(r), erase(f), erase(o), erase(g), spec, [true; 4])
     ), composed => return None);
     Some(grads.map(|g| tensor(g.expect("all gradients requested"))))
 }

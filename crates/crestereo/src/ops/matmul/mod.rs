@@ -145,7 +145,7 @@ fn fixed_matmul<B: Backend, const D: usize>(
 fn on_family<B: Backend>(family: Kernels, lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) -> Tensor<B, 3> {
     #[cfg(feature = "cube")]
     {
-        use crate::ops::dispatch::same;
+        use crate::ops::dispatch::{erase, unerase};
         use burn::tensor::TensorPrimitive;
         let prim = |t: Tensor<B, 3>| -> FloatTensor<B> { t.into_primitive().tensor() };
         let back = |p: FloatTensor<B>| -> Tensor<B, 3> {
@@ -155,9 +155,9 @@ fn on_family<B: Backend>(family: Kernels, lhs: Tensor<B, 3>, rhs: Tensor<B, 3>) 
         // crate once, not in every crate that instantiates the network).
         macro_rules! on {
             ($module:ident) => {
-                back(same(crate::ops::compiled::$module::f32_matmul(
-                    same(prim(lhs)),
-                    same(prim(rhs)),
+                back(unerase(crate::ops::compiled::$module::f32_matmul(
+                    erase(prim(lhs)),
+                    erase(prim(rhs)),
                 )))
             };
         }
