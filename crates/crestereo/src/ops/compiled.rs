@@ -77,7 +77,7 @@ macro_rules! entry_points {
     (gpu $module:ident, $backend:ty) => {
         pub(crate) mod $module {
             #[allow(unused_imports)]
-            use crate::ops::{agcl::AgclOps, matmul::MatmulOps};
+            use crate::ops::{agcl::AgclOps, matmul::backend::MatmulOps};
 
             #[allow(unused_imports)]
             use super::{CorrSpec, Erased, FloatTensor, erase, unerase};

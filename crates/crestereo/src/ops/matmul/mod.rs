@@ -20,8 +20,13 @@
 
 #[cfg(feature = "cube")]
 mod autodiff;
+// The trait in a file of its own: `ops::compiled` implements its entry points with it, and this
+// module calls those entry points (no import circle).
+pub(crate) mod backend;
 #[cfg(feature = "cube")]
 mod cube;
+
+pub use backend::MatmulOps;
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -103,12 +108,6 @@ fn fixed_family<B: Backend, const D: usize>(tensors: &[&Tensor<B, D>]) -> Option
         k @ (Kernels::Wgpu | Kernels::AutodiffWgpu) => Some(k),
         _ => None,
     }
-}
-
-/// A backend with the fixed float32 matrix product.
-pub trait MatmulOps: Backend {
-    /// `lhs` (…, M, K) × `rhs` (…, K, N) → (…, M, N), equal batch dimensions, float32.
-    fn f32_matmul(lhs: FloatTensor<Self>, rhs: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
 /// `lhs · rhs` (batched over the leading dimensions, as `Tensor::matmul`): the fixed float32
