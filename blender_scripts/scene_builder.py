@@ -78,31 +78,6 @@ def _set_world(scene, world_spec):
     scene.world = world
 
 
-def _canonical_mesh(name, src):
-    """A copy of mesh `src` whose element order depends on its geometry only: vertices sorted by
-    position, each face starting at its smallest vertex, faces sorted. (Vertices at the same
-    position keep their relative order; the boolean solver does not make such duplicates.)"""
-    co = [tuple(v.co) for v in src.vertices]
-    order = sorted(range(len(co)), key=lambda i: co[i])
-    new_index = [0] * len(co)
-    for new, old in enumerate(order):
-        new_index[old] = new
-    faces = []
-    for p in src.polygons:
-        vs = [new_index[v] for v in p.vertices]
-        k = vs.index(min(vs))
-        faces.append((vs[k:] + vs[:k], p.material_index, p.use_smooth))
-    faces.sort()
-    mesh = bpy.data.meshes.new(name)
-    mesh.from_pydata([co[i] for i in order], [], [f[0] for f in faces])
-    for m in src.materials:
-        mesh.materials.append(m)
-    mesh.polygons.foreach_set("material_index", [f[1] for f in faces])
-    mesh.polygons.foreach_set("use_smooth", [f[2] for f in faces])
-    mesh.update()
-    return mesh
-
-
 def _bake_canonical(ob):
     """Applies the object's modifiers so far and stores the result in canonical order.
 
@@ -113,7 +88,7 @@ def _bake_canonical(ob):
     px in a few pixels). In canonical order every later step sees the same input."""
     evaluated = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
     baked = bpy.data.meshes.new_from_object(evaluated)
-    mesh = _canonical_mesh(ob.data.name, baked)
+    mesh = geometry.canonical_mesh(ob.data.name, baked)
     bpy.data.meshes.remove(baked)
     for mod in list(ob.modifiers):
         cutter = getattr(mod, "object", None) if mod.type == "BOOLEAN" else None
