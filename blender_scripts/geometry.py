@@ -44,7 +44,8 @@ def _torus(bm, major_segments, minor_segments, minor_ratio):
 def canonical_mesh(name, src):
     """A copy of mesh `src` whose element order depends on its geometry only: vertices sorted by
     position, each face starting at its smallest vertex, faces sorted. (Vertices at the same
-    position keep their relative order; the boolean solver does not make such duplicates.)"""
+    position keep their relative order; neither the boolean solver nor bmesh's primitives make
+    such duplicates.)"""
     co = [tuple(v.co) for v in src.vertices]
     order = sorted(range(len(co)), key=lambda i: co[i])
     new_index = [0] * len(co)

@@ -310,6 +310,7 @@ fn a_planted_inconsistent_sample_is_flagged_replaced_and_the_curation_replays() 
             .collect::<Vec<_>>()
     );
     for (x, y) in now.iter().zip(&remade) {
+        assert_eq!(x.sha256.len(), 5, "sample {}: {:?}", x.id, x.sha256);
         assert_eq!(x.sha256, y.sha256, "sample {}: a file differs", x.id);
     }
     let replayed = info(&b).curation;
