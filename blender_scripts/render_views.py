@@ -1,12 +1,13 @@
 """Render settings and the renders of a stereo pair.
 
 For each view the worker writes an 8-bit PNG (view transform Standard) and a float32 EXR with
-the planar Z pass. Cycles writes Z from the first sample of each pixel, which it places by
-importance-sampling the pixel filter from a table: with the default 1.5 px Blackman-Harris filter
-that lands about 5e-4 px off the pixel centre (measured), enough for 1e-3 px errors on steep
-surfaces. So depth gets its own 1-sample pass with a 0.01 px Gaussian filter (offset ~3e-6 px),
-and the colour pass keeps the anti-aliasing filter of the spec. Persistent data keeps the BVH
-between the passes. Depth of field, motion blur and volumes would break the Z pass and stay off.
+the planar Z pass (and, where the recipe's `outputs` ask, the normal and object-index passes).
+Cycles writes Z from the first sample of each pixel, which it places by importance-sampling the
+pixel filter from a table: with the default 1.5 px Blackman-Harris filter that lands about 5e-4
+px off the pixel centre (measured), enough for 1e-3 px errors on steep surfaces. So depth gets
+its own 1-sample pass with a 0.01 px Gaussian filter (offset ~3e-6 px), and the colour pass keeps
+the anti-aliasing filter of the spec. Persistent data keeps the BVH between the passes. Depth of
+field, motion blur and volumes would break the Z pass and stay off.
 Depth-to-disparity happens in Rust.
 
 Both colour passes run first, then both depth passes. Z is written where a camera ray first
@@ -130,6 +131,8 @@ def _colour_pass(scene, render, view="left"):
     c.filter_width = render["filter_width_px"]
     scene.view_layers[0].use_pass_z = False
     scene.view_layers[0].use_pass_material_index = False
+    scene.view_layers[0].use_pass_normal = False
+    scene.view_layers[0].use_pass_object_index = False
 
 
 def _depth_only(scene):
@@ -158,7 +161,7 @@ def _depth_only(scene):
     scene["stereogen_depth_only"] = True
 
 
-def _depth_pass(scene):
+def _depth_pass(scene, outputs):
     c = scene.cycles
     c.samples = 1
     c.use_denoising = False
@@ -168,6 +171,11 @@ def _depth_pass(scene):
     # Where the glass and mirror pixels are (each material's pass_index at the first surface):
     # the same first hit as Z, written into the same EXR.
     scene.view_layers[0].use_pass_material_index = MATERIAL_PASS
+    # The maps a recipe asks for (`outputs`), from the same first surface: Cycles writes Z, the
+    # normal and the object's pass_index (its instance id, scene_builder) where the Z pass does.
+    # The normal is the shading normal in world space; Rust turns it into the camera's frame.
+    scene.view_layers[0].use_pass_normal = "normals" in outputs
+    scene.view_layers[0].use_pass_object_index = "instance" in outputs or "semantic" in outputs
     if not scene.get("stereogen_depth_only"):
         _depth_only(scene)
 
@@ -221,7 +229,8 @@ def render_both(scene, spec, out_dir, timings):
         camera(view)
         exr = os.path.join(out_dir, view + "_depth.exr")
         # Counted with the depth render: the first call makes the scene depth-only.
-        timings.timed(keys["depth"][view], lambda: (_depth_pass(scene), bpy.ops.render.render(write_still=False)))
+        outputs = spec["render"]["outputs"]
+        timings.timed(keys["depth"][view], lambda: (_depth_pass(scene, outputs), bpy.ops.render.render(write_still=False)))
         timings.timed(keys["save"], lambda: _save(result(), scene, exr, "OPEN_EXR_MULTILAYER", color_depth="32", exr_codec="NONE"))
         files[view + "_depth_exr"] = exr
     return files

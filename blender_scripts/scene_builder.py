@@ -153,7 +153,7 @@ def build(spec, threads, device):
     _add_cameras(scene, spec["cameras"], spec["render"])
     _set_world(scene, spec["world"])
     skipped, notes = [], []
-    for obj in spec["objects"]:
+    for i, obj in enumerate(spec["objects"]):
         try:
             mesh, used = geometry.make_mesh(obj["name"], obj["shape"], skipped)
         except geometry.AssetError as e:
@@ -171,6 +171,8 @@ def build(spec, threads, device):
         ob.rotation_mode = "XYZ"
         ob.rotation_euler = tuple(obj["rotation"])
         ob.scale = tuple(obj["scale"])
+        # Its instance id: its place in the spec, from 1 (Rust's instance table says the same).
+        ob.pass_index = i + 1
         scene.collection.objects.link(ob)
         _add_modifiers(scene, ob, obj.get("modifiers", []))
     for i, light in enumerate(spec["lights"]):

@@ -90,7 +90,7 @@ pub fn encode_disparity_exr(
 /// `exr` keeps custom attributes in a `HashMap`, so their order in the header changes from one
 /// map instance to the next. Sorting them by name makes equal images give equal bytes. It is a
 /// permutation inside the header, so the header length and every chunk offset stay the same.
-fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
+pub(crate) fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
     const MULTIPART: u32 = 0x1000;
     if bytes.len() < 8 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
         return Err("writer produced no EXR magic number".into());
@@ -171,7 +171,7 @@ fn check_decoded_size(bytes: &[u8], path: &Path) -> IoResult<()> {
     Ok(())
 }
 
-fn decode_flat(bytes: &[u8], path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
+pub(crate) fn decode_flat(bytes: &[u8], path: &Path) -> IoResult<Layer<AnyChannels<FlatSamples>>> {
     check_decoded_size(bytes, path)?;
     let image = read()
         .no_deep_data()
@@ -185,7 +185,7 @@ fn decode_flat(bytes: &[u8], path: &Path) -> IoResult<Layer<AnyChannels<FlatSamp
     Ok(image.layer_data)
 }
 
-fn samples_f32(samples: &FlatSamples) -> Vec<f32> {
+pub(crate) fn samples_f32(samples: &FlatSamples) -> Vec<f32> {
     match samples {
         FlatSamples::F32(v) => v.clone(),
         FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
@@ -263,7 +263,7 @@ pub fn decode_disparity_exr(bytes: &[u8], path: &Path) -> IoResult<(DisparityMap
 
 /// A file's channel names for an error message: quoted and escaped, so a hostile name (a
 /// newline, a control character) cannot break the message's one line.
-fn channel_names<S>(channels: &[exr::image::AnyChannel<S>]) -> String {
+pub(crate) fn channel_names<S>(channels: &[exr::image::AnyChannel<S>]) -> String {
     channels
         .iter()
         .map(|c| format!("{:?}", c.name.to_string()))
@@ -287,6 +287,12 @@ pub struct RenderPasses {
     /// Row-major from the top row.
     pub depth: Vec<f32>,
     pub material_index: Option<Vec<f32>>,
+    /// Cycles' normal pass (`*.Normal.X/Y/Z`: the first surface's shading normal, world space),
+    /// where it was rendered.
+    pub normal: Option<[Vec<f32>; 3]>,
+    /// Cycles' object index (`*.IndexOB.X`: the first surface's object's `pass_index`), where it
+    /// was rendered.
+    pub object_index: Option<Vec<f32>>,
 }
 
 /// Reads [`RenderPasses`] (see [`read_depth_channel`] for the depth channel's names).
@@ -306,11 +312,21 @@ pub fn read_render_passes(path: &Path) -> IoResult<RenderPasses> {
             format!("no depth channel (channels: {})", channel_names(channels)),
         )
     })?;
+    let pass = |name: &str| {
+        let dotted = format!(".{name}");
+        named(&|n| n.ends_with(&dotted) || n == name)
+    };
+    let normal = match (pass("Normal.X"), pass("Normal.Y"), pass("Normal.Z")) {
+        (Some(x), Some(y), Some(z)) => Some([x, y, z]),
+        _ => None,
+    };
     Ok(RenderPasses {
         width: layer.size.width(),
         height: layer.size.height(),
         depth,
-        material_index: named(&|n| n.ends_with(".IndexMA.X") || n == "IndexMA.X"),
+        material_index: pass("IndexMA.X"),
+        normal,
+        object_index: pass("IndexOB.X"),
     })
 }
 

@@ -23,6 +23,7 @@ pub mod image_io;
 mod images;
 pub mod jpeg;
 pub mod limits;
+pub mod maps;
 pub mod npy;
 pub mod pfm;
 pub mod pixel_coords;
@@ -57,6 +58,10 @@ pub use image_io::{
     Image, RgbImage, Samples, read_image, read_rgb, write_jpeg_rgb, write_png, write_png_rgb,
 };
 pub use jpeg::{ChromaSampling, JpegOptions, decode_jpeg, encode_jpeg_rgb, write_jpeg};
+pub use maps::{
+    DepthMap, IdMap, MapKind, NormalMap, read_depth_exr, read_id_png, read_normals_exr,
+    write_depth_exr, write_id_png, write_normals_exr,
+};
 pub use npy::{NpyArray, read_disparity_npy, read_npy, read_npz, write_disparity_npy, write_npy};
 pub use pfm::{
     Endian, FloatImage, decode_pfm, read_disparity_pfm, read_pfm, write_disparity_pfm, write_pfm,

@@ -21,10 +21,11 @@ pub use checker::Violation;
 pub use checker::scene_spec::check_scene_spec;
 pub use dist::Dist;
 pub use recipe::{Recipe, RecipeError};
+pub use render::OutputMap;
 pub use rig::{StereoCameras, StereoRig};
 pub use rng::SeedTree;
 pub use sampler::{plan_scene, scene_category};
 pub use spec::{
     BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern,
-    RenderSettings, SceneSpec, Shape, WorldSpec,
+    RenderSettings, SEMANTIC_CLASSES, SceneSpec, Shape, WorldSpec,
 };

@@ -45,6 +45,36 @@ optional_keys! {
     denoise_passes: DenoisePasses = DenoisePasses::AlbedoNormal;
     denoise_quality: DenoiseQuality = DenoiseQuality::High;
     light_tree: bool = true;
+    outputs: Vec<OutputMap> = Vec::new();
+}
+
+/// A per-pixel map a recipe asks for beside the colour images and disparity (`[render] outputs`).
+/// All come from the depth passes' first surface; none is written unless asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OutputMap {
+    /// Metric depth along the optical axis.
+    Depth,
+    /// Camera-space unit surface normals.
+    Normals,
+    /// Instance ids (each object of the spec its own).
+    Instance,
+    /// Semantic class ids ([`crate::SEMANTIC_CLASSES`]).
+    Semantic,
+}
+
+impl OutputMap {
+    pub const ALL: [OutputMap; 4] = [Self::Depth, Self::Normals, Self::Instance, Self::Semantic];
+
+    /// The name a recipe writes (and a dataset's files carry).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Depth => "depth",
+            Self::Normals => "normals",
+            Self::Instance => "instance",
+            Self::Semantic => "semantic",
+        }
+    }
 }
 
 /// How OpenImageDenoise cleans its guiding passes before use.
@@ -125,6 +155,13 @@ pub struct RenderRecipe {
         skip_serializing_if = "is_default::light_tree"
     )]
     pub light_tree: bool,
+    /// The maps written beside colour and disparity, for both views. Recipe-wide: every sample
+    /// of a dataset has the same files (a category cannot set it).
+    #[serde(
+        default = "default::outputs",
+        skip_serializing_if = "is_default::outputs"
+    )]
+    pub outputs: Vec<OutputMap>,
 }
 
 /// Render keys a category sets for itself; each set key replaces the recipe's `[render]` one.
@@ -173,6 +210,7 @@ impl RenderOverride {
             denoise_passes: self.denoise_passes.unwrap_or(base.denoise_passes),
             denoise_quality: self.denoise_quality.unwrap_or(base.denoise_quality),
             light_tree: self.light_tree.unwrap_or(base.light_tree),
+            outputs: base.outputs.clone(),
         }
     }
 }
@@ -180,7 +218,7 @@ impl RenderOverride {
 impl RenderRecipe {
     /// The keys in the order they are written (the struct's order; checked by a test), which
     /// is also the order of a spec's `render`, with the scene's own keys in between.
-    const KEYS: [&'static str; 11] = [
+    const KEYS: [&'static str; 12] = [
         "samples",
         "denoise",
         "max_bounces",
@@ -192,6 +230,7 @@ impl RenderRecipe {
         "denoise_passes",
         "denoise_quality",
         "light_tree",
+        "outputs",
     ];
 }
 
@@ -313,6 +352,7 @@ mod tests {
             denoise_passes: DenoisePasses::Albedo,
             denoise_quality: DenoiseQuality::Balanced,
             light_tree: false,
+            outputs: OutputMap::ALL.to_vec(),
         }
     }
 
@@ -344,6 +384,7 @@ mod tests {
             denoise_passes: DenoisePasses::AlbedoNormal,
             denoise_quality: DenoiseQuality::High,
             light_tree: true,
+            outputs: Vec::new(),
             ..old.recipe
         };
         let written = serde_json::to_value(&old).unwrap();

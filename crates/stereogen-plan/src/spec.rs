@@ -52,6 +52,22 @@ pub enum ObjectRole {
     Content,
 }
 
+/// The classes of a dataset's `semantic` maps: class id = position + 1, 0 = no surface. An
+/// object's class is what made it (its `source`: the background wall, a primitive, a ShapeNet
+/// model, a mesh of the built-in content pack, ...); a source not listed (a hand-written spec's)
+/// is `other`. New classes go at the end, so ids keep their meaning across versions.
+pub const SEMANTIC_CLASSES: [&str; 9] = [
+    "wall",
+    "primitive",
+    "shapenet",
+    "meshes",
+    "pack",
+    "tree",
+    "wireframe",
+    "net",
+    "other",
+];
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObjectSpec {
@@ -71,6 +87,15 @@ pub struct ObjectSpec {
     /// The disparity the planner aimed this object's centre at (content objects only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target_disparity: Option<f64>,
+}
+
+impl ObjectSpec {
+    /// This object's semantic class id ([`SEMANTIC_CLASSES`]).
+    pub fn semantic_class(&self) -> u16 {
+        let at = |name: &str| SEMANTIC_CLASSES.iter().position(|c| *c == name);
+        let i = at(&self.source).unwrap_or_else(|| at("other").expect("`other` is a class"));
+        i as u16 + 1
+    }
 }
 
 /// Geometry in object space; every shape fits the unit sphere before `scale`.

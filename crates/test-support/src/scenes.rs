@@ -78,6 +78,7 @@ pub fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
                 denoise_prefilter: Default::default(),
                 denoise_passes: Default::default(),
                 denoise_quality: Default::default(),
+                outputs: Vec::new(),
                 light_tree: true,
             },
             cycles_seed: 1,

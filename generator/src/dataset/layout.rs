@@ -11,13 +11,7 @@ use crate::plan::Recipe;
 /// `entry` with its files' paths put under `prefix` (a folder inside the dataset): how a
 /// top-level manifest names the files of a farm's shard or of a curation round.
 pub fn entry_under(prefix: &std::path::Path, mut entry: ManifestEntry) -> ManifestEntry {
-    for p in [
-        &mut entry.files.left,
-        &mut entry.files.right,
-        &mut entry.files.disp_left,
-        &mut entry.files.disp_right,
-        &mut entry.files.scene,
-    ] {
+    for p in entry.files.all_mut() {
         *p = prefix.join(&*p);
     }
     entry
@@ -25,6 +19,25 @@ pub fn entry_under(prefix: &std::path::Path, mut entry: ManifestEntry) -> Manife
 
 /// `dataset.json` with the recipe read as the generator's [`Recipe`].
 pub type DatasetInfo = stereo_io::DatasetInfo<Recipe>;
+
+/// The class table of the semantic maps, for a recipe that writes them (none otherwise).
+pub fn semantic_classes(recipe: &Recipe) -> Vec<stereo_io::datasets::stereogen::SemanticClass> {
+    if !recipe
+        .render
+        .outputs
+        .contains(&crate::plan::OutputMap::Semantic)
+    {
+        return Vec::new();
+    }
+    crate::plan::SEMANTIC_CLASSES
+        .iter()
+        .enumerate()
+        .map(|(i, name)| stereo_io::datasets::stereogen::SemanticClass {
+            id: i as u16 + 1,
+            name: name.to_string(),
+        })
+        .collect()
+}
 
 /// Opening a dataset directory to generate into it.
 pub trait CreateDataset {
@@ -49,6 +62,7 @@ impl CreateDataset for DatasetLayout {
             recipe: recipe.clone(),
             assets_fingerprint: None,
             curation: Vec::new(),
+            semantic_classes: semantic_classes(recipe),
         };
         if self.info().exists() {
             let existing: DatasetInfo = self.read_info()?;

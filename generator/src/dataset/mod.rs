@@ -10,6 +10,7 @@ pub mod lock;
 pub mod manifest;
 pub mod merge;
 pub mod sample;
+pub mod sample_maps;
 pub mod scene_file;
 pub mod select;
 pub mod shard;

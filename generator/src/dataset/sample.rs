@@ -9,10 +9,11 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use stereo_io::datasets::stereogen::Difficulty;
 use stereo_io::digest::sha256_hex;
-use stereo_io::{DisparityMap, DisparityMeta, RgbImage};
+use stereo_io::{DisparityMap, DisparityMeta, MapKind, RenderPasses, RgbImage};
 
 use super::layout::{DatasetLayout, SamplePaths};
 use super::manifest::{DisparitySummary, ManifestEntry};
+use super::sample_maps::{ViewMaps, instance_table, requested_maps};
 use crate::plan::SceneSpec;
 use crate::render::protocol::RenderedFiles;
 
@@ -31,14 +32,14 @@ pub fn disparity_from_depth_exr(path: &Path, spec: &SceneSpec) -> anyhow::Result
     Ok(read_depth_pass(path, spec)?.0)
 }
 
-/// Reads a Cycles depth EXR: its depth converted to disparity with the spec's rig, and its
-/// material pass index where the worker rendered it.
+/// Reads a Cycles depth EXR: its depth converted to disparity with the spec's rig, and all its
+/// passes (the material index where the worker rendered it, the passes of the maps asked for).
 pub fn read_depth_pass(
     path: &Path,
     spec: &SceneSpec,
-) -> anyhow::Result<(DisparityMap, Option<Vec<f32>>)> {
+) -> anyhow::Result<(DisparityMap, RenderPasses)> {
     let passes = stereo_io::read_render_passes(path)?;
-    let (w, h, depth) = (passes.width, passes.height, passes.depth);
+    let (w, h, depth) = (passes.width, passes.height, &passes.depth);
     if (w, h) != (spec.rig.width as usize, spec.rig.height as usize) {
         bail!(
             "{}: depth is {w}x{h}, the spec asks for {}x{}",
@@ -51,12 +52,12 @@ pub fn read_depth_pass(
     let map = DisparityMap::from_depth(
         w,
         h,
-        &depth,
+        depth,
         spec.rig.f_px(),
         spec.rig.baseline_m,
         spec.render.clip_end as f32,
     );
-    Ok((map, passes.material_index))
+    Ok((map, passes))
 }
 
 /// The worker's PNG decoded. It is re-encoded, not copied: Cycles writes render times into PNG
@@ -83,6 +84,8 @@ struct SampleContent<'a> {
     right: RgbImage,
     disp_left: DisparityMap,
     disp_right: DisparityMap,
+    maps_left: ViewMaps,
+    maps_right: ViewMaps,
 }
 
 impl SampleContent<'_> {
@@ -108,7 +111,71 @@ impl SampleContent<'_> {
         )?;
         stereo_io::write_png_rgb(&layout.abs(&paths.left), &self.left)?;
         stereo_io::write_png_rgb(&layout.abs(&paths.right), &self.right)?;
+        for (view, maps) in [("left", &self.maps_left), ("right", &self.maps_right)] {
+            let path = |kind| {
+                layout.abs(
+                    paths
+                        .map(kind, view)
+                        .expect("the paths name every map asked for"),
+                )
+            };
+            if let Some(m) = &maps.depth {
+                stereo_io::write_depth_exr(&path(MapKind::Depth), m, view)?;
+            }
+            if let Some(m) = &maps.normals {
+                stereo_io::write_normals_exr(&path(MapKind::Normals), m, view)?;
+            }
+            if let Some(m) = &maps.instance {
+                stereo_io::write_id_png(&path(MapKind::Instance), m)?;
+            }
+            if let Some(m) = &maps.semantic {
+                stereo_io::write_id_png(&path(MapKind::Semantic), m)?;
+            }
+        }
         super::scene_file::write_scene_spec(&layout.abs(&paths.scene), self.spec)
+    }
+
+    /// Whether the map file with key `key` (`depth_left`, ...) decodes to what was written.
+    fn map_is_same(&self, key: &str, path: &Path, bytes: &[u8]) -> anyhow::Result<bool> {
+        let (name, view) = key
+            .rsplit_once('_')
+            .with_context(|| format!("no read-back check for file key {key:?}"))?;
+        let maps = match view {
+            "left" => &self.maps_left,
+            "right" => &self.maps_right,
+            _ => bail!("no read-back check for file key {key:?}"),
+        };
+        let missing = || anyhow::anyhow!("file key {key:?} names a map that was not made");
+        Ok(match MapKind::from_name(name).ok_or_else(missing)? {
+            MapKind::Depth => {
+                let m = maps.depth.as_ref().ok_or_else(missing)?;
+                let back = stereo_io::maps::decode_depth_exr(bytes, path)?;
+                (back.width, back.height) == (m.width, m.height)
+                    && back
+                        .data
+                        .iter()
+                        .zip(&m.data)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+            }
+            MapKind::Normals => {
+                let m = maps.normals.as_ref().ok_or_else(missing)?;
+                let back = stereo_io::maps::decode_normals_exr(bytes, path)?;
+                (back.width, back.height) == (m.width, m.height)
+                    && back
+                        .data
+                        .iter()
+                        .zip(&m.data)
+                        .all(|(a, b)| a.map(f32::to_bits) == b.map(f32::to_bits))
+            }
+            MapKind::Instance => {
+                stereo_io::maps::decode_id_png(bytes, path)?
+                    == *maps.instance.as_ref().ok_or_else(missing)?
+            }
+            MapKind::Semantic => {
+                stereo_io::maps::decode_id_png(bytes, path)?
+                    == *maps.semantic.as_ref().ok_or_else(missing)?
+            }
+        })
     }
 
     /// Checks the bytes read back from the file with key `key` against what was written.
@@ -149,7 +216,7 @@ impl SampleContent<'_> {
                     .with_context(|| format!("{}: not a SceneSpec", path.display()))?
                     == *self.spec
             }
-            other => bail!("no read-back check for file key {other:?}"),
+            other => self.map_is_same(other, path, bytes)?,
         };
         if !same {
             bail!(
@@ -212,7 +279,8 @@ pub fn finalize_sample(
     render_seconds: f64,
     render_timings: &BTreeMap<String, f64>,
 ) -> anyhow::Result<ManifestEntry> {
-    let paths = layout.sample_paths(&spec.category, &spec.id);
+    let maps = requested_maps(spec);
+    let paths = SamplePaths::with_maps(&spec.category, &spec.id, &maps);
     let dir = layout
         .abs(&paths.left)
         .parent()
@@ -221,8 +289,11 @@ pub fn finalize_sample(
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
 
     let t0 = Instant::now();
-    let (disp_left, material_index) = read_depth_pass(&files.left_depth_exr, spec)?;
-    let disp_right = disparity_from_depth_exr(&files.right_depth_exr, spec)?;
+    let (disp_left, passes_left) = read_depth_pass(&files.left_depth_exr, spec)?;
+    let (disp_right, passes_right) = read_depth_pass(&files.right_depth_exr, spec)?;
+    let maps_left = ViewMaps::from_passes(&maps, &passes_left, &disp_left, spec, "left view")?;
+    let maps_right = ViewMaps::from_passes(&maps, &passes_right, &disp_right, spec, "right view")?;
+    let material_index = passes_left.material_index;
     let convert_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let left = read_worker_png(&files.left_png, spec)?;
@@ -234,6 +305,8 @@ pub fn finalize_sample(
         disp_right,
         left,
         right,
+        maps_left,
+        maps_right,
     };
     let t0 = Instant::now();
     let written = content.write(layout, &paths).and_then(|()| {
@@ -289,6 +362,11 @@ pub fn finalize_sample(
             + verify_s
             + difficulty_s,
         render_timings: timings,
+        instances: if maps.contains(&MapKind::Instance) || maps.contains(&MapKind::Semantic) {
+            instance_table(spec, notes)
+        } else {
+            Vec::new()
+        },
         notes: notes.to_vec(),
         sha256,
         stereogen_version: env!("CARGO_PKG_VERSION").to_string(),

@@ -101,6 +101,7 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
         recipe: recipe.clone(),
         assets_fingerprint: None,
         curation: Vec::new(),
+        semantic_classes: Vec::new(),
     };
     std::fs::create_dir_all(root).unwrap();
     std::fs::write(layout.info(), serde_json::to_string_pretty(&info).unwrap()).unwrap();
@@ -173,6 +174,7 @@ fn make_dataset(root: &Path, mode: Mode) -> BTreeMap<String, usize> {
             render_seconds: 0.0,
             render_timings: BTreeMap::new(),
             notes: Vec::new(),
+            instances: Vec::new(),
             sha256: BTreeMap::new(),
             stereogen_version: "test".into(),
         };

@@ -74,6 +74,7 @@ fn dataset_with_torn_line(root: &Path) -> String {
             render_seconds: 1.0,
             render_timings: [("render_color_left".to_string(), 0.5)].into(),
             notes: vec![],
+            instances: Vec::new(),
             sha256: Default::default(),
             stereogen_version: "test".into(),
         };

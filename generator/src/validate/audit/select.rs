@@ -109,6 +109,7 @@ mod tests {
             render_seconds: 0.0,
             render_timings: Default::default(),
             notes: vec![],
+            instances: Vec::new(),
             sha256: Default::default(),
             stereogen_version: String::new(),
         }

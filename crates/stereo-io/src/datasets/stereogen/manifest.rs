@@ -40,6 +40,26 @@ impl DisparitySummary {
     }
 }
 
+/// One object of a sample, as its `instance` maps name it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct InstanceRecord {
+    /// The value of its pixels in the instance maps (1 and up; 0 is no surface).
+    pub id: u16,
+    /// Its name in the sample's SceneSpec.
+    pub name: String,
+    /// `background` (the wall behind the scene) or `content` (placed by the disparity law).
+    pub role: String,
+    /// What made it: `wall`, `primitive`, `shapenet`, `meshes`, `tree`, `wireframe`, `net`.
+    pub source: String,
+    /// The mesh file it was planned from (ShapeNet model, mesh folder), where it has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
+    /// Its material class (`textured`, `textureless`, `glossy`, `metallic`, `glass`).
+    pub material: String,
+    /// Its class id in the semantic maps (the dataset's `semantic_classes`).
+    pub semantic: u16,
+}
+
 /// One finished sample, as one manifest line.
 ///
 /// Required in every line: the identity (`id`, `category`, `index`), the `files` and the camera
@@ -87,6 +107,9 @@ pub struct ManifestEntry {
     /// What the worker did beyond the spec (which mesh candidate it used, objects it dropped).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,
+    /// The objects the instance maps name (when the dataset has them), by id.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub instances: Vec<InstanceRecord>,
     /// SHA-256 of each file, keyed like `files`.
     #[serde(default)]
     pub sha256: BTreeMap<String, String>,
@@ -230,6 +253,7 @@ mod tests {
             render_seconds: 1.25,
             render_timings: BTreeMap::from([("save".to_string(), 0.25)]),
             notes: vec![],
+            instances: Vec::new(),
             sha256: BTreeMap::new(),
             stereogen_version: "0.1.0".into(),
         }

@@ -9,6 +9,9 @@
 //! <root>/.stereogen.lock                held by the one process writing the directory
 //! <root>/<category>/<id>_left.png       and _right.png (8-bit sRGB)
 //! <root>/<category>/<id>_left.disp.exr  and _right.disp.exr (float32 disparity + validity)
+//! <root>/<category>/<id>_left.depth.exr     and the other maps a recipe's `outputs` asks for, both
+//!                                       views: `.normals.exr`, `.instance.png`, `.semantic.png`
+//!                                       ([`crate::maps`])
 //! <root>/<category>/<id>.scene.json.gz  the SceneSpec that reproduces the sample (gzip'd JSON;
 //!                                       datasets made before hold a plain `<id>.scene.json`)
 //! ```
@@ -39,7 +42,8 @@ pub use farm::{
     ChecksumCheck, MergeInfo, SHARD_INFO_FILE, SHARDS_DIR, ShardDirs, ShardId, ShardInfo,
 };
 pub use manifest::{
-    DisparitySummary, Manifest, ManifestContents, ManifestEntry, read_manifest, read_manifest_from,
+    DisparitySummary, InstanceRecord, Manifest, ManifestContents, ManifestEntry, read_manifest,
+    read_manifest_from,
 };
 pub use sidecar::{
     FailureRecord, SIDECAR_RECORD_VERSION, SidecarContents, SidecarRecord, SkippedAssetRecord,
@@ -49,6 +53,7 @@ pub use sidecar::{
 
 use super::{DispKind, SampleFiles, SampleMeta};
 use crate::error::{Error, Result};
+use crate::maps::MapKind;
 use crate::pixel_coords::continuous_to_pixel_centres;
 
 /// `dataset.json`: what the dataset was made with.
@@ -64,7 +69,8 @@ pub const LOCK_FILE: &str = ".stereogen.lock";
 /// How a sample's SceneSpec file ends: gzip'd JSON (see the generator's `dataset::scene_file`).
 pub const SCENE_SUFFIX: &str = ".scene.json.gz";
 
-/// Paths of one sample's files, relative to the dataset root.
+/// Paths of one sample's files, relative to the dataset root. The maps beside the disparity
+/// ([`MapKind`]) are there when the recipe's `outputs` asked for them.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SamplePaths {
     pub left: PathBuf,
@@ -72,7 +78,26 @@ pub struct SamplePaths {
     pub disp_left: PathBuf,
     pub disp_right: PathBuf,
     pub scene: PathBuf,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_left: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_right: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub normals_left: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub normals_right: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instance_left: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instance_right: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub semantic_left: Option<PathBuf>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub semantic_right: Option<PathBuf>,
 }
+
+/// The views of a pair, in file-key order.
+pub const VIEWS: [&str; 2] = ["left", "right"];
 
 impl SamplePaths {
     /// The files of sample `id` of `category`: `<category>/<id>_left.png`, `_right.png`,
@@ -85,18 +110,117 @@ impl SamplePaths {
             disp_left: c.join(format!("{id}_left.disp.exr")),
             disp_right: c.join(format!("{id}_right.disp.exr")),
             scene: c.join(format!("{id}{SCENE_SUFFIX}")),
+            depth_left: None,
+            depth_right: None,
+            normals_left: None,
+            normals_right: None,
+            instance_left: None,
+            instance_right: None,
+            semantic_left: None,
+            semantic_right: None,
         }
     }
 
-    /// Every file with its key (the keys of the manifest's `files` and `sha256`).
-    pub fn all(&self) -> [(&'static str, &Path); 5] {
-        [
+    /// [`SamplePaths::new`] with the files of `maps` for both views:
+    /// `<category>/<id>_<view>.<suffix>` ([`MapKind::suffix`]).
+    pub fn with_maps(category: &str, id: &str, maps: &[MapKind]) -> Self {
+        let mut paths = Self::new(category, id);
+        for &kind in maps {
+            for view in VIEWS {
+                *paths.map_slot(kind, view) =
+                    Some(PathBuf::from(category).join(format!("{id}_{view}.{}", kind.suffix())));
+            }
+        }
+        paths
+    }
+
+    fn map_slot(&mut self, kind: MapKind, view: &str) -> &mut Option<PathBuf> {
+        let left = view == "left";
+        match (kind, left) {
+            (MapKind::Depth, true) => &mut self.depth_left,
+            (MapKind::Depth, false) => &mut self.depth_right,
+            (MapKind::Normals, true) => &mut self.normals_left,
+            (MapKind::Normals, false) => &mut self.normals_right,
+            (MapKind::Instance, true) => &mut self.instance_left,
+            (MapKind::Instance, false) => &mut self.instance_right,
+            (MapKind::Semantic, true) => &mut self.semantic_left,
+            (MapKind::Semantic, false) => &mut self.semantic_right,
+        }
+    }
+
+    /// The file of map `kind` of `view` ("left" or "right"), where the sample has it.
+    pub fn map(&self, kind: MapKind, view: &str) -> Option<&Path> {
+        let left = view == "left";
+        match (kind, left) {
+            (MapKind::Depth, true) => &self.depth_left,
+            (MapKind::Depth, false) => &self.depth_right,
+            (MapKind::Normals, true) => &self.normals_left,
+            (MapKind::Normals, false) => &self.normals_right,
+            (MapKind::Instance, true) => &self.instance_left,
+            (MapKind::Instance, false) => &self.instance_right,
+            (MapKind::Semantic, true) => &self.semantic_left,
+            (MapKind::Semantic, false) => &self.semantic_right,
+        }
+        .as_deref()
+    }
+
+    /// The maps the sample has (both views of each), in [`MapKind::ALL`]'s order.
+    pub fn maps(&self) -> Vec<MapKind> {
+        MapKind::ALL
+            .into_iter()
+            .filter(|&k| VIEWS.iter().any(|v| self.map(k, v).is_some()))
+            .collect()
+    }
+
+    /// Every file with its key (the keys of the manifest's `files` and `sha256`): the five every
+    /// sample has, then its maps (`depth_left`, `depth_right`, `normals_left`, ...).
+    pub fn all(&self) -> Vec<(&'static str, &Path)> {
+        let mut all: Vec<(&'static str, &Path)> = vec![
             ("left", &self.left),
             ("right", &self.right),
             ("disp_left", &self.disp_left),
             ("disp_right", &self.disp_right),
             ("scene", &self.scene),
-        ]
+        ];
+        let maps: [(&'static str, &Option<PathBuf>); 8] = [
+            ("depth_left", &self.depth_left),
+            ("depth_right", &self.depth_right),
+            ("normals_left", &self.normals_left),
+            ("normals_right", &self.normals_right),
+            ("instance_left", &self.instance_left),
+            ("instance_right", &self.instance_right),
+            ("semantic_left", &self.semantic_left),
+            ("semantic_right", &self.semantic_right),
+        ];
+        all.extend(
+            maps.into_iter()
+                .filter_map(|(k, p)| Some((k, p.as_deref()?))),
+        );
+        all
+    }
+
+    /// Every path, to rewrite in place (a farm merge puts them under a shard's folder).
+    pub fn all_mut(&mut self) -> Vec<&mut PathBuf> {
+        let mut all = vec![
+            &mut self.left,
+            &mut self.right,
+            &mut self.disp_left,
+            &mut self.disp_right,
+            &mut self.scene,
+        ];
+        for p in [
+            &mut self.depth_left,
+            &mut self.depth_right,
+            &mut self.normals_left,
+            &mut self.normals_right,
+            &mut self.instance_left,
+            &mut self.instance_right,
+            &mut self.semantic_left,
+            &mut self.semantic_right,
+        ] {
+            all.extend(p.as_mut());
+        }
+        all
     }
 }
 
@@ -115,6 +239,16 @@ pub struct DatasetInfo<R = serde_json::Value> {
     /// The rounds of `stereogen curate --replace`, in order; absent before the first.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub curation: Vec<CurationRound>,
+    /// The classes of the `semantic` maps, where the dataset has them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub semantic_classes: Vec<SemanticClass>,
+}
+
+/// One class of the `semantic` maps: pixels of value `id` show a `name`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SemanticClass {
+    pub id: u16,
+    pub name: String,
 }
 
 /// Where each file of one of our dataset directories lives.
