@@ -10,6 +10,7 @@
 
 mod asset_sources;
 mod audit_generated;
+mod audit_maps;
 mod cli_faults;
 mod content_pack;
 mod curate;
@@ -28,6 +29,7 @@ mod fault_sweep;
 mod generate_cli;
 mod guide;
 mod io_python;
+mod maps;
 mod mesh_folder;
 mod python_wheel;
 mod render_study;

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use stereogen::assets::AssetIndex;
 use stereogen::plan::recipe::DEFAULT_PRESET;
-use stereogen::plan::{Modifier, Recipe, SceneSpec, Shape, plan_scene};
+use stereogen::plan::{Modifier, OutputMap, Recipe, SceneSpec, Shape, plan_scene};
 use stereogen::render::RenderService;
 use test_support::{render, run_ok, worker_config};
 
@@ -66,7 +66,8 @@ fn boolean_heavy_spec() -> SceneSpec {
 }
 
 /// The first sample of each of the default preset's categories (seed 11: the seed a re-render
-/// was first seen to differ with), small and with few samples per pixel to keep CI fast.
+/// was first seen to differ with), small and with few samples per pixel to keep CI fast, with
+/// every map a recipe can ask for.
 fn one_spec_per_category() -> Vec<SceneSpec> {
     let recipe = Recipe::preset(DEFAULT_PRESET).unwrap();
     let mut specs: Vec<SceneSpec> = Vec::new();
@@ -78,6 +79,8 @@ fn one_spec_per_category() -> Vec<SceneSpec> {
         spec.rig.width = 240;
         spec.rig.height = 135;
         spec.render.recipe.samples = 4;
+        // Every map too: each must come out the same as well.
+        spec.render.recipe.outputs = OutputMap::ALL.to_vec();
         specs.push(spec);
     }
     let mut names: Vec<&str> = specs.iter().map(|s| s.category.as_str()).collect();
@@ -194,7 +197,8 @@ fn re_rendering_a_spec_gives_the_same_bytes_in_every_file() {
     let mut b: Vec<_> = specs.iter().rev().map(|s| render(&mut second, s)).collect();
     b.reverse();
     for ((spec, x), y) in specs.iter().zip(&a).zip(&b) {
-        assert_eq!(x.entry.sha256.len(), 5, "{:?}", x.entry.sha256);
+        // Colour, disparity and the spec, and the four maps of both views.
+        assert_eq!(x.entry.sha256.len(), 13, "{:?}", x.entry.sha256);
         for (file, hash) in &x.entry.sha256 {
             if y.entry.sha256.get(file) != Some(hash) {
                 let worst = x

@@ -230,3 +230,23 @@ fn added_keys_are_checked_and_named() {
     .unwrap();
     assert_ne!(set.fingerprint(), Recipe::builtin_default().fingerprint());
 }
+
+#[test]
+fn outputs_name_each_map_at_most_once() {
+    let with =
+        |line: &str| default_text().replacen("[render]\n", &format!("[render]\n{line}\n"), 1);
+    let r = Recipe::from_toml_str(&with("outputs = [\"semantic\", \"depth\"]"), "x.toml").unwrap();
+    assert_eq!(
+        r.render.outputs,
+        vec![crate::OutputMap::Semantic, crate::OutputMap::Depth]
+    );
+    let e = parse_error(&with("outputs = [\"depth\", \"normals\", \"depth\"]"));
+    assert!(
+        e.contains("render.outputs")
+            && e.contains("at most once")
+            && e.contains("[depth, normals, depth]"),
+        "{e}"
+    );
+    let e = parse_error(&with("outputs = [\"albedo\"]"));
+    assert!(e.contains("albedo") && e.contains("`depth`"), "{e}");
+}

@@ -105,6 +105,25 @@ fn render_rows(prefix: &str, x: &RenderRecipe) -> Vec<Check<'static>> {
         Check::new(key("denoise_passes"), Rule::AnyValue).with_default(),
         Check::new(key("denoise_quality"), Rule::AnyValue).with_default(),
         Check::new(key("light_tree"), Rule::AnyValue).with_default(),
+        Check::new(
+            key("outputs"),
+            Rule::Holds {
+                holds: x
+                    .outputs
+                    .iter()
+                    .enumerate()
+                    .all(|(i, o)| !x.outputs[..i].contains(o)),
+                need: format!(
+                    "need each of depth, normals, instance, semantic at most once, got [{}]",
+                    x.outputs
+                        .iter()
+                        .map(|o| o.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            },
+        )
+        .with_default(),
     ]
 }
 
