@@ -12,6 +12,12 @@ arrays the header points at (byte offsets from the end of the header):
   triangles          uint32  (m, 3)   vertex indices
   triangle_material  uint32  (m,)     index into the object's `materials`
   uv                 float64 (m, 3, 2), only when one of the object's materials has a cutout
+  normals            float64 (m, 3, 3) world-space unit normal at each triangle corner, the one
+                     Cycles interpolates on a smooth-shaded triangle
+  triangle_smooth    uint32  (m,)     1 where Cycles shades the triangle smooth (interpolated
+                     corner normals), 0 where it uses the triangle's own geometric normal
+Each object also says whether its transform mirrors (`negative_scale`): Cycles turns a mirrored
+object's geometric normal round so it stays on the side of the shading normals.
 """
 
 import json
@@ -24,7 +30,8 @@ import numpy as np
 import materials
 
 MAGIC = b"STGEOM01"
-FORMAT_VERSION = 1
+# 2: corner normals and smooth flags per triangle (the audit of normal maps).
+FORMAT_VERSION = 2
 FILE_NAME = "geometry.bin"
 
 
@@ -73,6 +80,69 @@ def _corner_uvs(me):
     return uv.reshape(-1, 2)[loops].reshape(k, 3, 2).astype(np.float64)
 
 
+def _bools(me, name, domain_size):
+    """A boolean attribute as an array (all False when the mesh has none)."""
+    attr = me.attributes.get(name)
+    out = np.zeros(domain_size, dtype=bool)
+    if attr is not None and attr.data_type == "BOOLEAN":
+        attr.data.foreach_get("value", out)
+    return out
+
+
+def _cycles_shading(me):
+    """How Cycles 4.x shades the triangles (intern/cycles/blender/mesh.cc, create_mesh): the domain
+    is `Mesh::normals_domain(support_sharp_face=true)`, which the Python property does not give
+    (it answers for support_sharp_face=false). Returns (smooth per triangle, corner normals in
+    object space per triangle corner, (m, 3, 3)).
+
+    - custom normals, or some but not all edges sharp: face-corner domain. Cycles splits the
+      mesh along the corner normals and shades every triangle smooth with them.
+    - every face sharp, or every edge sharp: face domain. Every triangle flat.
+    - otherwise (the usual case, sharp faces mixed with smooth ones allowed): point domain. Smooth
+      faces interpolate the vertex normals, sharp ones are flat."""
+    k = len(me.loop_triangles)
+    loops = np.empty(k * 3, dtype=np.int32)
+    me.loop_triangles.foreach_get("loops", loops)
+    verts = np.empty(k * 3, dtype=np.int32)
+    me.loop_triangles.foreach_get("vertices", verts)
+    tri_smooth = np.empty(k, dtype=bool)
+    me.loop_triangles.foreach_get("use_smooth", tri_smooth)
+    sharp_face = _bools(me, "sharp_face", len(me.polygons))
+    sharp_edge = _bools(me, "sharp_edge", len(me.edges))
+    if me.has_custom_normals:
+        domain = me.normals_domain
+    elif len(me.polygons) and sharp_face.all():
+        domain = "FACE"
+    elif len(me.edges) and sharp_edge.all():
+        domain = "FACE"
+    elif not sharp_edge.any():
+        domain = "POINT"
+    else:
+        domain = "CORNER"
+    if domain == "CORNER":
+        normals = np.empty(len(me.corner_normals) * 3, dtype=np.float32)
+        me.corner_normals.foreach_get("vector", normals)
+        corner = normals.reshape(-1, 3)[loops]
+        smooth = np.ones(k, dtype=bool)
+    else:
+        normals = np.empty(len(me.vertex_normals) * 3, dtype=np.float32)
+        me.vertex_normals.foreach_get("vector", normals)
+        corner = normals.reshape(-1, 3)[verts]
+        smooth = tri_smooth if domain == "POINT" else np.zeros(k, dtype=bool)
+    return smooth, corner.astype(np.float64).reshape(k, 3, 3)
+
+
+def _world_normals(corner, m):
+    """Object-space normals to world space by the normal matrix (the inverse transpose of the
+    3x3 part), normalised as Cycles does when it applies an object's transform to its mesh."""
+    k = corner.shape[0]
+    # Row vectors: n @ (M^-T)^T = n @ M^-1.
+    world = corner.reshape(-1, 3) @ np.linalg.inv(m[:3, :3])
+    length = np.linalg.norm(world, axis=1, keepdims=True)
+    world = np.where(length > 0, world / np.where(length > 0, length, 1), 0)
+    return world.reshape(k, 3, 3)
+
+
 def _object(ob, depsgraph, payload):
     ob_eval = ob.evaluated_get(depsgraph)
     me = ob_eval.to_mesh()
@@ -83,6 +153,7 @@ def _object(ob, depsgraph, payload):
         m = np.array(ob_eval.matrix_world, dtype=np.float64)
         world = co.reshape(n, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
         tris, mats = _triangles(me)
+        smooth, corner = _cycles_shading(me)
         slots = [s.material for s in ob_eval.material_slots] or [None]
         mat_info = [{"name": s.name if s is not None else None, "cutout": _cutout(s)} for s in slots]
         entry = {
@@ -94,6 +165,9 @@ def _object(ob, depsgraph, payload):
             "triangles": payload.add(tris, "u4"),
             "triangle_material": payload.add(np.clip(mats, 0, len(slots) - 1), "u4"),
             "uv": None,
+            "normals": payload.add(_world_normals(corner, m), "f8"),
+            "triangle_smooth": payload.add(smooth, "u4"),
+            "negative_scale": bool(np.linalg.det(m[:3, :3]) < 0),
         }
         if any(info["cutout"] is not None for info in mat_info):
             entry["uv"] = payload.add(_corner_uvs(me), "f8")

@@ -1,10 +1,14 @@
 //! What `audit.json` holds, the bars of `--check`, and the terminal summary.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
+use stereo_io::MapKind;
 
-use super::tally::{PixelIssue, Tally};
+use super::tally::{DEPTH_RELATIVE, MapIssue, MapTally, NORMAL_DEGREES, PixelIssue, Tally};
 
-/// The bars `stereogen audit --check` applies (to every category and to the whole audit).
+/// The bars `stereogen audit --check` applies (to every sample, every category and the whole
+/// audit). The map bars apply where a dataset has that map.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Bars {
     /// Least share of non-silhouette pixels within 0.01 px of ray casting.
@@ -13,6 +17,22 @@ pub struct Bars {
     pub max_flying: u64,
     /// Most files whose checksum differs from the manifest.
     pub max_checksum_mismatches: u64,
+    /// Least share of checked depth pixels within 1e-4 relative of ray casting.
+    #[serde(default = "default_map_share")]
+    pub min_depth_share: f64,
+    /// Least share of checked normal pixels within 0.5° of ray casting.
+    #[serde(default = "default_map_share")]
+    pub min_normals_share: f64,
+    /// Least share of checked instance pixels with the hit object's id.
+    #[serde(default = "default_map_share")]
+    pub min_instance_share: f64,
+    /// Least share of checked semantic pixels with the hit object's class.
+    #[serde(default = "default_map_share")]
+    pub min_semantic_share: f64,
+}
+
+fn default_map_share() -> f64 {
+    0.9999
 }
 
 impl Default for Bars {
@@ -21,8 +41,49 @@ impl Default for Bars {
             min_share_within_0_01: 0.9999,
             max_flying: 0,
             max_checksum_mismatches: 0,
+            min_depth_share: default_map_share(),
+            min_normals_share: default_map_share(),
+            min_instance_share: default_map_share(),
+            min_semantic_share: default_map_share(),
         }
     }
+}
+
+impl Bars {
+    /// The bar of map `kind`.
+    pub fn map_share(&self, kind: MapKind) -> f64 {
+        match kind {
+            MapKind::Depth => self.min_depth_share,
+            MapKind::Normals => self.min_normals_share,
+            MapKind::Instance => self.min_instance_share,
+            MapKind::Semantic => self.min_semantic_share,
+        }
+    }
+}
+
+/// What "in bounds" means for map `kind`, for people.
+pub fn map_bound(kind: MapKind) -> String {
+    match kind {
+        MapKind::Depth => format!("within {DEPTH_RELATIVE:e} relative"),
+        MapKind::Normals => format!("within {NORMAL_DEGREES}°"),
+        MapKind::Instance => "the hit object's id".to_string(),
+        MapKind::Semantic => "the hit object's class".to_string(),
+    }
+}
+
+/// Whether `share` (`None`: nothing checked) meets the bar of `kind`.
+fn map_passes(bars: &Bars, kind: MapKind, share: Option<f64>) -> bool {
+    share.is_none_or(|s| s >= bars.map_share(kind))
+}
+
+/// One map over a group of samples.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MapGroup {
+    #[serde(flatten)]
+    pub tally: MapTally,
+    /// Share of checked pixels within bounds.
+    pub share_in_bounds: Option<f64>,
+    pub pass: bool,
 }
 
 /// One audited sample.
@@ -43,6 +104,12 @@ pub struct SampleAudit {
     pub triangles: usize,
     /// Seconds of ray casting and comparison (Blender's time not included).
     pub seconds: f64,
+    /// The maps beside the disparity (by [`MapKind::name`]), where the sample has them.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub maps: BTreeMap<String, MapTally>,
+    /// The worst pixels of each map.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub map_worst: Vec<MapIssue>,
     pub pass: bool,
 }
 
@@ -59,6 +126,9 @@ pub struct GroupAudit {
     pub checksum_mismatches: u64,
     /// Samples that could not be audited.
     pub problems: u64,
+    /// The maps beside the disparity (by [`MapKind::name`]), where the samples have them.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub maps: BTreeMap<String, MapGroup>,
     pub pass: bool,
 }
 
@@ -81,6 +151,9 @@ pub struct AuditReport {
     pub overall: GroupAudit,
     /// The worst pixels over all samples.
     pub worst: Vec<PixelIssue>,
+    /// The worst pixels of each map beside the disparity over all samples.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub map_worst: Vec<MapIssue>,
     pub samples: Vec<SampleAudit>,
     /// Wall seconds of the whole audit, and of ray casting and comparison alone.
     pub seconds: f64,
@@ -109,11 +182,30 @@ impl GroupAudit {
             .sum();
         let problems = samples.iter().filter(|s| !s.problems.is_empty()).count() as u64;
         let share = tally.share_within_0_01();
+        let mut maps: BTreeMap<String, MapGroup> = BTreeMap::new();
+        for kind in MapKind::ALL {
+            let mut t: Option<MapTally> = None;
+            for m in samples.iter().filter_map(|s| s.maps.get(kind.name())) {
+                t.get_or_insert_with(MapTally::default).merge(m);
+            }
+            if let Some(tally) = t {
+                let share_in_bounds = tally.share_in_bounds();
+                maps.insert(
+                    kind.name().to_string(),
+                    MapGroup {
+                        tally,
+                        share_in_bounds,
+                        pass: map_passes(bars, kind, share_in_bounds),
+                    },
+                );
+            }
+        }
         let pass = !samples.is_empty()
             && share.is_none_or(|s| s >= bars.min_share_within_0_01)
             && tally.flying <= bars.max_flying
             && checksum_mismatches <= bars.max_checksum_mismatches
-            && problems == 0;
+            && problems == 0
+            && maps.values().all(|m| m.pass);
         Self {
             name: name.to_string(),
             samples: samples.len(),
@@ -124,8 +216,43 @@ impl GroupAudit {
             tally,
             checksum_mismatches,
             problems,
+            maps,
             pass,
         }
+    }
+
+    /// One line per map, for the terminal (none without maps).
+    pub fn map_lines(&self, name_width: usize) -> Vec<String> {
+        MapKind::ALL
+            .into_iter()
+            .filter_map(|kind| Some((kind, self.maps.get(kind.name())?)))
+            .map(|(kind, m)| {
+                let t = &m.tally;
+                let max = match kind {
+                    MapKind::Depth => format!("  max {:.2e} relative", t.max_error),
+                    MapKind::Normals => format!("  max {:.3}°", t.max_error),
+                    _ => String::new(),
+                };
+                let crease = if kind == MapKind::Normals {
+                    format!(", {} checked on creases", t.crease)
+                } else {
+                    String::new()
+                };
+                format!(
+                    "{} {:<name_width$} {:<8} {:>10} px  {} {:>9} of {} checked ({} validity mismatches){max}  silhouette {} ({} disagree){crease}",
+                    if m.pass { "OK  " } else { "FAIL" },
+                    self.name,
+                    kind.name(),
+                    t.pixels,
+                    map_bound(kind),
+                    pct(m.share_in_bounds),
+                    t.checked,
+                    t.validity_mismatch,
+                    t.silhouette,
+                    t.edge_disagree
+                )
+            })
+            .collect()
     }
 
     /// One line for the terminal.
@@ -191,6 +318,32 @@ impl SampleAudit {
             });
             r.push(format!("{} flying pixel(s){at}", t.flying));
         }
+        for kind in MapKind::ALL {
+            let Some(t) = self.maps.get(kind.name()) else {
+                continue;
+            };
+            if map_passes(bars, kind, t.share_in_bounds()) {
+                continue;
+            }
+            let at = self
+                .map_worst
+                .iter()
+                .find(|w| w.map == kind.name() && w.out_of_bounds)
+                .map_or(String::new(), |w| {
+                    format!(
+                        ", worst {:.3e} at {} ({}, {}): {:?} where ray casting gives {:?}",
+                        w.error, w.view, w.x, w.y, w.rendered, w.expected
+                    )
+                });
+            r.push(format!(
+                "{}: {} of {} checked pixels out of bounds (not {}; {} validity mismatches){at}",
+                kind.name(),
+                t.checked - t.in_bounds,
+                t.checked,
+                map_bound(kind),
+                t.validity_mismatch
+            ));
+        }
         for f in &self.checksum_mismatches {
             r.push(format!(
                 "{f} changed since the manifest was written (SHA-256 differs)"
@@ -231,9 +384,18 @@ pub fn summary_lines(report: &AuditReport) -> Vec<String> {
     }
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
+    for g in report.categories.iter().chain([&report.overall]) {
+        lines.extend(g.map_lines(w));
+    }
     lines.extend(report.curation.iter().cloned());
     for p in &report.problems {
         lines.push(format!("ERROR {p}"));
+    }
+    for w in report.map_worst.iter().filter(|w| w.out_of_bounds).take(4) {
+        lines.push(format!(
+            "worst {}: {:.3e} in sample {} ({}), {} view, pixel ({}, {}): {:?} where ray casting gives {:?}",
+            w.map, w.error, w.sample, w.category, w.view, w.x, w.y, w.rendered, w.expected
+        ));
     }
     for w in report.worst.iter().take(3) {
         lines.push(format!(
@@ -266,12 +428,25 @@ pub fn summary_lines(report: &AuditReport) -> Vec<String> {
         ));
     }
     let b = &report.bars;
+    let maps: Vec<String> = MapKind::ALL
+        .into_iter()
+        .filter(|k| report.overall.maps.contains_key(k.name()))
+        .map(|k| {
+            format!(
+                ", >= {}% of checked {} pixels {}",
+                100.0 * b.map_share(k),
+                k.name(),
+                map_bound(k)
+            )
+        })
+        .collect();
     lines.push(format!(
-        "verdict: {} (bars: >= {}% of non-silhouette pixels within 0.01 px, <= {} flying pixels, <= {} checksum mismatches, every sample audited)",
+        "verdict: {} (bars: >= {}% of non-silhouette pixels within 0.01 px, <= {} flying pixels, <= {} checksum mismatches{}, every sample audited)",
         if report.pass { "PASS" } else { "FAIL" },
         100.0 * b.min_share_within_0_01,
         b.max_flying,
-        b.max_checksum_mismatches
+        b.max_checksum_mismatches,
+        maps.concat()
     ));
     lines
 }

@@ -1,12 +1,14 @@
 //! One sample's disparity maps against ray casting: every audited pixel is a silhouette pixel
 //! (counted apart) or an interior one (compared within 0.01 and 0.5 px), may be a flying pixel,
-//! and left pixels are checked against the right map (left–right consistency).
+//! and left pixels are checked against the right map (left–right consistency). The same rays
+//! check the sample's other maps ([`super::map_check`]).
 
 use rayon::prelude::*;
 use stereo_io::DisparityMap;
 
+use super::map_check::{MapTallies, PixelRays, SampleMaps, WORST_PER_MAP, merge_tallies};
 use super::raycast::{Hit, RayScene, visible_from};
-use super::tally::{IssueKind, PixelIssue, TIGHT_PX, Tally, keep_worst};
+use super::tally::{IssueKind, MapIssue, PixelIssue, TIGHT_PX, Tally, keep_worst, keep_worst_maps};
 use crate::plan::StereoRig;
 use crate::plan::rig::View;
 
@@ -83,6 +85,8 @@ impl Centres {
 struct Outcome {
     tally: Tally,
     issue: Option<PixelIssue>,
+    maps: MapTallies,
+    map_issues: Vec<MapIssue>,
 }
 
 /// A sample's two maps and the scene, ready to audit pixels.
@@ -93,13 +97,47 @@ pub struct SampleCheck<'a> {
     pub scene: &'a RayScene,
     pub left: &'a DisparityMap,
     pub right: &'a DisparityMap,
+    /// The sample's other maps, where it has them.
+    pub maps: Option<&'a SampleMaps>,
 }
 
-/// Tally and worst pixels of one sample.
+/// Tally and worst pixels of one sample, of the disparity and of the other maps.
 #[derive(Debug, Clone, Default)]
 pub struct SampleOutcome {
     pub tally: Tally,
     pub worst: Vec<PixelIssue>,
+    pub maps: MapTallies,
+    pub map_worst: Vec<MapIssue>,
+}
+
+impl SampleOutcome {
+    fn add(mut self, o: Outcome) -> Self {
+        self.tally.merge(&o.tally);
+        self.worst.extend(o.issue);
+        merge_tallies(&mut self.maps, &o.maps);
+        self.map_worst.extend(o.map_issues);
+        self.trim(4);
+        self
+    }
+
+    fn merge(mut self, o: SampleOutcome) -> Self {
+        self.tally.merge(&o.tally);
+        self.worst.extend(o.worst);
+        merge_tallies(&mut self.maps, &o.maps);
+        self.map_worst.extend(o.map_worst);
+        self.trim(4);
+        self
+    }
+
+    /// Keeps the worst lists short once they hold `slack` times what a sample keeps.
+    fn trim(&mut self, slack: usize) {
+        if self.worst.len() > slack * WORST_PER_SAMPLE {
+            keep_worst(&mut self.worst, WORST_PER_SAMPLE);
+        }
+        if self.map_worst.len() > slack * 4 * WORST_PER_MAP {
+            keep_worst_maps(&mut self.map_worst, WORST_PER_MAP);
+        }
+    }
 }
 
 fn rendered(map: &DisparityMap, x: usize, y: usize) -> Option<f32> {
@@ -147,7 +185,7 @@ impl SampleCheck<'_> {
             (View::Left, self.left, &left),
             (View::Right, self.right, &right),
         ];
-        let (tally, mut worst) = pixels
+        let mut outcome = pixels
             .par_iter()
             .flat_map_iter(|&i| {
                 views
@@ -155,27 +193,10 @@ impl SampleCheck<'_> {
                     .map(move |&(view, map, centres)| (i, view, map, centres))
             })
             .map(|(i, view, map, centres)| self.pixel(view, map, centres, &right, i % w, i / w))
-            .fold(
-                || (Tally::default(), Vec::new()),
-                |(mut t, mut worst): (Tally, Vec<PixelIssue>), o| {
-                    t.merge(&o.tally);
-                    worst.extend(o.issue);
-                    if worst.len() > 4 * WORST_PER_SAMPLE {
-                        keep_worst(&mut worst, WORST_PER_SAMPLE);
-                    }
-                    (t, worst)
-                },
-            )
-            .reduce(
-                || (Tally::default(), Vec::new()),
-                |(mut a, mut wa), (b, wb)| {
-                    a.merge(&b);
-                    wa.extend(wb);
-                    (a, wa)
-                },
-            );
-        keep_worst(&mut worst, WORST_PER_SAMPLE);
-        SampleOutcome { tally, worst }
+            .fold(SampleOutcome::default, SampleOutcome::add)
+            .reduce(SampleOutcome::default, SampleOutcome::merge);
+        outcome.trim(1);
+        outcome
     }
 
     /// One pixel of one view.
@@ -192,8 +213,8 @@ impl SampleCheck<'_> {
         let (u, v) = (x as f64 + 0.5, y as f64 + 0.5);
         let centre = centres.at(x, y);
         let o = SILHOUETTE_OFFSET_PX;
-        let around = [(-o, 0.0), (o, 0.0), (0.0, -o), (0.0, o)]
-            .map(|(du, dv)| cam.hit(self.scene, view, u + du, v + dv));
+        let offsets = [(-o, 0.0), (o, 0.0), (0.0, -o), (0.0, o)];
+        let around = offsets.map(|(du, dv)| cam.hit(self.scene, view, u + du, v + dv));
         let value = rendered(map, x, y);
         let expected = cam.disparity(centre);
         let mut out = Outcome::default();
@@ -214,6 +235,22 @@ impl SampleCheck<'_> {
             (Some(d), Some(e)) => (d - e).abs() / o > GRAZING_GRADIENT,
             _ => false,
         });
+        if let Some(maps) = self.maps {
+            let rays = PixelRays {
+                view,
+                x,
+                y,
+                dirs: std::array::from_fn(|k| {
+                    let (du, dv) = if k == 0 { (0.0, 0.0) } else { offsets[k - 1] };
+                    cam.rig.ray_direction(u + du, v + dv)
+                }),
+                hits: [centre, around[0], around[1], around[2], around[3]],
+                steep,
+                sample: self.id,
+                category: self.category,
+            };
+            maps.check(self.scene, &rays, &mut out.maps, &mut out.map_issues);
+        }
         let silhouette = steep
             || around
                 .iter()

@@ -1,17 +1,18 @@
 //! Reads the geometry file the worker writes for the audit (`blender_scripts/export_geometry.py`
 //! describes the layout) into a [`RayScene`], keeping what the file says about each object and
-//! the cameras Blender built.
+//! the cameras Blender built. Objects carry the names the SceneSpec gave them (the worker names
+//! each Blender object after its spec entry), which is how the audit finds a hit's instance id.
 
 use std::path::Path;
 
 use anyhow::{Context, bail};
 use serde::Deserialize;
 
-use super::raycast::{CutoutUv, NO_CUTOUT, RayScene, Triangle, UvDisc};
+use super::raycast::{CutoutUv, NO_CUTOUT, RayScene, ShadingNormals, Triangle, UvDisc};
 
 const MAGIC: &[u8; 8] = b"STGEOM01";
-/// The format version of `export_geometry.py` this reader understands.
-pub const FORMAT_VERSION: u32 = 1;
+/// The format version of `export_geometry.py` this reader understands (2: shading normals).
+pub const FORMAT_VERSION: u32 = 2;
 
 /// Where one array lies in the payload.
 #[derive(Debug, Clone, Deserialize)]
@@ -50,6 +51,12 @@ struct ObjectHeader {
     triangles: ArrayRef,
     triangle_material: ArrayRef,
     uv: Option<ArrayRef>,
+    /// World-space unit normal at each triangle corner, (m, 3, 3).
+    normals: ArrayRef,
+    /// 1 where Cycles shades the triangle smooth, (m,).
+    triangle_smooth: ArrayRef,
+    /// The object's transform mirrors.
+    negative_scale: bool,
 }
 
 /// A camera as Blender built it (for a consistency check with the spec's rig).
@@ -149,14 +156,61 @@ fn split(bytes: &[u8]) -> anyhow::Result<(Header, &[u8])> {
     Ok((header, &bytes[16 + len..]))
 }
 
-/// Appends the triangles of one object (index `object`) to `tris` and its cut-outs to `cutouts`.
+/// The triangles of a scene as they accumulate, with their cut-outs and shading normals.
+#[derive(Default)]
+struct Collected {
+    tris: Vec<Triangle>,
+    cutouts: Vec<CutoutUv>,
+    shading: Vec<ShadingNormals>,
+}
+
+/// The shading normals of one object's triangles.
+fn shading(o: &ObjectHeader, payload: &[u8]) -> anyhow::Result<Vec<ShadingNormals>> {
+    let name = &o.name;
+    let normals = values::<9, f64>(
+        payload,
+        &o.normals,
+        o.triangle_count,
+        f64_le,
+        &format!("{name}: normals"),
+    )?;
+    let smooth = values::<1, u32>(
+        payload,
+        &o.triangle_smooth,
+        o.triangle_count,
+        u32_le,
+        &format!("{name}: smooth flags"),
+    )?;
+    normals
+        .iter()
+        .zip(&smooth)
+        .enumerate()
+        .map(|(k, (n, s))| {
+            let corners = [[n[0], n[1], n[2]], [n[3], n[4], n[5]], [n[6], n[7], n[8]]];
+            if s[0] == 1 && corners.iter().flatten().any(|x| !x.is_finite()) {
+                bail!("{name}: triangle {k} has a corner normal that is not finite");
+            }
+            Ok(ShadingNormals {
+                corners,
+                smooth: s[0] == 1,
+                mirrored: o.negative_scale,
+            })
+        })
+        .collect()
+}
+
+/// Appends the triangles of one object (index `object`) to `out`.
 fn add_object(
     o: &ObjectHeader,
     object: usize,
     payload: &[u8],
-    tris: &mut Vec<Triangle>,
-    cutouts: &mut Vec<CutoutUv>,
+    out: &mut Collected,
 ) -> anyhow::Result<()> {
+    let Collected {
+        tris,
+        cutouts,
+        shading: normals,
+    } = out;
     let name = &o.name;
     let verts = values::<3, f64>(
         payload,
@@ -230,6 +284,7 @@ fn add_object(
             cutout,
         });
     }
+    normals.extend(shading(o, payload)?);
     Ok(())
 }
 
@@ -241,9 +296,9 @@ pub fn read_geometry(path: &Path) -> anyhow::Result<SceneGeometry> {
 
 fn parse(bytes: &[u8]) -> anyhow::Result<SceneGeometry> {
     let (header, payload) = split(bytes)?;
-    let (mut tris, mut cutouts) = (Vec::new(), Vec::new());
+    let mut out = Collected::default();
     for (i, o) in header.objects.iter().enumerate() {
-        add_object(o, i, payload, &mut tris, &mut cutouts)?;
+        add_object(o, i, payload, &mut out)?;
     }
     let objects = header
         .objects
@@ -258,7 +313,7 @@ fn parse(bytes: &[u8]) -> anyhow::Result<SceneGeometry> {
         blender: header.blender,
         cameras: header.cameras,
         objects,
-        scene: RayScene::new(tris, cutouts),
+        scene: RayScene::new(out.tris, out.cutouts).with_shading(out.shading),
     })
 }
 
@@ -296,13 +351,30 @@ mod tests {
         .iter()
         .flat_map(|x| x.to_le_bytes())
         .collect();
+        // The first triangle smooth, its corner normals leaning out of the quad's plane; the
+        // second flat (its normals are not used).
+        let normals: Vec<u8> = [
+            [0.6, 0.0, 0.8],
+            [0.0, 0.6, 0.8],
+            [-0.6, 0.0, 0.8],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, 1.0f64],
+        ]
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+        let smooth: Vec<u8> = [1u32, 0].iter().flat_map(|x| x.to_le_bytes()).collect();
         let (v, t, m, u) = (put(verts), put(tris), put(mats), put(uv));
+        let (n, s) = (put(normals), put(smooth));
         let cam = serde_json::json!({"matrix_world": [[1.0,0.0,0.0,-0.05],[0.0,1.0,0.0,0.0],[0.0,0.0,1.0,0.0],[0.0,0.0,0.0,1.0]],
             "lens_mm": 35.0, "sensor_width_mm": 36.0, "sensor_fit": "HORIZONTAL", "shift_x": 0.0, "shift_y": 0.0, "clip_start": 0.01, "clip_end": 100.0});
-        let header = serde_json::json!({"format_version": 1, "blender": "4.5.1", "cameras": {"left": cam, "right": cam},
+        let header = serde_json::json!({"format_version": 2, "blender": "4.5.1", "cameras": {"left": cam, "right": cam},
             "objects": [{"name": "leaf", "vertex_count": 4, "triangle_count": 2,
                 "materials": [{"name": "leaf_mat", "cutout": {"kind": "uv_disc", "centre": [0.5, 0.5], "radius": 0.5}}],
-                "vertices": v, "triangles": t, "triangle_material": m, "uv": u}]});
+                "vertices": v, "triangles": t, "triangle_material": m, "uv": u,
+                "normals": n, "triangle_smooth": s, "negative_scale": false}]});
         let head = serde_json::to_vec(&header).unwrap();
         let mut file = MAGIC.to_vec();
         file.extend((head.len() as u64).to_le_bytes());
@@ -329,6 +401,33 @@ mod tests {
                 .first_hit([0.0; 3], [0.45, 0.45, -1.0], 1e-9, f64::INFINITY)
                 .is_none()
         );
+    }
+
+    #[test]
+    fn shading_normals_interpolate_smooth_triangles_and_face_the_ray() {
+        let g = parse(&leaf_file()).unwrap();
+        let normal = |origin: [f64; 3], dir: [f64; 3]| {
+            let hit = g.scene.first_hit(origin, dir, 1e-9, f64::INFINITY).unwrap();
+            g.scene.shading_normal(&hit, dir)
+        };
+        let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|i| (a[i] - b[i]).abs() < 1e-12);
+        // (0.3, -0.3) on the smooth triangle: barycentric (0.35, 0.3, 0.35) of its corners.
+        let len = (0.18f64 * 0.18 + 0.8 * 0.8).sqrt();
+        let smooth = [0.0, 0.18 / len, 0.8 / len];
+        let n = normal([0.0; 3], [0.15, -0.15, -1.0]);
+        assert!(close(n, smooth), "{n:?}");
+        // From behind, both the shading and the geometric normal turn round to face the ray.
+        let n = normal([0.3, -0.3, -4.0], [0.0, 0.0, 1.0]);
+        assert!(close(n, smooth.map(|c| -c)), "{n:?}");
+        // (-0.3, 0.3) on the flat triangle: its own geometric normal.
+        assert!(close(
+            normal([0.0; 3], [-0.15, 0.15, -1.0]),
+            [0.0, 0.0, 1.0]
+        ));
+        assert!(close(
+            normal([-0.3, 0.3, -4.0], [0.0, 0.0, 1.0]),
+            [0.0, 0.0, -1.0]
+        ));
     }
 
     #[test]

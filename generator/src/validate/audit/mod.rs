@@ -4,8 +4,10 @@
 //! the evaluated geometry (modifiers applied, world space, with what decides a hit) instead of
 //! rendering ([`geometry`]); Rust casts its own rays through the pixel centres of both views in
 //! f64 ([`raycast`], over a [`bvh`]), applies the README's ground-truth rules, and compares with
-//! the disparity EXRs ([`compare`]). Cycles' depth pass is never read. Files are also checked
-//! against the manifest's SHA-256. [`audit`] gives an [`AuditReport`], written as `audit.json`.
+//! the disparity EXRs ([`compare`]) and, where a sample has them, with its depth, normal,
+//! instance and semantic maps ([`map_check`]). Cycles' passes are never used as the reference.
+//! Files are also checked against the manifest's SHA-256. [`audit`] gives an [`AuditReport`],
+//! written as `audit.json`.
 //!
 //! Blender exports the next sample while Rust casts rays through the current one.
 
@@ -13,6 +15,7 @@ pub mod audit_report;
 pub mod bvh;
 pub mod compare;
 pub mod geometry;
+pub mod map_check;
 pub mod raycast;
 pub mod select;
 pub mod tally;
@@ -23,14 +26,16 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use rayon::prelude::*;
+use stereo_io::datasets::stereogen::SemanticClass;
 use stereo_io::digest::sha256_file;
 
-pub use audit_report::{AuditReport, Bars, GroupAudit, SampleAudit, summary_lines};
+pub use audit_report::{AuditReport, Bars, GroupAudit, MapGroup, SampleAudit, summary_lines};
 pub use select::{PixelSelection, SampleSelection};
 
 use self::compare::{Camera, SampleCheck};
 use self::geometry::{SceneGeometry, read_geometry};
-use self::tally::{Tally, keep_worst};
+use self::map_check::{SampleMaps, slot};
+use self::tally::{Tally, keep_worst, keep_worst_maps};
 use crate::dataset::{DatasetLayout, ManifestEntry, read_manifest, read_scene_spec};
 use crate::plan::SceneSpec;
 use crate::render::{RenderService, WorkerError, WorkerOptions};
@@ -174,12 +179,34 @@ fn read_map(
     Ok(map)
 }
 
-/// Casts and compares one rebuilt sample (its checksum results already in `audit`).
+/// The class table of the dataset's semantic maps: `dataset.json`'s, or (a dataset without
+/// one) this stereogen's.
+fn class_table(layout: &DatasetLayout) -> Vec<SemanticClass> {
+    let stated = layout
+        .read_info::<serde_json::Value>()
+        .map(|i| i.semantic_classes)
+        .unwrap_or_default();
+    if !stated.is_empty() {
+        return stated;
+    }
+    crate::plan::SEMANTIC_CLASSES
+        .iter()
+        .enumerate()
+        .map(|(i, name)| SemanticClass {
+            id: i as u16 + 1,
+            name: name.to_string(),
+        })
+        .collect()
+}
+
+/// Casts and compares one rebuilt sample (its checksum results already in `audit`); `classes`
+/// is the dataset's semantic class table.
 fn check_sample(
     opts: &AuditOptions,
     layout: &DatasetLayout,
     entry: &ManifestEntry,
     rebuilt: &Rebuilt,
+    classes: &[SemanticClass],
     audit: &mut SampleAudit,
 ) {
     let Rebuilt { spec, geometry } = rebuilt;
@@ -192,6 +219,9 @@ fn check_sample(
         Ok(m) => m,
         Err(e) => return audit.problems.push(e),
     };
+    let names: Vec<&str> = geometry.objects.iter().map(|o| o.name.as_str()).collect();
+    let (other_maps, problems) = SampleMaps::read(layout, entry, spec, &names, classes);
+    audit.problems.extend(problems);
     let check = SampleCheck {
         id: &entry.id,
         category: &entry.category,
@@ -203,6 +233,7 @@ fn check_sample(
         scene: &geometry.scene,
         left: &left,
         right: &right,
+        maps: (!other_maps.is_empty()).then_some(&other_maps),
     };
     let pixels =
         select::choose_pixels(left.width, left.height, opts.pixels, opts.seed, entry.index);
@@ -211,6 +242,14 @@ fn check_sample(
     audit.seconds = t0.elapsed().as_secs_f64();
     audit.tally = outcome.tally;
     audit.worst = outcome.worst;
+    for kind in stereo_io::MapKind::ALL {
+        if other_maps.has(kind) {
+            audit
+                .maps
+                .insert(kind.name().to_string(), outcome.maps[slot(kind)].clone());
+        }
+    }
+    audit.map_worst = outcome.map_worst;
 }
 
 fn empty_audit(entry: &ManifestEntry) -> SampleAudit {
@@ -225,6 +264,8 @@ fn empty_audit(entry: &ManifestEntry) -> SampleAudit {
         objects: 0,
         triangles: 0,
         seconds: 0.0,
+        maps: Default::default(),
+        map_worst: Vec::new(),
         pass: false,
     }
 }
@@ -274,6 +315,7 @@ pub fn audit(
         .map(|&i| verify_checksums(&layout, &entries[i]))
         .collect();
     let cfg = opts.worker_options.resolve(1)?;
+    let classes = class_table(&layout);
 
     let (tx, rx) = mpsc::sync_channel::<(usize, Result<Rebuilt, Result<String, WorkerError>>)>(1);
     let mut samples = Vec::with_capacity(chosen.len());
@@ -298,7 +340,7 @@ pub fn audit(
             let mut audit = empty_audit(entry);
             (audit.checksum_mismatches, audit.problems) = checksums[k].clone();
             match rebuilt {
-                Ok(r) => check_sample(opts, &layout, entry, &r, &mut audit),
+                Ok(r) => check_sample(opts, &layout, entry, &r, &classes, &mut audit),
                 Err(Ok(problem)) => audit.problems.push(problem),
                 Err(Err(fatal)) => {
                     return Err(anyhow::Error::new(fatal)
@@ -359,6 +401,11 @@ fn assemble(
         .flat_map(|s| s.worst.iter().cloned())
         .collect();
     keep_worst(&mut worst, WORST_OVERALL);
+    let mut map_worst: Vec<_> = samples
+        .iter()
+        .flat_map(|s| s.map_worst.iter().cloned())
+        .collect();
+    keep_worst_maps(&mut map_worst, map_check::WORST_PER_MAP);
     let cast_seconds: f64 = samples.iter().map(|s| s.seconds).sum();
     let megapixels = overall.tally.pixels as f64 / 1e6;
     let pass = overall.pass && categories.iter().all(|c| c.pass) && samples.iter().all(|s| s.pass);
@@ -380,6 +427,7 @@ fn assemble(
         categories,
         overall,
         worst,
+        map_worst,
         samples,
         seconds,
         cast_seconds,

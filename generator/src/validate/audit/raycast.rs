@@ -62,19 +62,39 @@ impl CutoutUv {
     }
 }
 
-/// What a ray met: the distance along its direction and the object.
+/// What a ray met: the distance along its direction, the object, the triangle (index into
+/// [`RayScene::triangles`]) and the barycentric coordinates of corners 1 and 2 there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
     pub t: f64,
     pub object: usize,
+    pub triangle: usize,
+    pub bary: [f64; 2],
 }
 
-/// Triangles with their cut-outs and the hierarchy over them.
+/// How Cycles shades one triangle: `smooth` interpolates the world-space unit `corners` normals,
+/// otherwise the triangle's geometric normal is its normal. `mirrored`: the object's transform
+/// mirrors, which turns the winding (and the geometric normal made from it) round.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShadingNormals {
+    pub corners: [V3; 3],
+    pub smooth: bool,
+    pub mirrored: bool,
+}
+
+/// Triangles with their cut-outs and the hierarchy over them, and (from the worker's geometry)
+/// their shading normals, one per triangle; without them every triangle is flat.
 #[derive(Debug, Clone)]
 pub struct RayScene {
     pub triangles: Vec<Triangle>,
     pub cutouts: Vec<CutoutUv>,
+    pub shading: Vec<ShadingNormals>,
     bvh: Bvh,
+}
+
+fn normalise(a: V3) -> Option<V3> {
+    let len = dot(a, a).sqrt();
+    (len > 0.0 && len.is_finite()).then(|| a.map(|c| c / len))
 }
 
 /// Möller–Trumbore, two-sided: (t, b1, b2) of a hit with t in (t_min, t_max).
@@ -115,7 +135,47 @@ impl RayScene {
             bvh: Bvh::build(&boxes),
             triangles,
             cutouts,
+            shading: Vec::new(),
         }
+    }
+
+    /// The scene with shading normals, one per triangle.
+    pub fn with_shading(mut self, shading: Vec<ShadingNormals>) -> Self {
+        assert_eq!(
+            shading.len(),
+            self.triangles.len(),
+            "one shading per triangle"
+        );
+        self.shading = shading;
+        self
+    }
+
+    /// The unit shading normal Cycles records for `hit` of a ray along `dir` (world space): on a
+    /// smooth triangle the corner normals interpolated at the hit and normalised, on a flat one
+    /// the geometric normal; both turned round when the ray meets the triangle's back, which
+    /// Cycles decides by the geometric normal (`shader_setup_from_ray`), so near a smooth
+    /// triangle's silhouette the shading normal may still lean away from the camera.
+    pub fn shading_normal(&self, hit: &Hit, dir: V3) -> V3 {
+        let tri = &self.triangles[hit.triangle];
+        let shading = self.shading.get(hit.triangle);
+        let mut ng = cross(sub(tri.v[1], tri.v[0]), sub(tri.v[2], tri.v[0]));
+        if shading.is_some_and(|s| s.mirrored) {
+            ng = ng.map(|c| -c);
+        }
+        let ng = normalise(ng).unwrap_or([0.0, 0.0, 1.0]);
+        let [b1, b2] = hit.bary;
+        let n = match shading {
+            Some(s) if s.smooth => {
+                let w = [1.0 - b1 - b2, b1, b2];
+                let c = &s.corners;
+                normalise(std::array::from_fn(|i| {
+                    w[0] * c[0][i] + w[1] * c[1][i] + w[2] * c[2][i]
+                }))
+                .unwrap_or(ng)
+            }
+            _ => ng,
+        };
+        if dot(ng, dir) > 0.0 { n.map(|c| -c) } else { n }
     }
 
     /// The first surface along `origin + t·dir` with t in (t_min, t_max), passing cut-outs.
@@ -129,9 +189,17 @@ impl RayScene {
                 }
                 Some(t)
             })
-            .map(|(t, p)| Hit {
-                t,
-                object: self.triangles[p].object,
+            .map(|(t, p)| {
+                // The winner's barycentrics: the same arithmetic as the test that chose it.
+                let (_, b1, b2) =
+                    intersect(&self.triangles[p].v, origin, dir, t_min, f64::INFINITY)
+                        .expect("the nearest triangle is hit");
+                Hit {
+                    t,
+                    object: self.triangles[p].object,
+                    triangle: p,
+                    bary: [b1, b2],
+                }
             })
     }
 }

@@ -162,6 +162,98 @@ pub struct PixelIssue {
     pub error: f64,
 }
 
+/// Relative depth error tolerated: |file − ray cast| ≤ 1e-4 · ray-cast depth.
+pub const DEPTH_RELATIVE: f64 = 1e-4;
+/// Angle (degrees) tolerated between a normal map's normal and ray casting's.
+pub const NORMAL_DEGREES: f64 = 0.5;
+
+/// Counts of one per-pixel map (depth, normals, instance or semantic) over a group of audited
+/// pixels (both views). Errors: relative for depth, degrees for normals, 1 for a wrong id.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MapTally {
+    /// Pixels audited.
+    pub pixels: u64,
+    /// Pixels at a silhouette: rays 0.02 px around the centre meet other objects (or none), or
+    /// (depth and normals) the surface is grazing, as for the disparity. Counted apart.
+    pub silhouette: u64,
+    /// Normals only: checked pixels on one object whose rays around the centre see normals
+    /// more than 0.5° apart (a flat-shaded edge, or a surface curving that fast); they are
+    /// compared with the nearest of those normals.
+    #[serde(default)]
+    pub crease: u64,
+    /// Silhouette pixels whose value matches none of the surfaces the rays around the centre
+    /// meet.
+    pub edge_disagree: u64,
+    /// The other pixels: the ones the bar applies to.
+    pub checked: u64,
+    /// Checked pixels whose validity agrees with ray casting and whose value is within bounds.
+    pub in_bounds: u64,
+    /// Checked pixels with a surface in the map where ray casting sees none, or the reverse.
+    pub validity_mismatch: u64,
+    /// Largest error over the checked pixels of equal validity.
+    pub max_error: f64,
+}
+
+impl MapTally {
+    pub fn merge(&mut self, o: &MapTally) {
+        self.pixels += o.pixels;
+        self.silhouette += o.silhouette;
+        self.crease += o.crease;
+        self.edge_disagree += o.edge_disagree;
+        self.checked += o.checked;
+        self.in_bounds += o.in_bounds;
+        self.validity_mismatch += o.validity_mismatch;
+        self.max_error = self.max_error.max(o.max_error);
+    }
+
+    /// Share of checked pixels within bounds (`None` without checked pixels).
+    pub fn share_in_bounds(&self) -> Option<f64> {
+        share(self.in_bounds, self.checked)
+    }
+}
+
+/// One pixel of a map out of bounds (or the worst of a sound sample), and where it is.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MapIssue {
+    pub map: String,
+    pub sample: String,
+    pub category: String,
+    pub view: String,
+    pub x: usize,
+    pub y: usize,
+    /// The map's value (depth; normal x, y, z; id), empty where the map says no surface.
+    pub rendered: Vec<f64>,
+    /// Ray casting's value at the pixel centre, empty for background.
+    pub expected: Vec<f64>,
+    /// Relative depth error, angle in degrees, 1 for a wrong id or a validity mismatch.
+    pub error: f64,
+    /// Whether the pixel is out of bounds (worst lists also keep the largest sound errors).
+    pub out_of_bounds: bool,
+}
+
+/// Keeps the `n` most telling issues of each map: out of bounds first, then by error.
+pub fn keep_worst_maps(issues: &mut Vec<MapIssue>, n: usize) {
+    issues.sort_by(|a, b| {
+        b.out_of_bounds
+            .cmp(&a.out_of_bounds)
+            .then(b.error.total_cmp(&a.error))
+            .then_with(|| {
+                (&a.map, &a.sample, &a.view, a.y, a.x).cmp(&(&b.map, &b.sample, &b.view, b.y, b.x))
+            })
+    });
+    let mut kept: Vec<(String, usize)> = Vec::new();
+    issues.retain(|i| match kept.iter_mut().find(|(m, _)| *m == i.map) {
+        Some((_, k)) => {
+            *k += 1;
+            *k <= n
+        }
+        None => {
+            kept.push((i.map.clone(), 1));
+            n > 0
+        }
+    });
+}
+
 /// Keeps the `n` largest issues (by error; ties by position so the choice is deterministic).
 pub fn keep_worst(issues: &mut Vec<PixelIssue>, n: usize) {
     issues.sort_by(|a, b| {
