@@ -77,7 +77,56 @@ fn a_rendered_dataset_as_shards_reads_back_as_it_was() {
     // The readers of our folders read the export, from the shards as they are.
     stats_equal_the_source(&ours, &shards, t.path());
     report_from_shards(&ours, &shards);
-    python_reads_the_export(&ours, &shards, t.path());
+    let card = std::fs::read_to_string(shards.join("README.md")).unwrap();
+    assert!(
+        !card.contains("depth_left") && !card.contains("Maps beside"),
+        "no map in the card of an export without maps"
+    );
+    python_reads_the_export(&ours, &shards, t.path(), false);
+}
+
+/// A rendered dataset with every map (`[render] outputs`) exported: the maps travel as members
+/// (`<key>.depth_left.exr`, ...) and read back unchanged through `open_dataset` and the Python
+/// module (which also checks them against the disparity and the instance table), and the
+/// dataset card describes them with the semantic classes.
+#[test]
+fn maps_travel_in_the_shards_and_read_back_unchanged() {
+    use stereogen::plan::OutputMap;
+    let t = tempfile::tempdir().unwrap();
+    let mut recipe = test_support::tiny_recipe("crestereo");
+    recipe.render.outputs = OutputMap::ALL.to_vec();
+    let recipe_path = t.path().join("tiny-maps.toml");
+    std::fs::write(&recipe_path, toml::to_string(&recipe).unwrap()).unwrap();
+    let ours = t.path().join("ours");
+    test_support::run_ok(test_support::generate_cmd(&recipe_path, &ours, 3).args(["--seed", "7"]));
+    let shards = t.path().join("shards");
+    run(&mut export(&ours, &shards, &["--shard-size", "1B"]));
+    let source = open_dataset(&ours, None).unwrap();
+    let read = open_dataset(&shards, None).unwrap();
+    for i in 0..3 {
+        let got = read.sample(i).unwrap();
+        let k = (0..3)
+            .find(|&k| source.id(k) == Some(got.meta.id.as_str()))
+            .expect("a sample of the source");
+        let want = source.sample(k).unwrap();
+        let maps = source.maps(k).unwrap();
+        assert_eq!(maps.kinds(), stereo_io::MapKind::ALL, "{}", want.meta.id);
+        assert_eq!(read.maps(i).unwrap(), maps, "{}", want.meta.id);
+        assert!(!want.meta.instances.is_empty());
+        assert_eq!(got.meta.instances, want.meta.instances);
+        assert_eq!(got.disp_left, want.disp_left);
+    }
+    let card = std::fs::read_to_string(shards.join("README.md")).unwrap();
+    for want in [
+        "| `depth_left.exr` |",
+        "| `normals_right.exr` |",
+        "| `semantic_left.png` |",
+        "## Maps beside the disparity",
+        "| class id | class |",
+    ] {
+        assert!(card.contains(want), "the card lacks {want}:\n{card}");
+    }
+    python_reads_the_export(&ours, &shards, t.path(), true);
 }
 
 /// `stats.json` without what says differently by design (where the dataset is).
@@ -200,12 +249,12 @@ fn report_from_shards(ours: &Path, shards: &Path) {
 
 /// The Python module opens the export as it opens the source (pytest
 /// crates/stereogen-py/pytests/test_webdataset.py, in the venv of tests/integration/io_python.rs).
-fn python_reads_the_export(ours: &Path, shards: &Path, tmp: &Path) {
+fn python_reads_the_export(ours: &Path, shards: &Path, tmp: &Path, maps: bool) {
     use pinned_venv::{ensure_venv, run as run_checked};
     let venv = ensure_venv("venv-test", MATURIN_PINS);
     install_stereogen_module(&venv);
     let fixture = tmp.join("webdataset-fixture.json");
-    let facts = serde_json::json!({"source": ours, "export": shards, "len": 3});
+    let facts = serde_json::json!({"source": ours, "export": shards, "len": 3, "maps": maps});
     std::fs::write(&fixture, facts.to_string()).unwrap();
     let said = run_checked(
         Command::new(venv.join("bin/python"))

@@ -11,6 +11,7 @@ use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyIndexError, PyOSError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
+use stereo_io::datasets::SampleMaps;
 use stereo_io::{
     DatasetFormat, DisparityFormat, DisparityMap, DisparityMeta, StereoDataset, StereoSample,
 };
@@ -67,9 +68,72 @@ fn meta_dict<'py>(py: Python<'py>, s: &StereoSample) -> PyResult<Bound<'py, PyDi
     Ok(d)
 }
 
-fn sample_dict<'py>(py: Python<'py>, s: StereoSample) -> PyResult<Bound<'py, PyDict>> {
+/// JSON text as Python objects (`json.loads`).
+fn from_json<'py>(py: Python<'py>, json: String) -> PyResult<Bound<'py, PyAny>> {
+    py.import("json")?.call_method1("loads", (json,))
+}
+
+/// The maps of a sample as entries of its dict: `depth_<view>` (float32 H×W, metres, 0 = no
+/// surface), `normals_<view>` (float32 H×W×3, camera frame x right, y down, z forward),
+/// `instance_<view>`, `semantic_<view>` (uint16 H×W, 0 = no surface), each where the sample has
+/// it; and `instances`, its instance table (list of dicts), where it has one.
+fn add_maps<'py>(
+    py: Python<'py>,
+    d: &Bound<'py, PyDict>,
+    maps: SampleMaps,
+    s: &StereoSample,
+) -> PyResult<()> {
+    let SampleMaps {
+        depth_left,
+        depth_right,
+        normals_left,
+        normals_right,
+        instance_left,
+        instance_right,
+        semantic_left,
+        semantic_right,
+    } = maps;
+    for (key, m) in [("depth_left", depth_left), ("depth_right", depth_right)] {
+        if let Some(m) = m {
+            d.set_item(key, array_hw(py, m.data, m.height, m.width)?)?;
+        }
+    }
+    for (key, m) in [
+        ("normals_left", normals_left),
+        ("normals_right", normals_right),
+    ] {
+        if let Some(m) = m {
+            let flat: Vec<f32> = m.data.into_iter().flatten().collect();
+            let a = PyArray1::from_vec(py, flat).reshape([m.height, m.width, 3])?;
+            d.set_item(key, a)?;
+        }
+    }
+    for (key, m) in [
+        ("instance_left", instance_left),
+        ("instance_right", instance_right),
+        ("semantic_left", semantic_left),
+        ("semantic_right", semantic_right),
+    ] {
+        if let Some(m) = m {
+            d.set_item(key, array_hw(py, m.data, m.height, m.width)?)?;
+        }
+    }
+    if !s.meta.instances.is_empty() {
+        let json = serde_json::to_string(&s.meta.instances)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        d.set_item("instances", from_json(py, json)?)?;
+    }
+    Ok(())
+}
+
+fn sample_dict<'py>(
+    py: Python<'py>,
+    s: StereoSample,
+    maps: SampleMaps,
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("meta", meta_dict(py, &s)?)?;
+    add_maps(py, &d, maps, &s)?;
     let (h, w) = (s.disp_left.height, s.disp_left.width);
     let valid = s.valid_mask().to_vec();
     d.set_item("valid_left", array_hw(py, valid, h, w)?)?;
@@ -91,7 +155,12 @@ fn sample_dict<'py>(py: Python<'py>, s: StereoSample) -> PyResult<Bound<'py, PyD
 
 /// A stereo dataset: `len(ds)`, `ds[i]` → dict with `left`, `right` (uint8 H×W×3), `disp_left`
 /// (float32 H×W, 0 where invalid), `valid_left` (bool H×W), `disp_right`/`valid_right` (or
-/// None) and `meta` (dict).
+/// None) and `meta` (dict); where the sample has maps beside its disparity, also `depth_left`,
+/// `depth_right` (float32 H×W, metres along the optical axis, 0 = no surface), `normals_left`,
+/// `normals_right` (float32 H×W×3, unit normals in the camera frame: x right, y down, z
+/// forward; 0 = no surface), `instance_left`, ..., `semantic_right` (uint16 H×W ids, 0 = no
+/// surface) and `instances` (the instance table: list of dicts with id, name, role, source,
+/// mesh, material, semantic).
 #[pyclass(name = "Dataset", module = "stereogen", frozen)]
 struct Dataset {
     inner: Box<dyn StereoDataset>,
@@ -112,8 +181,29 @@ impl Dataset {
             )));
         }
         let inner = &self.inner;
-        let sample = py.detach(|| inner.sample(i as usize)).map_err(to_py)?;
-        sample_dict(py, sample)
+        let (sample, maps) = py
+            .detach(|| {
+                Ok::<_, stereo_io::Error>((inner.sample(i as usize)?, inner.maps(i as usize)?))
+            })
+            .map_err(to_py)?;
+        sample_dict(py, sample, maps)
+    }
+
+    /// The classes of the `semantic_*` maps as {id: name} (from the `dataset.json` of ours or
+    /// of its WebDataset export); empty where the dataset has none.
+    #[getter]
+    fn semantic_classes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let layout = stereo_io::DatasetLayout::new(self.inner.root());
+        let d = PyDict::new(py);
+        if layout.info().is_file() {
+            let info = py
+                .detach(|| layout.read_info::<serde_json::Value>())
+                .map_err(to_py)?;
+            for c in info.semantic_classes {
+                d.set_item(c.id, c.name)?;
+            }
+        }
+        Ok(d)
     }
 
     /// The layout name (stereogen, crestereo, sceneflow, middlebury, eth3d, kitti2012, kitti2015, sintel, fallingthings, webdataset).
@@ -261,7 +351,8 @@ fn write_disparity(
 /// Decodes one sample of a WebDataset shard from its members, as the `webdataset` package hands
 /// them over: a dict of member name after the key (`left.png`, `disp_left.exr`, `json`, ...) to
 /// bytes; entries whose name starts with `__` (`__key__`, `__url__`) are ignored, and `json` may
-/// also be an already decoded dict. Returns what `Dataset[i]` returns for that sample, bit for bit.
+/// also be an already decoded dict. Returns what `Dataset[i]` returns for that sample, bit for bit
+/// (its maps, `depth_left` ..., from the members `depth_left.exr` ..., where it has them).
 #[pyfunction]
 #[pyo3(signature = (members, key=None))]
 fn decode_sample<'py>(
@@ -299,10 +390,16 @@ fn decode_sample<'py>(
     }
     let key = key.or(found_key).unwrap_or_default();
     let shard = PathBuf::from(url.unwrap_or_default());
-    let sample = py
-        .detach(|| stereo_io::datasets::webdataset::decode_members(&shard, &key, &list))
+    let (sample, maps) = py
+        .detach(|| {
+            use stereo_io::datasets::webdataset::{decode_member_maps, decode_members};
+            Ok::<_, stereo_io::Error>((
+                decode_members(&shard, &key, &list)?,
+                decode_member_maps(&shard, &key, &list)?,
+            ))
+        })
         .map_err(to_py)?;
-    sample_dict(py, sample)
+    sample_dict(py, sample, maps)
 }
 
 /// decode_disparity(data, with_meta=False) -> (disparity, valid) or (disparity, valid, meta)

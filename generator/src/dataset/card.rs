@@ -20,6 +20,9 @@ use stereogen_assets::objaverse::ObjectRecord;
 use stereogen_assets::pack::{FILES, PACKAGES, PackKind};
 use stereogen_plan::Recipe;
 
+mod maps;
+use maps::{map_member_row, maps_section};
+
 /// What the shards hold, gathered from the export.
 #[derive(Debug, Default)]
 struct Contents {
@@ -83,6 +86,8 @@ struct Info {
     fingerprint: String,
     recipe: Option<Recipe>,
     recipe_name: String,
+    /// The classes of the `semantic_*` maps, where the dataset has them.
+    semantic_classes: Vec<stereo_io::datasets::stereogen::SemanticClass>,
 }
 
 fn read_info(out: &Path) -> Option<Info> {
@@ -96,6 +101,7 @@ fn read_info(out: &Path) -> Option<Info> {
         fingerprint: info.recipe_fingerprint,
         recipe,
         recipe_name,
+        semantic_classes: info.semantic_classes,
     })
 }
 
@@ -301,6 +307,11 @@ fn render(info: Option<&Info>, c: &Contents, licences: &[LicenceUse]) -> String 
     intro(&mut s, &title, info);
     contents_section(&mut s, c);
     members_section(&mut s, &c.members);
+    maps_section(
+        &mut s,
+        &c.members,
+        info.map_or(&[], |i| &i.semantic_classes),
+    );
     load_section(&mut s, c);
     licences_section(&mut s, licences);
     s
@@ -434,7 +445,7 @@ fn members_section(s: &mut String, members: &[String]) {
                 "the scene specification that renders the sample again (`stereogen render --spec`)",
                 "a dict",
             ),
-            _ => ("", ""),
+            m => map_member_row(m),
         };
         let _ = writeln!(s, "| `{m}` | {what} | {hub_gives} |");
     }

@@ -13,6 +13,7 @@ pub mod falling_things;
 pub mod instereo2k;
 pub mod kitti;
 pub mod middlebury;
+mod sample_maps;
 mod scan;
 pub mod sceneflow;
 pub mod sintel;
@@ -30,6 +31,8 @@ use crate::error::{Error, Result};
 use crate::image_io::{RgbImage, read_rgb};
 
 pub use detect::detect_format;
+pub use sample_maps::{MapData, MapFile, SampleMaps, map_member};
+pub use stereogen::InstanceRecord;
 
 /// A dataset layout.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -154,6 +157,13 @@ pub struct SampleMeta {
     pub ndisp: Option<u32>,
     /// Anything else, as text (e.g. our `category`, Middlebury's `doffs`).
     pub extra: BTreeMap<String, String>,
+    /// The files of the maps beside the disparity (depth, normals, instance and semantic ids:
+    /// [`crate::maps`]) where the layout keeps them as files (ours); empty otherwise. A
+    /// WebDataset export holds them as members: [`StereoDataset::maps`] reads them either way.
+    pub maps: Vec<MapFile>,
+    /// The objects the sample's instance maps name (ours: the manifest line's `instances`);
+    /// empty where it has none.
+    pub instances: Vec<InstanceRecord>,
 }
 
 /// One stereo pair with its ground truth, decoded.
@@ -190,6 +200,15 @@ pub trait StereoDataset: Send + Sync {
     fn id(&self, index: usize) -> Option<&str>;
     /// Decodes sample `index`; an index out of range is an error.
     fn sample(&self, index: usize) -> Result<StereoSample>;
+    /// Decodes the maps sample `index` has beside its disparity ([`SampleMaps`]: depth, normals,
+    /// instance and semantic ids of each view, on the disparity's pixel grid); none for a layout
+    /// or sample without them. An index out of range is an error.
+    fn maps(&self, index: usize) -> Result<SampleMaps> {
+        if index >= self.len() {
+            return Err(range_error(self.root(), self.format(), self.len(), index));
+        }
+        Ok(SampleMaps::default())
+    }
 }
 
 /// How a disparity file is decoded.
@@ -330,13 +349,13 @@ fn same_size(path: &Path, what: &str, got: (usize, usize), want: (usize, usize))
 
 /// The error for a sample index past the end of `dataset`.
 pub(crate) fn out_of_range(dataset: &dyn StereoDataset, index: usize) -> Error {
+    range_error(dataset.root(), dataset.format(), dataset.len(), index)
+}
+
+fn range_error(root: &Path, format: DatasetFormat, len: usize, index: usize) -> Error {
     Error::format(
-        dataset.root(),
-        format!(
-            "sample index {index} is out of range: the {} dataset has {} samples",
-            dataset.format(),
-            dataset.len()
-        ),
+        root,
+        format!("sample index {index} is out of range: the {format} dataset has {len} samples"),
     )
 }
 
@@ -424,6 +443,13 @@ impl StereoDataset for FileListDataset {
             valid_left,
             meta: f.meta.clone(),
         })
+    }
+    fn maps(&self, index: usize) -> Result<SampleMaps> {
+        let f = self
+            .samples
+            .get(index)
+            .ok_or_else(|| out_of_range(self, index))?;
+        sample_maps::read_map_files(&f.meta.maps, sample_maps::size_in_extra(&f.meta.extra))
     }
 }
 

@@ -12,6 +12,8 @@ use crate::io_fixtures;
 use crate::pinned_venv;
 use crate::python_script_json;
 use io_fixtures::*;
+use stereo_io::datasets::webdataset::decode_member_maps;
+use stereo_io::datasets::{MapData, map_member};
 
 /// The readers nobody here wrote: the `webdataset` package, Pillow, OpenEXR.
 const PYTHON_PINS: &[&str] = &[
@@ -337,5 +339,158 @@ fn the_webdataset_package_reads_our_shards_as_we_read_the_source() {
             same(&npy(format!("{n}_disp_right.npy")), &disparity(right)),
             "{key}"
         );
+    }
+}
+
+/// Adds every map to each sample of [`our_dataset`] at `root`, as `generate` names them, with an
+/// instance table in each manifest line: depth `f·B/d` where the disparity is valid, unit
+/// normals, instance and class ids that vary per pixel (0 where there is no surface).
+fn add_maps(root: &Path) {
+    let text = fs::read_to_string(root.join("manifest.jsonl")).unwrap();
+    let mut lines = String::new();
+    for line in text.lines() {
+        let mut e: serde_json::Value = serde_json::from_str(line).unwrap();
+        let (category, id) = (e["category"].as_str().unwrap(), e["id"].as_str().unwrap());
+        let k: u16 = id.parse().unwrap();
+        let paths = SamplePaths::with_maps(category, id, &MapKind::ALL);
+        for (view, disp_key) in [("left", "disp_left"), ("right", "disp_right")] {
+            let rel = e["files"][disp_key].as_str().unwrap().to_string();
+            let (d, _) = read_disparity_exr(&root.join(rel)).unwrap();
+            let surface = |i: usize| d.valid[i] && d.data[i] > 0.0;
+            let depth = DepthMap {
+                width: W,
+                height: H,
+                data: (0..W * H)
+                    .map(|i| {
+                        if surface(i) {
+                            (6.4 / f64::from(d.data[i])) as f32
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect(),
+            };
+            let normals = NormalMap {
+                width: W,
+                height: H,
+                data: (0..W * H)
+                    .map(|i| {
+                        let a = i as f32 * 0.3 + f32::from(k);
+                        if surface(i) {
+                            [a.sin() * 0.6, a.cos() * 0.6, -0.8]
+                        } else {
+                            [0.0; 3]
+                        }
+                    })
+                    .collect(),
+            };
+            let ids = |base: u16| IdMap {
+                width: W,
+                height: H,
+                data: (0..W * H)
+                    .map(|i| {
+                        if surface(i) {
+                            base + (i as u16 + k) % 3
+                        } else {
+                            0
+                        }
+                    })
+                    .collect(),
+            };
+            let path = |kind| root.join(paths.map(kind, view).unwrap());
+            write_depth_exr(&path(MapKind::Depth), &depth, view).unwrap();
+            stereo_io::maps::write_normals_exr(&path(MapKind::Normals), &normals, view).unwrap();
+            write_id_png(&path(MapKind::Instance), &ids(1)).unwrap();
+            write_id_png(&path(MapKind::Semantic), &ids(500)).unwrap();
+        }
+        for (key, p) in paths.all().into_iter().skip(5) {
+            e["files"][key] = p.to_string_lossy().into();
+        }
+        e["instances"] = (1..=3)
+            .map(|n| serde_json::json!({"id": n, "name": format!("obj{n}"), "role": "content", "source": "primitive", "material": "textured", "semantic": 499 + n}))
+            .collect();
+        lines += &format!("{e}\n");
+    }
+    fs::write(root.join("manifest.jsonl"), lines).unwrap();
+}
+
+/// The maps a source of ours has travel as members (`<key>.depth_left.exr`, ... the source's
+/// files byte for byte, after the disparities) and read back unchanged: by `open_dataset` of the
+/// export (seeking and streaming), and by the `webdataset` package with OpenEXR and Pillow.
+#[test]
+fn maps_travel_as_members_and_read_back_unchanged() {
+    let venv = pinned_venv::ensure_venv("venv-webdataset", PYTHON_PINS);
+    let t = tempfile::tempdir().unwrap();
+    let (source, out) = (t.path().join("ours"), t.path().join("wds"));
+    our_dataset(&mkdir(&source));
+    add_maps(&source);
+    export(&source, &out, &opts(false)).unwrap();
+    let ours = open_dataset(&source, None).unwrap();
+    let shards = WebDataset::open(&out).unwrap();
+    let members = stereo_io::datasets::webdataset::members::ShardMembers::open(&out).unwrap();
+    let maps: Vec<String> = MapKind::ALL
+        .iter()
+        .flat_map(|&k| ["left", "right"].map(|v| map_member(k, v)))
+        .collect();
+    let mut by_id = std::collections::HashMap::new();
+    for i in 0..IDS {
+        let got = shards.sample(i).unwrap();
+        let k = (0..IDS)
+            .find(|&k| ours.id(k) == Some(got.meta.id.as_str()))
+            .unwrap();
+        by_id.insert(got.meta.id.clone(), k);
+        let want = ours.sample(k).unwrap();
+        assert_eq!((&got.left, &got.disp_left), (&want.left, &want.disp_left));
+        assert_eq!(got.meta.instances, want.meta.instances);
+        assert_eq!(got.meta.instances.len(), 3);
+        // Members in order: images, disparities, the eight maps, SceneSpec, facts.
+        let suffixes: Vec<&str> = members.suffixes(i).collect();
+        let mut order = vec!["left.png", "right.png", "disp_left.exr", "disp_right.exr"];
+        order.extend(maps.iter().map(String::as_str));
+        order.extend(["scene.json", "json"]);
+        assert_eq!(suffixes, order);
+        // The source's files byte for byte.
+        for f in &want.meta.maps {
+            let bytes = members
+                .read(i, &map_member(f.kind, f.view))
+                .unwrap()
+                .unwrap();
+            assert!(bytes == fs::read(&f.path).unwrap(), "{}", f.path.display());
+        }
+        let source_maps = ours.maps(k).unwrap();
+        assert_eq!(source_maps.kinds(), MapKind::ALL);
+        assert_eq!(source_maps.iter().count(), 8);
+        assert_eq!(shards.maps(i).unwrap(), source_maps);
+        // Streamed: the raw members decode to the same maps.
+        let raw = shards.read_raw(i).unwrap();
+        assert_eq!(shards.decode_maps(&raw).unwrap(), source_maps);
+        let streamed =
+            decode_member_maps(Path::new("x.tar"), shards.id(i).unwrap(), &raw.members).unwrap();
+        assert_eq!(streamed, source_maps);
+    }
+    assert!(ours.maps(IDS).is_err() && shards.maps(IDS).is_err());
+
+    let read = t.path().join("read");
+    let keys = python_script_json(&venv, "webdataset_reader.py", &out, &read);
+    let keys = keys.as_array().unwrap();
+    assert_eq!(keys.len(), IDS, "every sample, once");
+    let npy = |name: String| read_npy(&read.join(name)).unwrap().data;
+    for (n, k) in keys.iter().enumerate() {
+        assert_eq!(k["maps"], serde_json::json!(maps), "{k}");
+        let m = ours.maps(by_id[k["id"].as_str().unwrap()]).unwrap();
+        for (kind, view, map) in m.iter() {
+            let want: Vec<f32> = match map {
+                MapData::Depth(d) => d.data,
+                MapData::Normals(nm) => nm.data.into_iter().flatten().collect(),
+                MapData::Ids(ids) => ids.data.into_iter().map(f32::from).collect(),
+            };
+            let got = npy(format!("{n}_{kind}_{view}.npy"));
+            assert!(
+                got.iter()
+                    .map(|v| v.to_bits())
+                    .eq(want.iter().map(|v| v.to_bits())),
+                "{kind} {view} of sample {n}: {got:?} != {want:?}"
+            );
+        }
     }
 }

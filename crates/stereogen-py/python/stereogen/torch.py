@@ -20,7 +20,18 @@ Both yield the same dict per sample:
 ``disp_right``, ``valid_right``
     the same for the right view, with ``right=True`` (a sample without one raises);
 ``id``
-    the sample's name (str).
+    the sample's name (str);
+``depth_left``, ``normals_left``, ``instance_left``, ``semantic_left``
+    the maps a sample has beside its disparity (a dataset of ours made with ``[render] outputs``,
+    or its export), each where the sample has it: depth float32 1 x H x W (metres along the
+    optical axis, 0 = no surface), normals float32 3 x H x W (unit, camera frame: x right, y
+    down, z forward; 0 = no surface), instance and semantic ids int32 1 x H x W (the files' 16-bit
+    values; 0 = no surface). With ``right=True`` also the right view's (``depth_right``, ...).
+    The instance table and the class names are in :mod:`stereogen`'s sample dict
+    (``instances``) and ``stereogen.open_dataset(root).semantic_classes``.
+
+A sample's maps lie on the disparity's pixel grid: a ``transform`` that crops or flips the
+disparity must do the same to every key of :data:`MAP_KEYS` the sample has.
 
 ``transform``, if given, is called on that dict and its result is returned instead.
 """
@@ -47,7 +58,12 @@ except ImportError as e:  # pragma: no cover - exercised by the wheel test witho
 
 import stereogen
 
-__all__ = ["StereoDataset", "StereoWebDataset", "to_tensors"]
+__all__ = ["MAP_KEYS", "StereoDataset", "StereoWebDataset", "to_tensors"]
+
+#: The keys a sample's maps take in :func:`to_tensors`' dict (left view, then right view).
+MAP_KEYS = tuple(
+    f"{kind}_{view}" for view in ("left", "right") for kind in ("depth", "normals", "instance", "semantic")
+)
 
 PathLike = Union[str, os.PathLike]
 
@@ -70,6 +86,16 @@ def to_tensors(sample: dict, right: bool = False) -> dict:
             raise ValueError(f"sample {out['id']} has no right-view disparity (right=True)")
         out["disp_right"] = torch.from_numpy(sample["disp_right"])[None]
         out["valid_right"] = torch.from_numpy(sample["valid_right"])[None]
+    for key in MAP_KEYS:
+        a = sample.get(key)
+        if a is None or (key.endswith("_right") and not right):
+            continue
+        if key.startswith("normals_"):
+            out[key] = image(a)
+        elif key.startswith("depth_"):
+            out[key] = torch.from_numpy(a)[None]
+        else:  # 16-bit ids: int32 holds them on every torch version
+            out[key] = torch.from_numpy(a.astype(np.int32))[None]
     return out
 
 

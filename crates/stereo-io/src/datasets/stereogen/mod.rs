@@ -383,7 +383,11 @@ pub(crate) fn scan(root: &Path) -> Result<Vec<SampleFiles>> {
             disp_left: (layout.abs(&e.files.disp_left), DispKind::Exr),
             disp_right: Some((layout.abs(&e.files.disp_right), DispKind::Exr)),
             masks: vec![],
-            meta: sample_meta(e),
+            meta: SampleMeta {
+                maps: super::MapFile::of_sample(&e.files, &layout.root),
+                instances: e.instances.clone(),
+                ..sample_meta(e)
+            },
         })
         .collect())
 }

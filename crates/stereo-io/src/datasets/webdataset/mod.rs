@@ -1,6 +1,7 @@
 //! WebDataset: a dataset as POSIX tar shards, the files of one sample consecutive and sharing a
-//! key (`<key>.left.png`, `<key>.right.png`, `<key>.disp_left.exr`, `<key>.disp_right.exr`,
-//! `<key>.json`), which the `webdataset` package, `torchdata` and the Hugging Face `datasets`
+//! key (`<key>.left.png`, `<key>.right.png`, `<key>.disp_left.exr`, `<key>.disp_right.exr`, the
+//! maps a source of ours has beside its disparity (`<key>.depth_left.exr`, ...,
+//! `<key>.semantic_right.png`), `<key>.json`), which the `webdataset` package, `torchdata` and the Hugging Face `datasets`
 //! WebDataset builder read by streaming. Farm-sized datasets are a million small files in the
 //! folder layouts; as shards they are a few hundred large ones.
 //!
@@ -26,7 +27,7 @@ mod write;
 
 use serde::{Deserialize, Serialize};
 
-pub use read::{RawSample, ShardReader, WebDataset, decode_members};
+pub use read::{RawSample, ShardReader, WebDataset, decode_member_maps, decode_members};
 pub use scan::{ListedMember, scan_shard, scan_tar};
 pub use write::{
     CARD_FILE, WebDatasetOptions, WebDatasetSummary, export_webdataset, export_webdataset_selected,
@@ -74,6 +75,9 @@ pub mod member {
     pub const DISP_RIGHT: &str = "disp_right.exr";
     /// A stricter validity mask of the left view where the source has one: 8-bit PNG, 255 = keep.
     pub const VALID_LEFT: &str = "valid_left.png";
+    // The maps beside the disparity, where the source has them, follow (`depth_left.exr`,
+    // `depth_right.exr`, `normals_left.exr`, ..., `semantic_right.png`: the manifest's file key
+    // and the file's extension, [`crate::datasets::map_member`]), then the SceneSpec and `json`.
     pub const JSON: &str = "json";
 }
 

@@ -11,11 +11,16 @@ use std::path::{Path, PathBuf};
 
 use super::scan::{ListedMember, scan_tar};
 use super::{INDEX_SUFFIX, ShardIndex, member};
-use crate::datasets::{DatasetFormat, SampleMeta, StereoDataset, StereoSample};
+use crate::datasets::{
+    DatasetFormat, InstanceRecord, SampleMaps, SampleMeta, StereoDataset, StereoSample,
+};
 use crate::error::{Error, Result};
 use crate::exr_io::decode_disparity_exr;
 use crate::image_io::{decode_bytes, to_rgb};
 use crate::limits::open_inside;
+
+mod maps;
+pub use maps::decode_member_maps;
 
 /// A member of a sample: its name after `<key>.` and where its data lies in the shard.
 #[derive(Debug, Clone)]
@@ -264,6 +269,16 @@ impl StereoDataset for WebDataset {
             Ok(self.read_member(s, suffix)?.map(Cow::Owned))
         })
     }
+
+    fn maps(&self, index: usize) -> Result<SampleMaps> {
+        let s = self
+            .samples
+            .get(index)
+            .ok_or_else(|| crate::datasets::out_of_range(self, index))?;
+        self.maps_with(s, &|suffix| {
+            Ok(self.read_member(s, suffix)?.map(Cow::Owned))
+        })
+    }
 }
 
 impl WebDataset {
@@ -327,6 +342,10 @@ impl WebDataset {
                 );
             }
         }
+        if let Some(table) = facts["manifest"].get("instances") {
+            meta.instances = serde_json::from_value::<Vec<InstanceRecord>>(table.clone())
+                .map_err(|e| Error::format(&path, format!("unreadable instance table: {e}")))?;
+        }
         Ok(StereoSample {
             left,
             right,
@@ -346,6 +365,17 @@ pub fn decode_members(
     key: &str,
     members: &[(String, Vec<u8>)],
 ) -> Result<StereoSample> {
+    let (dataset, entry) = streamed(shard, key, members);
+    dataset.decode_with(&entry, &|suffix| {
+        Ok(members
+            .iter()
+            .find(|(s, _)| s == suffix)
+            .map(|(_, b)| Cow::Borrowed(b.as_slice())))
+    })
+}
+
+/// A one-shard dataset holding the sample `key` of `members` (as streamed, not located).
+fn streamed(shard: &Path, key: &str, members: &[(String, Vec<u8>)]) -> (WebDataset, SampleEntry) {
     let dataset = WebDataset {
         root: shard.parent().unwrap_or(Path::new("")).to_path_buf(),
         splits: vec![],
@@ -364,12 +394,7 @@ pub fn decode_members(
             })
             .collect(),
     };
-    dataset.decode_with(&entry, &|suffix| {
-        Ok(members
-            .iter()
-            .find(|(s, _)| s == suffix)
-            .map(|(_, b)| Cow::Borrowed(b.as_slice())))
-    })
+    (dataset, entry)
 }
 
 /// A member's bytes by suffix (`None`: the sample has no such member), borrowed or read.
@@ -436,6 +461,16 @@ impl WebDataset {
             .get(raw.index)
             .ok_or_else(|| crate::datasets::out_of_range(self, raw.index))?;
         self.decode_with(s, &|suffix| Ok(raw.member(suffix).map(Cow::Borrowed)))
+    }
+
+    /// The maps of a sample read raw: the same maps [`StereoDataset::maps`] returns for its
+    /// index, bit for bit.
+    pub fn decode_maps(&self, raw: &RawSample) -> Result<SampleMaps> {
+        let s = self
+            .samples
+            .get(raw.index)
+            .ok_or_else(|| crate::datasets::out_of_range(self, raw.index))?;
+        self.maps_with(s, &|suffix| Ok(raw.member(suffix).map(Cow::Borrowed)))
     }
 
     /// Opens shard `shard` (numbered in index order) for reading front to back.

@@ -16,7 +16,9 @@ use super::{
 use crate::atomic::{place, temp_sibling, write_bytes_atomically};
 use crate::datasets::export::{SampleSelection, export_name};
 use crate::datasets::stereogen::{DatasetLayout, read_manifest};
-use crate::datasets::{DatasetFormat, ReadOptions, StereoSample, open_dataset_with};
+use crate::datasets::{
+    DatasetFormat, ReadOptions, StereoDataset, StereoSample, map_member, open_dataset_with,
+};
 use crate::error::{Error, Result};
 use crate::exr_io::encode_disparity_exr;
 use crate::image_io::{Image, Samples, encode_png};
@@ -174,7 +176,11 @@ pub fn export_webdataset_selected(
             };
             let sample = dataset.sample(k)?;
             let name = export_name(dataset.format(), &sample.meta);
-            writer.append(&sample_key(&name), &sample_members(&sample, &manifest)?)?;
+            let maps = map_members(dataset.as_ref(), k, &sample)?;
+            writer.append(
+                &sample_key(&name),
+                &sample_members(&sample, maps, &manifest)?,
+            )?;
             if writer.bytes >= opts.shard_bytes {
                 let entry = shard.take().expect("open").finish()?;
                 progress.done.push((split.clone(), entry.clone()));
@@ -330,10 +336,42 @@ fn scene_member(path: &Path) -> String {
     }
 }
 
+/// The map members of sample `k` (`depth_left.exr`, ...: [`map_member`]): the source's files
+/// byte for byte where it keeps them as files (ours), else encoded from what its reader decodes
+/// (a WebDataset export's); none for a sample without maps.
+fn map_members(
+    dataset: &dyn StereoDataset,
+    k: usize,
+    s: &StereoSample,
+) -> Result<Vec<(String, Vec<u8>)>> {
+    if !s.meta.maps.is_empty() {
+        let read =
+            |p: &Path| crate::limits::read_file_capped(p, crate::limits::MAX_ALLOC, "a map file");
+        return s
+            .meta
+            .maps
+            .iter()
+            .map(|f| Ok((map_member(f.kind, f.view), read(&f.path)?)))
+            .collect();
+    }
+    dataset
+        .maps(k)?
+        .iter()
+        .map(|(kind, view, map)| {
+            let bytes = map
+                .encode(view)
+                .map_err(|e| Error::format(&s.meta.left_path, e))?;
+            Ok((map_member(kind, view), bytes))
+        })
+        .collect()
+}
+
 /// The members of a sample: the source's own files where they already are PNG/JPEG images and
-/// EXR disparities (byte for byte), encoded otherwise; then the sample's facts as JSON.
+/// EXR disparities (byte for byte), encoded otherwise; its `maps` members; then the sample's
+/// facts as JSON.
 fn sample_members(
     s: &StereoSample,
+    maps: Vec<(String, Vec<u8>)>,
     ours: &HashMap<String, OurSample>,
 ) -> Result<Vec<(String, Vec<u8>)>> {
     let image =
@@ -397,6 +435,7 @@ fn sample_members(
         let png = encode_png(&mask).map_err(|e| Error::format(&m.left_path, e))?;
         out.push((member::VALID_LEFT.into(), png));
     }
+    out.extend(maps);
     let facts = serde_json::json!({
         "id": m.id,
         "source_format": m.format.map(|f| f.name()),
