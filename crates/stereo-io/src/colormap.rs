@@ -5,9 +5,17 @@
 //!   near); invalid pixels are black.
 //! - Range: [`DisparityRange::of`] spans the valid finite values and always includes 0, so a map
 //!   of positive disparities starts at blue for zero and ends at red for its largest value.
+//!
+//! The other maps ([`crate::maps`]), for the contact sheet and the report, black where there is
+//! no surface:
+//! - depth: inverse depth (proportional to disparity) on the same ramp, over a range the caller
+//!   picks ([`inverse_depth_range`]): near red, far blue;
+//! - normals: each component `n` as `(n + 1) / 2` of full scale in R, G, B;
+//! - instance and semantic ids: a fixed categorical palette ([`categorical`]).
 
 use crate::disparity::DisparityMap;
 use crate::image_io::RgbImage;
+use crate::maps::{DepthMap, IdMap, NormalMap};
 
 /// The disparities mapped to the two ends of the ramp; values outside are clamped.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,6 +96,123 @@ pub fn colourise(map: &DisparityMap, range: DisparityRange) -> RgbImage {
         height: map.height,
         data,
     }
+}
+
+/// Whether a depth value is a surface (positive and finite; 0 is "no surface").
+fn is_surface(z: f32) -> bool {
+    z.is_finite() && z > 0.0
+}
+
+/// The range of inverse depth (1/m) over the surfaces of `maps`, for [`colourise_depth`]: from
+/// the farthest surface's to the nearest's; `0..1` when there is none.
+pub fn inverse_depth_range<'a>(maps: impl IntoIterator<Item = &'a DepthMap>) -> DisparityRange {
+    let (lo, hi) = maps
+        .into_iter()
+        .flat_map(|m| m.data.iter().copied().filter(|&z| is_surface(z)))
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), z| {
+            (lo.min(1.0 / z), hi.max(1.0 / z))
+        });
+    if lo.is_finite() && hi.is_finite() {
+        DisparityRange::new(lo, hi)
+    } else {
+        DisparityRange::new(0.0, 1.0)
+    }
+}
+
+/// Colours each surface pixel of `map` by its inverse depth's place in `range` (1/m) on the
+/// ramp (near red, far blue); no surface is black.
+pub fn colourise_depth(map: &DepthMap, range: DisparityRange) -> RgbImage {
+    let data = map
+        .data
+        .iter()
+        .flat_map(|&z| {
+            if is_surface(z) {
+                ramp(range.position(1.0 / z))
+            } else {
+                [0, 0, 0]
+            }
+        })
+        .collect();
+    RgbImage {
+        width: map.width,
+        height: map.height,
+        data,
+    }
+}
+
+/// Colours each normal as `(n + 1) / 2` of full scale per component (x red, y green, z blue);
+/// no surface (`[0, 0, 0]`, or a non-finite normal) is black.
+pub fn colourise_normals(map: &NormalMap) -> RgbImage {
+    let data = map
+        .data
+        .iter()
+        .flat_map(|n| {
+            if n.iter().all(|c| c.is_finite()) && n.iter().any(|&c| c != 0.0) {
+                n.map(|c| ((c.clamp(-1.0, 1.0) + 1.0) * 0.5 * 255.0).round() as u8)
+            } else {
+                [0, 0, 0]
+            }
+        })
+        .collect();
+    RgbImage {
+        width: map.width,
+        height: map.height,
+        data,
+    }
+}
+
+/// The first ids' colours: well apart from each other and from black.
+const CATEGORICAL: [[u8; 3]; 12] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [188, 189, 34],
+    [23, 190, 207],
+    [255, 187, 120],
+    [152, 223, 138],
+    [174, 199, 232],
+];
+
+/// The colour of id `id` in every picture of instance or semantic ids: black for 0 (no surface),
+/// a fixed table for ids 1 to 12, then hues a golden-ratio turn apart at alternating brightness
+/// (deterministic, never black, never the same colour for neighbouring ids).
+pub fn categorical(id: u16) -> [u8; 3] {
+    match id {
+        0 => [0, 0, 0],
+        i if usize::from(i) <= CATEGORICAL.len() => CATEGORICAL[usize::from(i) - 1],
+        i => {
+            let hue = (f64::from(i) * 0.618_033_988_749_895).fract() * 6.0;
+            let (s, v) = [(0.65, 0.95), (0.9, 0.75), (0.45, 0.85)][usize::from(i) % 3];
+            let x = 1.0 - (hue % 2.0 - 1.0).abs();
+            let (r, g, b) = match hue as u32 {
+                0 => (1.0, x, 0.0),
+                1 => (x, 1.0, 0.0),
+                2 => (0.0, 1.0, x),
+                3 => (0.0, x, 1.0),
+                4 => (x, 0.0, 1.0),
+                _ => (1.0, 0.0, x),
+            };
+            [r, g, b].map(|c: f64| ((1.0 - s + s * c) * v * 255.0).round() as u8)
+        }
+    }
+}
+
+/// Colours each id by [`categorical`] (0, no surface, black).
+pub fn colourise_ids(map: &IdMap) -> RgbImage {
+    RgbImage {
+        width: map.width,
+        height: map.height,
+        data: map.data.iter().flat_map(|&id| categorical(id)).collect(),
+    }
+}
+
+/// `#rrggbb` of a colour (for HTML).
+pub fn hex(colour: [u8; 3]) -> String {
+    format!("#{:02x}{:02x}{:02x}", colour[0], colour[1], colour[2])
 }
 
 /// Space between the map and the bar, the bar's width and the label column's width, in pixels.
@@ -270,5 +395,56 @@ mod tests {
             (0..img.height).flat_map(|y| (bar_x + BAR_WIDTH..img.width).map(move |x| (x, y)));
         let white = labels.filter(|&(x, y)| px(x, y) == [255; 3]).count();
         assert!(white > 20, "labels missing ({white} white pixels)");
+    }
+
+    #[test]
+    fn depth_runs_near_red_to_far_blue_and_blacks_out_no_surface() {
+        let m = DepthMap {
+            width: 4,
+            height: 1,
+            data: vec![1.0, 4.0, 0.0, f32::NAN],
+        };
+        let range = inverse_depth_range([&m]);
+        assert_eq!(range, DisparityRange { lo: 0.25, hi: 1.0 });
+        let img = colourise_depth(&m, range);
+        assert_eq!(
+            img.data,
+            [[255, 0, 0], [0, 0, 255], [0, 0, 0], [0, 0, 0]].concat()
+        );
+        let empty = DepthMap {
+            width: 1,
+            height: 1,
+            data: vec![0.0],
+        };
+        assert_eq!(inverse_depth_range([&empty]), DisparityRange::new(0.0, 1.0));
+    }
+
+    #[test]
+    fn normals_are_half_offset_rgb_and_ids_a_fixed_palette() {
+        let m = NormalMap {
+            width: 3,
+            height: 1,
+            data: vec![[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0; 3]],
+        };
+        assert_eq!(
+            colourise_normals(&m).data,
+            [[128, 128, 0], [255, 128, 128], [0, 0, 0]].concat()
+        );
+        assert_eq!(categorical(0), [0, 0, 0]);
+        assert_eq!(categorical(1), [31, 119, 180]);
+        let colours: Vec<[u8; 3]> = (1..=400).map(categorical).collect();
+        assert!(colours.iter().all(|&c| c != [0, 0, 0]));
+        assert!(colours.windows(2).all(|w| w[0] != w[1]));
+        assert_eq!(categorical(300), categorical(300));
+        let ids = IdMap {
+            width: 2,
+            height: 1,
+            data: vec![0, 2],
+        };
+        assert_eq!(
+            colourise_ids(&ids).data,
+            [[0, 0, 0], categorical(2)].concat()
+        );
+        assert_eq!(hex([255, 0, 16]), "#ff0010");
     }
 }

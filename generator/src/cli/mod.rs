@@ -127,7 +127,8 @@ pub enum Command {
         /// Dataset directory (holds dataset.json and manifest.jsonl).
         #[arg(value_name = "DATASET")]
         dataset: PathBuf,
-        /// Also write PNG plots (stats_objects, stats_pixels, stats_categories, stats_coverage).
+        /// Also write PNG plots (stats_objects, stats_pixels, stats_categories, stats_coverage;
+        /// stats_maps when the dataset has maps).
         #[arg(long)]
         plot: bool,
         /// Exit non-zero when a category misses its target (KS above the critical value, or an
@@ -193,7 +194,8 @@ pub enum Command {
     Audit(audit::AuditArgs),
     /// One self-contained HTML page about a dataset (see `report --help`).
     Report(report::ReportArgs),
-    /// A contact sheet PNG: each sample's left image beside its colourised disparity.
+    /// A contact sheet PNG: each sample's left image beside its colourised disparity, and a row
+    /// per map (depth, normals, instance, semantic) where the dataset has them.
     Sheet {
         /// The dataset directory.
         dataset: PathBuf,

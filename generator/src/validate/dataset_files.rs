@@ -177,7 +177,8 @@ fn default_suffix(key: &str) -> String {
     }
 }
 
-/// The manifest's relative path of file `key`.
+/// The manifest's relative path of file `key` (a map's key too: `depth_left`, ...; the scene
+/// file for a key the sample does not have).
 fn file_of<'a>(e: &'a ManifestEntry, key: &str) -> &'a Path {
     let f = &e.files;
     match key {
@@ -185,6 +186,10 @@ fn file_of<'a>(e: &'a ManifestEntry, key: &str) -> &'a Path {
         "right" => &f.right,
         "disp_left" => &f.disp_left,
         "disp_right" => &f.disp_right,
-        _ => &f.scene,
+        _ => f
+            .all()
+            .into_iter()
+            .find(|(k, _)| *k == key)
+            .map_or(&f.scene, |(_, p)| p),
     }
 }

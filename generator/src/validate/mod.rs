@@ -10,7 +10,7 @@
 //! - [`dataset_files`]: our folder layout or a WebDataset export of it, detected; `stats` and
 //!   `report` read either.
 //! - [`hist`], [`accumulate`]: histograms, percentiles and the streaming accumulators.
-//! - [`plots`]: PNG plots (`--plot`).
+//! - [`plots`], [`map_plots`]: PNG plots (`--plot`).
 //! - [`audit`]: `stereogen audit`: the ground truth re-derived from the scene geometry by ray casting.
 //! - [`html_report`]: `stereogen report`: one self-contained HTML page about a dataset.
 
@@ -20,6 +20,7 @@ pub mod contact_sheet;
 pub mod dataset_files;
 pub mod hist;
 pub mod html_report;
+pub mod map_plots;
 pub mod plots;
 pub mod stats;
 

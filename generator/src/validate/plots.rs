@@ -9,6 +9,8 @@
 //! - `stats_categories.png`: one panel per category: pixel and object histograms, law, gaps.
 //! - `stats_coverage.png`: disparity of content pixels (p5–p95 band, median, mean) by image row
 //!   and column, and the fraction of content (and valid) pixels per row and column.
+//! - `stats_maps.png`, where the dataset has maps beside the disparity: their distributions
+//!   ([`super::map_plots`]).
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -39,18 +41,18 @@ const PALETTE: [RGBColor; 8] = [
     RGBColor(127, 127, 127),
 ];
 
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
-type Chart<'a, 'b> =
+pub(super) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+pub(super) type Chart<'a, 'b> =
     ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 /// `(lo, hi, density)` bars and their legend label.
 type Bars = Option<(Vec<(f64, f64, f64)>, String)>;
 
-fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+pub(super) fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("plotting failed: {e:?}")
 }
 
 /// A panel's chart over `x` and `y`, titled, with `y_label_width` pixels for the y labels.
-fn panel_chart<'a, 'b>(
+pub(super) fn panel_chart<'a, 'b>(
     area: &'a Area<'b>,
     title: &str,
     y_label_width: u32,
@@ -107,12 +109,12 @@ fn draw_line(
 }
 
 /// A legend key: a small filled box in the series' style.
-fn box_key(style: ShapeStyle) -> impl Fn((i32, i32)) -> Rectangle<(i32, i32)> {
+pub(super) fn box_key(style: ShapeStyle) -> impl Fn((i32, i32)) -> Rectangle<(i32, i32)> {
     move |(x, y)| Rectangle::new([(x, y - 5), (x + 18, y + 5)], style)
 }
 
 /// Draws the legend of every labelled series on a light box with a black border.
-fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+pub(super) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
     chart: &mut ChartContext<'a, DB, CT>,
     position: SeriesLabelPosition,
     font_size: u32,
@@ -137,7 +139,7 @@ fn register() {
 }
 
 /// Draws into an RGB buffer and writes it as a PNG, atomically.
-fn render(
+pub(super) fn render(
     path: &Path,
     (w, h): (u32, u32),
     draw: impl FnOnce(&Area) -> anyhow::Result<()>,
@@ -529,5 +531,8 @@ pub fn write_plots(report: &StatsReport, dir: &Path) -> anyhow::Result<Vec<PathB
         Ok(())
     })?;
     written.push(path);
+    if let Some(maps) = &report.maps {
+        written.push(super::map_plots::write_map_plot(maps, dir)?);
+    }
     Ok(written)
 }

@@ -1,5 +1,6 @@
 //! The gallery: which samples (deterministic, spread over the categories and the index range)
-//! and their pictures as data: URIs (JPEG for the photographs, PNG for the colourised disparity),
+//! and their pictures as data: URIs (JPEG for the photographs, PNG for the colourised disparity
+//! and maps),
 //! scaled down to [`THUMB_WIDTH`] so the page stays small.
 
 use std::collections::BTreeMap;
@@ -28,6 +29,8 @@ pub struct Tile {
     pub right: Option<String>,
     /// Top of the colour scale (px).
     pub scale_max: String,
+    /// The left view's maps beside the disparity (name, picture), where the sample has them.
+    pub maps: Vec<(String, String)>,
     /// Files that could not be shown, one line each.
     pub problems: Vec<String>,
 }
@@ -109,6 +112,12 @@ fn disparity(files: &DatasetFiles, e: &ManifestEntry) -> Result<(String, f32), S
         .map_err(|err| err.to_string())?;
     let max = map.stats().map_or(1.0, |s| s.max).max(1e-3);
     let rgb = colourise(&map, DisparityRange::new(0.0, max));
+    Ok((png_thumbnail(rgb, &path)?, max))
+}
+
+/// A colourised map as a PNG data: URI, scaled down (nearest neighbour) to the thumbnail size;
+/// `path` names it in messages.
+pub fn png_thumbnail(rgb: stereo_io::RgbImage, path: &std::path::Path) -> Result<String, String> {
     let img = image::RgbImage::from_raw(rgb.width as u32, rgb.height as u32, rgb.data)
         .ok_or_else(|| format!("{}: bad size", path.display()))?;
     let (w, h) = thumb_size(img.width(), img.height());
@@ -121,7 +130,7 @@ fn disparity(files: &DatasetFiles, e: &ManifestEntry) -> Result<(String, f32), S
     small
         .write_to(&mut out, image::ImageFormat::Png)
         .map_err(|err| format!("{}: {err}", path.display()))?;
-    Ok((data_uri("image/png", out.get_ref()), max))
+    Ok(data_uri("image/png", out.get_ref()))
 }
 
 /// The tile of one sample; files that cannot be read become problems of the tile.
@@ -137,6 +146,7 @@ pub fn tile(files: &DatasetFiles, e: &ManifestEntry, caption: String) -> Tile {
             (None, "-".into())
         }
     };
+    let maps = super::maps::thumbnails(files, e, &mut problems);
     Tile {
         id: e.id.clone(),
         category: e.category.clone(),
@@ -146,6 +156,7 @@ pub fn tile(files: &DatasetFiles, e: &ManifestEntry, caption: String) -> Tile {
         disparity,
         right,
         scale_max,
+        maps,
         problems,
     }
 }

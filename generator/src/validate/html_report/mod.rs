@@ -2,7 +2,9 @@
 //! fingerprint, samples per category, failures and skipped assets, render times, the disparity
 //! distribution against the recipe's law (as `stats` computes it), row/column coverage, the
 //! audit's results when `audit.json` exists, a gallery, the samples that stand out, and the
-//! rounds of curation with the samples they replaced.
+//! rounds of curation with the samples they replaced. A dataset with maps beside the disparity
+//! also gets their summary, its semantic class table and a row of map thumbnails per gallery
+//! tile ([`maps`]).
 //!
 //! It reads our folder layout or a WebDataset export of it (`export --format webdataset`), whose
 //! members it reads straight from the shards ([`super::dataset_files`]).
@@ -18,6 +20,7 @@ pub mod chart;
 pub mod curation;
 pub mod facts;
 pub mod gallery;
+pub mod maps;
 pub mod sections;
 
 use std::path::{Path, PathBuf};
@@ -77,6 +80,7 @@ struct Page {
     skipped_total: usize,
     timing: Vec<(String, String)>,
     stats: Option<StatsSection>,
+    maps: Option<maps::MapsSection>,
     audit: Option<AuditSection>,
     gallery: Vec<Tile>,
     outliers: Vec<Tile>,
@@ -113,10 +117,19 @@ fn describe(facts: &Facts, page: &mut Page) {
     page.timing = facts::render_times(&facts.entries);
 }
 
-/// The statistics of `stats`, or why there are none.
-fn stats(dataset: &Path, facts: &Facts, problems: &mut Vec<String>) -> Option<StatsSection> {
+/// The statistics of `stats`, or why there are none; and the maps' section, where the dataset
+/// has maps or a semantic class table.
+fn stats(
+    dataset: &Path,
+    facts: &Facts,
+    problems: &mut Vec<String>,
+) -> (Option<StatsSection>, Option<maps::MapsSection>) {
+    let classes = facts
+        .info
+        .as_ref()
+        .map_or(&[][..], |i| &i.semantic_classes[..]);
     if facts.info.is_none() || facts.entries.is_empty() {
-        return None;
+        return (None, maps::section(classes, None));
     }
     match compute(&StatsOptions::new(dataset)) {
         Ok(s) => {
@@ -133,11 +146,14 @@ fn stats(dataset: &Path, facts: &Facts, problems: &mut Vec<String>) -> Option<St
                     s.errors.len() - facts::MAX_LISTED
                 ));
             }
-            Some(sections::stats_section(&s))
+            (
+                Some(sections::stats_section(&s)),
+                maps::section(classes, s.maps.as_ref()),
+            )
         }
         Err(e) => {
             problems.push(format!("statistics: {e:#}"));
-            None
+            (None, maps::section(classes, None))
         }
     }
 }
@@ -178,6 +194,7 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
         skipped_total: 0,
         timing: Vec::new(),
         stats: None,
+        maps: None,
         audit: None,
         gallery: Vec::new(),
         outliers: Vec::new(),
@@ -187,7 +204,7 @@ pub fn write_report(opts: &ReportOptions) -> anyhow::Result<ReportSummary> {
     };
     describe(&facts, &mut page);
     let mut problems = Vec::new();
-    page.stats = stats(&opts.dataset, &facts, &mut problems);
+    (page.stats, page.maps) = stats(&opts.dataset, &facts, &mut problems);
     page.audit = audit(&opts.dataset, &mut problems);
     let n = opts.thumbnails.min(MAX_THUMBNAILS);
     if opts.thumbnails > MAX_THUMBNAILS {

@@ -3,12 +3,14 @@
 //! [`objects`] pass over every SceneSpec (object-level sample), the [`pixels`] pass that streams
 //! every disparity EXR through the accumulators in parallel, and [`compute`]'s assembly into a
 //! [`StatsReport`] ([`stats_report`]: what `stats.json` holds and each group's OK/FAIL/SKIP;
-//! [`ks_family`]: the KS tests as one family with a stated false-alarm rate).
+//! [`ks_family`]: the KS tests as one family with a stated false-alarm rate). A dataset with maps
+//! beside the disparity also gets their summary ([`maps`]).
 
 pub mod difficulty;
 pub mod files;
 pub mod ks_family;
 pub mod load;
+pub mod maps;
 pub mod objects;
 pub mod pixels;
 pub mod stats_report;
@@ -117,10 +119,15 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         PixelAcc::new(&binning, gap_edges[c].as_deref(), all_edges.as_deref())
     });
 
+    let (maps, map_errors) = match maps::map_pass(&loaded, opts) {
+        Some((stats, errors)) => (Some(stats), errors),
+        None => (None, Vec::new()),
+    };
     let mut errors: Vec<String> = objects
         .errors
         .iter()
         .chain(&pixels.errors)
+        .chain(&map_errors)
         .map(ToString::to_string)
         .collect();
     errors.sort();
@@ -161,6 +168,7 @@ pub fn compute(opts: &StatsOptions) -> anyhow::Result<StatsReport> {
         notes,
         curation: loaded.info.curation.clone(),
         difficulty: difficulty::difficulty_stats(&loaded.entries),
+        maps,
         pass,
         law,
     })

@@ -45,6 +45,10 @@ pub struct StatsReport {
     /// before they were measured).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub difficulty: Vec<super::difficulty::DifficultyStats>,
+    /// The maps beside the disparity (depth, normals, instance, semantic), where the dataset
+    /// has them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub maps: Option<super::maps::MapStats>,
     pub pass: bool,
 }
 

@@ -1,5 +1,5 @@
-//! The terminal summary of a stats report: one line per category, the overall line, the read
-//! errors, the false-alarm rate of the check, and the verdict.
+//! The terminal summary of a stats report: one line per category, the overall line, one per map
+//! where the dataset has maps, the read errors, the false-alarm rate of the check, and the verdict.
 
 use super::stats_report::{StatsReport, Status};
 
@@ -31,6 +31,7 @@ pub fn summary_lines(report: &StatsReport) -> Vec<String> {
     lines.extend(report.categories.iter().map(|c| c.line(w)));
     lines.push(report.overall.line(w));
     lines.extend(report.difficulty.iter().map(|d| d.line(w)));
+    lines.extend(report.maps.iter().flat_map(|m| m.lines()));
     for e in report.errors.iter().take(10) {
         lines.push(format!("ERROR {e}"));
     }
