@@ -7,9 +7,13 @@
 //! | instance | `<id>_<view>.instance.png` | 16-bit grey: the object's instance id (the sample's `instances` table) | 0 |
 //! | semantic | `<id>_<view>.semantic.png` | 16-bit grey: the object's class id (the dataset's `semantic_classes`) | 0 |
 //!
-//! A normal faces the camera (the side a ray sees), so its z is negative or 0. Every map records
+//! A normal is the surface's shading normal on the side the camera sees: the face's normal turned
+//! towards the camera, or on smooth-shaded faces the corner normals interpolated on that side, which
+//! near a silhouette may lean past the viewing ray (a few pixels then have z > 0). Every map records
 //! the same first surface as the disparity at each pixel: where the disparity is valid, depth is
-//! positive, the normal has unit length and both ids are non-zero, and
+//! positive, both ids are non-zero, the normal has unit length (or is 0, 0, 0 on the rare pixel
+//! where the surface has no shading normal: Cycles writes none where a mesh's folded faces leave a
+//! vertex normal undefined), and
 //! `disparity == (f_px · baseline / depth) as f32` (computed in f64).
 //!
 //! Writers give bytes that depend only on the map (EXR: ZIP, increasing line order, sorted

@@ -105,7 +105,7 @@ impl ViewMaps {
 }
 
 /// Cycles' world-space normals in the camera's frame (x right, y down, z forward), normalised in
-/// f64. The rig's cameras are never rotated (Blender: looking down −Z, +Y up, the world's axes),
+/// f64; (0, 0, 0) where Cycles wrote none. The rig's cameras are never rotated (Blender: looking down −Z, +Y up, the world's axes),
 /// so the frame change is a flip of y and z.
 fn camera_normals(
     world: &[Vec<f32>; 3],
@@ -126,6 +126,13 @@ fn camera_normals(
             -f64::from(world[2][i]),
         ];
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        // Cycles writes no normal (0, 0, 0) where a surface has no shading normal: seen on one
+        // pixel of a displaced, subdivided cube whose folded faces leave a vertex normal undefined.
+        // The pixel keeps its depth and ids; its normal says "none".
+        if len == 0.0 {
+            data.push([0.0; 3]);
+            continue;
+        }
         if !(len.is_finite() && len > 0.5) {
             bail!(
                 "{what}: the normal pass at pixel ({}, {}) is {n:?}, not a direction",
