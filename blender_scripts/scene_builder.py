@@ -1,6 +1,8 @@
 """Builds a Blender scene from a SceneSpec: rig, geometry with modifiers, materials, lights, world.
 It obeys the spec; the only choices it makes are deterministic fallbacks for broken assets."""
 
+import math
+
 import bpy
 
 import geometry
@@ -75,6 +77,25 @@ def _set_world(scene, world_spec):
     bg = world.node_tree.nodes["Background"]
     bg.inputs["Color"].default_value = tuple(world_spec["color"]) + (1.0,)
     bg.inputs["Strength"].default_value = world_spec["strength"]
+    sky = world_spec.get("sky")
+    if sky is not None:
+        # The spec's procedural sky (Hosek-Wilkie: Nishita ignores a turned lookup vector)
+        # colours the background instead of the flat colour.
+        tex = world.node_tree.nodes.new("ShaderNodeTexSky")
+        tex.sky_type = "HOSEK_WILKIE"
+        el, rot = sky["sun_elevation"], sky["sun_rotation"]
+        tex.sun_direction = (math.cos(el) * math.cos(rot), math.cos(el) * math.sin(rot), math.sin(el))
+        tex.turbidity = sky["turbidity"]
+        tex.ground_albedo = sky["ground_albedo"]
+        # The sky model's up is +Z, the rig's +Y (cameras look down -Z): turn directions by 90
+        # degrees about X before the lookup, so the horizon lies ahead of the cameras.
+        coords = world.node_tree.nodes.new("ShaderNodeTexCoord")
+        turn = world.node_tree.nodes.new("ShaderNodeMapping")
+        turn.vector_type = "VECTOR"
+        turn.inputs["Rotation"].default_value = (1.5707963267948966, 0.0, 0.0)
+        world.node_tree.links.new(coords.outputs["Generated"], turn.inputs["Vector"])
+        world.node_tree.links.new(turn.outputs["Vector"], tex.inputs["Vector"])
+        world.node_tree.links.new(tex.outputs["Color"], bg.inputs["Color"])
     scene.world = world
 
 

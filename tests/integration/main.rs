@@ -11,6 +11,7 @@
 mod asset_sources;
 mod audit_generated;
 mod audit_maps;
+mod backgrounds;
 mod cli_faults;
 mod content_pack;
 mod curate;

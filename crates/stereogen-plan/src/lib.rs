@@ -4,6 +4,7 @@
 //! index, seed, index). The asset index is plain data (`stereogen-assets` fills it from folders).
 
 pub mod assets;
+pub mod backgrounds;
 pub mod checker;
 pub mod dist;
 pub mod photo_sizing;
@@ -17,6 +18,7 @@ pub mod spec;
 pub mod tree;
 
 pub use assets::{AssetIndex, MeshAsset, SkippedAsset, TextureAsset};
+pub use backgrounds::BackgroundKind;
 pub use checker::Violation;
 pub use checker::scene_spec::check_scene_spec;
 pub use dist::Dist;
@@ -27,5 +29,5 @@ pub use rng::SeedTree;
 pub use sampler::{plan_scene, scene_category};
 pub use spec::{
     BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern,
-    RenderSettings, SEMANTIC_CLASSES, SceneSpec, Shape, WorldSpec,
+    RenderSettings, SEMANTIC_CLASSES, SceneSpec, Shape, SkySpec, WorldSpec,
 };

@@ -13,6 +13,7 @@ use rand::Rng;
 use rand::seq::IndexedRandom;
 
 use super::assets::{AssetIndex, MeshAsset};
+use super::backgrounds::{BackgroundKind, background_kind, environment, room};
 use super::photo_sizing::size_photo;
 use super::recipe::{CategoryRecipe, LightKind, Recipe, ShapeSource, TreeRecipe};
 use super::rig::StereoRig;
@@ -80,13 +81,35 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
     let nearest_depth = rig.depth_for_disparity(recipe.placement.disparity_px.support().1);
     let render = render_settings(recipe, category, root, nearest_depth, background_depth);
 
-    let mut objects = vec![background_wall(
-        recipe,
-        assets,
-        &rig,
-        background_depth,
-        root.child("background"),
-    )];
+    let kind = background_kind(category, root);
+    let mut objects = Vec::new();
+    let mut extra_lights = Vec::new();
+    let mut sky = None;
+    if kind == BackgroundKind::Environment {
+        let (ground, drawn) = environment(
+            recipe,
+            assets,
+            &rig,
+            background_depth,
+            render.clip_end,
+            root.child("environment"),
+        );
+        objects.push(ground);
+        sky = Some(drawn);
+    } else {
+        objects.push(background_wall(
+            recipe,
+            assets,
+            &rig,
+            background_depth,
+            root.child("background"),
+        ));
+    }
+    if kind == BackgroundKind::Room {
+        let room = room(recipe, assets, &rig, background_depth, root.child("room"));
+        objects.extend(room.objects);
+        extra_lights = room.lights;
+    }
     let n_objects = category
         .objects
         .sample(&mut root.child("object_count").rng());
@@ -103,7 +126,7 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
 
     let mut light_rng = root.child("lights").rng();
     let n_lights = recipe.lights.count.sample(&mut light_rng);
-    let lights = (0..n_lights)
+    let mut lights: Vec<LightSpec> = (0..n_lights)
         .map(|i| {
             light(
                 recipe,
@@ -114,7 +137,9 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
             )
         })
         .collect();
-    let world = world(recipe, root);
+    lights.extend(extra_lights);
+    let mut world = world(recipe, root);
+    world.sky = sky;
     SceneSpec {
         format_version: SPEC_FORMAT_VERSION,
         id: sample_id(index),
@@ -170,6 +195,17 @@ fn world(recipe: &Recipe, root: SeedTree) -> WorldSpec {
             grey * l.world_blue_ratio.sample(&mut rng),
         ],
         strength: l.world_strength.sample(&mut rng),
+        sky: None,
+    }
+}
+
+/// A background surface is large: keep its texture from turning into noise by scaling repeats to
+/// its size.
+pub(crate) fn clamp_background_scale(recipe: &Recipe, material: &mut MaterialSpec) {
+    if let BaseColor::Procedural { scale, .. } | BaseColor::Image { scale, .. } = &mut material.base
+    {
+        let [lo, hi] = recipe.materials.background_texture_scale;
+        *scale = (*scale).clamp(lo, hi);
     }
 }
 
@@ -188,12 +224,7 @@ fn background_wall(
     let mut rng = node.child("material").rng();
     let class = pick_weighted(&mut rng, &recipe.materials.background);
     let mut material = material(recipe, assets, class, &mut rng);
-    // The wall is large: keep its texture from turning into noise by scaling repeats to its size.
-    if let BaseColor::Procedural { scale, .. } | BaseColor::Image { scale, .. } = &mut material.base
-    {
-        let [lo, hi] = recipe.materials.background_texture_scale;
-        *scale = (*scale).clamp(lo, hi);
-    }
+    clamp_background_scale(recipe, &mut material);
     let screen_px = 2.0 * half_w.max(half_h) * f / depth;
     fit_photo(
         recipe,

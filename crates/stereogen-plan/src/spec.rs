@@ -42,6 +42,21 @@ pub struct SceneSpec {
 pub struct WorldSpec {
     pub color: [f64; 3],
     pub strength: f64,
+    /// A procedural sky instead of the uniform `color` (an `environment` background).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sky: Option<SkySpec>,
+}
+
+/// Blender's Hosek–Wilkie sky model (analytic): the sun's elevation above the horizon and its
+/// rotation about the vertical (radians), the air's turbidity (2 clear .. 10 hazy) and the
+/// ground's albedo under the horizon. It lights the scene and fills the view where nothing is.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkySpec {
+    pub sun_elevation: f64,
+    pub sun_rotation: f64,
+    pub turbidity: f64,
+    pub ground_albedo: f64,
 }
 
 /// What the object is for: the background wall, or scene content placed by the disparity law.
@@ -54,9 +69,10 @@ pub enum ObjectRole {
 
 /// The classes of a dataset's `semantic` maps: class id = position + 1, 0 = no surface. An
 /// object's class is what made it (its `source`: the background wall, a primitive, a ShapeNet
-/// model, a mesh of the built-in content pack, ...); a source not listed (a hand-written spec's)
+/// model, a mesh of the built-in content pack, a room's floor, ceiling or side wall, furniture,
+/// an environment's ground, ...); a source not listed (a hand-written spec's)
 /// is `other`. New classes go at the end, so ids keep their meaning across versions.
-pub const SEMANTIC_CLASSES: [&str; 9] = [
+pub const SEMANTIC_CLASSES: [&str; 12] = [
     "wall",
     "primitive",
     "shapenet",
@@ -65,6 +81,9 @@ pub const SEMANTIC_CLASSES: [&str; 9] = [
     "tree",
     "wireframe",
     "net",
+    "room",
+    "furniture",
+    "ground",
     "other",
 ];
 

@@ -89,6 +89,7 @@ pub fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
         world: WorldSpec {
             color: [0.8, 0.8, 0.8],
             strength: 0.5,
+            sky: None,
         },
         objects,
         lights: vec![LightSpec::Point {

@@ -23,7 +23,7 @@ use crate::render::{Device, WorkerOptions};
 /// Which recipe, and the asset folders that override its `[sources]`.
 #[derive(Debug, Clone, PartialEq, clap::Args)]
 pub struct RecipeArgs {
-    /// A built-in preset (crestereo, shapenet, tree, hole, reflective) or a recipe TOML file.
+    /// A built-in preset (crestereo, shapenet, tree, hole, reflective, wmgstereo) or a recipe TOML file.
     #[arg(long, value_name = "PRESET|FILE", default_value = DEFAULT_PRESET)]
     pub recipe: String,
     /// ShapeNetCore root (v1 or v2 layout); overrides the recipe's `sources.shapenet`.

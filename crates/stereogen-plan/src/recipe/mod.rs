@@ -75,6 +75,7 @@ pub const PRESETS: &[(&str, &str)] = &[
     ("tree", include_str!("../../recipes/tree.toml")),
     ("hole", include_str!("../../recipes/hole.toml")),
     ("reflective", include_str!("../../recipes/reflective.toml")),
+    ("wmgstereo", include_str!("../../recipes/wmgstereo.toml")),
 ];
 
 /// The preset used when the user names none.
@@ -88,7 +89,7 @@ pub const MAX_RECIPE_BYTES: u64 = 64 << 20;
 #[derive(Debug, thiserror::Error)]
 pub enum RecipeError {
     #[error(
-        "cannot read recipe {path}: {source} (built-in presets: crestereo, shapenet, tree, hole, reflective)"
+        "cannot read recipe {path}: {source} (built-in presets: crestereo, shapenet, tree, hole, reflective, wmgstereo)"
     )]
     Read {
         path: String,
@@ -471,6 +472,18 @@ pub struct CategoryRecipe {
     /// category need differs (the render study's per-category picks); absent: `[render]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub render: Option<RenderOverride>,
+    /// What fills the view behind the objects, by weight (`background = { wall = 0.2, room =
+    /// 0.7, environment = 0.1 }`); absent: the wall alone, as the paper's scenes.
+    #[serde(default = "wall_only", skip_serializing_if = "is_wall_only")]
+    pub background: BTreeMap<crate::BackgroundKind, f64>,
+}
+
+fn wall_only() -> BTreeMap<crate::BackgroundKind, f64> {
+    BTreeMap::from([(crate::BackgroundKind::Wall, 1.0)])
+}
+
+fn is_wall_only(weights: &BTreeMap<crate::BackgroundKind, f64>) -> bool {
+    *weights == wall_only()
 }
 
 fn line_col(text: &str, offset: usize) -> (usize, usize) {

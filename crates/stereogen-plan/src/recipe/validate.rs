@@ -362,6 +362,7 @@ fn categories(r: &Recipe) -> Vec<Check<'_>> {
             count(key("objects"), &cat.objects, 0, 2000),
             Check::new(key("shapes"), Rule::weights(&cat.shapes)),
             Check::new(key("materials"), Rule::weights(&cat.materials)),
+            Check::new(key("background"), Rule::weights(&cat.background)),
         ]);
         if cat.render.is_some() {
             rows.extend(render_rows(
