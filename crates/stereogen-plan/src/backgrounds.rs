@@ -245,7 +245,9 @@ fn room_lights(recipe: &Recipe, room: &RoomBox, node: SeedTree) -> Vec<LightSpec
     let mut lights = Vec::new();
     for _ in 0..rng.random_range(1..=2u32) {
         let z = rng.random_range(-room.depth * 0.9..-room.depth * 0.2);
-        let power_w = l.power_w.sample(&mut rng) * z * z;
+        // A closed room keeps the light in (walls and ceiling bounce it back): a quarter of a
+        // free light's power, or the first renders came out overexposed.
+        let power_w = 0.25 * l.power_w.sample(&mut rng) * z * z;
         lights.push(LightSpec::Area {
             // Just under the ceiling; an area light shines along its local −Z, turned to −Y.
             location: [
@@ -266,7 +268,7 @@ fn room_lights(recipe: &Recipe, room: &RoomBox, node: SeedTree) -> Vec<LightSpec
     // A window: daylight through one side wall, shining across the room.
     let side = if rng.random_bool(0.5) { -1.0 } else { 1.0 };
     let z = rng.random_range(-room.depth * 0.8..-room.depth * 0.3);
-    let power_w = 2.0 * l.power_w.sample(&mut rng) * z * z;
+    let power_w = 0.5 * l.power_w.sample(&mut rng) * z * z;
     lights.push(LightSpec::Area {
         location: [side * room.half_width * 0.98, 0.0, z],
         rotation: [0.0, -side * FRAC_PI_2, 0.0],
