@@ -7,7 +7,7 @@ use stereogen_plan::recipe::PRESETS;
 use stereogen_plan::{AssetIndex, Recipe, SceneSpec, plan_scene};
 
 /// (preset, SHA-256 of the JSON of its samples 0..40 of seed 7 one after another, fingerprint).
-const PINNED: [(&str, &str, &str); 5] = [
+const PINNED: [(&str, &str, &str); 6] = [
     (
         "crestereo",
         "e1e24398dc27505a950f93bbafeef86107a7c4282abf40d12d0bfbd1b524be6d",
@@ -32,6 +32,11 @@ const PINNED: [(&str, &str, &str); 5] = [
         "reflective",
         "98f4812c0d7e1f17e9debbb1ef76e525554d5eb8927539f0ca40cdeba6e470be",
         "c8766a98f1b0e276",
+    ),
+    (
+        "wmgstereo",
+        "682c1f57e961e94d46c34ce922e695dd1635dbe8deda22c2ad29ace853be82ff",
+        "ce8f70d37cdd6848",
     ),
 ];
 
