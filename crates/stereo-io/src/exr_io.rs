@@ -65,10 +65,23 @@ pub fn encode_disparity_exr(
         .iter()
         .map(|&v| if v { f16::ONE } else { f16::ZERO })
         .collect();
-    let channels = AnyChannels::sort(SmallVec::from_vec(vec![
-        AnyChannel::new(DISPARITY_CHANNEL, FlatSamples::F32(map.data.clone())),
-        AnyChannel::new(VALID_CHANNEL, FlatSamples::F16(valid)),
-    ]));
+    encode_layer(
+        (map.width, map.height),
+        attrs,
+        vec![
+            AnyChannel::new(DISPARITY_CHANNEL, FlatSamples::F32(map.data.clone())),
+            AnyChannel::new(VALID_CHANNEL, FlatSamples::F16(valid)),
+        ],
+    )
+}
+
+/// One ZIP-compressed scan-line layer of `channels` as EXR bytes that depend only on the inputs:
+/// the one encoder of every EXR this crate writes (disparity, depth, normals).
+pub(crate) fn encode_layer(
+    size: (usize, usize),
+    attrs: LayerAttributes,
+    channels: Vec<AnyChannel<FlatSamples>>,
+) -> std::result::Result<Vec<u8>, String> {
     // Increasing line order: parallel compression must not decide the chunk order, or equal
     // maps would give different bytes.
     let encoding = Encoding {
@@ -76,7 +89,8 @@ pub fn encode_disparity_exr(
         blocks: Blocks::ScanLines,
         line_order: LineOrder::Increasing,
     };
-    let layer = Layer::new((map.width, map.height), attrs, encoding, channels);
+    let channels = AnyChannels::sort(SmallVec::from_vec(channels));
+    let layer = Layer::new(size, attrs, encoding, channels);
     let mut bytes = std::io::Cursor::new(Vec::new());
     Image::from_layer(layer)
         .write()
@@ -90,7 +104,7 @@ pub fn encode_disparity_exr(
 /// `exr` keeps custom attributes in a `HashMap`, so their order in the header changes from one
 /// map instance to the next. Sorting them by name makes equal images give equal bytes. It is a
 /// permutation inside the header, so the header length and every chunk offset stay the same.
-pub(crate) fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
+fn sort_header_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
     const MULTIPART: u32 = 0x1000;
     if bytes.len() < 8 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
         return Err("writer produced no EXR magic number".into());

@@ -26,7 +26,7 @@ use exr::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::exr_io::{channel_names, decode_flat, samples_f32, sort_header_attributes};
+use crate::exr_io::{channel_names, decode_flat, encode_layer, samples_f32};
 use crate::image_io::{Samples, decode, decode_bytes, encode_png};
 use crate::limits::{MAX_ALLOC, read_file_capped};
 
@@ -136,25 +136,7 @@ fn encode_float_exr(
         .into_iter()
         .map(|(name, data)| AnyChannel::new(name, FlatSamples::F32(data)))
         .collect();
-    let encoding = Encoding {
-        compression: Compression::ZIP16,
-        blocks: Blocks::ScanLines,
-        line_order: LineOrder::Increasing,
-    };
-    let layer = Layer::new(
-        (width, height),
-        attrs,
-        encoding,
-        AnyChannels::sort(SmallVec::from_vec(list)),
-    );
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    exr::image::Image::from_layer(layer)
-        .write()
-        .to_buffered(&mut bytes)
-        .map_err(|e| format!("cannot encode EXR: {e}"))?;
-    let mut bytes = bytes.into_inner();
-    sort_header_attributes(&mut bytes)?;
-    Ok(bytes)
+    encode_layer((width, height), attrs, list)
 }
 
 /// The named float channels of an EXR, in `names`' order, NaN refused.
