@@ -83,39 +83,23 @@ fn add_maps<'py>(
     maps: SampleMaps,
     s: &StereoSample,
 ) -> PyResult<()> {
-    let SampleMaps {
-        depth_left,
-        depth_right,
-        normals_left,
-        normals_right,
-        instance_left,
-        instance_right,
-        semantic_left,
-        semantic_right,
-    } = maps;
-    for (key, m) in [("depth_left", depth_left), ("depth_right", depth_right)] {
-        if let Some(m) = m {
-            d.set_item(key, array_hw(py, m.data, m.height, m.width)?)?;
+    for (view, m) in [("left", maps.left), ("right", maps.right)] {
+        if let Some(m) = m.depth {
+            d.set_item(
+                format!("depth_{view}"),
+                array_hw(py, m.data, m.height, m.width)?,
+            )?;
         }
-    }
-    for (key, m) in [
-        ("normals_left", normals_left),
-        ("normals_right", normals_right),
-    ] {
-        if let Some(m) = m {
+        if let Some(m) = m.normals {
             let flat: Vec<f32> = m.data.into_iter().flatten().collect();
             let a = PyArray1::from_vec(py, flat).reshape([m.height, m.width, 3])?;
-            d.set_item(key, a)?;
+            d.set_item(format!("normals_{view}"), a)?;
         }
-    }
-    for (key, m) in [
-        ("instance_left", instance_left),
-        ("instance_right", instance_right),
-        ("semantic_left", semantic_left),
-        ("semantic_right", semantic_right),
-    ] {
-        if let Some(m) = m {
-            d.set_item(key, array_hw(py, m.data, m.height, m.width)?)?;
+        for (kind, ids) in [("instance", m.instance), ("semantic", m.semantic)] {
+            if let Some(ids) = ids {
+                let a = array_hw(py, ids.data, ids.height, ids.width)?;
+                d.set_item(format!("{kind}_{view}"), a)?;
+            }
         }
     }
     if !s.meta.instances.is_empty() {

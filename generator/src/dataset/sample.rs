@@ -7,13 +7,14 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use stereo_io::datasets::stereogen::Difficulty;
+use stereo_io::datasets::stereogen::{Difficulty, VIEWS};
+use stereo_io::datasets::{MapData, SampleMaps};
 use stereo_io::digest::sha256_hex;
 use stereo_io::{DisparityMap, DisparityMeta, MapKind, RenderPasses, RgbImage};
 
 use super::layout::{DatasetLayout, SamplePaths};
 use super::manifest::{DisparitySummary, ManifestEntry};
-use super::sample_maps::{ViewMaps, instance_table, requested_maps};
+use super::sample_maps::{instance_table, requested_maps, view_maps};
 use crate::plan::SceneSpec;
 use crate::render::protocol::RenderedFiles;
 
@@ -84,8 +85,7 @@ struct SampleContent<'a> {
     right: RgbImage,
     disp_left: DisparityMap,
     disp_right: DisparityMap,
-    maps_left: ViewMaps,
-    maps_right: ViewMaps,
+    maps: SampleMaps,
 }
 
 impl SampleContent<'_> {
@@ -111,25 +111,16 @@ impl SampleContent<'_> {
         )?;
         stereo_io::write_png_rgb(&layout.abs(&paths.left), &self.left)?;
         stereo_io::write_png_rgb(&layout.abs(&paths.right), &self.right)?;
-        for (view, maps) in [("left", &self.maps_left), ("right", &self.maps_right)] {
-            let path = |kind| {
-                layout.abs(
-                    paths
+        for view in VIEWS {
+            for kind in MapKind::ALL {
+                if let Some(bytes) = self.maps.view(view).encode(kind, view) {
+                    let rel = paths
                         .map(kind, view)
-                        .expect("the paths name every map asked for"),
-                )
-            };
-            if let Some(m) = &maps.depth {
-                stereo_io::write_depth_exr(&path(MapKind::Depth), m, view)?;
-            }
-            if let Some(m) = &maps.normals {
-                stereo_io::write_normals_exr(&path(MapKind::Normals), m, view)?;
-            }
-            if let Some(m) = &maps.instance {
-                stereo_io::write_id_png(&path(MapKind::Instance), m)?;
-            }
-            if let Some(m) = &maps.semantic {
-                stereo_io::write_id_png(&path(MapKind::Semantic), m)?;
+                        .expect("the paths name every map asked for");
+                    let path = layout.abs(rel);
+                    let bytes = bytes.map_err(|m| stereo_io::Error::format(&path, m))?;
+                    stereo_io::write_bytes_atomically(&path, &bytes)?;
+                }
             }
         }
         super::scene_file::write_scene_spec(&layout.abs(&paths.scene), self.spec)
@@ -137,45 +128,14 @@ impl SampleContent<'_> {
 
     /// Whether the map file with key `key` (`depth_left`, ...) decodes to what was written.
     fn map_is_same(&self, key: &str, path: &Path, bytes: &[u8]) -> anyhow::Result<bool> {
-        let (name, view) = key
+        let missing = || anyhow::anyhow!("file key {key:?} names no map that was made");
+        let (kind, view) = key
             .rsplit_once('_')
-            .with_context(|| format!("no read-back check for file key {key:?}"))?;
-        let maps = match view {
-            "left" => &self.maps_left,
-            "right" => &self.maps_right,
-            _ => bail!("no read-back check for file key {key:?}"),
-        };
-        let missing = || anyhow::anyhow!("file key {key:?} names a map that was not made");
-        Ok(match MapKind::from_name(name).ok_or_else(missing)? {
-            MapKind::Depth => {
-                let m = maps.depth.as_ref().ok_or_else(missing)?;
-                let back = stereo_io::maps::decode_depth_exr(bytes, path)?;
-                (back.width, back.height) == (m.width, m.height)
-                    && back
-                        .data
-                        .iter()
-                        .zip(&m.data)
-                        .all(|(a, b)| a.to_bits() == b.to_bits())
-            }
-            MapKind::Normals => {
-                let m = maps.normals.as_ref().ok_or_else(missing)?;
-                let back = stereo_io::maps::decode_normals_exr(bytes, path)?;
-                (back.width, back.height) == (m.width, m.height)
-                    && back
-                        .data
-                        .iter()
-                        .zip(&m.data)
-                        .all(|(a, b)| a.map(f32::to_bits) == b.map(f32::to_bits))
-            }
-            MapKind::Instance => {
-                stereo_io::maps::decode_id_png(bytes, path)?
-                    == *maps.instance.as_ref().ok_or_else(missing)?
-            }
-            MapKind::Semantic => {
-                stereo_io::maps::decode_id_png(bytes, path)?
-                    == *maps.semantic.as_ref().ok_or_else(missing)?
-            }
-        })
+            .and_then(|(name, view)| Some((MapKind::from_name(name)?, view)))
+            .filter(|(kind, view)| VIEWS.contains(view) && self.maps.view(view).has(*kind))
+            .ok_or_else(missing)?;
+        let back = MapData::decode(kind, bytes, path)?;
+        Ok(self.maps.view(view).holds(kind, &back))
     }
 
     /// Checks the bytes read back from the file with key `key` against what was written.
@@ -291,8 +251,10 @@ pub fn finalize_sample(
     let t0 = Instant::now();
     let (disp_left, passes_left) = read_depth_pass(&files.left_depth_exr, spec)?;
     let (disp_right, passes_right) = read_depth_pass(&files.right_depth_exr, spec)?;
-    let maps_left = ViewMaps::from_passes(&maps, &passes_left, &disp_left, spec, "left view")?;
-    let maps_right = ViewMaps::from_passes(&maps, &passes_right, &disp_right, spec, "right view")?;
+    let sample_maps = SampleMaps {
+        left: view_maps(&maps, &passes_left, &disp_left, spec, "left view")?,
+        right: view_maps(&maps, &passes_right, &disp_right, spec, "right view")?,
+    };
     let material_index = passes_left.material_index;
     let convert_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
@@ -305,8 +267,7 @@ pub fn finalize_sample(
         disp_right,
         left,
         right,
-        maps_left,
-        maps_right,
+        maps: sample_maps,
     };
     let t0 = Instant::now();
     let written = content.write(layout, &paths).and_then(|()| {

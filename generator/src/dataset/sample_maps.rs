@@ -4,6 +4,7 @@
 //! exactly where the disparity's is.
 
 use anyhow::{Context, bail};
+use stereo_io::datasets::ViewMaps;
 use stereo_io::datasets::stereogen::InstanceRecord;
 use stereo_io::{DepthMap, DisparityMap, IdMap, MapKind, NormalMap, RenderPasses};
 
@@ -34,74 +35,63 @@ pub fn requested_maps(spec: &SceneSpec) -> Vec<MapKind> {
         .collect()
 }
 
-/// One view's maps (those asked for).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct ViewMaps {
-    pub depth: Option<DepthMap>,
-    pub normals: Option<NormalMap>,
-    pub instance: Option<IdMap>,
-    pub semantic: Option<IdMap>,
-}
-
-impl ViewMaps {
-    /// The maps `maps` of one view from its render passes; `disparity` is the view's disparity
-    /// made from the same passes (its validity is every map's).
-    pub fn from_passes(
-        maps: &[MapKind],
-        passes: &RenderPasses,
-        disparity: &DisparityMap,
-        spec: &SceneSpec,
-        what: &str,
-    ) -> anyhow::Result<Self> {
-        let mut out = Self::default();
-        let valid = &disparity.valid;
-        let (w, h) = (passes.width, passes.height);
-        if maps.contains(&MapKind::Depth) {
-            // The Z pass as Cycles wrote it: `disparity == (f·B / depth) as f32` by construction.
-            let data = passes
-                .depth
+/// The maps `maps` of one view from its render passes; `disparity` is the view's disparity made
+/// from the same passes (its validity is every map's).
+pub fn view_maps(
+    maps: &[MapKind],
+    passes: &RenderPasses,
+    disparity: &DisparityMap,
+    spec: &SceneSpec,
+    what: &str,
+) -> anyhow::Result<ViewMaps> {
+    let mut out = ViewMaps::default();
+    let valid = &disparity.valid;
+    let (w, h) = (passes.width, passes.height);
+    if maps.contains(&MapKind::Depth) {
+        // The Z pass as Cycles wrote it: `disparity == (f·B / depth) as f32` by construction.
+        let data = passes
+            .depth
+            .iter()
+            .zip(valid)
+            .map(|(&z, &v)| if v { z } else { 0.0 })
+            .collect();
+        out.depth = Some(DepthMap {
+            width: w,
+            height: h,
+            data,
+        });
+    }
+    if maps.contains(&MapKind::Normals) {
+        let normal = passes.normal.as_ref().with_context(|| {
+            format!("{what}: the worker wrote no normal pass, yet the recipe asks for normals")
+        })?;
+        out.normals = Some(camera_normals(normal, valid, w, h, what)?);
+    }
+    if maps.contains(&MapKind::Instance) || maps.contains(&MapKind::Semantic) {
+        let index = passes.object_index.as_ref().with_context(|| {
+            format!(
+                "{what}: the worker wrote no object-index pass, yet the recipe asks for instance or semantic maps"
+            )
+        })?;
+        let instance = instance_ids(index, valid, w, h, spec.objects.len(), what)?;
+        if maps.contains(&MapKind::Semantic) {
+            let classes: Vec<u16> = spec.objects.iter().map(|o| o.semantic_class()).collect();
+            let data = instance
+                .data
                 .iter()
-                .zip(valid)
-                .map(|(&z, &v)| if v { z } else { 0.0 })
+                .map(|&id| if id == 0 { 0 } else { classes[id as usize - 1] })
                 .collect();
-            out.depth = Some(DepthMap {
+            out.semantic = Some(IdMap {
                 width: w,
                 height: h,
                 data,
             });
         }
-        if maps.contains(&MapKind::Normals) {
-            let normal = passes.normal.as_ref().with_context(|| {
-                format!("{what}: the worker wrote no normal pass, yet the recipe asks for normals")
-            })?;
-            out.normals = Some(camera_normals(normal, valid, w, h, what)?);
+        if maps.contains(&MapKind::Instance) {
+            out.instance = Some(instance);
         }
-        if maps.contains(&MapKind::Instance) || maps.contains(&MapKind::Semantic) {
-            let index = passes.object_index.as_ref().with_context(|| {
-                format!(
-                    "{what}: the worker wrote no object-index pass, yet the recipe asks for instance or semantic maps"
-                )
-            })?;
-            let instance = instance_ids(index, valid, w, h, spec.objects.len(), what)?;
-            if maps.contains(&MapKind::Semantic) {
-                let classes: Vec<u16> = spec.objects.iter().map(|o| o.semantic_class()).collect();
-                let data = instance
-                    .data
-                    .iter()
-                    .map(|&id| if id == 0 { 0 } else { classes[id as usize - 1] })
-                    .collect();
-                out.semantic = Some(IdMap {
-                    width: w,
-                    height: h,
-                    data,
-                });
-            }
-            if maps.contains(&MapKind::Instance) {
-                out.instance = Some(instance);
-            }
-        }
-        Ok(out)
     }
+    Ok(out)
 }
 
 /// Cycles' world-space normals in the camera's frame (x right, y down, z forward), normalised in

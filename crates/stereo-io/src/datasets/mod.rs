@@ -31,7 +31,7 @@ use crate::error::{Error, Result};
 use crate::image_io::{RgbImage, read_rgb};
 
 pub use detect::detect_format;
-pub use sample_maps::{MapData, MapFile, SampleMaps, map_member};
+pub use sample_maps::{MapData, MapFile, SampleMaps, ViewMaps, map_member};
 pub use stereogen::InstanceRecord;
 
 /// A dataset layout.

@@ -82,99 +82,124 @@ impl MapData {
         })
     }
 
-    /// The bytes of its file, as the generator writes it for `view`.
-    pub fn encode(&self, view: &str) -> std::result::Result<Vec<u8>, String> {
-        match self {
-            Self::Depth(m) => encode_depth_exr(m, view),
-            Self::Normals(m) => encode_normals_exr(m, view),
-            Self::Ids(m) => encode_id_png(m),
+    /// The map of `kind` in the file at `path`.
+    pub fn read(kind: MapKind, path: &Path) -> Result<Self> {
+        let bytes = crate::limits::read_file_capped(path, crate::limits::MAX_ALLOC, "a map file")?;
+        Self::decode(kind, &bytes, path)
+    }
+}
+
+/// One view's maps; `None` where the sample has no such map.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ViewMaps {
+    pub depth: Option<DepthMap>,
+    pub normals: Option<NormalMap>,
+    pub instance: Option<IdMap>,
+    pub semantic: Option<IdMap>,
+}
+
+impl ViewMaps {
+    /// Whether the view has map `kind`.
+    pub fn has(&self, kind: MapKind) -> bool {
+        match kind {
+            MapKind::Depth => self.depth.is_some(),
+            MapKind::Normals => self.normals.is_some(),
+            MapKind::Instance => self.instance.is_some(),
+            MapKind::Semantic => self.semantic.is_some(),
+        }
+    }
+
+    /// Puts `map` in the place of `kind`; a map of another kind than `kind` is an error naming
+    /// `path`.
+    pub fn set(&mut self, kind: MapKind, map: MapData, path: &Path) -> Result<()> {
+        match (kind, map) {
+            (MapKind::Depth, MapData::Depth(m)) => self.depth = Some(m),
+            (MapKind::Normals, MapData::Normals(m)) => self.normals = Some(m),
+            (MapKind::Instance, MapData::Ids(m)) => self.instance = Some(m),
+            (MapKind::Semantic, MapData::Ids(m)) => self.semantic = Some(m),
+            (kind, _) => return Err(Error::format(path, format!("is not a {kind} map"))),
+        }
+        Ok(())
+    }
+
+    /// The bytes of map `kind`'s file, as the generator writes it for `view`; `None` where the
+    /// view has no such map.
+    pub fn encode(
+        &self,
+        kind: MapKind,
+        view: &str,
+    ) -> Option<std::result::Result<Vec<u8>, String>> {
+        Some(match kind {
+            MapKind::Depth => encode_depth_exr(self.depth.as_ref()?, view),
+            MapKind::Normals => encode_normals_exr(self.normals.as_ref()?, view),
+            MapKind::Instance => encode_id_png(self.instance.as_ref()?),
+            MapKind::Semantic => encode_id_png(self.semantic.as_ref()?),
+        })
+    }
+
+    /// Whether `map` is this view's map `kind`, bit for bit (a float's sign of zero included).
+    pub fn holds(&self, kind: MapKind, map: &MapData) -> bool {
+        let bits = |a: &[f32], b: &[f32]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        match (kind, map) {
+            (MapKind::Depth, MapData::Depth(m)) => self.depth.as_ref().is_some_and(|d| {
+                (d.width, d.height) == (m.width, m.height) && bits(&d.data, &m.data)
+            }),
+            (MapKind::Normals, MapData::Normals(m)) => self.normals.as_ref().is_some_and(|n| {
+                (n.width, n.height) == (m.width, m.height)
+                    && bits(n.data.as_flattened(), m.data.as_flattened())
+            }),
+            (MapKind::Instance, MapData::Ids(m)) => self.instance.as_ref() == Some(m),
+            (MapKind::Semantic, MapData::Ids(m)) => self.semantic.as_ref() == Some(m),
+            _ => false,
         }
     }
 }
 
-/// The maps of one sample, decoded; `None` where the sample has no such map.
+/// The maps of one sample, decoded, per view.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SampleMaps {
-    pub depth_left: Option<DepthMap>,
-    pub depth_right: Option<DepthMap>,
-    pub normals_left: Option<NormalMap>,
-    pub normals_right: Option<NormalMap>,
-    pub instance_left: Option<IdMap>,
-    pub instance_right: Option<IdMap>,
-    pub semantic_left: Option<IdMap>,
-    pub semantic_right: Option<IdMap>,
+    pub left: ViewMaps,
+    pub right: ViewMaps,
 }
 
 impl SampleMaps {
+    /// The maps of `view` ("left" or "right").
+    pub fn view(&self, view: &str) -> &ViewMaps {
+        if view == "left" {
+            &self.left
+        } else {
+            &self.right
+        }
+    }
+
+    pub fn view_mut(&mut self, view: &str) -> &mut ViewMaps {
+        if view == "left" {
+            &mut self.left
+        } else {
+            &mut self.right
+        }
+    }
+
+    /// Whether either view has map `kind`.
+    pub fn has(&self, kind: MapKind) -> bool {
+        self.left.has(kind) || self.right.has(kind)
+    }
+
     /// Whether the sample has no map.
     pub fn is_empty(&self) -> bool {
-        self.iter().next().is_none()
+        self.kinds().is_empty()
     }
 
     /// The maps the sample has (in either view), in [`MapKind::ALL`]'s order.
     pub fn kinds(&self) -> Vec<MapKind> {
-        let mut kinds: Vec<MapKind> = self.iter().map(|(k, _, _)| k).collect();
-        kinds.dedup();
-        kinds
+        MapKind::ALL.into_iter().filter(|&k| self.has(k)).collect()
     }
 
-    /// Every map with its kind and view, in [`MapKind::ALL`]'s order, left before right.
-    pub fn iter(&self) -> impl Iterator<Item = (MapKind, &'static str, MapData)> + '_ {
-        let depth = |m: &Option<DepthMap>| m.clone().map(MapData::Depth);
-        let normals = |m: &Option<NormalMap>| m.clone().map(MapData::Normals);
-        let ids = |m: &Option<IdMap>| m.clone().map(MapData::Ids);
-        [
-            (MapKind::Depth, "left", depth(&self.depth_left)),
-            (MapKind::Depth, "right", depth(&self.depth_right)),
-            (MapKind::Normals, "left", normals(&self.normals_left)),
-            (MapKind::Normals, "right", normals(&self.normals_right)),
-            (MapKind::Instance, "left", ids(&self.instance_left)),
-            (MapKind::Instance, "right", ids(&self.instance_right)),
-            (MapKind::Semantic, "left", ids(&self.semantic_left)),
-            (MapKind::Semantic, "right", ids(&self.semantic_right)),
-        ]
-        .into_iter()
-        .filter_map(|(k, v, m)| Some((k, v, m?)))
-    }
-
-    /// Puts `map` in the place of `kind` and `view`; a map of another kind than `kind` is an
-    /// error naming `path`.
+    /// Puts `map` in the place of `kind` and `view` ([`ViewMaps::set`]).
     pub fn set(&mut self, kind: MapKind, view: &str, map: MapData, path: &Path) -> Result<()> {
-        let left = view == "left";
-        match (kind, map) {
-            (MapKind::Depth, MapData::Depth(m)) => {
-                *if left {
-                    &mut self.depth_left
-                } else {
-                    &mut self.depth_right
-                } = Some(m)
-            }
-            (MapKind::Normals, MapData::Normals(m)) => {
-                *if left {
-                    &mut self.normals_left
-                } else {
-                    &mut self.normals_right
-                } = Some(m)
-            }
-            (MapKind::Instance, MapData::Ids(m)) => {
-                *if left {
-                    &mut self.instance_left
-                } else {
-                    &mut self.instance_right
-                } = Some(m)
-            }
-            (MapKind::Semantic, MapData::Ids(m)) => {
-                *if left {
-                    &mut self.semantic_left
-                } else {
-                    &mut self.semantic_right
-                } = Some(m)
-            }
-            (kind, _) => {
-                return Err(Error::format(path, format!("is not a {kind} map")));
-            }
-        }
-        Ok(())
+        self.view_mut(view).set(kind, map, path)
     }
 }
 
@@ -219,16 +244,7 @@ pub(crate) fn read_map_files(
     let decoded: Vec<Result<MapData>> = std::thread::scope(|sc| {
         let handles: Vec<_> = files
             .iter()
-            .map(|f| {
-                sc.spawn(move || {
-                    let bytes = crate::limits::read_file_capped(
-                        &f.path,
-                        crate::limits::MAX_ALLOC,
-                        "a map file",
-                    )?;
-                    MapData::decode(f.kind, &bytes, &f.path)
-                })
-            })
+            .map(|f| sc.spawn(move || MapData::read(f.kind, &f.path)))
             .collect();
         handles.into_iter().map(super::join).collect()
     });
@@ -318,15 +334,37 @@ mod tests {
             },
         ];
         let maps = read_map_files(&files, Some((3, 2))).unwrap();
-        assert_eq!(maps.depth_right.as_ref(), Some(&depth));
-        assert_eq!(maps.semantic_left.as_ref(), Some(&ids));
-        assert!(maps.depth_left.is_none() && maps.instance_left.is_none());
+        assert_eq!(maps.right.depth.as_ref(), Some(&depth));
+        assert_eq!(maps.left.semantic.as_ref(), Some(&ids));
+        assert!(maps.left.depth.is_none() && maps.left.instance.is_none());
         assert_eq!(maps.kinds(), vec![MapKind::Depth, MapKind::Semantic]);
-        // Encoding what was read gives the file's bytes again.
-        for (kind, view, map) in maps.iter() {
-            let path = if kind == MapKind::Depth { &d } else { &s };
-            assert_eq!(map.encode(view).unwrap(), std::fs::read(path).unwrap());
+        // Encoding what was read gives the file's bytes again, and holds what was read.
+        for (kind, view, path) in [
+            (MapKind::Depth, "right", &d),
+            (MapKind::Semantic, "left", &s),
+        ] {
+            let bytes = maps.view(view).encode(kind, view).unwrap().unwrap();
+            assert_eq!(bytes, std::fs::read(path).unwrap());
+            let back = MapData::decode(kind, &bytes, path).unwrap();
+            assert!(maps.view(view).holds(kind, &back));
+            assert!(!maps.view(view).holds(MapKind::Instance, &back));
         }
+        assert!(maps.left.encode(MapKind::Depth, "left").is_none());
+        // One bit off is not held (a normal's -0.0 against 0.0 included).
+        let normals = ViewMaps {
+            normals: Some(NormalMap {
+                width: 1,
+                height: 1,
+                data: vec![[-0.0, 0.0, -1.0]],
+            }),
+            ..ViewMaps::default()
+        };
+        let flipped = MapData::Normals(NormalMap {
+            width: 1,
+            height: 1,
+            data: vec![[0.0, 0.0, -1.0]],
+        });
+        assert!(!normals.holds(MapKind::Normals, &flipped));
         // A map of another size than the sample's is refused, naming its file.
         let e = read_map_files(&files, Some((4, 2)))
             .unwrap_err()

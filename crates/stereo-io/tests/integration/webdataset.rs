@@ -12,8 +12,8 @@ use crate::io_fixtures;
 use crate::pinned_venv;
 use crate::python_script_json;
 use io_fixtures::*;
+use stereo_io::datasets::map_member;
 use stereo_io::datasets::webdataset::decode_member_maps;
-use stereo_io::datasets::{MapData, map_member};
 
 /// The readers nobody here wrote: the `webdataset` package, Pillow, OpenEXR.
 const PYTHON_PINS: &[&str] = &[
@@ -459,7 +459,13 @@ fn maps_travel_as_members_and_read_back_unchanged() {
         }
         let source_maps = ours.maps(k).unwrap();
         assert_eq!(source_maps.kinds(), MapKind::ALL);
-        assert_eq!(source_maps.iter().count(), 8);
+        // Every map in both views: 8 in all.
+        for kind in MapKind::ALL {
+            assert!(
+                source_maps.left.has(kind) && source_maps.right.has(kind),
+                "{kind}"
+            );
+        }
         assert_eq!(shards.maps(i).unwrap(), source_maps);
         // Streamed: the raw members decode to the same maps.
         let raw = shards.read_raw(i).unwrap();
@@ -478,11 +484,34 @@ fn maps_travel_as_members_and_read_back_unchanged() {
     for (n, k) in keys.iter().enumerate() {
         assert_eq!(k["maps"], serde_json::json!(maps), "{k}");
         let m = ours.maps(by_id[k["id"].as_str().unwrap()]).unwrap();
-        for (kind, view, map) in m.iter() {
-            let want: Vec<f32> = match map {
-                MapData::Depth(d) => d.data,
-                MapData::Normals(nm) => nm.data.into_iter().flatten().collect(),
-                MapData::Ids(ids) => ids.data.into_iter().map(f32::from).collect(),
+        for (kind, view) in MapKind::ALL
+            .into_iter()
+            .flat_map(|k| [(k, "left"), (k, "right")])
+        {
+            let v = m.view(view);
+            let want: Vec<f32> = match kind {
+                MapKind::Depth => v.depth.clone().unwrap().data,
+                MapKind::Normals => v
+                    .normals
+                    .clone()
+                    .unwrap()
+                    .data
+                    .into_iter()
+                    .flatten()
+                    .collect(),
+                MapKind::Instance | MapKind::Semantic => {
+                    let ids = if kind == MapKind::Instance {
+                        &v.instance
+                    } else {
+                        &v.semantic
+                    };
+                    ids.as_ref()
+                        .unwrap()
+                        .data
+                        .iter()
+                        .map(|&i| f32::from(i))
+                        .collect()
+                }
             };
             let got = npy(format!("{n}_{kind}_{view}.npy"));
             assert!(

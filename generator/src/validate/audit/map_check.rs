@@ -23,8 +23,9 @@
 
 use std::path::Path;
 
-use stereo_io::datasets::stereogen::SemanticClass;
-use stereo_io::{DepthMap, IdMap, MapKind, NormalMap};
+use stereo_io::MapKind;
+use stereo_io::datasets::MapData;
+use stereo_io::datasets::stereogen::{SemanticClass, VIEWS};
 
 use super::bvh::V3;
 use super::raycast::{Hit, RayScene};
@@ -48,19 +49,10 @@ pub fn merge_tallies(a: &mut MapTallies, b: &MapTallies) {
     }
 }
 
-/// One view's maps, those the sample has.
-#[derive(Debug, Default)]
-struct ViewMaps {
-    depth: Option<DepthMap>,
-    normals: Option<NormalMap>,
-    instance: Option<IdMap>,
-    semantic: Option<IdMap>,
-}
-
-/// A sample's maps (left, right) and what ray casting expects of the ids.
+/// A sample's maps and what ray casting expects of the ids.
 #[derive(Debug, Default)]
 pub struct SampleMaps {
-    views: [ViewMaps; 2],
+    maps: stereo_io::datasets::SampleMaps,
     /// Per object of the worker's geometry: (instance id, class id) of the spec object of the
     /// same name; `None` for an object the spec does not name (then no id can match).
     ids: Vec<Option<(u16, u16)>>,
@@ -85,10 +77,6 @@ pub fn slot(kind: MapKind) -> usize {
         .iter()
         .position(|k| *k == kind)
         .expect("every kind is in ALL")
-}
-
-fn index(view: View) -> usize {
-    if view == View::Left { 0 } else { 1 }
 }
 
 fn view_name(view: View) -> &'static str {
@@ -119,32 +107,25 @@ impl SampleMaps {
     ) -> (Self, Vec<String>) {
         let mut out = Self::default();
         let mut problems = Vec::new();
-        for (v, view) in ["left", "right"].into_iter().enumerate() {
+        for view in VIEWS {
             for kind in MapKind::ALL {
                 let Some(rel) = entry.files.map(kind, view) else {
                     continue;
                 };
                 let path = layout.abs(rel);
-                let slot = &mut out.views[v];
                 // A map that cannot be read, or has the wrong size, is not compared.
-                let size = |w: usize, h: usize| match size_problem(&path, w, h, spec) {
-                    Some(p) => Err(p),
-                    None => Ok(()),
-                };
-                let read = match kind {
-                    MapKind::Depth => stereo_io::read_depth_exr(&path)
-                        .map_err(|e| e.to_string())
-                        .and_then(|m| size(m.width, m.height).map(|()| slot.depth = Some(m))),
-                    MapKind::Normals => stereo_io::read_normals_exr(&path)
-                        .map_err(|e| e.to_string())
-                        .and_then(|m| size(m.width, m.height).map(|()| slot.normals = Some(m))),
-                    MapKind::Instance => stereo_io::read_id_png(&path)
-                        .map_err(|e| e.to_string())
-                        .and_then(|m| size(m.width, m.height).map(|()| slot.instance = Some(m))),
-                    MapKind::Semantic => stereo_io::read_id_png(&path)
-                        .map_err(|e| e.to_string())
-                        .and_then(|m| size(m.width, m.height).map(|()| slot.semantic = Some(m))),
-                };
+                let read = MapData::read(kind, &path)
+                    .map_err(|e| e.to_string())
+                    .and_then(|m| {
+                        let (w, h) = m.size();
+                        match size_problem(&path, w, h, spec) {
+                            Some(p) => Err(p),
+                            None => out
+                                .maps
+                                .set(kind, view, m, &path)
+                                .map_err(|e| e.to_string()),
+                        }
+                    });
                 if let Err(p) = read {
                     problems.push(p);
                 }
@@ -174,16 +155,11 @@ impl SampleMaps {
 
     /// Whether either view has map `kind`.
     pub fn has(&self, kind: MapKind) -> bool {
-        self.views.iter().any(|v| match kind {
-            MapKind::Depth => v.depth.is_some(),
-            MapKind::Normals => v.normals.is_some(),
-            MapKind::Instance => v.instance.is_some(),
-            MapKind::Semantic => v.semantic.is_some(),
-        })
+        self.maps.has(kind)
     }
 
     pub fn is_empty(&self) -> bool {
-        !MapKind::ALL.into_iter().any(|k| self.has(k))
+        self.maps.is_empty()
     }
 
     /// Checks every map of the pixel's view; adds to `tallies` and `issues`.
@@ -194,7 +170,7 @@ impl SampleMaps {
         tallies: &mut MapTallies,
         issues: &mut Vec<MapIssue>,
     ) {
-        let maps = &self.views[index(px.view)];
+        let maps = self.maps.view(view_name(px.view));
         let objects = px.hits.map(|h| h.map(|h| h.object));
         let object_edge = objects.iter().any(|o| *o != objects[0]);
         let edge = object_edge || px.steep;

@@ -9,6 +9,7 @@ use stereo_io::MapKind;
 use stereo_io::colormap::{
     categorical, colourise_depth, colourise_ids, colourise_normals, hex, inverse_depth_range,
 };
+use stereo_io::datasets::MapData;
 use stereo_io::datasets::stereogen::SemanticClass;
 
 use super::gallery::png_thumbnail;
@@ -75,18 +76,10 @@ fn left_map(files: &DatasetFiles, e: &ManifestEntry, kind: MapKind) -> Result<St
     let key = kind.file_key("left");
     let path = files.path(e, &key);
     let bytes = files.read(e, &key).map_err(|err| err.to_string())?;
-    let rgb = match kind {
-        MapKind::Depth => {
-            let m = stereo_io::maps::decode_depth_exr(&bytes, &path);
-            let m = m.map_err(|err| err.to_string())?;
-            colourise_depth(&m, inverse_depth_range([&m]))
-        }
-        MapKind::Normals => colourise_normals(
-            &stereo_io::maps::decode_normals_exr(&bytes, &path).map_err(|err| err.to_string())?,
-        ),
-        MapKind::Instance | MapKind::Semantic => colourise_ids(
-            &stereo_io::maps::decode_id_png(&bytes, &path).map_err(|err| err.to_string())?,
-        ),
+    let rgb = match MapData::decode(kind, &bytes, &path).map_err(|err| err.to_string())? {
+        MapData::Depth(m) => colourise_depth(&m, inverse_depth_range([&m])),
+        MapData::Normals(m) => colourise_normals(&m),
+        MapData::Ids(m) => colourise_ids(&m),
     };
     png_thumbnail(rgb, &path)
 }

@@ -19,6 +19,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use rayon::prelude::*;
 use serde::Serialize;
 use stereo_io::MapKind;
+use stereo_io::datasets::MapData;
 
 use super::StatsOptions;
 use super::files::{FileError, read_sample_file};
@@ -202,36 +203,21 @@ impl MapAcc {
         let key = kind.file_key(view);
         let bytes = read_sample_file(files, e, &key, opts.verify)?;
         let path = files.path(e, &key);
-        let sized = |w: usize, h: usize| {
-            if (w, h) == (e.width as usize, e.height as usize) {
-                Ok(())
-            } else {
-                Err(FileError::Io(stereo_io::Error::format(
-                    &path,
-                    format!("is {w}x{h}, the sample {}x{}", e.width, e.height),
-                )))
+        let map = MapData::decode(kind, &bytes, &path).map_err(FileError::Io)?;
+        let (w, h) = map.size();
+        if (w, h) != (e.width as usize, e.height as usize) {
+            return Err(FileError::Io(stereo_io::Error::format(
+                &path,
+                format!("is {w}x{h}, the sample {}x{}", e.width, e.height),
+            )));
+        }
+        match (kind, map) {
+            (_, MapData::Depth(m)) => self.add_depth(&m),
+            (_, MapData::Normals(m)) => self.add_normals(&m, e),
+            (MapKind::Instance, MapData::Ids(m)) => {
+                ids.extend(m.data.iter().copied().filter(|&id| id != 0))
             }
-        };
-        match kind {
-            MapKind::Depth => {
-                let m = stereo_io::maps::decode_depth_exr(&bytes, &path).map_err(FileError::Io)?;
-                sized(m.width, m.height)?;
-                self.add_depth(&m);
-            }
-            MapKind::Normals => {
-                let m =
-                    stereo_io::maps::decode_normals_exr(&bytes, &path).map_err(FileError::Io)?;
-                sized(m.width, m.height)?;
-                self.add_normals(&m, e);
-            }
-            MapKind::Instance => {
-                let m = stereo_io::maps::decode_id_png(&bytes, &path).map_err(FileError::Io)?;
-                sized(m.width, m.height)?;
-                ids.extend(m.data.iter().copied().filter(|&id| id != 0));
-            }
-            MapKind::Semantic => {
-                let m = stereo_io::maps::decode_id_png(&bytes, &path).map_err(FileError::Io)?;
-                sized(m.width, m.height)?;
+            (_, MapData::Ids(m)) => {
                 for &id in &m.data {
                     *self.semantic.entry(id).or_default() += 1;
                 }

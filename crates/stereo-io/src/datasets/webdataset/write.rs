@@ -15,13 +15,14 @@ use super::{
 };
 use crate::atomic::{place, temp_sibling, write_bytes_atomically};
 use crate::datasets::export::{SampleSelection, export_name};
-use crate::datasets::stereogen::{DatasetLayout, read_manifest};
+use crate::datasets::stereogen::{DatasetLayout, VIEWS, read_manifest};
 use crate::datasets::{
     DatasetFormat, ReadOptions, StereoDataset, StereoSample, map_member, open_dataset_with,
 };
 use crate::error::{Error, Result};
 use crate::exr_io::encode_disparity_exr;
 use crate::image_io::{Image, Samples, encode_png};
+use crate::maps::MapKind;
 
 /// The progress of an unfinished export, rewritten after each shard: what a re-run of the same
 /// command resumes from.
@@ -354,16 +355,17 @@ fn map_members(
             .map(|f| Ok((map_member(f.kind, f.view), read(&f.path)?)))
             .collect();
     }
-    dataset
-        .maps(k)?
-        .iter()
-        .map(|(kind, view, map)| {
-            let bytes = map
-                .encode(view)
-                .map_err(|e| Error::format(&s.meta.left_path, e))?;
-            Ok((map_member(kind, view), bytes))
-        })
-        .collect()
+    let maps = dataset.maps(k)?;
+    let mut members = Vec::new();
+    for kind in MapKind::ALL {
+        for view in VIEWS {
+            if let Some(bytes) = maps.view(view).encode(kind, view) {
+                let bytes = bytes.map_err(|e| Error::format(&s.meta.left_path, e))?;
+                members.push((map_member(kind, view), bytes));
+            }
+        }
+    }
+    Ok(members)
 }
 
 /// The members of a sample: the source's own files where they already are PNG/JPEG images and
