@@ -70,32 +70,46 @@ pub fn ramp(t: f32) -> [u8; 3] {
     } else {
         0.0
     };
-    let h = (1.0 - t) * 4.0;
+    hue_rgb((1.0 - t) * 4.0).map(|c| (c * 255.0).round() as u8)
+}
+
+/// The fully saturated colour of hue `h` in sixths of the circle (0 red, 2 green, 4 blue), each
+/// channel 0..=1.
+fn hue_rgb(h: f64) -> [f64; 3] {
     let x = 1.0 - (h % 2.0 - 1.0).abs();
-    let (r, g, b) = match h as u32 {
-        0 => (1.0, x, 0.0),
-        1 => (x, 1.0, 0.0),
-        2 => (0.0, 1.0, x),
-        _ => (0.0, x, 1.0),
-    };
-    [r, g, b].map(|c: f64| (c * 255.0).round() as u8)
+    match h as u32 {
+        0 => [1.0, x, 0.0],
+        1 => [x, 1.0, 0.0],
+        2 => [0.0, 1.0, x],
+        3 => [0.0, x, 1.0],
+        4 => [x, 0.0, 1.0],
+        _ => [1.0, 0.0, x],
+    }
+}
+
+/// An image of `width` × `height` from its pixels' colours, row by row.
+fn rgb_image(width: usize, height: usize, pixels: impl Iterator<Item = [u8; 3]>) -> RgbImage {
+    RgbImage {
+        width,
+        height,
+        data: pixels.flatten().collect(),
+    }
 }
 
 /// Colours every pixel of `map` by its place in `range`; invalid pixels are black.
 pub fn colourise(map: &DisparityMap, range: DisparityRange) -> RgbImage {
-    let mut data = Vec::with_capacity(map.data.len() * 3);
-    for (&d, &v) in map.data.iter().zip(&map.valid) {
-        data.extend(if v {
-            ramp(range.position(d))
-        } else {
-            [0, 0, 0]
-        });
-    }
-    RgbImage {
-        width: map.width,
-        height: map.height,
-        data,
-    }
+    let pixels = map.data.iter().zip(&map.valid);
+    rgb_image(
+        map.width,
+        map.height,
+        pixels.map(|(&d, &v)| {
+            if v {
+                ramp(range.position(d))
+            } else {
+                [0, 0, 0]
+            }
+        }),
+    )
 }
 
 /// Whether a depth value is a surface (positive and finite; 0 is "no surface").
@@ -122,43 +136,27 @@ pub fn inverse_depth_range<'a>(maps: impl IntoIterator<Item = &'a DepthMap>) -> 
 /// Colours each surface pixel of `map` by its inverse depth's place in `range` (1/m) on the
 /// ramp (near red, far blue); no surface is black.
 pub fn colourise_depth(map: &DepthMap, range: DisparityRange) -> RgbImage {
-    let data = map
-        .data
-        .iter()
-        .flat_map(|&z| {
-            if is_surface(z) {
-                ramp(range.position(1.0 / z))
-            } else {
-                [0, 0, 0]
-            }
-        })
-        .collect();
-    RgbImage {
-        width: map.width,
-        height: map.height,
-        data,
-    }
+    let pixels = map.data.iter().map(|&z| {
+        if is_surface(z) {
+            ramp(range.position(1.0 / z))
+        } else {
+            [0, 0, 0]
+        }
+    });
+    rgb_image(map.width, map.height, pixels)
 }
 
 /// Colours each normal as `(n + 1) / 2` of full scale per component (x red, y green, z blue);
 /// no surface (`[0, 0, 0]`, or a non-finite normal) is black.
 pub fn colourise_normals(map: &NormalMap) -> RgbImage {
-    let data = map
-        .data
-        .iter()
-        .flat_map(|n| {
-            if n.iter().all(|c| c.is_finite()) && n.iter().any(|&c| c != 0.0) {
-                n.map(|c| ((c.clamp(-1.0, 1.0) + 1.0) * 0.5 * 255.0).round() as u8)
-            } else {
-                [0, 0, 0]
-            }
-        })
-        .collect();
-    RgbImage {
-        width: map.width,
-        height: map.height,
-        data,
-    }
+    let pixels = map.data.iter().map(|n| {
+        if n.iter().all(|c| c.is_finite()) && n.iter().any(|&c| c != 0.0) {
+            n.map(|c| ((c.clamp(-1.0, 1.0) + 1.0) * 0.5 * 255.0).round() as u8)
+        } else {
+            [0, 0, 0]
+        }
+    });
+    rgb_image(map.width, map.height, pixels)
 }
 
 /// The first ids' colours: well apart from each other and from black.
@@ -187,27 +185,18 @@ pub fn categorical(id: u16) -> [u8; 3] {
         i => {
             let hue = (f64::from(i) * 0.618_033_988_749_895).fract() * 6.0;
             let (s, v) = [(0.65, 0.95), (0.9, 0.75), (0.45, 0.85)][usize::from(i) % 3];
-            let x = 1.0 - (hue % 2.0 - 1.0).abs();
-            let (r, g, b) = match hue as u32 {
-                0 => (1.0, x, 0.0),
-                1 => (x, 1.0, 0.0),
-                2 => (0.0, 1.0, x),
-                3 => (0.0, x, 1.0),
-                4 => (x, 0.0, 1.0),
-                _ => (1.0, 0.0, x),
-            };
-            [r, g, b].map(|c: f64| ((1.0 - s + s * c) * v * 255.0).round() as u8)
+            hue_rgb(hue).map(|c| ((1.0 - s + s * c) * v * 255.0).round() as u8)
         }
     }
 }
 
 /// Colours each id by [`categorical`] (0, no surface, black).
 pub fn colourise_ids(map: &IdMap) -> RgbImage {
-    RgbImage {
-        width: map.width,
-        height: map.height,
-        data: map.data.iter().flat_map(|&id| categorical(id)).collect(),
-    }
+    rgb_image(
+        map.width,
+        map.height,
+        map.data.iter().map(|&id| categorical(id)),
+    )
 }
 
 /// `#rrggbb` of a colour (for HTML).

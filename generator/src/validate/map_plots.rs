@@ -12,6 +12,12 @@ use super::plots::{Area, box_key, draw_legend, panel_chart, plot_err, render};
 use super::stats::maps::{DepthStats, InstanceStats, MapStats, NormalStats, SemanticStats};
 
 const BAR: RGBColor = RGBColor(70, 110, 190);
+
+/// A histogram's bars, each (left edge, right edge, height), as filled rectangles.
+fn bar_rects(bars: &[(f64, f64, f64)]) -> impl Iterator<Item = Rectangle<(f64, f64)>> + '_ {
+    bars.iter()
+        .map(|&(a, b, y)| Rectangle::new([(a, 0.0), (b, y)], BAR.mix(0.6).filled()))
+}
 const MARK: RGBColor = RGBColor(210, 40, 40);
 
 /// Axes with descriptions; `x_labels` formats the x tick labels.
@@ -71,12 +77,7 @@ fn depth_panel(area: &Area, d: &DepthStats) -> anyhow::Result<()> {
         &metres,
         8,
     )?;
-    chart
-        .draw_series(
-            bars.iter()
-                .map(|&(a, b, y)| Rectangle::new([(a, 0.0), (b, y)], BAR.mix(0.6).filled())),
-        )
-        .map_err(plot_err)?;
+    chart.draw_series(bar_rects(&bars)).map_err(plot_err)?;
     Ok(())
 }
 
@@ -103,10 +104,7 @@ fn normals_panel(area: &Area, n: &NormalStats) -> anyhow::Result<()> {
         10,
     )?;
     chart
-        .draw_series(
-            bars.iter()
-                .map(|&(a, b, y)| Rectangle::new([(a, 0.0), (b, y)], BAR.mix(0.6).filled())),
-        )
+        .draw_series(bar_rects(&bars))
         .map_err(plot_err)?
         .label("surface pixels")
         .legend(box_key(BAR.mix(0.6).filled()));
@@ -144,12 +142,7 @@ fn instance_panel(area: &Area, i: &InstanceStats) -> anyhow::Result<()> {
         &|v| format!("{v:.0}"),
         ticks,
     )?;
-    chart
-        .draw_series(
-            bars.iter()
-                .map(|&(a, b, y)| Rectangle::new([(a, 0.0), (b, y)], BAR.mix(0.6).filled())),
-        )
-        .map_err(plot_err)?;
+    chart.draw_series(bar_rects(&bars)).map_err(plot_err)?;
     Ok(())
 }
 
