@@ -21,7 +21,7 @@ use rand::Rng;
 use rand::seq::IndexedRandom;
 use serde::{Deserialize, Serialize};
 
-use super::assets::AssetIndex;
+use super::assets::{AssetIndex, MeshAsset};
 use super::recipe::{CategoryRecipe, Recipe};
 use super::rig::StereoRig;
 use super::rng::SeedTree;
@@ -184,11 +184,11 @@ fn furniture(
 ) -> Vec<ObjectSpec> {
     let mut rng = node.child("count").rng();
     let count = rng.random_range(1..=4u32);
-    let pool: Vec<_> = [&assets.meshes, &assets.shapenet, &assets.pack_meshes]
+    // Borrowed, not copied: a ShapeNet index holds tens of thousands of entries.
+    let pool: &[MeshAsset] = [&assets.meshes, &assets.shapenet, &assets.pack_meshes]
         .into_iter()
         .find(|p| !p.is_empty())
-        .cloned()
-        .unwrap_or_default();
+        .map_or(&[], |p| p.as_slice());
     (0..count)
         .map(|i| {
             let mut rng = node.nth(u64::from(i)).rng();
