@@ -6,7 +6,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
-use test_support::{audit_cmd, run_shown, sha256_hex};
+use test_support::files::copy_dir;
+use test_support::{audit_cmd, resign, run_shown};
 
 use serde_json::Value;
 use stereo_io::DisparityMap;
@@ -31,37 +32,6 @@ fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
 
 fn audit_json(data: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(data.join("audit.json")).unwrap()).unwrap()
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let target = to.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &target);
-        } else {
-            std::fs::copy(e.path(), target).unwrap();
-        }
-    }
-}
-
-/// Records the current checksum of `key` of sample `id` in the manifest, as if the corrupted
-/// file had been written by the generator itself: only the geometry can catch it then.
-fn resign(data: &Path, id: &str, key: &str) {
-    let path = data.join("manifest.jsonl");
-    let text = std::fs::read_to_string(&path).unwrap();
-    let mut out = String::new();
-    for line in text.lines() {
-        let mut v: Value = serde_json::from_str(line).unwrap();
-        if v["id"] == id {
-            let rel = v["files"][key].as_str().unwrap().to_string();
-            v["sha256"][key] = Value::String(sha256_hex(&data.join(rel)));
-        }
-        out += &serde_json::to_string(&v).unwrap();
-        out.push('\n');
-    }
-    std::fs::write(path, out).unwrap();
 }
 
 fn read_map(path: &Path) -> (DisparityMap, stereo_io::DisparityMeta) {

@@ -12,7 +12,8 @@ use serde_json::Value;
 use stereo_io::MapKind;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::OutputMap;
-use test_support::{audit_cmd, generate_cmd, run_ok, run_shown, sha256_hex, tiny_recipe};
+use test_support::files::copy_dir;
+use test_support::{audit_cmd, generate_cmd, resign, run_ok, run_shown, tiny_recipe};
 
 /// With seed 3 the first 8 scenes of the tiny `crestereo` mix cover all four categories.
 const SCENES: u64 = 8;
@@ -21,12 +22,7 @@ const SEED: u64 = 3;
 /// The tiny default preset with every map, rendered into `dir/name`.
 fn generate_with_maps(dir: &Path, name: &str) -> PathBuf {
     let mut recipe = tiny_recipe("crestereo");
-    recipe.render.outputs = vec![
-        OutputMap::Depth,
-        OutputMap::Normals,
-        OutputMap::Instance,
-        OutputMap::Semantic,
-    ];
+    recipe.render.outputs = OutputMap::ALL.to_vec();
     let path = dir.join("tiny-maps.toml");
     std::fs::write(&path, toml::to_string(&recipe).unwrap()).unwrap();
     let out = dir.join(name);
@@ -40,36 +36,6 @@ fn audit(data: &Path) -> (std::process::Output, String) {
 
 fn audit_json(data: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(data.join("audit.json")).unwrap()).unwrap()
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let target = to.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &target);
-        } else {
-            std::fs::copy(e.path(), target).unwrap();
-        }
-    }
-}
-
-/// Records the current checksum of `key` of sample `id` in the manifest, as if the generator had
-/// written the corrupted file itself.
-fn resign(data: &Path, id: &str, key: &str) {
-    let path = data.join("manifest.jsonl");
-    let mut out = String::new();
-    for line in std::fs::read_to_string(&path).unwrap().lines() {
-        let mut v: Value = serde_json::from_str(line).unwrap();
-        if v["id"] == id {
-            let rel = v["files"][key].as_str().unwrap().to_string();
-            v["sha256"][key] = Value::String(sha256_hex(&data.join(rel)));
-        }
-        out += &serde_json::to_string(&v).unwrap();
-        out.push('\n');
-    }
-    std::fs::write(path, out).unwrap();
 }
 
 /// The block of pixels the corruptions change: the middle half of the image in both directions.

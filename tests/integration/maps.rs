@@ -4,29 +4,13 @@
 //! (`stereogen audit` checks them against its own ray cast: `audit_generated`.)
 
 use stereo_io::{DisparityMap, IdMap, MapKind, read_depth_exr, read_id_png, read_normals_exr};
-use stereogen::assets::AssetIndex;
-use stereogen::plan::recipe::DEFAULT_PRESET;
-use stereogen::plan::{OutputMap, Recipe, SEMANTIC_CLASSES, SceneSpec, plan_scene};
+use stereogen::plan::{OutputMap, SEMANTIC_CLASSES, SceneSpec};
 use stereogen::render::RenderService;
 use test_support::{render, worker_config};
 
 /// The first scene of each category of the default preset (seed 11) with every map, small.
 fn one_spec_per_category_with_maps() -> Vec<SceneSpec> {
-    let mut recipe = Recipe::preset(DEFAULT_PRESET).unwrap();
-    recipe.render.outputs = OutputMap::ALL.to_vec();
-    let mut specs: Vec<SceneSpec> = Vec::new();
-    for index in 0..64 {
-        let mut spec = plan_scene(&recipe, &AssetIndex::default(), 11, index);
-        if specs.iter().any(|s| s.category == spec.category) {
-            continue;
-        }
-        spec.rig.width = 160;
-        spec.rig.height = 90;
-        spec.render.recipe.samples = 2;
-        specs.push(spec);
-    }
-    assert_eq!(specs.len(), recipe.categories.len());
-    specs
+    test_support::one_spec_per_category(11, (160, 90), 2, &OutputMap::ALL)
 }
 
 /// Share of the left view's pixels that see the same object as the right view where the

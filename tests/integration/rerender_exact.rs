@@ -67,31 +67,9 @@ fn boolean_heavy_spec() -> SceneSpec {
 
 /// The first sample of each of the default preset's categories (seed 11: the seed a re-render
 /// was first seen to differ with), small and with few samples per pixel to keep CI fast, with
-/// every map a recipe can ask for.
+/// every map a recipe can ask for (each must come out the same as well).
 fn one_spec_per_category() -> Vec<SceneSpec> {
-    let recipe = Recipe::preset(DEFAULT_PRESET).unwrap();
-    let mut specs: Vec<SceneSpec> = Vec::new();
-    for index in 0..64 {
-        let mut spec = plan_scene(&recipe, &AssetIndex::default(), 11, index);
-        if specs.iter().any(|s| s.category == spec.category) {
-            continue;
-        }
-        spec.rig.width = 240;
-        spec.rig.height = 135;
-        spec.render.recipe.samples = 4;
-        // Every map too: each must come out the same as well.
-        spec.render.recipe.outputs = OutputMap::ALL.to_vec();
-        specs.push(spec);
-    }
-    let mut names: Vec<&str> = specs.iter().map(|s| s.category.as_str()).collect();
-    names.sort_unstable();
-    let mut wanted: Vec<&str> = recipe.categories.iter().map(|c| c.name.as_str()).collect();
-    wanted.sort_unstable();
-    assert_eq!(
-        names, wanted,
-        "a category missing from the first 64 samples"
-    );
-    specs
+    test_support::one_spec_per_category(11, (240, 135), 4, &OutputMap::ALL)
 }
 
 /// `base` with one object of every primitive kind in place of its objects (the background

@@ -294,6 +294,61 @@ pub fn sha256_hex(path: &std::path::Path) -> String {
         .to_string()
 }
 
+/// Records the current checksum (by [`sha256_hex`]) of file `key` of sample `id` in the manifest
+/// of dataset `data`, as if the generator had written that file itself: a test that corrupts a
+/// file and re-signs it leaves only the geometry to catch it.
+pub fn resign(data: &std::path::Path, id: &str, key: &str) {
+    let path = data.join("manifest.jsonl");
+    let mut out = String::new();
+    for line in std::fs::read_to_string(&path).unwrap().lines() {
+        let mut v: serde_json::Value = serde_json::from_str(line).unwrap();
+        if v["id"] == id {
+            let rel = v["files"][key].as_str().unwrap().to_string();
+            v["sha256"][key] = serde_json::Value::String(sha256_hex(&data.join(rel)));
+        }
+        out += &serde_json::to_string(&v).unwrap();
+        out.push('\n');
+    }
+    std::fs::write(path, out).unwrap();
+}
+
+/// The first scene of each category of the default preset with `seed`, at `width`×`height`
+/// with `samples` per pixel and the maps `outputs`.
+pub fn one_spec_per_category(
+    seed: u64,
+    (width, height): (u32, u32),
+    samples: u32,
+    outputs: &[stereogen::plan::OutputMap],
+) -> Vec<SceneSpec> {
+    let recipe = Recipe::preset(stereogen::plan::recipe::DEFAULT_PRESET).unwrap();
+    let mut specs: Vec<SceneSpec> = Vec::new();
+    for index in 0..64 {
+        let mut spec = stereogen::plan::plan_scene(
+            &recipe,
+            &stereogen::assets::AssetIndex::default(),
+            seed,
+            index,
+        );
+        if specs.iter().any(|s| s.category == spec.category) {
+            continue;
+        }
+        spec.rig.width = width;
+        spec.rig.height = height;
+        spec.render.recipe.samples = samples;
+        spec.render.recipe.outputs = outputs.to_vec();
+        specs.push(spec);
+    }
+    let mut names: Vec<&str> = specs.iter().map(|s| s.category.as_str()).collect();
+    names.sort_unstable();
+    let mut wanted: Vec<&str> = recipe.categories.iter().map(|c| c.name.as_str()).collect();
+    wanted.sort_unstable();
+    assert_eq!(
+        names, wanted,
+        "a category missing from the first 64 samples"
+    );
+    specs
+}
+
 /// Asserts that `path`, a file a manifest lists, is there and that its SHA-256 (by
 /// [`sha256_hex`]) is `want`, the checksum the manifest recorded.
 pub fn assert_listed_file_intact(path: &std::path::Path, want: &str) {

@@ -36,3 +36,17 @@ pub fn write_replaced(from: &Path, to: &Path, pattern: &str, with: &str) {
         .replace(pattern, with);
     std::fs::write(to, text).unwrap_or_else(|e| panic!("write {}: {e}", to.display()));
 }
+
+/// Copies folder `from` with everything below it to `to` (created).
+pub fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), target).unwrap();
+        }
+    }
+}
