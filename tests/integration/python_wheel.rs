@@ -129,96 +129,158 @@ struct Fixture {
     refs: PathBuf,
 }
 
-fn fixture() -> &'static Fixture {
-    static FIXTURE: OnceLock<Fixture> = OnceLock::new();
-    FIXTURE.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let folder = test_support::generate_tiny_dataset(dir.path(), "ours", 6, 11);
-        let shards = dir.path().join("shards");
-        let out = export_cmd(&folder, "webdataset", &shards)
-            .args(["--shard-size", "1B", "--splits", "train=0.67,val=0.33"])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let refs = dir.path().join("refs");
-        std::fs::create_dir_all(&refs).unwrap();
-        let ds = open_dataset(&folder, None).unwrap();
-        for i in 0..ds.len() {
-            let s = ds.sample(i).unwrap();
-            let id = s.meta.id.clone();
-            let (w, h) = (s.left.width, s.left.height);
-            let f = |v: &[u8]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-            let b = |v: &[bool]| v.iter().map(|&x| x as u8 as f32).collect::<Vec<f32>>();
-            let right = s
-                .disp_right
-                .as_ref()
-                .expect("ours have a right-view disparity");
-            let valid = s.valid_mask().to_vec();
-            for (name, shape, data) in [
-                ("left", vec![h, w, 3], f(&s.left.data)),
-                ("right", vec![h, w, 3], f(&s.right.data)),
-                ("disp", vec![h, w], s.disp_left.data.clone()),
-                ("valid", vec![h, w], b(&valid)),
-                ("disp_right", vec![h, w], right.data.clone()),
-                ("valid_right", vec![h, w], b(&right.valid)),
-            ] {
-                write_npy(
-                    &refs.join(format!("{id}_{name}.npy")),
-                    &NpyArray { shape, data },
-                )
-                .unwrap();
+/// A rendered dataset (6 scenes of the tiny `crestereo` mix, seed 11), its WebDataset export
+/// (one sample per shard, splits train and val) and the Rust reader's arrays of every sample;
+/// `with_maps`: rendered with every map a recipe can ask for, whose arrays are written too.
+fn make_fixture(with_maps: bool) -> Fixture {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = if with_maps {
+        let mut recipe = test_support::tiny_recipe("crestereo");
+        recipe.render.outputs = stereogen::plan::OutputMap::ALL.to_vec();
+        let path = dir.path().join("tiny-maps.toml");
+        std::fs::write(&path, toml::to_string(&recipe).unwrap()).unwrap();
+        let out = dir.path().join("ours");
+        test_support::run_ok(test_support::generate_cmd(&path, &out, 6).args(["--seed", "11"]));
+        out
+    } else {
+        test_support::generate_tiny_dataset(dir.path(), "ours", 6, 11)
+    };
+    let shards = dir.path().join("shards");
+    let out = export_cmd(&folder, "webdataset", &shards)
+        .args(["--shard-size", "1B", "--splits", "train=0.67,val=0.33"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let refs = dir.path().join("refs");
+    std::fs::create_dir_all(&refs).unwrap();
+    let ds = open_dataset(&folder, None).unwrap();
+    for i in 0..ds.len() {
+        let s = ds.sample(i).unwrap();
+        let id = s.meta.id.clone();
+        let (w, h) = (s.left.width, s.left.height);
+        let f = |v: &[u8]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+        let b = |v: &[bool]| v.iter().map(|&x| x as u8 as f32).collect::<Vec<f32>>();
+        let right = s
+            .disp_right
+            .as_ref()
+            .expect("ours have a right-view disparity");
+        let valid = s.valid_mask().to_vec();
+        let mut arrays = vec![
+            ("left".to_string(), vec![h, w, 3], f(&s.left.data)),
+            ("right".to_string(), vec![h, w, 3], f(&s.right.data)),
+            ("disp".to_string(), vec![h, w], s.disp_left.data.clone()),
+            ("valid".to_string(), vec![h, w], b(&valid)),
+            ("disp_right".to_string(), vec![h, w], right.data.clone()),
+            ("valid_right".to_string(), vec![h, w], b(&right.valid)),
+        ];
+        let maps = ds.maps(i).unwrap();
+        assert_eq!(maps.is_empty(), !with_maps);
+        for view in ["left", "right"] {
+            let v = maps.view(view);
+            let ids = |m: &stereo_io::IdMap| m.data.iter().map(|&x| f32::from(x)).collect();
+            if let Some(m) = &v.depth {
+                arrays.push((format!("depth_{view}"), vec![h, w], m.data.clone()));
+            }
+            if let Some(m) = &v.normals {
+                let flat = m.data.iter().flatten().copied().collect();
+                arrays.push((format!("normals_{view}"), vec![h, w, 3], flat));
+            }
+            if let Some(m) = &v.instance {
+                arrays.push((format!("instance_{view}"), vec![h, w], ids(m)));
+            }
+            if let Some(m) = &v.semantic {
+                arrays.push((format!("semantic_{view}"), vec![h, w], ids(m)));
             }
         }
-        Fixture {
-            _dir: dir,
-            folder,
-            shards,
-            refs,
+        for (name, shape, data) in arrays {
+            write_npy(
+                &refs.join(format!("{id}_{name}.npy")),
+                &NpyArray { shape, data },
+            )
+            .unwrap();
         }
-    })
+    }
+    Fixture {
+        _dir: dir,
+        folder,
+        shards,
+        refs,
+    }
 }
 
-/// Runs crates/stereogen-py/pytests/loaders_check.py `mode` in a fresh venv with the wheel (and
-/// its torch extra) on the base venvs; returns its stdout.
-fn check(mode: &str, venv_name: &str) -> String {
+fn fixture() -> &'static Fixture {
+    static FIXTURE: OnceLock<Fixture> = OnceLock::new();
+    FIXTURE.get_or_init(|| make_fixture(false))
+}
+
+/// The fixture rendered with every map.
+fn fixture_with_maps() -> &'static Fixture {
+    static FIXTURE: OnceLock<Fixture> = OnceLock::new();
+    FIXTURE.get_or_init(|| make_fixture(true))
+}
+
+/// Runs crates/stereogen-py/pytests/loaders_check.py `mode` on each of `fixtures` in a fresh venv
+/// with the wheel (and its torch extra) on the base venvs; returns its stdout.
+fn check(mode: &str, venv_name: &str, fixtures: &[&Fixture]) -> String {
     let wheel = wheel();
-    let fx = fixture();
     let (torch, hub) = base_venvs();
     let venv = fresh_venv(&python_home().join(venv_name), &[&hub, &torch]);
     run(
         pinned_venv_pip(&venv).arg(format!("{}[torch]", wheel.display())),
         "pip install wheel[torch]",
     );
-    let out = run(
-        Command::new(venv.join("bin/python"))
-            .arg(repo_root().join("crates/stereogen-py/pytests/loaders_check.py"))
-            .arg(mode)
-            .arg(&fx.folder)
-            .arg(&fx.shards)
-            .arg(&fx.refs)
-            .env("HF_HUB_OFFLINE", "1")
-            .env("HF_DATASETS_OFFLINE", "1")
-            .env("HF_HOME", fx.refs.join(format!("hf-{mode}"))),
-        &format!("loaders_check.py {mode}"),
-    );
-    println!("{out}");
-    out
+    let mut said = String::new();
+    for fx in fixtures {
+        let out = run(
+            Command::new(venv.join("bin/python"))
+                .arg(repo_root().join("crates/stereogen-py/pytests/loaders_check.py"))
+                .arg(mode)
+                .arg(&fx.folder)
+                .arg(&fx.shards)
+                .arg(&fx.refs)
+                .env("HF_HUB_OFFLINE", "1")
+                .env("HF_DATASETS_OFFLINE", "1")
+                .env("HF_HOME", fx.refs.join(format!("hf-{mode}"))),
+            &format!("loaders_check.py {mode}"),
+        );
+        println!("{out}");
+        said += &out;
+    }
+    said
 }
 
 #[test]
 fn torch_datasets_through_two_workers_equal_the_rust_reader() {
-    let said = check("torch", "wheel-test-loaders");
-    for line in [
-        "StereoWebDataset: 6 samples, bit-equal, workers [0, 1]",
-        "StereoDataset: 6 samples, bit-equal, workers [0, 1]",
-        "trained 3 steps on StereoWebDataset",
-        "trained 3 steps on StereoDataset",
+    let said = check(
+        "torch",
+        "wheel-test-loaders",
+        &[fixture(), fixture_with_maps()],
+    );
+    for (line, times) in [
+        (
+            "StereoWebDataset: 6 samples, bit-equal, workers [0, 1], maps: none",
+            1,
+        ),
+        (
+            "StereoDataset: 6 samples, bit-equal, workers [0, 1], maps: none",
+            1,
+        ),
+        (
+            "StereoWebDataset: 6 samples, bit-equal, workers [0, 1], maps: depth_left, depth_right, instance_left, instance_right, normals_left, normals_right, semantic_left, semantic_right",
+            1,
+        ),
+        (
+            "StereoDataset: 6 samples, bit-equal, workers [0, 1], maps: depth_left, depth_right, instance_left, instance_right, normals_left, normals_right, semantic_left, semantic_right",
+            1,
+        ),
+        ("trained 3 steps on StereoWebDataset", 2),
+        ("trained 3 steps on StereoDataset", 2),
     ] {
-        assert!(said.contains(line), "missing {line:?} in\n{said}");
+        assert_eq!(said.matches(line).count(), times, "{line:?} in\n{said}");
     }
 }
 
@@ -239,7 +301,7 @@ fn datasets_and_webdataset_read_the_shards_as_the_card_shows() {
     ] {
         assert!(card.contains(needle), "the card lacks {needle:?}:\n{card}");
     }
-    let said = check("hub", "wheel-test-hub");
+    let said = check("hub", "wheel-test-hub", &[fixture()]);
     for line in [
         "datasets: 6 rows, images and disparities equal the Rust reader's",
         "webdataset: 4 samples through 2 workers, equal the Rust reader's",

@@ -8,7 +8,8 @@ val, with its dataset card), REFS the Rust reader's arrays of every sample as `<
 
 torch: `stereogen.torch.StereoWebDataset` (the train and val splits) and `StereoDataset` (the
 folder) through a `DataLoader` with two workers: every sample once, every tensor bit for bit the
-Rust reader's, both workers used; then three optimiser steps of a small network on each.
+Rust reader's (the maps too, where REFS has them, and no map key where it has none), both workers
+used; then three optimiser steps of a small network on each.
 
 hub: the code blocks of the dataset card, as they are: `datasets`' WebDataset builder (images and
 the card's two lines for the disparity EXRs), then `webdataset` + a `DataLoader` with two workers.
@@ -26,6 +27,11 @@ import stereogen
 import stereogen.torch as st
 
 MODE, FOLDER, SHARDS, REFS = sys.argv[1], *map(pathlib.Path, sys.argv[2:5])
+
+
+def ref_ids():
+    """The samples REFS holds arrays of (each has `<id>_disp.npy`)."""
+    return sorted(p.name[: -len("_disp.npy")] for p in REFS.glob("*_disp.npy"))
 
 
 def ref(sample_id, name):
@@ -51,6 +57,33 @@ def expect_tensors(sample_id, left, right, disp, valid, disp_right=None, valid_r
         assert np.array_equal(valid_right[0].numpy(), ref(sample_id, "valid_right") != 0)
 
 
+MAP_NAMES = tuple(f"{k}_{v}" for k in ("depth", "normals", "instance", "semantic") for v in ("left", "right"))
+
+
+def ref_maps(sample_id):
+    """The maps the Rust reader found for the sample (those written into REFS)."""
+    return sorted(n for n in MAP_NAMES if (REFS / f"{sample_id}_{n}.npy").exists())
+
+
+def expect_maps(sample_id, batch, k):
+    """The sample's map tensors against the Rust reader's, bit for bit; no map key it lacks."""
+    names = ref_maps(sample_id)
+    assert sorted(n for n in MAP_NAMES if n in batch) == names, (sample_id, names, list(batch))
+    for n in names:
+        t, want = batch[n][k], ref(sample_id, n)
+        if n.startswith("normals_"):
+            assert t.dtype == torch.float32 and tuple(t.shape) == (3, *want.shape[:2]), (n, t.shape)
+            got = t.permute(1, 2, 0).contiguous().numpy()
+        elif n.startswith("depth_"):
+            assert t.dtype == torch.float32 and tuple(t.shape) == (1, *want.shape), (n, t.shape)
+            got = t[0].numpy()
+        else:
+            assert t.dtype == torch.int32 and tuple(t.shape) == (1, *want.shape), (n, t.shape)
+            got = t[0].numpy().astype(np.float32)
+        assert np.array_equal(got.view(np.uint32), want.view(np.uint32)), f"{sample_id}: {n}"
+    return names
+
+
 def with_worker(sample):
     info = torch.utils.data.get_worker_info()
     sample["worker"] = -1 if info is None else info.id
@@ -59,11 +92,12 @@ def with_worker(sample):
 
 def every_sample_equal(data, name):
     loader = torch.utils.data.DataLoader(data, batch_size=2, num_workers=2)
-    seen, workers = [], set()
+    seen, workers, maps = [], set(), set()
     for batch in loader:
         for k, sample_id in enumerate(batch["id"]):
             seen.append(sample_id)
             workers.add(int(batch["worker"][k]))
+            maps.update(expect_maps(sample_id, batch, k))
             expect_tensors(
                 sample_id,
                 batch["left"][k],
@@ -73,9 +107,9 @@ def every_sample_equal(data, name):
                 batch["disp_right"][k],
                 batch["valid_right"][k],
             )
-    ids = sorted(p.name[: -len("_left.npy")] for p in REFS.glob("*_left.npy"))
+    ids = ref_ids()
     assert sorted(seen) == ids, (name, sorted(seen), ids)
-    print(f"{name}: {len(seen)} samples, bit-equal, workers {sorted(workers)}")
+    print(f"{name}: {len(seen)} samples, bit-equal, workers {sorted(workers)}, maps: {', '.join(sorted(maps)) or 'none'}")
 
 
 def three_steps(data, name):
@@ -99,7 +133,7 @@ def three_steps(data, name):
 
 def torch_mode():
     shards = st.StereoWebDataset(SHARDS, split=["train", "val"], right=True, transform=with_worker)
-    assert len(shards) == len(list(REFS.glob("*_left.npy")))
+    assert len(shards) == len(ref_ids())
     # Split across workers the WebDataset way: worker w of n reads shards w, w + n, ...
     assert len(shards.shards) >= 2
     every_sample_equal(shards, "StereoWebDataset")
@@ -139,7 +173,7 @@ def hub_mode():
             assert np.array_equal(valid, ref(sample_id, "valid") != 0)
             assert row["json"]["manifest"]["id"] == sample_id
             rows += 1
-    assert rows == len(list(REFS.glob("*_left.npy"))), rows
+    assert rows == len(ref_ids()), rows
     print(f"datasets: {rows} rows, images and disparities equal the Rust reader's")
     exec(wds_loader, ns)
     seen = []
