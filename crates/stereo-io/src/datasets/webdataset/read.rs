@@ -5,6 +5,7 @@
 //! loader that streams shards.
 
 use std::borrow::Cow;
+use std::collections::BTreeMap;
 use std::fs::{self, File};
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
@@ -322,8 +323,7 @@ impl WebDataset {
             None => None,
         };
         let (bytes, path) = need(member::JSON)?;
-        let facts: serde_json::Value = serde_json::from_slice(&bytes)
-            .map_err(|e| Error::format(&path, format!("unreadable sample facts: {e}")))?;
+        let facts = sample_facts(&bytes, &path)?;
         let mut meta = SampleMeta {
             format: facts["source_format"].as_str().and_then(|f| f.parse().ok()),
             id: facts["id"].as_str().unwrap_or(&s.key).to_string(),
@@ -334,14 +334,7 @@ impl WebDataset {
             ndisp: facts["ndisp"].as_u64().and_then(|n| u32::try_from(n).ok()),
             ..Default::default()
         };
-        if let Some(extra) = facts["extra"].as_object() {
-            for (k, v) in extra {
-                meta.extra.insert(
-                    k.clone(),
-                    v.as_str().map_or_else(|| v.to_string(), str::to_string),
-                );
-            }
-        }
+        meta.extra = facts_extra(&facts);
         if let Some(table) = facts["manifest"].get("instances") {
             meta.instances = serde_json::from_value::<Vec<InstanceRecord>>(table.clone())
                 .map_err(|e| Error::format(&path, format!("unreadable instance table: {e}")))?;
@@ -355,6 +348,30 @@ impl WebDataset {
             meta,
         })
     }
+}
+
+/// A sample's facts (its `<key>.json` member, read from `path`).
+pub(super) fn sample_facts(bytes: &[u8], path: &Path) -> Result<serde_json::Value> {
+    serde_json::from_slice(bytes)
+        .map_err(|e| Error::format(path, format!("unreadable sample facts: {e}")))
+}
+
+/// The facts' `extra` (key → text; a value that is not text as its JSON).
+pub(super) fn facts_extra(facts: &serde_json::Value) -> BTreeMap<String, String> {
+    facts["extra"]
+        .as_object()
+        .map(|extra| {
+            extra
+                .iter()
+                .map(|(k, v)| {
+                    (
+                        k.clone(),
+                        v.as_str().map_or_else(|| v.to_string(), str::to_string),
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// Decodes one sample from its members as a loader that streams a shard has them (`(suffix,

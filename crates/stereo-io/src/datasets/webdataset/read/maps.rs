@@ -3,7 +3,7 @@
 use std::borrow::Cow;
 use std::path::Path;
 
-use super::{MemberBytes, SampleEntry, WebDataset, member, streamed};
+use super::{MemberBytes, SampleEntry, WebDataset, facts_extra, member, sample_facts, streamed};
 use crate::datasets::sample_maps::{check_size, size_in_extra};
 use crate::datasets::{MapData, SampleMaps, map_member};
 use crate::error::{Error, Result};
@@ -27,23 +27,10 @@ impl WebDataset {
             return Ok(out);
         }
         let size = match get(member::JSON)? {
-            Some(bytes) => {
-                let facts: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| {
-                    Error::format(
-                        self.member_path(s, member::JSON),
-                        format!("unreadable sample facts: {e}"),
-                    )
-                })?;
-                let extra = facts["extra"]
-                    .as_object()
-                    .map(|o| {
-                        o.iter()
-                            .filter_map(|(k, v)| Some((k.clone(), v.as_str()?.to_string())))
-                            .collect()
-                    })
-                    .unwrap_or_default();
-                size_in_extra(&extra)
-            }
+            Some(bytes) => size_in_extra(&facts_extra(&sample_facts(
+                &bytes,
+                &self.member_path(s, member::JSON),
+            )?)),
             None => None,
         };
         for (kind, view, suffix) in present {
