@@ -54,18 +54,27 @@ keep = 3
     Ok(cfg)
 }
 
-/// A master port P for a run on the loopback whose next three ports are free too (P: the
+/// A master port P for a run on the loopback whose next four ports are free too (P: the
 /// collective's orchestrator, P + 1: the liveness channel, P + 2 + rank: two ranks' data
 /// services).
+///
+/// P lies in 20000..28000, below the kernel's ephemeral range (32768.. on Linux) and the
+/// default master port: an outgoing connection is never given one of these ports, so between
+/// this check and the ranks' binds only another explicit bind can take them. (A port the kernel
+/// hands out for `bind(0)` lies in the ephemeral range, where any concurrent connection of the
+/// machine — another test's ranks talking to each other — may take P + 2 before its rank binds
+/// it; that rank then serves no data and its peer fails to connect.) Candidates step through the
+/// range from a start that depends on the process, so concurrent test processes spread out.
 pub fn free_master_port() -> u16 {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    const FIRST: u32 = 20_000;
+    const BLOCKS: u32 = 1_000; // of 8 ports: 20000..28000
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    let start = std::process::id().wrapping_mul(7_919);
     loop {
-        let Ok(p) = std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .map(|a| a.port())
-        else {
-            continue;
-        };
-        if p < 60_000 && (p..p + 4).all(|q| std::net::TcpListener::bind(("0.0.0.0", q)).is_ok()) {
+        let k = NEXT.fetch_add(1, Ordering::Relaxed);
+        let p = (FIRST + (start.wrapping_add(k) % BLOCKS) * 8) as u16;
+        if (p..p + 5).all(|q| std::net::TcpListener::bind(("0.0.0.0", q)).is_ok()) {
             return p;
         }
     }

@@ -78,7 +78,12 @@ impl SlurmJob {
             "# Rank 0's host and a port of this job: every rank computes the same.".to_string(),
             "export MASTER_ADDR=\"$(scontrol show hostnames \"$SLURM_JOB_NODELIST\" | head -n 1)\""
                 .to_string(),
-            "export MASTER_PORT=$((29500 + SLURM_JOB_ID % 10000))".to_string(),
+            // The rule the ranks apply without it (topology.rs), so both agree.
+            format!(
+                "export MASTER_PORT=$(({} + SLURM_JOB_ID % {}))",
+                super::topology::DEFAULT_MASTER_PORT,
+                super::topology::SLURM_PORT_SPAN
+            ),
             // A handler, not `trap ''` (which the tasks would inherit): the shell waits for the
             // step, whose tasks get the signal themselves.
             "trap 'echo \"crestereo: signal received; waiting for the ranks to stop after a common step\" >&2' TERM INT"

@@ -12,6 +12,8 @@ use anyhow::{Context, Result, bail};
 
 /// torchrun's default master port.
 pub const DEFAULT_MASTER_PORT: u16 = 29_500;
+/// Slurm jobs take their master port from DEFAULT_MASTER_PORT + job id mod this: 29500..32499.
+pub const SLURM_PORT_SPAN: usize = 3_000;
 
 /// The process-group flags of `crestereo train` (each overrides the environment).
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -142,8 +144,10 @@ pub fn resolve(flags: &ProcessFlags, env: Env) -> Result<Option<ProcessGroup>> {
                 .parse()
                 .with_context(|| format!("environment MASTER_PORT={p} is not a port"))?,
             None => match parse("SLURM_JOB_ID")? {
-                // One job's ranks agree on it; two jobs on one node rarely collide.
-                Some(job) => DEFAULT_MASTER_PORT + (job % 10_000) as u16,
+                // One job's ranks agree on it; two jobs on one node rarely collide. The block
+                // (P .. P + 2 + ranks on a node) stays below 32768, where Linux's ephemeral ports
+                // begin: no outgoing connection on the node can hold one of them.
+                Some(job) => DEFAULT_MASTER_PORT + (job % SLURM_PORT_SPAN) as u16,
                 None => DEFAULT_MASTER_PORT,
             },
         },
@@ -255,7 +259,7 @@ mod tests {
         let g = resolve(&ProcessFlags::default(), &env).unwrap().unwrap();
         assert_eq!((g.rank, g.size, g.source), (3, 4, "slurm"));
         assert_eq!(g.master_addr, "gpu12");
-        assert_eq!(g.master_port, DEFAULT_MASTER_PORT + 3456);
+        assert_eq!(g.master_port, DEFAULT_MASTER_PORT + 456); // 123456 mod 3000
         assert_eq!(g.node_addr, "gpu15");
         assert_eq!(g.data_port().unwrap(), g.master_port + 5);
 
