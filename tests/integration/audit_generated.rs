@@ -3,13 +3,11 @@
 //! truth is corrupted in the ways a broken pipeline would corrupt it it fails and names each
 //! corrupted sample with the reason, while the untouched samples still pass.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 use test_support::files::copy_dir;
-use test_support::{audit_cmd, resign, run_shown};
+use test_support::{audit_cmd, audit_report, audit_samples_by_id, resign, run_shown};
 
-use serde_json::Value;
 use stereo_io::DisparityMap;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::recipe::PRESETS;
@@ -28,10 +26,6 @@ fn audit(data: &Path, extra: &[&str]) -> (Output, String) {
             .args(["--all", "--every-pixel", "--check"])
             .args(extra),
     )
-}
-
-fn audit_json(data: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(data.join("audit.json")).unwrap()).unwrap()
 }
 
 fn read_map(path: &Path) -> (DisparityMap, stereo_io::DisparityMeta) {
@@ -80,15 +74,6 @@ fn blur_edges(path: &Path) -> usize {
     n
 }
 
-fn by_id(report: &Value) -> BTreeMap<String, Value> {
-    report["samples"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| (s["id"].as_str().unwrap().to_string(), s.clone()))
-        .collect()
-}
-
 #[test]
 fn audit_check_passes_on_every_preset() {
     let tmp = tempfile::tempdir().unwrap();
@@ -105,7 +90,7 @@ fn audit_check_passes_on_every_preset() {
             "audit --check failed on a correct {preset} dataset:\n{text}"
         );
         assert!(text.contains("verdict: PASS"), "{text}");
-        let report = audit_json(&data);
+        let report = audit_report(&data);
         let entries = Manifest::read(&data.join("manifest.jsonl")).unwrap();
         assert_eq!(report["samples"].as_array().unwrap().len(), entries.len());
         // Every pixel of both views was audited, and nearly all of them are interior pixels.
@@ -204,8 +189,8 @@ fn audit_check_fails_on_corrupted_ground_truth_and_names_the_samples() {
     assert_fail_says(&unreadable.id, &[&*exr.to_string_lossy()]);
     assert_fail_says(&no_scene.id, &["scene.json"]);
 
-    let report = audit_json(&data);
-    let samples = by_id(&report);
+    let report = audit_report(&data);
+    let samples = audit_samples_by_id(&report);
     for e in &entries[6..] {
         assert_eq!(
             samples[&e.id]["pass"], true,

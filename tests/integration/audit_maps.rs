@@ -5,15 +5,16 @@
 //! named with the map, while the untouched samples still pass. The corrupted files are re-signed
 //! in the manifest, so it is the geometry, not the checksum, that catches them.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use serde_json::Value;
 use stereo_io::MapKind;
 use stereogen::dataset::{DatasetLayout, Manifest, ManifestEntry};
 use stereogen::plan::OutputMap;
 use test_support::files::copy_dir;
-use test_support::{audit_cmd, generate_cmd, resign, run_ok, run_shown, tiny_recipe};
+use test_support::{
+    audit_cmd, audit_report, audit_samples_by_id, generate_cmd, resign, run_ok, run_shown,
+    tiny_recipe,
+};
 
 /// With seed 3 the first 8 scenes of the tiny `crestereo` mix cover all four categories.
 const SCENES: u64 = 8;
@@ -32,10 +33,6 @@ fn generate_with_maps(dir: &Path, name: &str) -> PathBuf {
 
 fn audit(data: &Path) -> (std::process::Output, String) {
     run_shown(audit_cmd(data).args(["--all", "--every-pixel", "--check"]))
-}
-
-fn audit_json(data: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(data.join("audit.json")).unwrap()).unwrap()
 }
 
 /// The block of pixels the corruptions change: the middle half of the image in both directions.
@@ -101,15 +98,6 @@ fn swap_instances(data: &Path, e: &ManifestEntry) -> usize {
     n
 }
 
-fn by_id(report: &Value) -> BTreeMap<String, Value> {
-    report["samples"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| (s["id"].as_str().unwrap().to_string(), s.clone()))
-        .collect()
-}
-
 #[test]
 fn audit_checks_every_map_and_fails_corrupted_maps() {
     let tmp = tempfile::tempdir().unwrap();
@@ -122,7 +110,7 @@ fn audit_checks_every_map_and_fails_corrupted_maps() {
         "audit --check failed on correct maps:\n{text}"
     );
     assert!(text.contains("verdict: PASS"), "{text}");
-    let report = audit_json(&clean);
+    let report = audit_report(&clean);
     let mut cats: Vec<&str> = report["categories"]
         .as_array()
         .unwrap()
@@ -197,8 +185,8 @@ fn audit_checks_every_map_and_fails_corrupted_maps() {
             "{line}"
         );
     }
-    let report = audit_json(&data);
-    let samples = by_id(&report);
+    let report = audit_report(&data);
+    let samples = audit_samples_by_id(&report);
     // Each corrupted sample fails on its corrupted map alone: the disparity and the other maps
     // (the semantic map of the swapped ids included) still pass, and no checksum differs.
     for (e, map) in [(deep, "depth"), (flipped, "normals"), (swapped, "instance")] {

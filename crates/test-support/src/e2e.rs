@@ -294,6 +294,23 @@ pub fn sha256_hex(path: &std::path::Path) -> String {
         .to_string()
 }
 
+/// The `audit.json` an audit wrote into dataset `data`.
+pub fn audit_report(data: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(data.join("audit.json")).unwrap()).unwrap()
+}
+
+/// The audited samples of an `audit.json`, by sample id.
+pub fn audit_samples_by_id(
+    report: &serde_json::Value,
+) -> std::collections::BTreeMap<String, serde_json::Value> {
+    report["samples"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["id"].as_str().unwrap().to_string(), s.clone()))
+        .collect()
+}
+
 /// Records the current checksum (by [`sha256_hex`]) of file `key` of sample `id` in the manifest
 /// of dataset `data`, as if the generator had written that file itself: a test that corrupts a
 /// file and re-signs it leaves only the geometry to catch it.
