@@ -4,6 +4,7 @@ It obeys the spec; the only choices it makes are deterministic fallbacks for bro
 import math
 
 import bpy
+import numpy as np
 
 import geometry
 import materials
@@ -161,8 +162,25 @@ def _add_modifiers(scene, ob, modifiers):
             mod.solver = "EXACT"
             mod.object = cutter
             _bake_canonical(ob)
+        elif kind == "rest_on_floor":
+            _rest_on_floor(ob, m["y"])
         else:
             raise ValueError("unknown modifier kind %r" % kind)
+
+
+def _rest_on_floor(ob, floor_y):
+    """Moves `ob` along world Y so its lowest vertex (its mesh under its rotation and scale, before
+    any Blender modifier) lies at floor_y. Its parent-free transform is location + R·S·v."""
+    if ob.modifiers:
+        raise ValueError("%s: rest_on_floor needs a shape without Blender modifiers" % ob.name)
+    me = ob.data
+    if len(me.vertices) == 0:
+        return
+    co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+    me.vertices.foreach_get("co", co)
+    rs = np.array(ob.matrix_basis, dtype=np.float64)[:3, :3]
+    lowest = float((co.reshape(-1, 3).astype(np.float64) @ rs[1]).min())
+    ob.location.y = floor_y - lowest
 
 
 def build(spec, threads, device):

@@ -8,8 +8,10 @@ use std::path::Path;
 
 use stereo_io::{MapKind, read_id_png};
 use stereogen::dataset::{Manifest, read_scene_spec};
-use stereogen::plan::{Dist, OutputMap, Recipe, SEMANTIC_CLASSES};
-use test_support::{audit_cmd, generate_cmd, run_ok, run_shown, stats_cmd};
+use stereogen::plan::{Dist, Modifier, OutputMap, Recipe, SEMANTIC_CLASSES};
+use stereogen::render::RenderService;
+use stereogen::validate::audit::geometry::read_geometry;
+use test_support::{audit_cmd, generate_cmd, run_ok, run_shown, stats_cmd, worker_config};
 
 /// The preset at 96×54 with 2 samples per pixel and every map; the disparity law scaled with the
 /// width (the preset's is for 960 px); fewer objects, so a scene renders in about a second.
@@ -84,6 +86,8 @@ fn rooms_and_skies_render_exact_ground_truth_and_pass_the_checks() {
     assert_eq!(categories.len(), 4, "{categories:?}");
     assert_eq!(kinds.len(), 3, "{kinds:?}");
 
+    furniture_stands_on_the_floor(&data, &entries);
+
     let (o, text) = run_shown(audit_cmd(&data).args(["--all", "--every-pixel", "--check"]));
     assert!(o.status.success(), "audit --check failed:\n{text}");
     let (o, text) = run_shown(
@@ -92,4 +96,53 @@ fn rooms_and_skies_render_exact_ground_truth_and_pass_the_checks() {
             .arg(tmp.path().join("stats")),
     );
     assert!(o.status.success(), "stats --check failed:\n{text}");
+}
+
+/// Blender's geometry of every room scene: each piece of furniture's lowest point lies on the
+/// floor (a flat mesh placed by its bounding sphere would float), and none reaches below it.
+fn furniture_stands_on_the_floor(data: &Path, entries: &[stereo_io::ManifestEntry]) {
+    let mut service = RenderService::new(worker_config());
+    let mut checked = 0;
+    for e in entries {
+        let spec = read_scene_spec(&data.join(&e.files.scene)).unwrap();
+        let floor = spec.objects.iter().find(|o| o.name == "room_floor");
+        let Some(floor) = floor else { continue };
+        let floor_y = floor.location[1];
+        let exported = service.export_geometry(&spec).unwrap();
+        let geometry = read_geometry(&exported.reply.file).unwrap();
+        for (i, o) in geometry.objects.iter().enumerate() {
+            let Some(planned) = spec.objects.iter().find(|p| p.name == o.name) else {
+                continue;
+            };
+            if planned.source != "furniture" {
+                continue;
+            }
+            assert!(
+                planned
+                    .modifiers
+                    .iter()
+                    .any(|m| matches!(m, Modifier::RestOnFloor { y } if *y == floor_y)),
+                "{}: {:?}",
+                o.name,
+                planned.modifiers
+            );
+            let lowest = geometry
+                .scene
+                .triangles
+                .iter()
+                .filter(|t| t.object == i)
+                .flat_map(|t| t.v.iter().map(|p| p[1]))
+                .fold(f64::INFINITY, f64::min);
+            let tolerance = 1e-5 * floor_y.abs().max(1.0);
+            assert!(
+                (lowest - floor_y).abs() <= tolerance,
+                "{} {}: lowest point at y = {lowest}, the floor at {floor_y}",
+                e.id,
+                o.name
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 0, "no furniture in the room scenes");
+    println!("{checked} pieces of furniture stand on their floor");
 }

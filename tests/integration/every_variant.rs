@@ -62,14 +62,16 @@ fn modifier_kind(m: &Modifier) -> &'static str {
             cutter: Cutter::Sphere,
             ..
         } => "boolean_sphere",
+        Modifier::RestOnFloor { .. } => "rest_on_floor",
     }
 }
-const MODIFIERS: [&str; 5] = [
+const MODIFIERS: [&str; 6] = [
     "wireframe",
     "subdivide",
     "displace",
     "boolean_cube",
     "boolean_sphere",
+    "rest_on_floor",
 ];
 
 fn light_kind(l: &LightSpec) -> &'static str {
@@ -294,7 +296,8 @@ fn contents(dir: &Path) -> Vec<(Shape, Vec<Modifier>, MaterialSpec)> {
         ),
         (
             Shape::Monkey,
-            vec![],
+            // Its cell's centre is at y = 0: lowered a little, so its lowest point is at −0.25.
+            vec![Modifier::RestOnFloor { y: -0.25 }],
             material(Glossy, flat([0.7, 0.2, 0.2])),
         ),
         (

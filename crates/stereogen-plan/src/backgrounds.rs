@@ -26,7 +26,7 @@ use super::recipe::{CategoryRecipe, Recipe};
 use super::rig::StereoRig;
 use super::rng::SeedTree;
 use super::sampler::{material, pick_weighted};
-use super::spec::{LightSpec, ObjectRole, ObjectSpec, Shape, SkySpec};
+use super::spec::{LightSpec, Modifier, ObjectRole, ObjectSpec, Shape, SkySpec};
 
 /// A category's background kind (its `background` weights).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -174,8 +174,8 @@ fn room_surfaces(
 
 /// Furniture-sized things standing on the floor in the back half of the room: meshes from the
 /// mesh pool (the mesh folder, ShapeNet, or the content pack) or boxes and cylinders without one.
-/// A shape fits the unit sphere before its scale, so it stands on the floor where its sphere
-/// touches it.
+/// A shape fits the unit sphere before its scale: it is placed where its sphere touches the
+/// floor, and the worker lowers it until its lowest point does ([`Modifier::RestOnFloor`]).
 fn furniture(
     recipe: &Recipe,
     assets: &AssetIndex,
@@ -222,7 +222,9 @@ fn furniture(
                 role: ObjectRole::Background,
                 source: "furniture".into(),
                 shape,
-                modifiers: Vec::new(),
+                modifiers: vec![Modifier::RestOnFloor {
+                    y: -room.floor_drop,
+                }],
                 location: [
                     rng.random_range(-x_room..=x_room),
                     -room.floor_drop + radius,

@@ -95,7 +95,8 @@ pub struct ObjectSpec {
     /// Which shape source made it (primitive, shapenet, meshes, tree, wireframe, net, wall, test).
     pub source: String,
     pub shape: Shape,
-    /// Blender modifiers applied in order (wireframe, displacement, subdivision, boolean cut).
+    /// Blender modifiers applied in order (wireframe, displacement, subdivision, boolean cut), and
+    /// last, where a thing stands on the floor, the drop onto it.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub modifiers: Vec<Modifier>,
     /// Rig-space location (metres), XYZ Euler rotation (radians), per-axis scale.
@@ -229,6 +230,11 @@ pub enum Modifier {
         rotation: [f64; 3],
         scale: [f64; 3],
     },
+    /// Lowers (or raises) the object along world Y until its lowest vertex, after its rotation
+    /// and scale, lies at `y`: a mesh fits the unit sphere, so a flat one placed by its sphere
+    /// would float above the floor. Applied to the shape before Blender's modifiers, so it comes
+    /// only on objects without them.
+    RestOnFloor { y: f64 },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -35,7 +35,7 @@ const PINNED: [(&str, &str, &str); 6] = [
     ),
     (
         "wmgstereo",
-        "682c1f57e961e94d46c34ce922e695dd1635dbe8deda22c2ad29ace853be82ff",
+        "48d8b2475af549afb7ebda3a618715325a5af1e1a927286c32f8e36609244ff7",
         "ce8f70d37cdd6848",
     ),
 ];
