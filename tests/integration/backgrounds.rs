@@ -8,7 +8,7 @@ use std::path::Path;
 
 use stereo_io::{MapKind, read_id_png};
 use stereogen::dataset::{Manifest, read_scene_spec};
-use stereogen::plan::{Dist, Modifier, OutputMap, Recipe, SEMANTIC_CLASSES};
+use stereogen::plan::{BackgroundKind, Dist, Modifier, OutputMap, Recipe, SEMANTIC_CLASSES};
 use stereogen::render::RenderService;
 use stereogen::validate::audit::geometry::read_geometry;
 use test_support::{audit_cmd, generate_cmd, run_ok, run_shown, stats_cmd, worker_config};
@@ -57,8 +57,9 @@ fn rooms_and_skies_render_exact_ground_truth_and_pass_the_checks() {
         let semantic =
             read_id_png(&data.join(e.files.map(MapKind::Semantic, "left").unwrap())).unwrap();
         let classes: BTreeSet<u16> = semantic.data.iter().copied().collect();
-        if spec.world.sky.is_some() {
-            kinds.insert("environment");
+        let kind = spec.background_kind();
+        kinds.insert(kind);
+        if kind == BackgroundKind::Environment {
             // The sky shows (no surface) above the ground, and lights the scene: the image's
             // top row is not black.
             assert!(valid < 1.0, "{what}: no sky visible");
@@ -69,8 +70,7 @@ fn rooms_and_skies_render_exact_ground_truth_and_pass_the_checks() {
                 .map(|&c| u64::from(c))
                 .sum();
             assert!(top > 0, "{what}: the sky is black");
-        } else if spec.objects.iter().any(|o| o.source == "room") {
-            kinds.insert("room");
+        } else if kind == BackgroundKind::Room {
             // A closed room: every pixel sees a surface.
             assert_eq!(valid, 1.0, "{what}: pixels see past the room");
             assert!(classes.contains(&class_id("room")), "{what}: {classes:?}");
@@ -79,7 +79,6 @@ fn rooms_and_skies_render_exact_ground_truth_and_pass_the_checks() {
                 "{what}: pixels without an object"
             );
         } else {
-            kinds.insert("wall");
             assert!(classes.contains(&class_id("wall")), "{what}: {classes:?}");
         }
     }

@@ -13,7 +13,7 @@ use rand::Rng;
 use rand::seq::IndexedRandom;
 
 use super::assets::{AssetIndex, MeshAsset};
-use super::backgrounds::{BackgroundKind, background_kind, environment, room};
+use super::backgrounds::{BackgroundKind, background_kind, dim_for_a_room, environment, room};
 use super::photo_sizing::size_photo;
 use super::recipe::{CategoryRecipe, LightKind, Recipe, ShapeSource, TreeRecipe};
 use super::rig::StereoRig;
@@ -137,6 +137,11 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
             )
         })
         .collect();
+    if kind == BackgroundKind::Room {
+        for l in &mut lights {
+            dim_for_a_room(l);
+        }
+    }
     lights.extend(extra_lights);
     let mut world = world(recipe, root);
     world.sky = sky;

@@ -36,6 +36,16 @@ pub struct SceneSpec {
     pub lights: Vec<LightSpec>,
 }
 
+/// What fills the view behind the floating objects (a category's `background` weights; how
+/// each is built: [`crate::backgrounds`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BackgroundKind {
+    Wall,
+    Room,
+    Environment,
+}
+
 /// Uniform world light (background colour that also lights the scene).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -500,6 +510,18 @@ impl SceneSpec {
     /// The camera facts the JSON carries (derived from the rig).
     pub fn cameras(&self) -> StereoCameras {
         self.rig.cameras()
+    }
+
+    /// What lies behind the floating objects, read from what was planned: a sky is an
+    /// `environment`, surfaces of a room a `room`, anything else the paper's `wall`.
+    pub fn background_kind(&self) -> BackgroundKind {
+        if self.world.sky.is_some() {
+            BackgroundKind::Environment
+        } else if self.objects.iter().any(|o| o.source == "room") {
+            BackgroundKind::Room
+        } else {
+            BackgroundKind::Wall
+        }
     }
 
     /// Canonical JSON: the bytes that go to disk and to the worker. Field order is fixed by the

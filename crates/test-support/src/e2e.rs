@@ -333,20 +333,56 @@ pub fn resign(data: &std::path::Path, id: &str, key: &str) {
 /// with `samples` per pixel and the maps `outputs`.
 pub fn one_spec_per_category(
     seed: u64,
-    (width, height): (u32, u32),
+    size: (u32, u32),
     samples: u32,
     outputs: &[stereogen::plan::OutputMap],
 ) -> Vec<SceneSpec> {
     let recipe = Recipe::preset(stereogen::plan::recipe::DEFAULT_PRESET).unwrap();
+    let wanted = recipe.categories.iter().map(|c| c.name.clone()).collect();
+    first_spec_of_each(&recipe, seed, (size, samples, outputs), wanted, |s| {
+        s.category.clone()
+    })
+}
+
+/// The first scene of each background kind (wall, room, environment) of the `wmgstereo`
+/// preset with `seed`, made small like [`one_spec_per_category`]'s.
+pub fn one_spec_per_background(
+    seed: u64,
+    size: (u32, u32),
+    samples: u32,
+    outputs: &[stereogen::plan::OutputMap],
+) -> Vec<SceneSpec> {
+    use stereogen::plan::BackgroundKind;
+    let recipe = Recipe::preset("wmgstereo").unwrap();
+    let kinds = [
+        BackgroundKind::Wall,
+        BackgroundKind::Room,
+        BackgroundKind::Environment,
+    ];
+    let wanted = kinds.iter().map(|k| format!("{k:?}")).collect();
+    first_spec_of_each(&recipe, seed, (size, samples, outputs), wanted, |s| {
+        format!("{:?}", s.background_kind())
+    })
+}
+
+/// The first of the recipe's first 64 scenes for each value of `key`, shrunk to (size, samples
+/// per pixel, maps); panics unless exactly the values `wanted` come up.
+fn first_spec_of_each(
+    recipe: &Recipe,
+    seed: u64,
+    ((width, height), samples, outputs): ((u32, u32), u32, &[stereogen::plan::OutputMap]),
+    mut wanted: Vec<String>,
+    key: impl Fn(&SceneSpec) -> String,
+) -> Vec<SceneSpec> {
     let mut specs: Vec<SceneSpec> = Vec::new();
     for index in 0..64 {
         let mut spec = stereogen::plan::plan_scene(
-            &recipe,
+            recipe,
             &stereogen::assets::AssetIndex::default(),
             seed,
             index,
         );
-        if specs.iter().any(|s| s.category == spec.category) {
+        if specs.iter().any(|s| key(s) == key(&spec)) {
             continue;
         }
         spec.rig.width = width;
@@ -355,14 +391,10 @@ pub fn one_spec_per_category(
         spec.render.recipe.outputs = outputs.to_vec();
         specs.push(spec);
     }
-    let mut names: Vec<&str> = specs.iter().map(|s| s.category.as_str()).collect();
-    names.sort_unstable();
-    let mut wanted: Vec<&str> = recipe.categories.iter().map(|c| c.name.as_str()).collect();
+    let mut found: Vec<String> = specs.iter().map(&key).collect();
+    found.sort_unstable();
     wanted.sort_unstable();
-    assert_eq!(
-        names, wanted,
-        "a category missing from the first 64 samples"
-    );
+    assert_eq!(found, wanted, "missing from the first 64 samples");
     specs
 }
 

@@ -4,17 +4,9 @@
 //! wall plan exactly as before.
 
 use stereogen_plan::rig::View;
-use stereogen_plan::{AssetIndex, LightSpec, ObjectRole, Recipe, SceneSpec, plan_scene};
-
-fn kind_of(spec: &SceneSpec) -> &'static str {
-    if spec.world.sky.is_some() {
-        "environment"
-    } else if spec.objects.iter().any(|o| o.source == "room") {
-        "room"
-    } else {
-        "wall"
-    }
-}
+use stereogen_plan::{
+    AssetIndex, BackgroundKind, LightSpec, Modifier, ObjectRole, Recipe, SceneSpec, plan_scene,
+};
 
 /// Where the ray through image position (u, v) of the left view meets the plane `axis = value`,
 /// as a depth in front of the camera (None when it never does).
@@ -33,11 +25,8 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
     let mut counts = [0usize; 3];
     for index in 0..n {
         let spec = plan_scene(&recipe, &assets, 7, index);
-        let kind = kind_of(&spec);
-        counts[["wall", "room", "environment"]
-            .iter()
-            .position(|k| *k == kind)
-            .unwrap()] += 1;
+        let kind = spec.background_kind();
+        counts[kind as usize] += 1;
         let content = spec
             .objects
             .iter()
@@ -57,14 +46,14 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
         );
         let wall = spec.objects.iter().find(|o| o.source == "wall");
         match kind {
-            "environment" => {
+            BackgroundKind::Environment => {
                 assert!(wall.is_none(), "{index}: an environment has no wall");
                 let ground = spec.objects.iter().find(|o| o.source == "ground").unwrap();
                 // The ground lies under the cameras and reaches towards the far clip.
                 assert!(ground.location[1] < 0.0);
                 assert!(2.0 * ground.scale[1] >= 0.9 * spec.render.clip_end);
             }
-            "room" => {
+            BackgroundKind::Room => {
                 let depth = -wall.unwrap().location[2];
                 let surface = |name: &str| spec.objects.iter().find(|o| o.name == name).unwrap();
                 let floor_y = surface("room_floor").location[1];
@@ -85,7 +74,8 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
                         "{index}: corner ({u}, {v}) sees past the room"
                     );
                 }
-                // Furniture stands on the floor (its unit sphere touches it) inside the room.
+                // Furniture inside the room, placed where its unit sphere touches the floor and
+                // dropped onto it by the worker.
                 let furniture: Vec<_> = spec
                     .objects
                     .iter()
@@ -94,6 +84,7 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
                 assert!((1..=4).contains(&furniture.len()));
                 for f in furniture {
                     assert!((f.location[1] - f.scale[1] - floor_y).abs() < 1e-9 * depth);
+                    assert_eq!(f.modifiers, [Modifier::RestOnFloor { y: floor_y }]);
                     assert!(f.location[0].abs() + f.scale[0] <= right_x + 1e-9 * depth);
                     assert!(-f.location[2] + f.scale[2] <= depth * (1.0 + 1e-9));
                 }
@@ -105,7 +96,7 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
                     .count();
                 assert!(area >= 2);
             }
-            _ => assert!(wall.is_some()),
+            BackgroundKind::Wall => assert!(wall.is_some()),
         }
     }
     // Weights 0.2 / 0.7 / 0.1: within 4.5 standard deviations of a binomial draw.

@@ -35,7 +35,7 @@ const PINNED: [(&str, &str, &str); 6] = [
     ),
     (
         "wmgstereo",
-        "48d8b2475af549afb7ebda3a618715325a5af1e1a927286c32f8e36609244ff7",
+        "ee830a23358670afb0a02d769004f78a9641c7094fd9d4faa7d2b4eac33fe7a7",
         "ce8f70d37cdd6848",
     ),
 ];
