@@ -8,9 +8,7 @@ use std::path::{Path, PathBuf};
 
 use stereogen::assets::AssetIndex;
 use stereogen::plan::recipe::DEFAULT_PRESET;
-use stereogen::plan::{
-    BackgroundKind, Modifier, OutputMap, Recipe, SceneSpec, Shape, plan_scene,
-};
+use stereogen::plan::{BackgroundKind, Modifier, OutputMap, Recipe, SceneSpec, Shape, plan_scene};
 use stereogen::render::RenderService;
 use test_support::{render, run_ok, worker_config};
 
