@@ -76,8 +76,10 @@ GENERATOR = ("convert_s", "decode_png_s", "write_s", "verify_s", "difficulty_s")
 def cpu(e):
     t = e["render_timings"]
     return sum(v for k, v in t.items() if k.endswith("_cpu_s")) + sum(t.get(k, 0.0) for k in GENERATOR)
-cpu_model = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")), "?")
-print("CPU: %s, %d cores" % (cpu_model, sum(1 for l in open("/proc/cpuinfo") if l.startswith("processor"))))
+info = open("/proc/cpuinfo").read().splitlines()
+field = lambda name: next((l.split(":", 1)[1].strip() for l in info if l.split(":")[0].strip() == name), "?")
+print("CPU: %s (family %s, model %s), %d cores" % (field("model name"), field("cpu family"), field("model"),
+                                                   sum(1 for l in info if l.startswith("processor"))))
 print("%-6s %-11s" % ("index", "category") + "".join(" %12s %12s" % ("wall s " + k[:4], "cpu s " + k[:4]) for k in kinds))
 sums = {k: [0.0, 0.0] for k in kinds}
 for i in sorted(runs[kinds[0]]):
