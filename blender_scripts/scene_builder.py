@@ -2,6 +2,7 @@
 It obeys the spec; the only choices it makes are deterministic fallbacks for broken assets."""
 
 import math
+import os
 
 import bpy
 import numpy as np
@@ -97,7 +98,35 @@ def _set_world(scene, world_spec):
         world.node_tree.links.new(coords.outputs["Generated"], turn.inputs["Vector"])
         world.node_tree.links.new(turn.outputs["Vector"], tex.inputs["Vector"])
         world.node_tree.links.new(tex.outputs["Color"], bg.inputs["Color"])
+    hdri = world_spec.get("hdri")
+    if hdri is not None:
+        _add_hdri(world, bg, hdri)
     scene.world = world
+
+
+def _add_hdri(world, bg, hdri):
+    """One of the HDR maps Blender ships (the spec check allows only their names) around the
+    scene, turned about the vertical, its radiance times the spec's strength."""
+    folder = bpy.utils.system_resource("DATAFILES", path="studiolights/world")
+    path = os.path.join(folder, hdri["name"] + ".exr")
+    if not os.path.isfile(path):
+        raise FileNotFoundError("Blender's HDR map %s is missing (looked for %s)" % (hdri["name"], path))
+    tex = world.node_tree.nodes.new("ShaderNodeTexEnvironment")
+    tex.image = bpy.data.images.load(path, check_existing=True)
+    # Equirectangular maps are Z-up, the rig Y-up: a quarter turn about X, then the spec's turn
+    # about the map's own vertical.
+    coords = world.node_tree.nodes.new("ShaderNodeTexCoord")
+    turn = world.node_tree.nodes.new("ShaderNodeMapping")
+    turn.vector_type = "VECTOR"
+    turn.inputs["Rotation"].default_value = (1.5707963267948966, 0.0, 0.0)
+    spin = world.node_tree.nodes.new("ShaderNodeMapping")
+    spin.vector_type = "VECTOR"
+    spin.inputs["Rotation"].default_value = (0.0, 0.0, hdri["rotation"])
+    world.node_tree.links.new(coords.outputs["Generated"], turn.inputs["Vector"])
+    world.node_tree.links.new(turn.outputs["Vector"], spin.inputs["Vector"])
+    world.node_tree.links.new(spin.outputs["Vector"], tex.inputs["Vector"])
+    world.node_tree.links.new(tex.outputs["Color"], bg.inputs["Color"])
+    bg.inputs["Strength"].default_value = hdri["strength"]
 
 
 def _bake_canonical(ob):

@@ -8,7 +8,9 @@ use std::path::Path;
 
 use stereo_io::{MapKind, read_id_png};
 use stereogen::dataset::{Manifest, read_scene_spec};
-use stereogen::plan::{BackgroundKind, Dist, Modifier, OutputMap, Recipe, SEMANTIC_CLASSES};
+use stereogen::plan::{
+    BackgroundKind, Dist, HdriSpec, Modifier, OutputMap, Recipe, SEMANTIC_CLASSES, STUDIO_HDRIS,
+};
 use stereogen::render::RenderService;
 use stereogen::validate::audit::geometry::read_geometry;
 use test_support::{audit_cmd, generate_cmd, run_ok, run_shown, stats_cmd, worker_config};
@@ -144,4 +146,50 @@ fn furniture_stands_on_the_floor(data: &Path, entries: &[stereo_io::ManifestEntr
     }
     assert!(checked > 0, "no furniture in the room scenes");
     println!("{checked} pieces of furniture stand on their floor");
+}
+
+/// Every HDR map Blender ships, around the same environment scene: each loads and lights the
+/// scene (its images differ from map to map, the top row is not black), and the ground truth does
+/// not depend on the map (both disparity maps the same bytes under all eight).
+#[test]
+fn every_hdr_map_lights_an_environment_and_leaves_the_ground_truth_alone() {
+    let base = test_support::one_spec_per_background(6, (96, 54), 2, &[])
+        .into_iter()
+        .find(|s| s.background_kind() == BackgroundKind::Environment)
+        .unwrap();
+    let mut service = RenderService::new(worker_config());
+    let mut disparity = None;
+    let mut means = Vec::new();
+    for name in STUDIO_HDRIS {
+        let mut spec = base.clone();
+        spec.world.sky = None;
+        spec.world.hdri = Some(HdriSpec {
+            name: name.into(),
+            rotation: 0.7,
+            strength: 1.0,
+        });
+        stereogen::plan::check_scene_spec(&spec).unwrap();
+        let pair = test_support::render(&mut service, &spec);
+        let valid = pair.left.valid.iter().filter(|v| **v).count();
+        assert!(valid < pair.left.valid.len(), "{name}: no backdrop visible");
+        let maps = (pair.left.data.clone(), pair.right.data.clone());
+        match &disparity {
+            None => disparity = Some(maps),
+            Some(first) => assert!(*first == maps, "{name}: the disparity changed with the map"),
+        }
+        let img = stereo_io::read_rgb(&pair.layout.abs(&pair.entry.files.left)).unwrap();
+        let top: u64 = img.data[..img.width * 3].iter().map(|&c| u64::from(c)).sum();
+        assert!(top > 0, "{name}: the top row is black");
+        let mean: u64 = img.data.iter().map(|&c| u64::from(c)).sum::<u64>() / img.data.len() as u64;
+        means.push((name, mean, img.data));
+    }
+    for (i, (a, _, x)) in means.iter().enumerate() {
+        for (b, _, y) in &means[i + 1..] {
+            assert!(x != y, "{a} and {b} render the same image");
+        }
+    }
+    println!(
+        "mean level per HDR map: {:?}",
+        means.iter().map(|(n, m, _)| (*n, *m)).collect::<Vec<_>>()
+    );
 }

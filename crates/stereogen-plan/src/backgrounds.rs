@@ -7,8 +7,8 @@
 //!   and a window — after the finding that realistic indoor backgrounds with floating objects
 //!   train stereo networks best (WMGStereo, CVPR 2026);
 //! - `environment`: no wall; a ground plane under a procedural sky (Blender's Hosek–Wilkie sky
-//!   model, no image file needed) that lights the scene. Pixels that see the sky have no surface and no
-//!   disparity, as in outdoor stereo sets.
+//!   model) or inside one of the HDR environment maps Blender ships (CC0), which lights the
+//!   scene. Pixels that see the sky have no surface and no disparity, as in outdoor stereo sets.
 //!
 //! The room is sized from the region both cameras see at the back wall's depth, so its surfaces
 //! cover the frame's edges at depths between a fraction of the wall's and the wall's own: the
@@ -26,7 +26,9 @@ use super::rig::StereoRig;
 use super::rng::SeedTree;
 use super::sampler::{material, pick_weighted};
 pub use super::spec::BackgroundKind;
-use super::spec::{LightSpec, Modifier, ObjectRole, ObjectSpec, Shape, SkySpec};
+use super::spec::{
+    HdriSpec, LightSpec, Modifier, ObjectRole, ObjectSpec, STUDIO_HDRIS, Shape, SkySpec, WorldSpec,
+};
 
 /// The kind scene `root` draws: without a draw where the category names only `wall` (so every
 /// recipe written before rooms plans as it did).
@@ -314,7 +316,29 @@ pub fn room(
     }
 }
 
-/// What an `environment` background has: a ground plane reaching the far clip, and the sky.
+/// The share of `environment` backgrounds lit by one of Blender's HDR environment maps (the rest
+/// by the procedural sky).
+pub const HDRI_SHARE: f64 = 0.5;
+
+/// What surrounds an `environment` background's ground: the procedural sky or an HDR map.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Backdrop {
+    Sky(SkySpec),
+    Hdri(HdriSpec),
+}
+
+impl Backdrop {
+    /// Puts it in the world (which keeps its uniform colour for nothing: both replace it).
+    pub fn apply(self, world: &mut WorldSpec) {
+        match self {
+            Backdrop::Sky(sky) => world.sky = Some(sky),
+            Backdrop::Hdri(hdri) => world.hdri = Some(hdri),
+        }
+    }
+}
+
+/// What an `environment` background has: a ground plane reaching the far clip, and the sky or an
+/// HDR map around it.
 pub fn environment(
     recipe: &Recipe,
     assets: &AssetIndex,
@@ -322,7 +346,7 @@ pub fn environment(
     depth: f64,
     clip_end: f64,
     node: SeedTree,
-) -> (ObjectSpec, SkySpec) {
+) -> (ObjectSpec, Backdrop) {
     let room = RoomBox::draw(rig, depth, &mut node.child("box").rng());
     // Ground to 95% of the far clip, wide enough to fill the frame there.
     let far = 0.95 * clip_end;
@@ -337,12 +361,23 @@ pub fn environment(
         node.child("ground"),
     );
     ground.source = "ground".into();
-    let mut rng = node.child("sky").rng();
-    let sky = SkySpec {
-        sun_elevation: rng.random_range(0.05..1.2),
-        sun_rotation: rng.random_range(0.0..2.0 * PI),
-        turbidity: rng.random_range(2.0..8.0),
-        ground_albedo: rng.random_range(0.1..0.5),
+    let backdrop = if node.child("backdrop").rng().random_bool(HDRI_SHARE) {
+        let mut rng = node.child("hdri").rng();
+        Backdrop::Hdri(HdriSpec {
+            name: STUDIO_HDRIS.choose(&mut rng).expect("non-empty").to_string(),
+            rotation: rng.random_range(0.0..2.0 * PI),
+            // The maps' own radiance lights a scene about as the sky at its mean strength does;
+            // a spread around it for exposure variety.
+            strength: rng.random_range(0.5..1.5),
+        })
+    } else {
+        let mut rng = node.child("sky").rng();
+        Backdrop::Sky(SkySpec {
+            sun_elevation: rng.random_range(0.05..1.2),
+            sun_rotation: rng.random_range(0.0..2.0 * PI),
+            turbidity: rng.random_range(2.0..8.0),
+            ground_albedo: rng.random_range(0.1..0.5),
+        })
     };
-    (ground, sky)
+    (ground, backdrop)
 }

@@ -29,5 +29,5 @@ pub use rng::SeedTree;
 pub use sampler::{plan_scene, scene_category};
 pub use spec::{
     BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern,
-    RenderSettings, SEMANTIC_CLASSES, SceneSpec, Shape, SkySpec, WorldSpec,
+    RenderSettings, SEMANTIC_CLASSES, STUDIO_HDRIS, SceneSpec, Shape, SkySpec, WorldSpec, HdriSpec,
 };

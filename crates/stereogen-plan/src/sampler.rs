@@ -84,7 +84,7 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
     let kind = background_kind(category, root);
     let mut objects = Vec::new();
     let mut extra_lights = Vec::new();
-    let mut sky = None;
+    let mut backdrop = None;
     if kind == BackgroundKind::Environment {
         let (ground, drawn) = environment(
             recipe,
@@ -95,7 +95,7 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
             root.child("environment"),
         );
         objects.push(ground);
-        sky = Some(drawn);
+        backdrop = Some(drawn);
     } else {
         objects.push(background_wall(
             recipe,
@@ -144,7 +144,9 @@ pub fn plan_scene(recipe: &Recipe, assets: &AssetIndex, seed: u64, index: u64) -
     }
     lights.extend(extra_lights);
     let mut world = world(recipe, root);
-    world.sky = sky;
+    if let Some(backdrop) = backdrop {
+        backdrop.apply(&mut world);
+    }
     SceneSpec {
         format_version: SPEC_FORMAT_VERSION,
         id: sample_id(index),
@@ -201,6 +203,7 @@ fn world(recipe: &Recipe, root: SeedTree) -> WorldSpec {
         ],
         strength: l.world_strength.sample(&mut rng),
         sky: None,
+        hdri: None,
     }
 }
 

@@ -55,6 +55,35 @@ pub struct WorldSpec {
     /// A procedural sky instead of the uniform `color` (an `environment` background).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sky: Option<SkySpec>,
+    /// A photographed HDR environment instead of the uniform `color` (an `environment`
+    /// background; never beside `sky`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hdri: Option<HdriSpec>,
+}
+
+/// The HDR environment maps an `environment` background draws from: the eight Blender ships in
+/// its `datafiles/studiolights/world` folder (1024×512 float EXR, CC0, from Poly Haven; part of the
+/// pinned `bpy` wheel, so available offline wherever stereogen renders).
+pub const STUDIO_HDRIS: [&str; 8] = [
+    "city",
+    "courtyard",
+    "forest",
+    "interior",
+    "night",
+    "studio",
+    "sunrise",
+    "sunset",
+];
+
+/// One of [`STUDIO_HDRIS`] around the scene, turned `rotation` radians about the vertical, at
+/// `strength` (its texels' radiance times this). It lights the scene and fills the view where
+/// nothing is, as a sky does.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HdriSpec {
+    pub name: String,
+    pub rotation: f64,
+    pub strength: f64,
 }
 
 /// Blender's Hosek–Wilkie sky model (analytic): the sun's elevation above the horizon and its
@@ -512,10 +541,10 @@ impl SceneSpec {
         self.rig.cameras()
     }
 
-    /// What lies behind the floating objects, read from what was planned: a sky is an
-    /// `environment`, surfaces of a room a `room`, anything else the paper's `wall`.
+    /// What lies behind the floating objects, read from what was planned: a sky or an HDR
+    /// environment is an `environment`, surfaces of a room a `room`, anything else the paper's `wall`.
     pub fn background_kind(&self) -> BackgroundKind {
-        if self.world.sky.is_some() {
+        if self.world.sky.is_some() || self.world.hdri.is_some() {
             BackgroundKind::Environment
         } else if self.objects.iter().any(|o| o.source == "room") {
             BackgroundKind::Room

@@ -90,6 +90,7 @@ pub fn base(id: &str, objects: Vec<ObjectSpec>) -> SceneSpec {
             color: [0.8, 0.8, 0.8],
             strength: 0.5,
             sky: None,
+            hdri: None,
         },
         objects,
         lights: vec![LightSpec::Point {

@@ -265,6 +265,20 @@ fn licences_of(recipe: &Recipe) -> Vec<LicenceUse> {
             ),
         });
     }
+    let environments = recipe.categories.iter().any(|c| {
+        c.background
+            .get(&stereogen_plan::BackgroundKind::Environment)
+            .is_some_and(|w| *w > 0.0)
+    });
+    if environments {
+        out.insert(LicenceUse {
+            licence: "CC0-1.0".into(),
+            what: format!(
+                "{} HDR environment maps shipped with Blender (Poly Haven, in the bpy wheel)",
+                stereogen_plan::STUDIO_HDRIS.len()
+            ),
+        });
+    }
     out.into_iter().collect()
 }
 

@@ -53,6 +53,35 @@ pub fn scene_spec_checks(spec: &SceneSpec) -> Vec<Check<'_>> {
             },
         ),
     ];
+    if let Some(hdri) = &spec.world.hdri {
+        // The name picks a file inside Blender's own folder: only the maps it ships.
+        rows.push(Check::new(
+            "world.hdri.name",
+            Rule::Holds {
+                holds: crate::spec::STUDIO_HDRIS.contains(&hdri.name.as_str()),
+                need: format!(
+                    "need one of {:?}, got {:?}",
+                    crate::spec::STUDIO_HDRIS,
+                    hdri.name
+                ),
+            },
+        ));
+        rows.push(positive("world.hdri.strength", hdri.strength, 1e3));
+        rows.push(Check::new(
+            "world.hdri.rotation",
+            Rule::Holds {
+                holds: hdri.rotation.is_finite(),
+                need: format!("need a finite angle, got {}", hdri.rotation),
+            },
+        ));
+        rows.push(Check::new(
+            "world.hdri",
+            Rule::Holds {
+                holds: spec.world.sky.is_none(),
+                need: "a world has a sky or an HDR map, not both".into(),
+            },
+        ));
+    }
     rows.extend(super::geometry::geometry_checks(spec));
     rows
 }

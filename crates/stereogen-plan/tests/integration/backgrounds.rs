@@ -5,7 +5,8 @@
 
 use stereogen_plan::rig::View;
 use stereogen_plan::{
-    AssetIndex, BackgroundKind, LightSpec, Modifier, ObjectRole, Recipe, SceneSpec, plan_scene,
+    AssetIndex, BackgroundKind, LightSpec, Modifier, ObjectRole, Recipe, STUDIO_HDRIS, SceneSpec,
+    plan_scene,
 };
 
 /// Where the ray through image position (u, v) of the left view meets the plane `axis = value`,
@@ -23,6 +24,8 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
     let assets = AssetIndex::default();
     let n = 300;
     let mut counts = [0usize; 3];
+    // Environments under the procedural sky, inside an HDR map.
+    let mut backdrops = [0usize; 2];
     for index in 0..n {
         let spec = plan_scene(&recipe, &assets, 7, index);
         let kind = spec.background_kind();
@@ -48,6 +51,16 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
         match kind {
             BackgroundKind::Environment => {
                 assert!(wall.is_none(), "{index}: an environment has no wall");
+                // A sky or one of Blender's HDR maps, never both.
+                match (&spec.world.sky, &spec.world.hdri) {
+                    (Some(_), None) => backdrops[0] += 1,
+                    (None, Some(h)) => {
+                        assert!(STUDIO_HDRIS.contains(&h.name.as_str()), "{}", h.name);
+                        assert!((0.5..1.5).contains(&h.strength));
+                        backdrops[1] += 1;
+                    }
+                    other => panic!("{index}: {other:?}"),
+                }
                 let ground = spec.objects.iter().find(|o| o.source == "ground").unwrap();
                 // The ground lies under the cameras and reaches towards the far clip.
                 assert!(ground.location[1] < 0.0);
@@ -107,6 +120,11 @@ fn backgrounds_come_in_their_weights_and_rooms_close_the_view() {
             "counts {counts:?} against weights 0.2/0.7/0.1"
         );
     }
+    // About 30 environments, half of them in an HDR map.
+    assert!(
+        backdrops.iter().all(|n| *n >= 5),
+        "sky / HDR map: {backdrops:?}"
+    );
 }
 
 #[test]

@@ -3,7 +3,17 @@
 //! is refused with its key and value named.
 
 use stereogen_plan::spec::{Modifier, Shape};
-use stereogen_plan::{AssetIndex, Recipe, SceneSpec, check_scene_spec, plan_scene};
+use stereogen_plan::{
+    AssetIndex, HdriSpec, Recipe, SceneSpec, SkySpec, check_scene_spec, plan_scene,
+};
+
+fn hdri(name: &str, strength: f64) -> HdriSpec {
+    HdriSpec {
+        name: name.into(),
+        rotation: 0.3,
+        strength,
+    }
+}
 
 /// A key, how to spoil its value, and what the message must say.
 type Case = (&'static str, fn(&mut SceneSpec), &'static str);
@@ -15,7 +25,7 @@ fn planned_specs_pass_and_impossible_values_are_named() {
         check_scene_spec(&spec).unwrap_or_else(|e| panic!("{name}: {e}"));
     }
     let good = plan_scene(&Recipe::builtin_default(), &AssetIndex::default(), 1, 0);
-    let cases: [Case; 13] = [
+    let cases: [Case; 16] = [
         (
             "id",
             |s| s.id = "../../../tmp/x".into(),
@@ -89,6 +99,30 @@ fn planned_specs_pass_and_impossible_values_are_named() {
             "render.samples",
             |s| s.render.recipe.samples = 0,
             "need 1..=65536, got 0",
+        ),
+        // The HDR map's name picks a file in Blender's folder: never a path.
+        (
+            "world.hdri.name",
+            |s| s.world.hdri = Some(hdri("../../../../etc/passwd", 1.0)),
+            "got \"../../../../etc/passwd\"",
+        ),
+        (
+            "world.hdri.strength",
+            |s| s.world.hdri = Some(hdri("forest", -1.0)),
+            "got -1",
+        ),
+        (
+            "world.hdri",
+            |s| {
+                s.world.hdri = Some(hdri("forest", 1.0));
+                s.world.sky = Some(SkySpec {
+                    sun_elevation: 0.5,
+                    sun_rotation: 0.0,
+                    turbidity: 3.0,
+                    ground_albedo: 0.3,
+                });
+            },
+            "not both",
         ),
     ];
     for (key, spoil, allowed) in cases {
