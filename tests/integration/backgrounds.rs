@@ -178,7 +178,10 @@ fn every_hdr_map_lights_an_environment_and_leaves_the_ground_truth_alone() {
             Some(first) => assert!(*first == maps, "{name}: the disparity changed with the map"),
         }
         let img = stereo_io::read_rgb(&pair.layout.abs(&pair.entry.files.left)).unwrap();
-        let top: u64 = img.data[..img.width * 3].iter().map(|&c| u64::from(c)).sum();
+        let top: u64 = img.data[..img.width * 3]
+            .iter()
+            .map(|&c| u64::from(c))
+            .sum();
         assert!(top > 0, "{name}: the top row is black");
         let mean: u64 = img.data.iter().map(|&c| u64::from(c)).sum::<u64>() / img.data.len() as u64;
         means.push((name, mean, img.data));

@@ -28,6 +28,6 @@ pub use rig::{StereoCameras, StereoRig};
 pub use rng::SeedTree;
 pub use sampler::{plan_scene, scene_category};
 pub use spec::{
-    BaseColor, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec, Pattern,
-    RenderSettings, SEMANTIC_CLASSES, STUDIO_HDRIS, SceneSpec, Shape, SkySpec, WorldSpec, HdriSpec,
+    BaseColor, HdriSpec, LightSpec, MaterialClass, MaterialSpec, Modifier, ObjectRole, ObjectSpec,
+    Pattern, RenderSettings, SEMANTIC_CLASSES, STUDIO_HDRIS, SceneSpec, Shape, SkySpec, WorldSpec,
 };

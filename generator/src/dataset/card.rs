@@ -594,4 +594,18 @@ mod tests {
         recipe.sources.builtin_pack = false;
         assert!(licences_of(&recipe).is_empty());
     }
+
+    #[test]
+    fn environments_list_blenders_hdr_maps() {
+        let hdr = |recipe: &Recipe| {
+            licences_of(recipe)
+                .into_iter()
+                .any(|l| l.licence == "CC0-1.0" && l.what.contains("HDR environment maps"))
+        };
+        let mut recipe = Recipe::preset("wmgstereo").unwrap();
+        assert!(hdr(&recipe));
+        recipe.sources.builtin_pack = false;
+        assert!(hdr(&recipe), "without the pack the maps are still used");
+        assert!(!hdr(&Recipe::preset("crestereo").unwrap()));
+    }
 }

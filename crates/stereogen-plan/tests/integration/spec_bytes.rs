@@ -35,7 +35,7 @@ const PINNED: [(&str, &str, &str); 6] = [
     ),
     (
         "wmgstereo",
-        "ee830a23358670afb0a02d769004f78a9641c7094fd9d4faa7d2b4eac33fe7a7",
+        "9daa7d4a4aecae65267628e87e066cfc323695c8a1e7ef2a233b98db8b0baf66",
         "ce8f70d37cdd6848",
     ),
 ];
