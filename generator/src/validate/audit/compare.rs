@@ -18,6 +18,12 @@ pub const SILHOUETTE_OFFSET_PX: f64 = 0.02;
 /// Disparity change (px per px) beyond which a surface counts as grazing, with the silhouettes:
 /// there the renderer's float32 ray arithmetic (~1e-4 px) alone moves the value by 1e-3 px.
 pub const GRAZING_GRADIENT: f64 = 10.0;
+/// How far (in footprints of a [`SILHOUETTE_OFFSET_PX`] step at the centre's depth) a ray's hit
+/// on another triangle of the same object may lie off the centre triangle's plane before the two
+/// are taken as separate surfaces (a wire before another wire of one wireframe: a silhouette
+/// inside one object). Across a crease of one surface the hit lies within about one footprint
+/// of the plane; further only where the surface grazes the ray.
+pub const STEP_FOOTPRINTS: f64 = 8.0;
 /// A value counts as flying when it lies more than this (px) above the lowest and below the
 /// highest disparity ray casting finds around the pixel, and this far from every one of them.
 pub const FLYING_MARGIN_PX: f64 = 0.25;
@@ -199,6 +205,51 @@ impl SampleCheck<'_> {
         outcome
     }
 
+    /// Whether a ray beside the centre meets the centre's object on a surface that does not join
+    /// the centre's there: its hit lies more than [`STEP_FOOTPRINTS`] footprints off the plane
+    /// of the centre's triangle.
+    fn steps_within_an_object(
+        &self,
+        view: View,
+        (u, v): (f64, f64),
+        centre: Option<Hit>,
+        around: &[Option<Hit>; 4],
+    ) -> bool {
+        let Some(c) = centre else { return false };
+        let rig = self.camera.rig;
+        let tri = &self.scene.triangles[c.triangle].v;
+        let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        let (e1, e2) = (sub(tri[1], tri[0]), sub(tri[2], tri[0]));
+        let n = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        if !(len > 0.0) {
+            return false;
+        }
+        let footprint = SILHOUETTE_OFFSET_PX * c.t / rig.f_px();
+        let o = SILHOUETTE_OFFSET_PX;
+        let offsets = [(-o, 0.0), (o, 0.0), (0.0, -o), (0.0, o)];
+        let origin = [rig.camera_x(view), 0.0, 0.0];
+        around.iter().zip(offsets).any(|(a, (du, dv))| match a {
+            Some(a) if a.object == c.object && a.triangle != c.triangle => {
+                // The ray direction has z = −1: t is the planar depth.
+                let d = rig.ray_direction(u + du, v + dv);
+                let p = [
+                    origin[0] + a.t * d[0],
+                    origin[1] + a.t * d[1],
+                    origin[2] + a.t * d[2],
+                ];
+                let q = sub(p, tri[0]);
+                ((q[0] * n[0] + q[1] * n[1] + q[2] * n[2]) / len).abs()
+                    > STEP_FOOTPRINTS * footprint
+            }
+            _ => false,
+        })
+    }
+
     /// One pixel of one view.
     fn pixel(
         &self,
@@ -234,7 +285,7 @@ impl SampleCheck<'_> {
         let steep = around.iter().any(|a| match (cam.disparity(*a), expected) {
             (Some(d), Some(e)) => (d - e).abs() / o > GRAZING_GRADIENT,
             _ => false,
-        });
+        }) || self.steps_within_an_object(view, (u, v), centre, &around);
         if let Some(maps) = self.maps {
             let rays = PixelRays {
                 view,
@@ -353,5 +404,107 @@ impl SampleCheck<'_> {
         }
         let d_right = f64::from(a) * (1.0 - t) + f64::from(b) * t;
         Some((d_right - f64::from(d_left)).abs())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::validate::audit::raycast::{NO_CUTOUT, Triangle};
+
+    /// A quad of object `object` at planar depth `z`, from x = `x0` to `x1` (metres), tall enough
+    /// to fill the view: two triangles.
+    fn quad(object: usize, x0: f64, x1: f64, z0: f64, z1: f64) -> [Triangle; 2] {
+        let (a, b) = ([x0, -10.0, -z0], [x1, -10.0, -z1]);
+        let (c, d) = ([x1, 10.0, -z1], [x0, 10.0, -z0]);
+        [
+            Triangle {
+                v: [a, b, c],
+                object,
+                cutout: NO_CUTOUT,
+            },
+            Triangle {
+                v: [a, c, d],
+                object,
+                cutout: NO_CUTOUT,
+            },
+        ]
+    }
+
+    /// Whether pixel (x, 8) of the left view counts as a silhouette: the maps hold ray casting's
+    /// own values, so only the silhouette rule is under test.
+    fn silhouette_at(triangles: Vec<Triangle>, x: usize) -> bool {
+        let rig = StereoRig {
+            width: 64,
+            height: 16,
+            focal_mm: 36.0,
+            sensor_width_mm: 36.0,
+            baseline_m: 0.1,
+        };
+        let scene = RayScene::new(triangles, Vec::new());
+        let camera = Camera {
+            rig: &rig,
+            clip_start: 0.01,
+            clip_end: 100.0,
+        };
+        let mut maps = [DisparityMap::new(64, 16), DisparityMap::new(64, 16)];
+        for (map, view) in maps.iter_mut().zip([View::Left, View::Right]) {
+            for y in 0..16 {
+                for x in 0..64 {
+                    if let Some(d) =
+                        camera.disparity(camera.hit(&scene, view, x as f64 + 0.5, y as f64 + 0.5))
+                    {
+                        map.data[y * 64 + x] = d as f32;
+                        map.valid[y * 64 + x] = true;
+                    }
+                }
+            }
+        }
+        let check = SampleCheck {
+            id: "t",
+            category: "t",
+            camera,
+            scene: &scene,
+            left: &maps[0],
+            right: &maps[1],
+            maps: None,
+        };
+        let out = check.run(&[8 * 64 + x]);
+        assert_eq!(out.tally.pixels, 2);
+        out.tally.silhouette > 0
+    }
+
+    #[test]
+    fn a_step_inside_one_object_is_a_silhouette_and_a_crease_is_not() {
+        // f = 64 px, depth 2 m: pixel 40's centre (8.5 px right of the principal point) looks
+        // along x = 8.5/64 · 2 m from the left camera; an edge 0.01 px to its left there.
+        let rig = StereoRig {
+            width: 64,
+            height: 16,
+            focal_mm: 36.0,
+            sensor_width_mm: 36.0,
+            baseline_m: 0.1,
+        };
+        let edge = |px: f64, z: f64| rig.camera_x(View::Left) + (px - 32.0) / rig.f_px() * z;
+        // A front quad of object 0 ending just left of the centre, a back one 1 cm behind it.
+        let mut step = quad(0, -5.0, edge(40.49, 2.0), 2.0, 2.0).to_vec();
+        step.extend(quad(0, -5.0, 5.0, 2.01, 2.01));
+        assert!(
+            silhouette_at(step.clone(), 40),
+            "a step of 1 cm inside one object"
+        );
+        // The same with the back quad another object's: a silhouette by the object rule too.
+        for t in &mut step[2..] {
+            t.object = 1;
+        }
+        assert!(silhouette_at(step, 40));
+        // A crease at the same place: the surface bends there but stays one surface.
+        let x = edge(40.49, 2.0);
+        let mut crease = quad(0, -5.0, x, 2.0, 2.0).to_vec();
+        crease.extend(quad(0, x, 5.0, 2.0, 2.6));
+        assert!(
+            !silhouette_at(crease, 40),
+            "a crease counted as a silhouette"
+        );
     }
 }
