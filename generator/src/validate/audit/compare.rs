@@ -226,7 +226,7 @@ impl SampleCheck<'_> {
             e1[0] * e2[1] - e1[1] * e2[0],
         ];
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        if !(len > 0.0) {
+        if len.is_nan() || len <= 0.0 {
             return false;
         }
         let footprint = SILHOUETTE_OFFSET_PX * c.t / rig.f_px();
