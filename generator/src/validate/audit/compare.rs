@@ -212,39 +212,22 @@ impl SampleCheck<'_> {
         &self,
         view: View,
         (u, v): (f64, f64),
+        offsets: &[(f64, f64); 4],
         centre: Option<Hit>,
         around: &[Option<Hit>; 4],
     ) -> bool {
         let Some(c) = centre else { return false };
         let rig = self.camera.rig;
-        let tri = &self.scene.triangles[c.triangle].v;
-        let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-        let (e1, e2) = (sub(tri[1], tri[0]), sub(tri[2], tri[0]));
-        let n = [
-            e1[1] * e2[2] - e1[2] * e2[1],
-            e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0],
-        ];
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        if len.is_nan() || len <= 0.0 {
-            return false;
-        }
+        let tri = &self.scene.triangles[c.triangle];
         let footprint = SILHOUETTE_OFFSET_PX * c.t / rig.f_px();
-        let o = SILHOUETTE_OFFSET_PX;
-        let offsets = [(-o, 0.0), (o, 0.0), (0.0, -o), (0.0, o)];
-        let origin = [rig.camera_x(view), 0.0, 0.0];
+        let x0 = rig.camera_x(view);
         around.iter().zip(offsets).any(|(a, (du, dv))| match a {
             Some(a) if a.object == c.object && a.triangle != c.triangle => {
                 // The ray direction has z = −1: t is the planar depth.
                 let d = rig.ray_direction(u + du, v + dv);
-                let p = [
-                    origin[0] + a.t * d[0],
-                    origin[1] + a.t * d[1],
-                    origin[2] + a.t * d[2],
-                ];
-                let q = sub(p, tri[0]);
-                ((q[0] * n[0] + q[1] * n[1] + q[2] * n[2]) / len).abs()
-                    > STEP_FOOTPRINTS * footprint
+                let p = [x0 + a.t * d[0], a.t * d[1], a.t * d[2]];
+                tri.plane_distance(p)
+                    .is_some_and(|h| h > STEP_FOOTPRINTS * footprint)
             }
             _ => false,
         })
@@ -285,7 +268,7 @@ impl SampleCheck<'_> {
         let steep = around.iter().any(|a| match (cam.disparity(*a), expected) {
             (Some(d), Some(e)) => (d - e).abs() / o > GRAZING_GRADIENT,
             _ => false,
-        }) || self.steps_within_an_object(view, (u, v), centre, &around);
+        }) || self.steps_within_an_object(view, (u, v), &offsets, centre, &around);
         if let Some(maps) = self.maps {
             let rays = PixelRays {
                 view,
@@ -431,16 +414,21 @@ mod tests {
         ]
     }
 
-    /// Whether pixel (x, 8) of the left view counts as a silhouette: the maps hold ray casting's
-    /// own values, so only the silhouette rule is under test.
-    fn silhouette_at(triangles: Vec<Triangle>, x: usize) -> bool {
-        let rig = StereoRig {
+    /// A 64×16 view with f = 64 px and a 10 cm baseline.
+    fn rig() -> StereoRig {
+        StereoRig {
             width: 64,
             height: 16,
             focal_mm: 36.0,
             sensor_width_mm: 36.0,
             baseline_m: 0.1,
-        };
+        }
+    }
+
+    /// Whether pixel (x, 8) of the left view counts as a silhouette: the maps hold ray casting's
+    /// own values, so only the silhouette rule is under test.
+    fn silhouette_at(triangles: Vec<Triangle>, x: usize) -> bool {
+        let rig = rig();
         let scene = RayScene::new(triangles, Vec::new());
         let camera = Camera {
             rig: &rig,
@@ -478,13 +466,7 @@ mod tests {
     fn a_step_inside_one_object_is_a_silhouette_and_a_crease_is_not() {
         // f = 64 px, depth 2 m: pixel 40's centre (8.5 px right of the principal point) looks
         // along x = 8.5/64 · 2 m from the left camera; an edge 0.01 px to its left there.
-        let rig = StereoRig {
-            width: 64,
-            height: 16,
-            focal_mm: 36.0,
-            sensor_width_mm: 36.0,
-            baseline_m: 0.1,
-        };
+        let rig = rig();
         let edge = |px: f64, z: f64| rig.camera_x(View::Left) + (px - 32.0) / rig.f_px() * z;
         // A front quad of object 0 ending just left of the centre, a back one 1 cm behind it.
         let mut step = quad(0, -5.0, edge(40.49, 2.0), 2.0, 2.0).to_vec();

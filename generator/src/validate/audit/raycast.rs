@@ -34,6 +34,14 @@ pub struct Triangle {
     pub cutout: u32,
 }
 
+impl Triangle {
+    /// How far `p` lies from the triangle's plane; `None` for a degenerate triangle.
+    pub fn plane_distance(&self, p: V3) -> Option<f64> {
+        let n = normalise(cross(sub(self.v[1], self.v[0]), sub(self.v[2], self.v[0])))?;
+        Some(dot(sub(p, self.v[0]), n).abs())
+    }
+}
+
 /// [`Triangle::cutout`] of an opaque triangle.
 pub const NO_CUTOUT: u32 = u32::MAX;
 
