@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # What the backgrounds cost: the same scenes (same seed and index: the same category, rig,
 # objects, materials and lights) rendered with the `crestereo` preset's textured wall, as the
-# `wmgstereo` preset's room, and under its sky (each category's `background` weights set to one
+# `wmgstereo` preset's room, and as its environment (sky or HDR map; each category's `background` weights set to one
 # kind), sample by sample in turn so all three columns see the same machine state. At WxH
 # (default 960x540, the presets' full colour settings). Prints per sample the wall seconds of a
 # pair (`render_seconds`) and its CPU seconds (STEREOGEN_TIMINGS_CPU=1: the worker's stages, all
@@ -12,33 +12,7 @@
 set -euo pipefail
 
 here=$(cd "$(dirname "$0")" && pwd)
-root=$(cd "$here/../.." && pwd)
-bin="${CARGO_TARGET_DIR:-$root/target}/release/stereogen"
-count=4
-seed=5
-size=960x540
-work=""
-while [ $# -gt 0 ]; do
-    case "$1" in
-        --bin) bin=$2; shift 2 ;;
-        --count) count=$2; shift 2 ;;
-        --seed) seed=$2; shift 2 ;;
-        --size) size=$2; shift 2 ;;
-        --work) work=$2; shift 2 ;;
-        -h|--help) sed -n '2,11p' "$0"; exit 0 ;;
-        *) echo "unknown argument $1" >&2; exit 2 ;;
-    esac
-done
-[ -x "$bin" ] || { echo "no stereogen binary at $bin (cargo build --release --workspace)" >&2; exit 1; }
-if [ -z "$work" ]; then
-    work=$(mktemp -d "${TMPDIR:-/tmp}/background-cost.XXXXXX")
-    trap 'rm -rf "$work"' EXIT
-fi
-mkdir -p "$work"
-export STEREOGEN_TIMINGS_CPU=1
-
-width=${size%x*}
-height=${size#*x}
+source "$here/cost_common.sh"
 preset="$root/crates/stereogen-plan/recipes/wmgstereo.toml"
 # One recipe per background kind; the disparity law and the background disparity scale with the
 # width (the preset's numbers are for 960 px).
@@ -66,20 +40,13 @@ for ((i = 0; i < count; i++)); do
     done
 done
 
-python3 - "$work" "${kinds[@]}" <<'PY'
-import json, sys
-work, kinds = sys.argv[1], sys.argv[2:]
-def entries(kind):
-    return {e["index"]: e for e in map(json.loads, open("%s/%s/manifest.jsonl" % (work, kind)))}
-runs = {k: entries(k) for k in kinds}
-GENERATOR = ("convert_s", "decode_png_s", "write_s", "verify_s", "difficulty_s")
-def cpu(e):
-    t = e["render_timings"]
-    return sum(v for k, v in t.items() if k.endswith("_cpu_s")) + sum(t.get(k, 0.0) for k in GENERATOR)
-info = open("/proc/cpuinfo").read().splitlines()
-field = lambda name: next((l.split(":", 1)[1].strip() for l in info if l.split(":")[0].strip() == name), "?")
-print("CPU: %s (family %s, model %s), %d cores" % (field("model name"), field("cpu family"), field("model"),
-                                                   sum(1 for l in info if l.startswith("processor"))))
+python3 - "$here" "$work" "${kinds[@]}" <<'PY'
+import sys
+sys.path.insert(0, sys.argv[1])
+from cost_common import cpu, cpu_line, entries
+work, kinds = sys.argv[2], sys.argv[3:]
+runs = {k: entries(work, k) for k in kinds}
+print(cpu_line())
 print("%-6s %-11s" % ("index", "category") + "".join(" %12s %12s" % ("wall s " + k[:4], "cpu s " + k[:4]) for k in kinds))
 sums = {k: [0.0, 0.0] for k in kinds}
 for i in sorted(runs[kinds[0]]):

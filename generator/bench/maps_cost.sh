@@ -11,33 +11,7 @@
 set -euo pipefail
 
 here=$(cd "$(dirname "$0")" && pwd)
-root=$(cd "$here/../.." && pwd)
-bin="${CARGO_TARGET_DIR:-$root/target}/release/stereogen"
-count=4
-seed=5
-size=960x540
-work=""
-while [ $# -gt 0 ]; do
-    case "$1" in
-        --bin) bin=$2; shift 2 ;;
-        --count) count=$2; shift 2 ;;
-        --seed) seed=$2; shift 2 ;;
-        --size) size=$2; shift 2 ;;
-        --work) work=$2; shift 2 ;;
-        -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
-        *) echo "unknown argument $1" >&2; exit 2 ;;
-    esac
-done
-[ -x "$bin" ] || { echo "no stereogen binary at $bin (cargo build --release --workspace)" >&2; exit 1; }
-if [ -z "$work" ]; then
-    work=$(mktemp -d "${TMPDIR:-/tmp}/maps-cost.XXXXXX")
-    trap 'rm -rf "$work"' EXIT
-fi
-mkdir -p "$work"
-export STEREOGEN_TIMINGS_CPU=1
-
-width=${size%x*}
-height=${size#*x}
+source "$here/cost_common.sh"
 preset="$root/crates/stereogen-plan/recipes/crestereo.toml"
 # The disparity law scales with the width (the preset's numbers are for 960 px).
 python3 - "$preset" "$work" "$width" "$height" <<'EOF'
@@ -61,21 +35,16 @@ for ((i = 0; i < count; i++)); do
     done
 done
 
-python3 - "$work" <<'EOF'
-import json, sys
-work = sys.argv[1]
-def entries(kind):
-    return {e["index"]: e for e in map(json.loads, open("%s/%s/manifest.jsonl" % (work, kind)))}
-plain, maps = entries("plain"), entries("maps")
-GENERATOR = ("convert_s", "decode_png_s", "write_s", "verify_s", "difficulty_s")
-def cpu(e):
-    t = e["render_timings"]
-    return sum(v for k, v in t.items() if k.endswith("_cpu_s")) + sum(t.get(k, 0.0) for k in GENERATOR)
+python3 - "$here" "$work" <<'EOF'
+import sys
+sys.path.insert(0, sys.argv[1])
+from cost_common import cpu, cpu_line, entries
+work = sys.argv[2]
+plain, maps = entries(work, "plain"), entries(work, "maps")
 def depth_cpu(e):
     t = e["render_timings"]
     return t.get("depth_left_cpu_s", 0.0) + t.get("depth_right_cpu_s", 0.0)
-cpu_model = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")), "?")
-print("CPU: %s, %d cores" % (cpu_model, sum(1 for l in open("/proc/cpuinfo") if l.startswith("processor"))))
+print(cpu_line())
 print("%-6s %-11s %12s %12s %12s %12s %14s %14s" % ("index", "category", "wall plain", "wall maps", "cpu plain", "cpu maps", "depth cpu pl.", "depth cpu maps"))
 sums = [0.0] * 6
 for i in sorted(plain):
