@@ -159,3 +159,43 @@ fn a_wall_only_category_plans_as_before_and_weights_are_checked() {
         .to_string();
     assert!(e.contains("categories[0].background"), "{e}");
 }
+
+/// The same scenes planned as rooms and before the wall: a room keeps the recipe's lights with
+/// half their power (a sun keeps its strength), adds its own after them, and changes nothing else
+/// of them.
+#[test]
+fn a_room_dims_the_recipe_lights_to_half() {
+    let with = |kind| {
+        let mut r = Recipe::preset("wmgstereo").unwrap();
+        for c in &mut r.categories {
+            c.background = [(kind, 1.0)].into();
+        }
+        r
+    };
+    let (rooms, walls) = (with(BackgroundKind::Room), with(BackgroundKind::Wall));
+    let assets = AssetIndex::default();
+    let share = stereogen_plan::backgrounds::ROOM_LIGHT_SHARE;
+    let mut dimmed = 0;
+    for index in 0..20 {
+        let room = plan_scene(&rooms, &assets, 4, index);
+        let wall = plan_scene(&walls, &assets, 4, index);
+        assert!(
+            room.lights.len() > wall.lights.len(),
+            "{index}: no room lights"
+        );
+        for (r, w) in room.lights.iter().zip(&wall.lights) {
+            let mut expected = w.clone();
+            match &mut expected {
+                LightSpec::Point { power_w, .. }
+                | LightSpec::Spot { power_w, .. }
+                | LightSpec::Area { power_w, .. } => {
+                    *power_w *= share;
+                    dimmed += 1;
+                }
+                LightSpec::Sun { .. } => {}
+            }
+            assert_eq!(*r, expected, "{index}");
+        }
+    }
+    assert!(dimmed > 20, "{dimmed} lights dimmed");
+}
